@@ -1,0 +1,1 @@
+"""sagg_common."""

@@ -1,0 +1,1 @@
+"""sagg_goal_generator."""
