@@ -1,0 +1,231 @@
+"""Parameter schemas and experiment configuration files (ROS-free).
+
+One schema (a tuple of :class:`Param`) per node is the single source of truth for a parameter's
+name, type, default, allowed range and description. The same schema validates YAML configs for
+in-process experiments and declares ROS parameters with descriptors in the nodes.
+
+Config files use the ROS 2 parameter-file form::
+
+    /**:                       # applies to every node
+      ros__parameters:
+        seed: 0
+    sagg_learner:              # one section per node
+      ros__parameters:
+        v: 2.0
+
+Nested mappings under ``ros__parameters`` are flattened with dots, as ROS does
+(``task_space: {lower: [..]}`` is the parameter ``task_space.lower``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import yaml
+
+NODE_NAMES = ("sagg_goal_generator", "sagg_learner", "sagg_sim_bridge")
+WILDCARD = "/**"
+
+
+class ConfigError(ValueError):
+    """A configuration or parameter value is invalid; the message names the field."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: its name, type, default, allowed values and documentation.
+
+    ``kind`` is one of ``float``, ``int``, ``bool``, ``str``, ``float_list``, ``int_list``,
+    ``str_list``. ``low``/``high`` bound numbers (and every element of numeric lists),
+    ``choices`` restricts strings, ``length`` fixes a list's length (None = any non-empty).
+    """
+
+    name: str
+    kind: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] | None = None
+    length: int | None = None
+    low_open: bool = False  # True: value must be > low instead of >= low
+
+    def allowed(self) -> str:
+        """Human-readable description of the allowed values."""
+        if self.choices is not None:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.kind == "bool":
+            return "true or false"
+        parts = []
+        if self.low is not None or self.high is not None:
+            lo = "(" if self.low_open else "["
+            parts.append(
+                f"{lo}{'-inf' if self.low is None else self.low}, "
+                f"{'inf' if self.high is None else self.high}]"
+            )
+        base = {"float": "a number", "int": "an integer", "str": "a string",
+                "float_list": "a list of numbers", "int_list": "a list of integers",
+                "str_list": "a list of strings"}[self.kind]
+        if self.kind.endswith("_list") and self.length is not None:
+            base += f" of length {self.length}"
+        return base + (" in " + parts[0] if parts else "")
+
+    def _fail(self, value: Any, why: str = "") -> ConfigError:
+        return ConfigError(
+            f"parameter '{self.name}': got {value!r}{' (' + why + ')' if why else ''}; "
+            f"allowed: {self.allowed()}"
+        )
+
+    def _number(self, value: Any, integer: bool) -> float | int:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self._fail(value, "not a number")
+        if integer:
+            if isinstance(value, float) and not value.is_integer():
+                raise self._fail(value, "not an integer")
+            value = int(value)
+        else:
+            value = float(value)
+            if not math.isfinite(value):
+                raise self._fail(value, "not finite")
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            raise self._fail(value, "below range")
+        if self.high is not None and value > self.high:
+            raise self._fail(value, "above range")
+        return value
+
+    def validate(self, value: Any) -> Any:
+        """Return ``value`` coerced to this parameter's type, or raise :class:`ConfigError`."""
+        k = self.kind
+        if k == "bool":
+            if not isinstance(value, bool):
+                raise self._fail(value, "not a boolean")
+            return value
+        if k == "str":
+            if not isinstance(value, str):
+                raise self._fail(value, "not a string")
+            if self.choices is not None and value not in self.choices:
+                raise self._fail(value)
+            return value
+        if k in ("float", "int"):
+            return self._number(value, k == "int")
+        if k.endswith("_list"):
+            if not isinstance(value, (list, tuple)) or len(value) == 0:
+                raise self._fail(value, "not a non-empty list")
+            if self.length is not None and len(value) != self.length:
+                raise self._fail(value, f"length {len(value)}")
+            if k == "str_list":
+                if not all(isinstance(v, str) for v in value):
+                    raise self._fail(value, "not all strings")
+                return list(value)
+            return [self._number(v, k == "int_list") for v in value]
+        raise AssertionError(f"unknown parameter kind {k}")
+
+
+Schema = tuple[Param, ...]
+
+
+def schema_defaults(schema: Schema) -> dict[str, Any]:
+    return {p.name: p.default for p in schema}
+
+
+def resolve(schema: Schema, values: Mapping[str, Any], where: str = "") -> dict[str, Any]:
+    """Defaults of ``schema`` overridden by ``values``, all validated.
+
+    Unknown names raise :class:`ConfigError` naming them and the section ``where``.
+    """
+    by_name = {p.name: p for p in schema}
+    unknown = sorted(set(values) - set(by_name))
+    if unknown:
+        raise ConfigError(
+            f"unknown parameter(s) {', '.join(unknown)}{' in ' + where if where else ''}; "
+            f"known: {', '.join(sorted(by_name))}"
+        )
+    out = schema_defaults(schema)
+    for name, value in values.items():
+        out[name] = by_name[name].validate(value)
+    return out
+
+
+def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Flatten nested mappings with dots, as ROS 2 does for parameter files."""
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        if not isinstance(key, str):
+            raise ConfigError(f"parameter name {key!r} under '{prefix or 'ros__parameters'}' is not a string")
+        name = f"{prefix}.{key}" if prefix else key
+        if isinstance(value, Mapping):
+            out.update(flatten(value, name))
+        else:
+            out[name] = value
+    return out
+
+
+def read_config(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Read a ROS 2 parameter file into ``{section: {param: value}}`` (raw, unvalidated).
+
+    Sections are node names or ``/**``; each must hold a ``ros__parameters`` mapping.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"config file '{path}': cannot read ({exc.strerror})") from exc
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"config file '{path}': not valid YAML ({exc})") from exc
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"config file '{path}': top level must be a mapping of node sections")
+    sections: dict[str, dict[str, Any]] = {}
+    for section, body in data.items():
+        if section != WILDCARD and section not in NODE_NAMES:
+            raise ConfigError(
+                f"config file '{path}': unknown section {section!r}; allowed: "
+                f"{', '.join([WILDCARD, *NODE_NAMES])}"
+            )
+        if not isinstance(body, Mapping) or set(body) != {"ros__parameters"} or not isinstance(
+            body["ros__parameters"], (Mapping, type(None))
+        ):
+            raise ConfigError(
+                f"config file '{path}': section {section!r} must contain exactly one key "
+                f"'ros__parameters' holding a mapping"
+            )
+        sections[section] = flatten(body["ros__parameters"] or {})
+    return sections
+
+
+def node_params(
+    sections: Mapping[str, Mapping[str, Any]], node: str, schema: Schema,
+    overrides: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Resolved parameters of ``node``: schema defaults < ``/**`` < node section < overrides.
+
+    Parameters under ``/**`` that this node does not declare are ignored (as in ROS);
+    unknown parameters in the node's own section are an error.
+    """
+    names = {p.name for p in schema}
+    merged = {k: v for k, v in sections.get(WILDCARD, {}).items() if k in names}
+    merged.update(sections.get(node, {}))
+    if overrides:
+        merged.update({k: v for k, v in overrides.items() if k in names})
+    return resolve(schema, merged, where=f"section '{node}'")
+
+
+def check_wildcard(sections: Mapping[str, Mapping[str, Any]], schemas: Iterable[Schema]) -> None:
+    """Raise if a ``/**`` parameter is declared by none of the given schemas (a likely typo)."""
+    known = {p.name for s in schemas for p in s}
+    unknown = sorted(set(sections.get(WILDCARD, {})) - known)
+    if unknown:
+        raise ConfigError(f"unknown parameter(s) {', '.join(unknown)} in section '{WILDCARD}'")
+
+
+def schema_markdown(schema: Schema) -> str:
+    """A Markdown table documenting a schema (used for the README's parameter tables)."""
+    rows = ["| parameter | type | default | allowed | description |", "|---|---|---|---|---|"]
+    for p in schema:
+        rows.append(f"| `{p.name}` | {p.kind} | `{p.default!r}` | {p.allowed()} | {p.description} |")
+    return "\n".join(rows)

@@ -1,0 +1,47 @@
+"""Competence of a reaching attempt (paper Sec. 2.4.1, 3.5 and 4.3). ROS-free."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def competence(goal, reached, start, eps_c: float, scale=None) -> float:
+    """Normalised competence C(y_g, y_f, y_start) of paper Sec. 3.5 (equation "C").
+
+    ``C = -D(y_g, y_f) / D(y_start, y_g)`` with two edge cases from the text:
+    ``C = 0`` when ``D(y_start, y_g) < eps_c`` (the goal is too close to the start) and
+    ``C = -1`` when ``D(y_g, y_f) > D(y_start, y_g)`` (the effector moved away from the goal).
+    ``C`` is therefore in [-1, 0].
+
+    ``scale`` (optional, one positive number per task dimension) divides each dimension before
+    distances are taken: the "rescaled in [0;1]" variant of Sec. 4.3, where ``scale`` is the
+    extent of the task space in each dimension so every dimension weighs the same.
+    """
+    g = np.asarray(goal, dtype=float)
+    f = np.asarray(reached, dtype=float)
+    s = np.asarray(start, dtype=float)
+    if scale is not None:
+        sc = np.asarray(scale, dtype=float)
+        g, f, s = g / sc, f / sc, s / sc
+    d_start = math.sqrt(float(np.dot(g - s, g - s)))
+    if d_start < eps_c:
+        return 0.0
+    d_final = math.sqrt(float(np.dot(g - f, g - f)))
+    if d_final > d_start:
+        return -1.0
+    return -d_final / d_start
+
+
+def gamma(c: float, eps_sim: float) -> float:
+    """Competence measure Γ of a terminated attempt (paper Sec. 2.4.1, equation "Γ").
+
+    ``Γ = C`` if ``C <= eps_sim`` (not reached), else ``0`` (reached: maximal competence).
+    ``eps_sim < 0`` is the tolerance: ``C > eps_sim`` means the goal counts as reached.
+    """
+    return float(c) if c <= eps_sim else 0.0
+
+
+def is_reached(c: float, eps_sim: float) -> bool:
+    """The reaching test of Sec. 2.4.1: ``C > eps_sim``."""
+    return c > eps_sim

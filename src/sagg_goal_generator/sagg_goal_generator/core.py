@@ -1,0 +1,164 @@
+"""The goal generator (high level of SAGG-RIAC, paper Sec. 2.4, Algorithms 1-2). ROS-free.
+
+It receives competence reports from the low level and chooses goals. The same object runs in-process
+and inside the goal-generator node; its output is a deterministic function of its seed and of the
+sequence of calls, which is what makes the graph and in-process runs identical.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sagg_common.params import Param, Schema
+from sagg_common.rng import stream
+
+from .regions import RegionTree
+
+# Goal modes (same values as sagg_msgs/Goal constants)
+MODE_INITIAL, MODE_REGION, MODE_GLOBAL, MODE_LOW_COMPETENCE, MODE_RANDOM = 0, 1, 2, 3, 4
+MODE_NAMES = {MODE_INITIAL: "initial", MODE_REGION: "region", MODE_GLOBAL: "global",
+              MODE_LOW_COMPETENCE: "low-competence", MODE_RANDOM: "random"}
+# Report kinds (same values as sagg_msgs/CompetenceReport constants)
+KIND_GOAL, KIND_SUBGOAL, KIND_REACHED, KIND_EXPLORATION = 0, 1, 2, 3
+KIND_NAMES = {KIND_GOAL: "goal", KIND_SUBGOAL: "subgoal", KIND_REACHED: "reached",
+              KIND_EXPLORATION: "exploration"}
+
+STRATEGIES = ("sagg-riac", "sagg-random", "actuator-random", "actuator-riac")
+
+SCHEMA: Schema = (
+    Param("seed", "int", 0, "Run seed; every random stream is derived from it.", low=0),
+    Param("strategy", "str", "sagg-riac",
+          "Exploration strategy (Sec. 3.7). The generator chooses goals for sagg-riac (by interest) "
+          "and sagg-random (uniform in Y); it is idle for the actuator strategies.",
+          choices=STRATEGIES),
+    Param("task_space.lower", "float_list", [0.0, -150.0], "Lower corner of the task space Y."),
+    Param("task_space.upper", "float_list", [150.0, 150.0], "Upper corner of the task space Y."),
+    Param("g_max", "int", 50, "Maximal number of points in a region before it splits (Sec. 2.4.4).",
+          low=2, high=1_000_000),
+    Param("zeta", "int", 20,
+          "Interest window ζ: number of most recent competences used by the interest (Sec. 2.4.3). "
+          "Not given in the paper; 20 (two halves of 10) is our choice.", low=2, high=1_000_000),
+    Param("split_candidates", "int", 20,
+          "m: number of random (dimension, value) split candidates (Sec. 2.4.4). Not given in the "
+          "paper; our choice.", low=1, high=10_000),
+    Param("p1", "float", 0.7, "Probability of mode 1 (region by interest, uniform inside).",
+          low=0.0, high=1.0),
+    Param("p2", "float", 0.2, "Probability of mode 2 (uniform in Y).", low=0.0, high=1.0),
+    Param("p3", "float", 0.1,
+          "Probability of mode 3 (region by interest, near its lowest-competence point).",
+          low=0.0, high=1.0),
+    Param("mode3_sigma", "float", 0.05,
+          "Mode 3 spread: std of the Gaussian around the lowest-competence point, as a fraction of "
+          "the region's extent per dimension (paper: 'close to'; our choice).", low=0.0, high=10.0),
+    Param("count_reached", "bool", True,
+          "Every reached point (reaching and exploration micro-actions) counts as a goal of "
+          "maximal competence (Sec. 2.5, 3.5). The paper turns it off for the DOF experiments."),
+)
+
+
+@dataclass
+class GoalRecord:
+    seq: int
+    position: np.ndarray
+    mode: int
+    after_report: int
+    competence: float | None = None  # filled by the goal's own report
+
+
+class GoalGenerator:
+    """High-level goal self-generation (Sec. 2.4.4) over a region tree of Y."""
+
+    def __init__(self, params: dict):
+        self.params = params
+        self.strategy = params["strategy"]
+        self.lower = np.asarray(params["task_space.lower"], dtype=float)
+        self.upper = np.asarray(params["task_space.upper"], dtype=float)
+        if self.lower.shape != self.upper.shape:
+            raise ValueError(
+                f"task_space.lower/upper: lengths {len(self.lower)} and {len(self.upper)} differ; "
+                "allowed: equal lengths")
+        if not np.all(self.upper > self.lower):
+            raise ValueError("task_space.upper: every element must exceed task_space.lower")
+        p = np.array([params["p1"], params["p2"], params["p3"]])
+        if abs(p.sum() - 1.0) > 1e-9:
+            raise ValueError(f"p1 + p2 + p3: got {p.sum()}; allowed: exactly 1")
+        self.mode_probs = p
+        self.rng = stream(params["seed"], "goal_generator")
+        self.tree = RegionTree(self.lower, self.upper, params["g_max"], params["zeta"],
+                               params["split_candidates"], stream(params["seed"], "region_splits"))
+        self.count_reached = params["count_reached"]
+        self.goals: list[GoalRecord] = []
+        self.reports = 0  # number of reports processed (== seq of the last one)
+        self.ignored_outside = 0
+
+    @property
+    def dim(self) -> int:
+        return len(self.lower)
+
+    # ---------------------------------------------------------------- reports
+    def report(self, kind: int, target, competence: float) -> None:
+        """Take one competence report (Alg. 1: UpdateRegions(R, y, Γ)).
+
+        ``target`` is the goal/subgoal position for goals and subgoals, and the reached position for
+        reached points and exploration samples (whose competence is the maximal one, 0).
+        Reached/exploration reports are ignored unless ``count_reached``.
+        """
+        self.reports += 1
+        if kind == KIND_GOAL and self.goals:
+            self.goals[-1].competence = float(competence)
+        if kind in (KIND_REACHED, KIND_EXPLORATION) and not self.count_reached:
+            return
+        if self.tree.add(target, competence, stamp=len(self.goals)) is None:
+            self.ignored_outside += 1
+
+    # ------------------------------------------------------------------ goals
+    def next_goal(self) -> GoalRecord:
+        """Self-generate the next goal (Sec. 2.4.4)."""
+        if self.strategy == "sagg-random":
+            y, mode = self._uniform(self.lower, self.upper), MODE_RANDOM
+        elif len(self.tree.leaves()) < 2:
+            y, mode = self._uniform(self.lower, self.upper), MODE_INITIAL
+        else:
+            mode = int(self.rng.choice(3, p=self.mode_probs)) + 1
+            if mode == MODE_GLOBAL:
+                y = self._uniform(self.lower, self.upper)
+            else:
+                region = self._region_by_interest()
+                y = (self._uniform(region.lower, region.upper) if mode == MODE_REGION
+                     else self._near_lowest(region))
+        rec = GoalRecord(len(self.goals) + 1, y, mode, self.reports)
+        self.goals.append(rec)
+        return rec
+
+    def _uniform(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+        return self.rng.uniform(lower, upper)
+
+    def region_probabilities(self) -> np.ndarray:
+        """Region selection probabilities of paper Sec. 2.4.4 (mode 1):
+        ``P_n = (interest_n − min_i interest_i) / Σ_i (interest_i − min_i interest_i)``.
+
+        When every region has the same interest (the sum is 0) the choice is uniform (our choice:
+        the paper's formula is undefined there).
+        """
+        it = self.tree.interests()
+        w = it - it.min()
+        s = w.sum()
+        return np.full(len(it), 1.0 / len(it)) if s <= 0 else w / s
+
+    def _region_by_interest(self):
+        leaves = self.tree.leaves()
+        return leaves[int(self.rng.choice(len(leaves), p=self.region_probabilities()))]
+
+    def _near_lowest(self, region) -> np.ndarray:
+        """Mode 3: a goal close to the region's point of lowest competence. Spread is
+        ``mode3_sigma`` × region extent per dimension (our choice); clipped to Y."""
+        if region.count == 0:
+            return self._uniform(region.lower, region.upper)
+        worst = region.filled_points[int(np.argmin(region.filled_values))]
+        sigma = self.params["mode3_sigma"] * (region.upper - region.lower)
+        return np.clip(worst + self.rng.normal(0.0, 1.0, self.dim) * sigma, self.lower, self.upper)
+
+    # ------------------------------------------------------------- reporting
+    def region_snapshot(self) -> list[dict]:
+        return self.tree.snapshot()

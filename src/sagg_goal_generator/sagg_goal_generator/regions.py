@@ -1,0 +1,223 @@
+"""Region tree over a space of any dimension with competence-progress interest (paper Sec. 2.4.3-2.4.4,
+Algorithm 2 "UpdateRegions"). ROS-free.
+
+The same tree serves SAGG-RIAC (regions of the task space Y, values = competences Γ) and
+ACTUATOR-RIAC (regions of the sensorimotor space (α, Δα), values = minus the prediction error), since
+RIAC's interest is the same absolute derivative over a sliding window.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def interest(values: np.ndarray, zeta: int) -> float:
+    """Interest of a region: paper Sec. 2.4.3, equation (interest) / Algorithm 2.
+
+    ``|Σ older half − Σ recent half| / ζ`` over the ``ζ`` most recent values of the region, in the
+    order they were added. Vague in the paper: both sums include the middle element and the region
+    may hold fewer than ζ values. Choice: the window is ``w = min(ζ, n)`` values split into two halves
+    of ``h = w // 2`` (the oldest value is dropped when w is odd), divided by ``2h`` (= ζ for a full
+    window with even ζ); fewer than two values give interest 0.
+    """
+    n = len(values)
+    h = min(zeta, n) // 2
+    if h == 0:
+        return 0.0
+    recent = values[n - h:n]
+    older = values[n - 2 * h:n - h]
+    return abs(float(older.sum()) - float(recent.sum())) / (2 * h)
+
+
+@dataclass
+class Region:
+    """A node of the tree: an axis-aligned box and the points attempted inside it, in time order."""
+
+    id: int
+    lower: np.ndarray
+    upper: np.ndarray
+    points: np.ndarray  # (capacity, d) storage; rows [:count] are filled
+    values: np.ndarray  # (capacity,) competences (or -errors), same order
+    count: int = 0
+    interest: float = 0.0
+    children: tuple["Region", "Region"] | None = None
+    split_dim: int = -1
+    split_value: float = 0.0
+
+    def add(self, y: np.ndarray, value: float) -> None:
+        if self.count == len(self.values):
+            cap = max(8, 2 * len(self.values))
+            self.points = np.resize(self.points, (cap, self.points.shape[1]))
+            self.values = np.resize(self.values, cap)
+        self.points[self.count] = y
+        self.values[self.count] = value
+        self.count += 1
+
+    @property
+    def filled_points(self) -> np.ndarray:
+        return self.points[: self.count]
+
+    @property
+    def filled_values(self) -> np.ndarray:
+        return self.values[: self.count]
+
+    def contains(self, y: np.ndarray) -> bool:
+        return bool(np.all(y >= self.lower) and np.all(y <= self.upper))
+
+    def mean_value(self) -> float:
+        return float(self.filled_values.mean()) if self.count else 0.0
+
+
+@dataclass
+class SplitChoice:
+    dim: int
+    value: float
+    quality: float
+    left_count: int
+    right_count: int
+
+
+def split_quality(values_left: np.ndarray, values_right: np.ndarray, zeta: int) -> float:
+    """Split quality of paper Sec. 2.4.4: ``card(R1)·card(R2)·|interest(R1) − interest(R2)|``."""
+    return len(values_left) * len(values_right) * abs(
+        interest(values_left, zeta) - interest(values_right, zeta)
+    )
+
+
+def choose_split(points: np.ndarray, values: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 n_candidates: int, zeta: int, rng: np.random.Generator) -> SplitChoice | None:
+    """Pick the best of ``n_candidates`` random (dimension, value) splits (paper Sec. 2.4.4).
+
+    Vague in the paper: how candidates are drawn and what happens when every candidate has quality 0
+    (e.g. all competences equal). Choices: the dimension is uniform among dimensions whose points are
+    not all equal; the value is uniform strictly between the smallest and largest point coordinate
+    in that dimension (so both sides are non-empty); ties in quality (in particular all zero) are
+    broken by the larger ``card(R1)·card(R2)`` (the most balanced split), then by candidate order.
+    Points with coordinate ``< value`` go left, the others right. Returns None when no dimension can
+    be split (all points identical).
+    """
+    lo = points.min(axis=0)
+    hi = points.max(axis=0)
+    dims = np.flatnonzero(hi > lo)
+    if dims.size == 0:
+        return None
+    best: SplitChoice | None = None
+    best_key = None
+    for _ in range(n_candidates):
+        j = int(dims[rng.integers(dims.size)])
+        v = float(rng.uniform(lo[j], hi[j]))
+        if v <= lo[j]:  # uniform may return the lower end: keep both sides non-empty
+            v = float(np.nextafter(lo[j], hi[j]))
+        mask = points[:, j] < v
+        left, right = values[mask], values[~mask]
+        q = split_quality(left, right, zeta)
+        key = (q, len(left) * len(right))
+        if best_key is None or key > best_key:
+            best_key = key
+            best = SplitChoice(j, v, q, len(left), len(right))
+    return best
+
+
+class RegionTree:
+    """Recursive split of a box into regions; Algorithm 2 (UpdateRegions) of the paper."""
+
+    def __init__(self, lower, upper, g_max: int, zeta: int, n_candidates: int,
+                 rng: np.random.Generator):
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        if self.lower.shape != self.upper.shape or self.lower.ndim != 1:
+            raise ValueError("region tree bounds: lower and upper must be 1-D of equal length")
+        if not np.all(self.upper > self.lower):
+            raise ValueError(f"region tree bounds: upper {self.upper} must exceed lower {self.lower}")
+        if g_max < 2:
+            raise ValueError(f"g_max: got {g_max}; allowed: an integer >= 2")
+        if zeta < 2:
+            raise ValueError(f"zeta: got {zeta}; allowed: an integer >= 2")
+        if n_candidates < 1:
+            raise ValueError(f"split_candidates: got {n_candidates}; allowed: an integer >= 1")
+        self.dim = len(self.lower)
+        self.g_max = g_max
+        self.zeta = zeta
+        self.n_candidates = n_candidates
+        self.rng = rng
+        self._next_id = 0
+        self.root = self._new_region(self.lower.copy(), self.upper.copy())
+        self._leaves: list[Region] = [self.root]
+        self.splits: list[dict] = []  # history: one dict per split
+        self.n_added = 0
+
+    def _new_region(self, lower, upper, cap: int = 8) -> Region:
+        r = Region(self._next_id, lower, upper, np.empty((cap, self.dim)), np.empty(cap))
+        self._next_id += 1
+        return r
+
+    def inside(self, y) -> bool:
+        y = np.asarray(y, dtype=float)
+        return y.shape == (self.dim,) and bool(np.all(y >= self.lower) and np.all(y <= self.upper))
+
+    def find(self, y: np.ndarray) -> Region:
+        """The leaf containing ``y`` (``y`` must be inside the root box)."""
+        r = self.root
+        while r.children is not None:
+            r = r.children[0] if y[r.split_dim] < r.split_value else r.children[1]
+        return r
+
+    def leaves(self) -> list[Region]:
+        return self._leaves
+
+    def add(self, y, value: float, stamp: int | None = None) -> Region | None:
+        """UpdateRegions(R, y, value): add, recompute the leaf's interest, split above g_max.
+
+        Points outside the root box are ignored (returns None). ``stamp`` (e.g. the number of
+        goals so far) is recorded with any split it causes, for the split-history figures.
+        """
+        y = np.asarray(y, dtype=float)
+        if not self.inside(y):
+            return None
+        leaf = self.find(y)
+        leaf.add(y, float(value))
+        leaf.interest = interest(leaf.filled_values, self.zeta)
+        self.n_added += 1
+        if leaf.count > self.g_max:
+            self._split(leaf, stamp)
+        return leaf
+
+    def _split(self, region: Region, stamp: int | None) -> None:
+        pts, vals = region.filled_points, region.filled_values
+        choice = choose_split(pts, vals, region.lower, region.upper, self.n_candidates,
+                              self.zeta, self.rng)
+        if choice is None:
+            return
+        j, v = choice.dim, choice.value
+        mask = pts[:, j] < v
+        lu = region.upper.copy()
+        lu[j] = v
+        rl = region.lower.copy()
+        rl[j] = v
+        left = self._new_region(region.lower.copy(), lu, cap=max(8, int(mask.sum()) * 2))
+        right = self._new_region(rl, region.upper.copy(), cap=max(8, int((~mask).sum()) * 2))
+        for child, m in ((left, mask), (right, ~mask)):
+            n = int(m.sum())
+            child.points[:n] = pts[m]
+            child.values[:n] = vals[m]
+            child.count = n
+            child.interest = interest(child.filled_values, self.zeta)
+        region.children = (left, right)
+        region.split_dim, region.split_value = j, v
+        # free the parent's storage: the children hold its points
+        region.points = np.empty((0, self.dim))
+        region.values = np.empty(0)
+        idx = self._leaves.index(region)
+        self._leaves[idx:idx + 1] = [left, right]
+        self.splits.append({"stamp": stamp, "region": region.id, "dim": j, "value": v,
+                            "quality": choice.quality, "left": left.id, "right": right.id})
+
+    def interests(self) -> np.ndarray:
+        return np.array([r.interest for r in self._leaves])
+
+    def snapshot(self) -> list[dict]:
+        """The leaves as JSON-able dicts (bounds, interest, count, mean value)."""
+        return [{"id": r.id, "lower": r.lower.tolist(), "upper": r.upper.tolist(),
+                 "interest": r.interest, "count": r.count, "mean_competence": r.mean_value()}
+                for r in self._leaves]
