@@ -1,0 +1,410 @@
+"""Low-level learner with evolving context (paper Sec. 3.6, Algorithms 1 and 3) and the actuator
+baselines (Sec. 3.8). ROS-free.
+
+The learner is written as a coroutine: :meth:`EvolvingContextLearner.run` yields requests
+(:class:`Observe`, :class:`Command`, :class:`GoalRequest`) and receives their answers. An in-process
+driver answers from a simulator object and a :class:`~sagg_goal_generator.core.GoalGenerator`; the
+learner node answers from ROS topics and a service. Since the algorithm only ever sees those
+answers, both ways produce the same samples for the same seeds.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Generator
+
+import numpy as np
+
+from sagg_common.params import Param, Schema
+from sagg_common.rng import stream
+from sagg_goal_generator.competence import competence, gamma, is_reached
+from sagg_goal_generator.core import (KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL,
+                                      STRATEGIES)
+from sagg_goal_generator.regions import RegionTree
+
+from .local_model import desired_displacement, local_jacobian, pseudo_inverse_step
+from .memory import SampleMemory
+
+SCHEMA: Schema = (
+    Param("seed", "int", 0, "Run seed; every random stream is derived from it.", low=0),
+    Param("strategy", "str", "sagg-riac", "Exploration strategy (Sec. 3.7).", choices=STRATEGIES),
+    Param("task_space.lower", "float_list", [0.0, -150.0], "Lower corner of the task space Y."),
+    Param("task_space.upper", "float_list", [150.0, 150.0], "Upper corner of the task space Y."),
+    Param("v", "float", 2.0, "Desired effector speed, task units per micro-action (Sec. 3.6.1).",
+          low=0.0, high=1e9, low_open=True),
+    Param("q", "int", 20, "Number of exploratory micro-actions per exploration phase (Sec. 3.6.2).",
+          low=1, high=100_000),
+    Param("eps_max_ratio", "float", 0.5,
+          "ε_max / v: an exploration phase starts when ||Δỹ − Δy_next|| > ε_max (Sec. 3.6.1). "
+          "The paper gives no value; ours is half a step.", low=0.0, high=1e6, low_open=True),
+    Param("subgoals", "int", 5,
+          "l: number of points on the straight path y_i = y_start + (i/l)(y_g − y_start), "
+          "i = 1..l; the last is the goal itself, so l − 1 are subgoals (Sec. 3.5). 1 = no subgoals.",
+          low=1, high=10_000),
+    Param("reset_every", "int", 1, "r: return to the rest posture every r reaching attempts (Sec. 2.4.5).",
+          low=1, high=1_000_000_000),
+    Param("timeout_factor", "float", 1.5,
+          "Distance timeout (Sec. 3.6.2): a (sub)goal may use ceil(factor × D(y_start, y_g) / v) "
+          "micro-actions, reaching and exploratory ones alike.", low=0.0, high=1e6, low_open=True),
+    Param("blocking_w", "int", 0,
+          "Blocking timeout (Sec. 3.7.6): stop a (sub)goal after w consecutive exploration phases "
+          "(no progress). 0 disables it; the paper uses w = 3 (with q = 5) for large Y.",
+          low=0, high=1_000_000),
+    Param("exploration_respects_timeout", "bool", False,
+          "If true the distance timeout can cut an exploration phase short; if false (our default) "
+          "a started exploration phase always runs its q micro-actions, then the timeout applies."),
+    Param("neighbours", "int", 0,
+          "k: nearest stored samples (in α) used for the local Jacobian (Sec. 3.3). 0 = 2 × joints. "
+          "Not given in the paper.", low=0, high=100_000),
+    Param("min_samples", "int", 0,
+          "Fewest stored samples before the learner tries the inverse model; with fewer it explores. "
+          "0 = number of joints.", low=0, high=1_000_000),
+    Param("explore_amplitude", "float", 0.05,
+          "Exploratory micro-actions: Δα_i uniform in [−a, a] rad per joint around α (Sec. 3.6.2, "
+          "'small random'; our choice). Also the step of ACTUATOR-RANDOM.", low=0.0, high=10.0,
+          low_open=True),
+    Param("max_joint_step", "float", 0.5,
+          "Safety bound on |Δα_i| of any commanded micro-action (rad); larger steps are scaled down.",
+          low=0.0, high=100.0, low_open=True),
+    Param("pinv_rcond", "float", 1e-2,
+          "Relative cut-off of singular values in J⁺ (Sec. 3.3); paper: noise bypasses singularities.",
+          low=0.0, high=1.0),
+    Param("eps_c", "float", 0.1,
+          "ε_C: a goal closer than this to the start has competence 0 (Sec. 3.5), task units "
+          "(rescaled units when competence_rescale).", low=0.0, high=1e9),
+    Param("eps_sim", "float", -0.05,
+          "ε_sim < 0: a goal counts as reached when C > ε_sim (Sec. 2.4.1). Paper gives no value.",
+          low=-1.0, high=0.0),
+    Param("competence_rescale", "bool", False,
+          "Rescale each task dimension to [0, 1] by Y's extent before distances (Sec. 4.3)."),
+    Param("actuator_reset_every", "int", 0,
+          "max: ACTUATOR-* methods return to rest every max micro-actions (Sec. 3.8). 0 = derived as "
+          "in the paper: micro-actions needed at speed v to reach the farthest point of Y from the "
+          "rest position.", low=0, high=1_000_000_000),
+    Param("riac.g_max", "int", 50, "ACTUATOR-RIAC: points per (α, Δα) region before a split.",
+          low=2, high=1_000_000),
+    Param("riac.zeta", "int", 20, "ACTUATOR-RIAC: interest window over prediction errors.",
+          low=2, high=1_000_000),
+    Param("riac.split_candidates", "int", 20, "ACTUATOR-RIAC: random split candidates.",
+          low=1, high=10_000),
+    Param("riac.p_random", "float", 0.2,
+          "ACTUATOR-RIAC: share of micro-actions drawn uniformly instead of by region interest.",
+          low=0.0, high=1.0),
+    Param("eval.goals", "int", 100, "Number of test goals (Sec. 3.7).", low=1, high=100_000),
+    Param("eval.seed", "int", 0,
+          "Seed of the test-goal set; independent of the run seed so every strategy and seed is "
+          "scored on the same goals.", low=0),
+    Param("eval.timeout_factor", "float", 2.0,
+          "Evaluation budget: ceil(factor × D(y_rest, goal) / v) micro-actions per test goal "
+          "(paper gives none; our choice).", low=0.0, high=1e6, low_open=True),
+    Param("eval.tolerance", "float", 0.01,
+          "Evaluation stops early when the effector is this close to the test goal (task units).",
+          low=0.0, high=1e9),
+)
+
+
+# --------------------------------------------------------------------------- coroutine protocol
+@dataclass
+class Observe:
+    """Request the current (α, y). Answer: ``(alpha, y)``."""
+
+
+@dataclass
+class Command:
+    """Request one position command. Answer: measured ``(alpha, y)`` once executed.
+
+    ``kind`` is "reach", "explore", "babble" (micro-actions, each stored as one sample) or "reset"
+    (return to rest; not a micro-action, nothing is stored)."""
+
+    target: np.ndarray
+    kind: str
+
+
+@dataclass
+class GoalRequest:
+    """Request the next goal once the generator has processed reports 1..after_report.
+    Answer: ``(goal_seq, position)``."""
+
+    after_report: int
+
+
+@dataclass
+class Report:
+    seq: int
+    goal_seq: int
+    kind: int
+    target: np.ndarray
+    reached: np.ndarray
+    start: np.ndarray
+    competence: float
+    micro_actions: int
+
+
+@dataclass
+class Robot:
+    """What the learner knows of the robot: joint order, limits and rest posture."""
+
+    joint_names: list[str]
+    lower: np.ndarray
+    upper: np.ndarray
+    rest: np.ndarray
+
+    def __post_init__(self):
+        self.lower = np.asarray(self.lower, dtype=float)
+        self.upper = np.asarray(self.upper, dtype=float)
+        self.rest = np.asarray(self.rest, dtype=float)
+        n = len(self.joint_names)
+        for name in ("lower", "upper", "rest"):
+            arr = getattr(self, name)
+            if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"robot {name}: got shape {arr.shape}; allowed: {n} finite values")
+        if not np.all(self.upper > self.lower):
+            raise ValueError("robot joint limits: every upper limit must exceed its lower limit")
+        if np.any(self.rest < self.lower) or np.any(self.rest > self.upper):
+            raise ValueError("robot rest posture: must lie within the joint limits")
+
+    @property
+    def n(self) -> int:
+        return len(self.joint_names)
+
+
+def subgoal_points(y_start: np.ndarray, goal: np.ndarray, l: int) -> list[np.ndarray]:
+    """Subgoals on the straight path (paper Sec. 3.5): ``y_i = y_start + (i/l)(y_g − y_start)``,
+    i = 1..l, so ``y_l = y_g``. (The paper omits ``y_start +``, a typo: its y_i must lie between
+    y_start and y_g.)"""
+    return [y_start + (i / l) * (goal - y_start) for i in range(1, l + 1)]
+
+
+def timeout_budget(distance: float, v: float, factor: float) -> int:
+    """Distance timeout of paper Sec. 3.6.2: up to ``factor`` (1.5) × the micro-actions needed to
+    travel ``distance`` at speed ``v`` (at least one)."""
+    return max(1, math.ceil(factor * distance / v))
+
+
+def safe_target(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: Robot) -> np.ndarray:
+    """Clip a commanded posture to ``max_step`` per joint from ``alpha`` (the step is scaled down
+    as a whole so its direction is kept) and to the robot's joint limits."""
+    step = target - alpha
+    big = float(np.max(np.abs(step))) if step.size else 0.0
+    if big > max_step:
+        step = step * (max_step / big)
+    return np.clip(alpha + step, robot.lower, robot.upper)
+
+
+class EvolvingContextLearner:
+    """Low-level goal-directed exploration with evolving context (Alg. 3) + actuator baselines."""
+
+    def __init__(self, params: dict, robot: Robot, task_dim: int | None = None,
+                 memory: SampleMemory | None = None):
+        self.p = params
+        self.robot = robot
+        self.strategy = params["strategy"]
+        self.task_lower = np.asarray(params["task_space.lower"], dtype=float)
+        self.task_upper = np.asarray(params["task_space.upper"], dtype=float)
+        if self.task_lower.shape != self.task_upper.shape or not np.all(self.task_upper > self.task_lower):
+            raise ValueError("task_space.lower/upper: equal lengths and upper > lower required")
+        self.m = task_dim or len(self.task_lower)
+        if self.m != len(self.task_lower):
+            raise ValueError(f"task_space: {len(self.task_lower)} dimensions but the robot reports {self.m}")
+        n = robot.n
+        self.memory = memory or SampleMemory(n, n, self.m)
+        self.k = params["neighbours"] or 2 * n
+        self.min_samples = params["min_samples"] or n
+        self.v = params["v"]
+        self.eps_max = params["eps_max_ratio"] * self.v
+        self.scale = (self.task_upper - self.task_lower) if params["competence_rescale"] else None
+        self.rng = stream(params["seed"], "learner")
+        self.alpha = robot.rest.copy()
+        self.y = np.zeros(self.m)
+        self.micro_actions = 0
+        self.attempts = 0
+        self.reports_sent = 0
+        self.goals_done = 0
+        self.exploration_phases = 0
+        self.last_competence = float("nan")
+        self.on_report: Callable[[Report], None] | None = None
+        self.on_sample: Callable[[int], None] | None = None
+        self.riac_tree: RegionTree | None = None
+
+    # ---------------------------------------------------------------- helpers
+    def _report(self, kind, goal_seq, target, start, comp) -> None:
+        self.reports_sent += 1
+        if kind in (KIND_GOAL, KIND_SUBGOAL):
+            self.last_competence = comp
+        if self.on_report is not None:
+            self.on_report(Report(self.reports_sent, goal_seq, kind, np.array(target, dtype=float),
+                                  self.y.copy(), np.array(start, dtype=float), float(comp),
+                                  self.micro_actions))
+
+    def safe_target(self, target: np.ndarray) -> np.ndarray:
+        return safe_target(self.alpha, target, self.p["max_joint_step"], self.robot)
+
+    def _act(self, target: np.ndarray, kind: str) -> Generator:
+        """Execute one micro-action and store the sample (α, Δα, Δy). Returns Δy."""
+        alpha0, y0 = self.alpha, self.y
+        alpha1, y1 = yield Command(self.safe_target(target), kind)
+        alpha1 = np.asarray(alpha1, dtype=float)
+        y1 = np.asarray(y1, dtype=float)
+        dy = y1 - y0
+        idx = self.memory.add(alpha0, alpha1 - alpha0, dy)
+        self.alpha, self.y = alpha1, y1
+        self.micro_actions += 1
+        if self.on_sample is not None:
+            self.on_sample(idx)
+        return dy
+
+    def _reset(self) -> Generator:
+        alpha, y = yield Command(self.robot.rest.copy(), "reset")
+        self.alpha = np.asarray(alpha, dtype=float)
+        self.y = np.asarray(y, dtype=float)
+
+    def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
+        """Δα = J⁺(α)·Δy_next from the k nearest samples in α (None while memory is too small)."""
+        if len(self.memory) < self.min_samples:
+            return None
+        idx = self.memory.neighbours(alpha, self.k)
+        jac = local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx])
+        return pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
+
+    def predict(self, alpha: np.ndarray, dalpha: np.ndarray) -> np.ndarray:
+        """Forward prediction Δy ≈ J(α)·Δα from the local model (zeros while memory is too small)."""
+        if len(self.memory) < self.min_samples:
+            return np.zeros(self.m)
+        idx = self.memory.neighbours(alpha, self.k)
+        return local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx]) @ dalpha
+
+    def _random_step(self) -> np.ndarray:
+        a = self.p["explore_amplitude"]
+        return self.rng.uniform(-a, a, self.robot.n)
+
+    def competence_of(self, target, reached, start) -> float:
+        return competence(target, reached, start, self.p["eps_c"], self.scale)
+
+    # ------------------------------------------------------------- main loop
+    def run(self) -> Generator:
+        """The learner's whole life: yields requests, receives answers, never returns."""
+        alpha, y = yield Observe()
+        self.alpha = np.asarray(alpha, dtype=float)
+        self.y = np.asarray(y, dtype=float)
+        if self.strategy in ("sagg-riac", "sagg-random"):
+            while True:
+                yield from self._sagg_attempt()
+        else:
+            yield from self._actuator_babbling(riac=self.strategy == "actuator-riac")
+
+    def _explore(self, goal_seq: int, budget_left: int | None) -> Generator:
+        """Exploration phase (Alg. 3): q random Δα around the current α, each stored and reported;
+        the context evolves with each. Returns the number of micro-actions done."""
+        self.exploration_phases += 1
+        n = self.p["q"] if budget_left is None else max(0, min(self.p["q"], budget_left))
+        for _ in range(n):
+            yield from self._act(self.alpha + self._random_step(), "explore")
+            self._report(KIND_EXPLORATION, goal_seq, self.y, self.y, 0.0)
+        return n
+
+    def _sagg_attempt(self) -> Generator:
+        """One reaching attempt toward a self-generated goal (Alg. 1 inner loop, Alg. 3)."""
+        if self.attempts % self.p["reset_every"] == 0:
+            yield from self._reset()
+        self.attempts += 1
+        goal_seq, goal = yield GoalRequest(self.reports_sent)
+        goal = np.asarray(goal, dtype=float)
+        points = subgoal_points(self.y.copy(), goal, self.p["subgoals"])
+        for j, target in enumerate(points):
+            kind = KIND_GOAL if j == len(points) - 1 else KIND_SUBGOAL
+            start = self.y.copy()
+            budget = timeout_budget(float(np.linalg.norm(target - start)), self.v,
+                                    self.p["timeout_factor"])
+            used = 0
+            consecutive = 0
+            while True:
+                c = self.competence_of(target, self.y, start)
+                if is_reached(c, self.p["eps_sim"]) or used >= budget:
+                    break
+                if self.p["blocking_w"] and consecutive >= self.p["blocking_w"]:
+                    break
+                dy_next = desired_displacement(self.y, target, self.v)
+                dalpha = self.inverse(self.alpha, dy_next)
+                need_explore = dalpha is None
+                if dalpha is not None:
+                    dy = yield from self._act(self.alpha + dalpha, "reach")
+                    used += 1
+                    self._report(KIND_REACHED, goal_seq, self.y, self.y, 0.0)
+                    need_explore = float(np.linalg.norm(dy - dy_next)) > self.eps_max
+                if need_explore:
+                    left = budget - used if self.p["exploration_respects_timeout"] else None
+                    used += yield from self._explore(goal_seq, left)
+                    consecutive += 1
+                else:
+                    consecutive = 0
+            c = self.competence_of(target, self.y, start)
+            self._report(kind, goal_seq, target, start, gamma(c, self.p["eps_sim"]))
+        self.goals_done += 1
+
+    def actuator_reset_period(self) -> int:
+        """``max`` of Sec. 3.8: micro-actions to reach the farthest point of Y from the rest tip
+        position at speed v (our reading of "the more distant reachable position"), unless set."""
+        if self.p["actuator_reset_every"]:
+            return self.p["actuator_reset_every"]
+        corners = np.array(np.meshgrid(*zip(self.task_lower, self.task_upper))).reshape(self.m, -1).T
+        far = float(np.max(np.linalg.norm(corners - self.rest_y, axis=1)))
+        return max(1, math.ceil(far / self.v))
+
+    def _actuator_babbling(self, riac: bool) -> Generator:
+        """ACTUATOR-RANDOM (random Δα) and ACTUATOR-RIAC (Δα chosen by RIAC over (α, Δα)),
+        both returning to rest every ``max`` micro-actions (Sec. 3.8)."""
+        yield from self._reset()
+        self.rest_y = self.y.copy()
+        period = self.actuator_reset_period()
+        if riac:
+            a = self.p["explore_amplitude"]
+            n = self.robot.n
+            self.riac_tree = RegionTree(
+                np.concatenate([self.robot.lower, np.full(n, -a)]),
+                np.concatenate([self.robot.upper, np.full(n, a)]),
+                self.p["riac.g_max"], self.p["riac.zeta"], self.p["riac.split_candidates"],
+                stream(self.p["seed"], "actuator_riac_splits"))
+        since_reset = 0
+        while True:
+            if since_reset >= period:
+                yield from self._reset()
+                since_reset = 0
+            alpha0 = self.alpha
+            dalpha = self._riac_choice() if riac else self._random_step()
+            if riac:
+                predicted = self.predict(alpha0, dalpha)
+            dy = yield from self._act(alpha0 + dalpha, "babble")
+            since_reset += 1
+            if riac:
+                # RIAC's value: minus the prediction error of Δy; interest = its progress
+                actual_dalpha = self.memory.delta_alpha[len(self.memory) - 1]
+                err = float(np.linalg.norm(dy - predicted))
+                self.riac_tree.add(np.concatenate([alpha0, np.clip(actual_dalpha, -self.p["explore_amplitude"],
+                                                                  self.p["explore_amplitude"])]), -err)
+                self.last_competence = -err
+            self._report(KIND_EXPLORATION, 0, self.y, self.y, 0.0)
+
+    def _riac_choice(self) -> np.ndarray:
+        """ACTUATOR-RIAC action choice: among leaves whose α-part contains the current α, pick one
+        with probability ∝ interest − min (as SAGG-RIAC mode 1) and draw Δα uniformly in its Δα-part;
+        with probability ``riac.p_random`` draw Δα uniformly. (The context α is not ours to choose,
+        so the choice is restricted to compatible regions: our reading of RIAC for evolving context.)"""
+        if self.rng.random() < self.p["riac.p_random"] or len(self.riac_tree.leaves()) < 2:
+            return self._random_step()
+        n = self.robot.n
+        alpha = np.clip(self.alpha, self.robot.lower, self.robot.upper)
+        found = []
+        stack = [self.riac_tree.root]
+        while stack:
+            r = stack.pop()
+            if r.children is None:
+                found.append(r)
+            elif r.split_dim < n:
+                stack.append(r.children[0] if alpha[r.split_dim] < r.split_value else r.children[1])
+            else:
+                stack.extend(r.children)
+        it = np.array([r.interest for r in found])
+        w = it - it.min()
+        probs = np.full(len(found), 1.0 / len(found)) if w.sum() <= 0 else w / w.sum()
+        region = found[int(self.rng.choice(len(found), p=probs))]
+        return self.rng.uniform(region.lower[n:], region.upper[n:])
