@@ -1,0 +1,97 @@
+"""The ``sagg`` command line."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import yaml
+
+from sagg_common.params import ConfigError
+
+STRATEGIES = ["sagg-riac", "sagg-random", "actuator-random", "actuator-riac"]
+
+
+def parse_set(items: list[str] | None) -> dict:
+    """``--set name=value`` overrides; values are parsed as YAML (numbers, lists, booleans)."""
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ConfigError(f"--set {item!r}: expected name=value")
+        name, value = item.split("=", 1)
+        try:
+            out[name.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {name}: value {value!r} is not valid YAML ({exc})") from exc
+    return out
+
+
+def positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {v}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="sagg", description="SAGG-RIAC goal babbling for ROS 2.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    e = sub.add_parser("experiment", help="run one strategy and seed in-process (no ROS)")
+    e.add_argument("--config", required=True, help="experiment YAML (ROS 2 parameter-file form)")
+    e.add_argument("--strategy", choices=STRATEGIES, help="overrides the config's strategy")
+    e.add_argument("--seed", type=int, help="overrides the config's seed")
+    e.add_argument("--micro-actions", type=positive_int, default=30_000, help="learning budget")
+    e.add_argument("--eval-every", type=positive_int, default=1000,
+                   help="evaluate the frozen model on the test goals every K micro-actions")
+    e.add_argument("--out", required=True, help="output directory (result.json)")
+    e.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override any parameter, e.g. --set arm.dof=7 (repeatable)")
+    e.add_argument("--quiet", action="store_true", help="no progress display")
+
+    b = sub.add_parser("bench", help="benchmarks")
+    bsub = b.add_subparsers(dest="bench", required=True)
+    s = bsub.add_parser("speed", help="in-process micro-actions/s against stored samples")
+    s.add_argument("--config", default="config/arm15.yaml")
+    s.add_argument("--dof", type=positive_int, nargs="+", default=[7, 15])
+    s.add_argument("--modes", nargs="+", choices=["kinematic", "dynamic"],
+                   default=["kinematic", "dynamic"])
+    s.add_argument("--sizes", type=positive_int, nargs="+", default=[10_000, 200_000])
+    s.add_argument("--measure", type=positive_int, default=2000,
+                   help="micro-actions timed at each size")
+    s.add_argument("--strategy", choices=STRATEGIES, default="sagg-riac")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "experiment":
+            from .experiment import run_experiment
+            res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions,
+                                 args.eval_every, args.out, progress=not args.quiet,
+                                 overrides=parse_set(args.set))
+            print(f"{res['strategy']} seed {res['seed']}: final mean test error "
+                  f"{res['final_mean_error']:.3f} (median {res['final_median_error']:.3f}) after "
+                  f"{res['micro_actions']} micro-actions at {res['micro_actions_per_second']:,.0f}/s; "
+                  f"{len(res['goals'])} goals, {len(res['regions'])} regions -> "
+                  f"{Path(args.out) / 'result.json'}")
+            return 0
+        if args.command == "bench" and args.bench == "speed":
+            from .bench import bench_speed
+            bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategy)
+            return 0
+    except ConfigError as exc:
+        print(f"sagg: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sagg: interrupted", file=sys.stderr)
+        return 130
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

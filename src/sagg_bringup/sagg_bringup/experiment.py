@@ -1,0 +1,189 @@
+"""In-process experiments: the three cores wired together without ROS (``sagg experiment``).
+
+The driver answers the learner coroutine's requests from a simulator and the goal generator, in
+exactly the order the ROS graph does in lockstep mode.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sagg_common.params import ConfigError, check_wildcard, node_params, read_config
+from sagg_common.progress import Progress
+from sagg_common.rng import substream_seed
+from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES, SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_low_level.evaluate import evaluate
+from sagg_low_level.learner import (SCHEMA as LEARNER_SCHEMA, Command, EvolvingContextLearner,
+                                    GoalRequest, Observe, Robot)
+from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
+from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
+
+
+def load_experiment_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
+    """Resolve the three nodes' parameters from a config file (+ overrides applied to every node)."""
+    sections = read_config(path)
+    check_wildcard(sections, (GEN_SCHEMA, LEARNER_SCHEMA, BRIDGE_SCHEMA))
+    out = {
+        "sagg_goal_generator": node_params(sections, "sagg_goal_generator", GEN_SCHEMA, overrides),
+        "sagg_learner": node_params(sections, "sagg_learner", LEARNER_SCHEMA, overrides),
+        "sagg_sim_bridge": node_params(sections, "sagg_sim_bridge", BRIDGE_SCHEMA, overrides),
+    }
+    g, l = out["sagg_goal_generator"], out["sagg_learner"]
+    for key in ("seed", "strategy", "task_space.lower", "task_space.upper"):
+        if g[key] != l[key]:
+            raise ConfigError(f"parameter '{key}' differs between sagg_goal_generator ({g[key]!r}) and "
+                              f"sagg_learner ({l[key]!r}); set it once under '/**'")
+    arm_spec_from_params(out["sagg_sim_bridge"])  # validates the arm, naming the bad parameter
+    return out
+
+
+class InProcessRun:
+    """A learning run of one strategy and seed, stepped in-process."""
+
+    def __init__(self, config: dict[str, dict]):
+        self.config = config
+        gp, lp, bp = config["sagg_goal_generator"], config["sagg_learner"], config["sagg_sim_bridge"]
+        self.seed = lp["seed"]
+        self.spec = arm_spec_from_params(bp)
+        self.sim = ArmSim(self.spec, seed=substream_seed(self.seed, "sim"))
+        robot = Robot(list(self.sim.joint_names), self.sim.lower, self.sim.upper, self.sim.rest)
+        self.generator = GoalGenerator(gp)
+        self.learner = EvolvingContextLearner(lp, robot, self.sim.task_dim)
+        self.learner.on_report = self._on_report
+        self.goal_micro_actions: dict[int, int] = {}
+        self.sim.reset()
+        self._coro = self.learner.run()
+        self._pending = next(self._coro)
+        self.learn_seconds = 0.0
+
+    def _on_report(self, r) -> None:
+        self.generator.report(r.kind, r.target, r.competence)
+
+    def step_until(self, micro_actions: int) -> None:
+        """Advance the learner until it has done ``micro_actions`` micro-actions in total."""
+        learner, sim, gen = self.learner, self.sim, self.generator
+        coro, req = self._coro, self._pending
+        t0 = time.perf_counter()
+        while learner.micro_actions < micro_actions:
+            if isinstance(req, Command):
+                answer = sim.command(req.target)
+            elif isinstance(req, GoalRequest):
+                g = gen.next_goal()
+                self.goal_micro_actions[g.seq] = learner.micro_actions
+                answer = (g.seq, g.position)
+            elif isinstance(req, Observe):
+                answer = sim.observe()
+            else:  # pragma: no cover - protocol error
+                raise TypeError(f"unknown learner request {req!r}")
+            req = coro.send(answer)
+        self._pending = req
+        self.learn_seconds += time.perf_counter() - t0
+
+    def evaluate(self, goals: np.ndarray) -> np.ndarray:
+        """Test errors of the frozen model on a fresh simulator (never counted as learning)."""
+        eval_sim = ArmSim(self.spec, seed=substream_seed(self.seed, "eval_sim"))
+        return evaluate(self.learner, eval_sim, goals)
+
+
+def run_experiment(config_path: str | Path, strategy: str | None, seed: int | None,
+                   micro_actions: int, eval_every: int, out_dir: str | Path | None,
+                   progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
+    """Run one (strategy, seed) experiment in-process and write ``out_dir/result.json``."""
+    if micro_actions < 1:
+        raise ConfigError(f"--micro-actions: got {micro_actions}; allowed: an integer >= 1")
+    if eval_every < 1:
+        raise ConfigError(f"--eval-every: got {eval_every}; allowed: an integer >= 1")
+    ov = dict(overrides or {})
+    if strategy is not None:
+        ov["strategy"] = strategy
+    if seed is not None:
+        ov["seed"] = seed
+    config = load_experiment_config(config_path, ov)
+    run = InProcessRun(config)
+    lp = config["sagg_learner"]
+    lower = np.asarray(lp["task_space.lower"])
+    upper = np.asarray(lp["task_space.upper"])
+    goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"])
+    area = reachable_area(run.spec, lower, upper, seed=lp["eval.seed"])
+
+    curve = []
+    eval_seconds = 0.0
+    bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']}", enabled=progress)
+    checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
+    for target in checkpoints:
+        run.step_until(target)
+        t0 = time.perf_counter()
+        errors = run.evaluate(goals)
+        eval_seconds += time.perf_counter() - t0
+        curve.append({"micro_actions": target, "mean_error": float(errors.mean()),
+                      "median_error": float(np.median(errors))})
+        bar.update(target, goals=len(run.generator.goals), regions=len(run.generator.tree.leaves()),
+                   competence=run.learner.last_competence, error=float(errors.mean()))
+    bar.close()
+
+    result = build_result(run, curve, area, micro_actions, eval_seconds)
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(out / "result.json", result)
+    return result
+
+
+def goal_share_stats(goal_positions: np.ndarray, goal_ma: np.ndarray, area, total: int) -> dict:
+    """Share of self-generated goals (not subgoals) inside the reachable area, overall and in the
+    second half of the run (by micro-actions), next to the reachable area's share of Y."""
+    inside = area.contains(goal_positions) if len(goal_positions) else np.zeros(0, bool)
+    second = goal_ma >= total / 2
+    return {
+        "reachable_share_of_Y": float(area.share()),
+        "goals": int(len(goal_positions)),
+        "goal_share_reachable": float(inside.mean()) if len(inside) else float("nan"),
+        "goals_second_half": int(second.sum()),
+        "goal_share_reachable_second_half": float(inside[second].mean()) if second.any() else float("nan"),
+    }
+
+
+def build_result(run: InProcessRun, curve: list[dict], area, total: int, eval_seconds: float) -> dict:
+    gen, learner = run.generator, run.learner
+    goals = [{"seq": g.seq, "position": g.position.tolist(), "mode": g.mode,
+              "mode_name": MODE_NAMES[g.mode], "competence": g.competence,
+              "micro_actions": run.goal_micro_actions.get(g.seq, 0)} for g in gen.goals]
+    pos = np.array([g["position"] for g in goals]).reshape(-1, len(gen.lower))
+    gma = np.array([g["micro_actions"] for g in goals])
+    return {
+        "format": "sagg.result/1",
+        "strategy": run.config["sagg_learner"]["strategy"],
+        "seed": run.seed,
+        "config": run.config,
+        "micro_actions": learner.micro_actions,
+        "micro_actions_per_second": learner.micro_actions / max(run.learn_seconds, 1e-9),
+        "learn_seconds": run.learn_seconds,
+        "eval_seconds": eval_seconds,
+        "curve": curve,
+        "final_mean_error": curve[-1]["mean_error"],
+        "final_median_error": curve[-1]["median_error"],
+        "memory": {"samples": len(learner.memory), "digest": learner.memory.digest(),
+                   "bytes": int(learner.memory.nbytes)},
+        "exploration_phases": learner.exploration_phases,
+        "reports": learner.reports_sent,
+        "goals": goals,
+        "goal_stats": goal_share_stats(pos, gma, area, total),
+        "regions": gen.region_snapshot(),
+        "splits": gen.tree.splits,
+    }
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to ``path`` atomically (temporary file, then rename)."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as fh:
+        json.dump(data, fh, indent=1, allow_nan=True)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)

@@ -1,0 +1,58 @@
+"""Parameters of the MuJoCo bridge (ROS-free schema; the node declares them with descriptors)."""
+from __future__ import annotations
+
+import dataclasses
+
+from sagg_common.params import ConfigError, Param, Schema
+
+from .arm import ArmSpec
+
+_ARM_DOC = {
+    "dof": "Number of joints of the planar arm (paper: 7, 15, 30; real arm 8).",
+    "total_length": "Total arm length in task units (paper: 50).",
+    "link_profile": "'equal' links or 'golden' (each link φ times the next, decreasing from the base).",
+    "joint_limit": "Symmetric limit ±rad of joints 1..n-1 (paper: none given; ours ±π/2).",
+    "base_limit": "Symmetric limit ±rad of the base joint (ours ±π/2: the arm faces x ≥ 0).",
+    "rest_bend": "Total bend (rad) of the rest posture, spread over the joints; tip on +x.",
+    "mode": "'kinematic' (ideal position control, kinematics only) or 'dynamic' (MuJoCo physics, "
+            "position actuators, settle criterion).",
+    "motor_noise": "Multiplicative motor noise: realised Δα = Δα·(1 + noise·N(0,1)) per joint "
+                   "(paper real arm: 20% -> 0.2).",
+    "timestep": "Dynamic mode: physics step (s).",
+    "kp": "Dynamic mode: position actuator gain.",
+    "damping": "Dynamic mode: joint damping.",
+    "armature": "Dynamic mode: rotor inertia per joint.",
+    "arm_mass": "Dynamic mode: total link mass.",
+    "settle_tolerance": "Dynamic mode: settled when max |q − target| is below this (rad) ...",
+    "settle_velocity": "Dynamic mode: ... and max |q̇| below this (rad/s).",
+    "max_settle_steps": "Dynamic mode: give up settling after this many physics steps.",
+    "settle_check_every": "Dynamic mode: physics steps between settle checks.",
+}
+
+
+def _arm_params() -> tuple[Param, ...]:
+    out = []
+    for f in dataclasses.fields(ArmSpec):
+        kind = {bool: "bool", int: "int", float: "float", str: "str"}[type(f.default)]
+        choices = None
+        if f.name == "link_profile":
+            choices = ("equal", "golden")
+        elif f.name == "mode":
+            choices = ("kinematic", "dynamic")
+        out.append(Param(f"arm.{f.name}", kind, f.default, _ARM_DOC.get(f.name, f.name),
+                         choices=choices))
+    return tuple(out)
+
+
+SCHEMA: Schema = (
+    Param("seed", "int", 0, "Run seed; the simulator's motor-noise stream is derived from it.", low=0),
+) + _arm_params()
+
+
+def arm_spec_from_params(params: dict) -> ArmSpec:
+    """Build and validate the arm from resolved ``arm.*`` parameters (errors name the parameter)."""
+    fields = {k[len("arm."):]: v for k, v in params.items() if k.startswith("arm.")}
+    try:
+        return ArmSpec.from_dict(fields)
+    except ValueError as exc:
+        raise ConfigError(str(exc).replace("ArmSpec.", "parameter arm.")) from exc
