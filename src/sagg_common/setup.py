@@ -1,0 +1,27 @@
+from setuptools import find_packages, setup
+
+PACKAGE = 'sagg_common'
+
+# ament_python layout: the resource marker makes the package visible in the ament index, and
+# package.xml goes to share/<pkg>, so that `ros2 run`/`ros2 launch` work on a full ROS 2 install.
+DATA_FILES = [
+    ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+    ('share/' + PACKAGE, ['package.xml']),
+]
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=DATA_FILES,
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='sagg developers',
+    maintainer_email='sagg-dev@example.com',
+    description='Shared configuration and parameter helpers of sagg (no ROS imports in its core).',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+        ],
+    },
+)
