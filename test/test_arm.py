@@ -74,7 +74,8 @@ def test_mjcf_radians_names_and_zero_points_along_x():
     assert sim.upper[0] == spec.base_limit and np.all(sim.upper[1:] == spec.joint_limit)
 
 
-@pytest.mark.parametrize("dof,profile", [(1, "equal"), (7, "golden"), (15, "equal"), (30, "golden"), (100, "equal")])
+@pytest.mark.parametrize("dof,profile", [(1, "equal"), (7, "golden"), (15, "equal"), (30, "golden"), (100, "equal"),
+                                         (100, "golden")])
 def test_numpy_fk_equals_mujoco_tip_site(dof, profile):
     spec = ArmSpec(dof=dof, link_profile=profile, joint_limit=math.pi, base_limit=math.pi, rest_bend=0.5)
     sim = ArmSim(spec, seed=0)

@@ -91,7 +91,7 @@ class ArmSpec:
     kp: float = 1.0e4               # position actuator gain (N·m/rad in MuJoCo units)
     damping: float = 200.0          # joint viscous damping (N·m·s/rad)
     armature: float = 1.0           # rotor inertia added to each joint (kg·m²)
-    arm_mass: float = 5.0e-4        # total link mass, spread over links ∝ length (kg)
+    arm_mass: float = 5.0e-4        # total link mass (kg): half evenly, half ∝ link length
     settle_tolerance: float = 1.0e-4   # settled when ||qpos - ctrl||_2 < this (rad) ...
     settle_velocity: float = 1.0e-2    # ... and ||qvel||_2 < this (rad/s)
     max_settle_steps: int = 1000       # give up settling after this many physics steps
@@ -221,7 +221,9 @@ def arm_mjcf(spec: ArmSpec) -> str:
     n = int(spec.dof)
     lengths = spec.link_lengths()
     lower, upper = spec.limits()
-    masses = float(spec.arm_mass) * lengths / lengths.sum()
+    # half of the mass spread evenly, half ∝ length: no link of a long golden arm (lengths down
+    # to φ^-99) gets a mass MuJoCo would reject
+    masses = float(spec.arm_mass) * (0.5 / n + 0.5 * lengths / lengths.sum())
     radius = 0.01 * float(spec.total_length)  # visual thickness only
     out = [
         '<mujoco model="sagg_planar_arm">',
@@ -244,8 +246,10 @@ def arm_mjcf(spec: ArmSpec) -> str:
             f'range="{_f(lower[i])} {_f(upper[i])}" damping="{_f(spec.damping)}" armature="{_f(spec.armature)}"/>',
             f'{indent}  <inertial pos="{_f(li / 2)} 0 0" mass="{_f(mi)}" '
             f'diaginertia="{_f(i_axis)} {_f(i_perp)} {_f(i_perp)}"/>',
-            f'{indent}  <geom name="link_{i}_geom" type="capsule" fromto="0 0 0 {_f(li)} 0 0" '
-            f'size="{_f(radius)}" contype="0" conaffinity="0" rgba="0.3 0.5 0.8 1"/>',
+            (f'{indent}  <geom name="link_{i}_geom" type="capsule" fromto="0 0 0 {_f(li)} 0 0" '
+             if li > 1e-6 * float(spec.total_length) else  # visual only; MuJoCo rejects tiny fromto
+             f'{indent}  <geom name="link_{i}_geom" type="sphere" ')
+            + f'size="{_f(radius)}" contype="0" conaffinity="0" rgba="0.3 0.5 0.8 1"/>',
         ]
         indent += "  "
     out.append(f'{indent}<site name="tip" pos="{_f(lengths[-1])} 0 0" size="{_f(2 * radius)}"/>')
