@@ -8,6 +8,7 @@ import pytest
 
 from sagg_sim_bridge.arm import (
     GOLDEN_RATIO,
+    NOISE_BLOCK,
     ArmSim,
     ArmSpec,
     ReachableArea,
@@ -156,12 +157,26 @@ def test_motor_noise_statistics_and_reproducibility():
         return np.array(out)
     np.testing.assert_array_equal(run(7), run(7))
     assert not np.array_equal(run(7), run(8))
+    # the exact noise model: α1 = α0 + (target - α0)·(1 + motor_noise·z), z the generator's
+    # standard normals in order, one per joint per micro-action (also across noise blocks)
+    sim = ArmSim(spec, seed=21)
+    z = np.random.default_rng(21).standard_normal((600, 8))
+    for i in range(600):
+        if i % 50 == 0:
+            sim.reset()
+        a0 = sim.observe()[0]
+        target = a0 + 0.02 * np.cos(np.arange(8) * (i + 1))
+        a1, _ = sim.command(target)
+        factor = z[i] * noise
+        factor += 1.0
+        np.testing.assert_array_equal(a1, np.clip(a0 + (target - a0) * factor, sim.lower, sim.upper))
     # noise-free spec: no RNG draws at all
     quiet = ArmSim(ArmSpec(dof=8), seed=1)
     state = quiet.rng.bit_generator.state
     quiet.command(quiet.rest + 0.05)
     quiet.reset()
     assert quiet.rng.bit_generator.state == state
+    assert quiet.get_state()["noise_index"] is None
 
 
 def test_reset_draws_no_noise_and_zeroes_velocity():
@@ -200,12 +215,18 @@ def test_dynamic_mode_reaches_commanded_posture():
     assert not quick.last_settled and quick.last_settle_steps == 2
 
 
-@pytest.mark.parametrize("mode", ["kinematic", "dynamic"])
-def test_get_set_state_round_trip(mode):
+@pytest.mark.parametrize("mode,before", [("kinematic", 0), ("kinematic", 5), ("kinematic", 250),
+                                         ("dynamic", 5), ("dynamic", 250)])
+def test_get_set_state_round_trip(mode, before):
+    # `before` commands before the snapshot: 0 = no noise drawn yet; 250 = the 10 commands after
+    # the snapshot cross a pre-drawn noise block boundary (NOISE_BLOCK = 256)
+    assert NOISE_BLOCK == 256
     spec = ArmSpec(dof=7, mode=mode, motor_noise=0.2)
     sim = ArmSim(spec, seed=11)
     rng = np.random.default_rng(6)
-    for _ in range(5):
+    for i in range(before):
+        if i % 20 == 0:
+            sim.reset()
         sim.command(sim.observe()[0] + rng.uniform(-0.05, 0.05, 7))
     snap = json.loads(json.dumps(sim.get_state()))   # JSON-able
     targets = [sim.observe()[0] + rng.uniform(-0.05, 0.05, 7) for _ in range(10)]

@@ -35,6 +35,8 @@ LINK_PROFILES = ("equal", "golden")
 MAX_DOF = 100
 # Grids larger than this are refused (memory guard for reachable_area): ~100 MB of bool.
 MAX_GRID_CELLS = 100_000_000
+# Motor-noise factors are drawn this many micro-actions at a time (speed; same stream).
+NOISE_BLOCK = 256
 
 
 def _is_int(x: Any) -> bool:
@@ -302,6 +304,9 @@ class ArmSim:
         self._shape = (self.n_joints,)
         self._buf = np.empty(self.n_joints)
         self._nbuf = np.empty(self.n_joints)
+        self._nblock: np.ndarray | None = None   # pre-drawn noise factors (see _draw_noise_block)
+        self._nidx = NOISE_BLOCK                 # next row of _nblock; NOISE_BLOCK = none left
+        self._block_state: dict | None = None    # rng state at the start of _nblock
         self._tol = float(spec.settle_tolerance)
         self._vtol = float(spec.settle_velocity)
         self._max_steps = int(spec.max_settle_steps)
@@ -338,12 +343,12 @@ class ArmSim:
             raise ValueError("alpha_target must be finite (no NaN/inf)")
         qpos = self._qpos
         if self._noise > 0.0:
-            buf, nb = self._buf, self._nbuf
+            if self._nidx >= NOISE_BLOCK:
+                self._draw_noise_block()
+            buf = self._buf
             np.subtract(t, qpos, out=buf)
-            self.rng.standard_normal(out=nb)
-            nb *= self._noise
-            nb += 1.0
-            buf *= nb
+            buf *= self._nblock[self._nidx]   # 1 + motor_noise·N(0,1), pre-drawn
+            self._nidx += 1
             buf += qpos
             t = buf
         if self._dynamic:
@@ -356,6 +361,18 @@ class ArmSim:
             np.minimum(qpos, self.upper, out=qpos)
             mujoco.mj_kinematics(self.model, self.data)
         return qpos.copy(), self._tip.copy()
+
+    def _draw_noise_block(self) -> None:
+        """Draw the factors (1 + motor_noise·N(0,1)) of the next NOISE_BLOCK micro-actions at
+        once (one generator call instead of one per micro-action; the stream of normals is the
+        same as drawing them one command at a time). The generator state at the block start is
+        kept so that get_state/set_state can rebuild the block exactly."""
+        self._block_state = self.rng.bit_generator.state
+        block = self.rng.standard_normal((NOISE_BLOCK, self.n_joints))
+        block *= self._noise
+        block += 1.0
+        self._nblock = block
+        self._nidx = 0
 
     def _settle(self) -> None:
         """Step the physics until ||qvel|| < settle_velocity and ||qpos - ctrl|| < settle_tolerance
@@ -407,7 +424,10 @@ class ArmSim:
             "act": d.act.tolist(),
             "ctrl": d.ctrl.tolist(),
             "qacc_warmstart": d.qacc_warmstart.tolist(),
-            "rng": self.rng.bit_generator.state,
+            # noise generator: state at the start of the current pre-drawn block + position in
+            # it (noise_index None: no block drawn yet, "rng" is the generator's current state)
+            "rng": self._block_state if self._nblock is not None else self.rng.bit_generator.state,
+            "noise_index": int(self._nidx) if self._nblock is not None else None,
             "last_settle_steps": int(self.last_settle_steps),
             "last_settled": bool(self.last_settled),
         }
@@ -428,7 +448,17 @@ class ArmSim:
         rng_state = state.get("rng")
         if not isinstance(rng_state, dict) or rng_state.get("bit_generator") != type(self.rng.bit_generator).__name__:
             raise ValueError(f"state.rng must be a {type(self.rng.bit_generator).__name__} state dict")
+        nidx = state.get("noise_index")
+        if nidx is not None and not (_is_int(nidx) and 0 <= nidx <= NOISE_BLOCK):
+            raise ValueError(f"state.noise_index must be None or an integer in [0, {NOISE_BLOCK}], got {nidx!r}")
+        if nidx is not None and self._noise == 0.0:
+            raise ValueError("state.noise_index must be None for a noise-free arm (motor_noise = 0)")
         self.rng.bit_generator.state = rng_state
+        if nidx is None:
+            self._nblock, self._block_state, self._nidx = None, None, NOISE_BLOCK
+        else:
+            self._draw_noise_block()   # same block as when the state was taken
+            self._nidx = int(nidx)
         d.time = float(state.get("time", 0.0))
         for key, v in arrays.items():
             getattr(d, key)[:] = v
