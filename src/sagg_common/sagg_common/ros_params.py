@@ -1,0 +1,172 @@
+"""ROS 2 glue shared by the sagg nodes: parameters from a schema, and the node main loop.
+
+Parameters: every :class:`~sagg_common.params.Param` of a node's schema is declared with a
+``ParameterDescriptor`` (type, description, allowed values in ``additional_constraints``,
+``FloatingPointRange``/``IntegerRange`` for bounded scalars, read-only: values are read once at
+start). The value from the parameter file or ``-p`` is validated with :meth:`Param.validate`
+*before* declaring, which also coerces what ROS parameter files give (``v: 2`` is an integer for
+ROS but a float parameter here, ``[0, -150]`` an integer array for a float list) exactly as the
+in-process config loader does. A bad value raises :class:`ConfigError`; :func:`run_node` turns it
+into one log line naming the parameter and the allowed values, and exit code 2.
+
+Spinning: :func:`spin` runs a node until shutdown with a manual ``spin_once`` loop
+(``EventsExecutor.spin()`` hangs in this build and ``spin_until_future_complete`` is slow, DESIGN §5).
+"""
+from __future__ import annotations
+
+import array
+import signal
+import sys
+from typing import Any, Callable
+
+from sagg_common.params import ConfigError, Param, Schema
+
+FLOAT_MAX = sys.float_info.max
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+
+
+def _types():
+    from rcl_interfaces.msg import ParameterType
+
+    return {
+        "float": ParameterType.PARAMETER_DOUBLE,
+        "int": ParameterType.PARAMETER_INTEGER,
+        "bool": ParameterType.PARAMETER_BOOL,
+        "str": ParameterType.PARAMETER_STRING,
+        "float_list": ParameterType.PARAMETER_DOUBLE_ARRAY,
+        "int_list": ParameterType.PARAMETER_INTEGER_ARRAY,
+        "str_list": ParameterType.PARAMETER_STRING_ARRAY,
+    }
+
+
+def descriptor(param: Param):
+    """The ``ParameterDescriptor`` of one schema parameter."""
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+    d = ParameterDescriptor(
+        name=param.name,
+        type=_types()[param.kind],
+        description=param.description,
+        additional_constraints="allowed: " + param.allowed(),
+        read_only=True,
+    )
+    bounded = param.low is not None or param.high is not None
+    if bounded and param.kind == "float":
+        # ROS ranges are closed; an open lower bound (low_open) is enforced by Param.validate and
+        # stated in additional_constraints.
+        d.floating_point_range = [FloatingPointRange(
+            from_value=-FLOAT_MAX if param.low is None else float(param.low),
+            to_value=FLOAT_MAX if param.high is None else float(param.high), step=0.0)]
+    elif bounded and param.kind == "int":
+        d.integer_range = [IntegerRange(
+            from_value=INT64_MIN if param.low is None else int(param.low),
+            to_value=INT64_MAX if param.high is None else int(param.high), step=1)]
+    return d
+
+
+def _plain(value: Any) -> Any:
+    """ROS parameter values as plain Python (arrays become lists)."""
+    if isinstance(value, (array.array, tuple)):
+        return list(value)
+    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
+        return value.tolist()
+    return value
+
+
+def declare_schema(node, schema: Schema) -> dict[str, Any]:
+    """Declare every parameter of ``schema`` on ``node`` and return the validated values.
+
+    The value is the override (parameter file / ``-p``) if given, else the schema default; it is
+    validated and coerced by :meth:`Param.validate` and then declared with that exact value.
+    Raises :class:`ConfigError` naming the first bad parameter.
+    """
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps the raw overrides here
+    values: dict[str, Any] = {}
+    for p in schema:
+        raw = overrides[p.name].value if p.name in overrides else p.default
+        value = p.validate(_plain(raw))
+        node.declare_parameter(p.name, value, descriptor(p), ignore_override=True)
+        values[p.name] = value
+    unused = sorted(n for n in overrides if not node.has_parameter(n))
+    if unused:
+        # They may come from the '/**' section meant for other nodes: not an error (as in ROS).
+        node.get_logger().info(f"parameters not used by this node: {', '.join(unused)}")
+    return values
+
+
+def spin(node, executor=None, should_stop: Callable[[], bool] | None = None) -> None:
+    """Spin ``node`` until the context shuts down (or ``should_stop()``), with ``spin_once``."""
+    if executor is None:
+        executor = make_executor()
+    executor.add_node(node)
+    ctx = node.context
+    try:
+        while ctx.ok() and not (should_stop is not None and should_stop()):
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        try:
+            executor.remove_node(node)
+        except Exception:  # noqa: BLE001 - best effort at shutdown
+            pass
+
+
+def make_executor(kind: str = "events"):
+    """``events`` (rclpy.experimental.EventsExecutor, driven by spin_once) or ``single``."""
+    import rclpy.executors
+
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor()
+    if kind == "single":
+        return rclpy.executors.SingleThreadedExecutor()
+    raise ValueError(f"executor: got {kind!r}; allowed: 'events' or 'single'")
+
+
+def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = None,
+             executor: str = "events") -> int:
+    """Init rclpy, build the node with ``factory()``, spin it, shut down. Returns the exit code:
+    0 normally, 2 for a bad parameter (one log line naming it and the allowed values)."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    if args is None:
+        args = sys.argv
+    try:
+        rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    except Exception as exc:  # noqa: BLE001 - e.g. an unreadable parameter file
+        print(f"[ERROR] cannot start: {str(exc).splitlines()[0] if str(exc) else exc!r}", file=sys.stderr)
+        return 2
+    stop = {"flag": False}
+
+    def on_signal(signum, frame):  # noqa: ARG001
+        stop["flag"] = True
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    node = None
+    code = 0
+    try:
+        try:
+            node = factory()
+        except (ConfigError, ValueError) as exc:
+            import rclpy.logging
+
+            rclpy.logging.get_logger(name).error(str(exc).replace("\n", " "))
+            return 2
+        try:
+            spin(node, make_executor(executor), should_stop=lambda: stop["flag"] or getattr(node, "done", False))
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        code = getattr(node, "exit_code", 0)
+    finally:
+        if node is not None:
+            try:
+                if hasattr(node, "close"):
+                    node.close()
+                node.destroy_node()
+            except Exception:  # noqa: BLE001
+                pass
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code

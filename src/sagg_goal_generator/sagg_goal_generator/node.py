@@ -1,0 +1,199 @@
+"""The goal-generator node (``goal_generator``): the SAGG-RIAC high level on ROS 2.
+
+Wraps :class:`~sagg_goal_generator.core.GoalGenerator`:
+
+- subscribes ``/sagg/competence`` (every report of the learner, in order) and feeds each to the core;
+- serves ``/sagg/next_goal``: a request ``after_report = N`` is answered only once reports 1..N
+  have been processed, so the goal is the same function of the report sequence as in-process
+  (deterministic lockstep). A request that arrives early is deferred (:class:`Deferred`) and
+  answered from the report subscription when report N has been processed;
+- publishes every goal on ``/sagg/goal`` and the region tree on ``/sagg/regions`` (transient_local,
+  depth 1) on every split and at most every 0.5 s otherwise.
+
+For the actuator strategies it chooses no goals but stays alive (and still takes the reports, as
+the in-process driver does, so the region tree can be visualised).
+"""
+from __future__ import annotations
+
+import array
+import math
+import sys
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.service import Service
+
+from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.ros_params import declare_schema, run_node
+from sagg_msgs.msg import CompetenceReport, Goal, Region, RegionTree
+from sagg_msgs.srv import NextGoal
+
+from .core import SCHEMA as CORE_SCHEMA, GoalGenerator
+
+NODE_NAME = "sagg_goal_generator"
+NODE_SCHEMA: Schema = (
+    Param("regions_period", "float", 0.5,
+          "Seconds between two /sagg/regions snapshots when nothing split (a split publishes at once).",
+          low=0.01, high=3600.0),
+    Param("min_goal_subscribers", "int", 0,
+          "Answer goal requests only once /sagg/goal has at least this many matched subscribers "
+          "(e.g. 1 when a recorder must see every goal). 0 = do not wait.", low=0, high=1000),
+)
+SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
+ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
+
+
+class Deferred:
+    """A service answer given later: returned by the callback instead of a response; the executor
+    hands it to :meth:`DeferrableService.send_response`, which keeps the request header so the
+    node can send the real response once the awaited reports are in. (Works with any executor,
+    unlike coroutine callbacks, which the EventsExecutor does not support.)"""
+
+    __slots__ = ("after_report", "response", "header", "service")
+
+    def __init__(self, after_report: int, response):
+        self.after_report = after_report
+        self.response = response
+        self.header = None
+        self.service = None
+
+
+class DeferrableService(Service):
+    def send_response(self, response, header) -> None:
+        if isinstance(response, Deferred):
+            response.header, response.service = header, self
+            return
+        super().send_response(response, header)
+
+
+def reliable(depth: int, transient_local: bool = False) -> QoSProfile:
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient_local else DurabilityPolicy.VOLATILE)
+
+
+class GoalGeneratorNode(Node):
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        self.params = declare_schema(self, SCHEMA)
+        core = {p.name: self.params[p.name] for p in CORE_SCHEMA}
+        try:
+            self.gen = GoalGenerator(core)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
+        self.active = core["strategy"] in ACTIVE_STRATEGIES
+        self.exit_code = 0
+        self.goal_pub = self.create_publisher(Goal, "/sagg/goal", reliable(100))
+        self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
+        self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report, reliable(10000))
+        srv = self.create_service(NextGoal, "/sagg/next_goal", self.on_next_goal)
+        srv.__class__ = DeferrableService
+        self.waiting: list[Deferred] = []   # requests waiting for their reports
+        self.splits_published = -1
+        self.regions_dirty = True
+        self.create_timer(self.params["regions_period"], self.on_regions_timer)
+        self.publish_regions()
+        self.get_logger().info(
+            f"strategy {core['strategy']}: "
+            + ("serving /sagg/next_goal" if self.active else "idle (actuator strategy: no goals)"))
+
+    # ------------------------------------------------------------ reports
+    def on_report(self, msg: CompetenceReport) -> None:
+        gen = self.gen
+        if msg.seq != gen.reports + 1:
+            self.get_logger().error(
+                f"competence report {msg.seq} received after report {gen.reports}: reports were lost "
+                "or reordered; goals no longer match an in-process run")
+        # Reached points / exploration samples carry the reached point (target may be empty).
+        target = msg.target if len(msg.target) else msg.reached
+        gen.report(msg.kind, target, msg.competence)
+        self.regions_dirty = True
+        if len(gen.tree.splits) != self.splits_published:
+            self.publish_regions()
+        if self.waiting:
+            self._release()
+
+    def _release(self) -> None:
+        done = self.gen.reports
+        keep = []
+        for d in self.waiting:
+            if d.after_report <= done and d.service is not None and self._goal_subscribers_ok():
+                d.service.send_response(self._fill(d.response), d.header)
+            else:
+                keep.append(d)
+        self.waiting = keep
+
+    def _goal_subscribers_ok(self) -> bool:
+        need = self.params["min_goal_subscribers"]
+        return need == 0 or self.goal_pub.get_subscription_count() >= need
+
+    # ------------------------------------------------------------ goals
+    def on_next_goal(self, request: NextGoal.Request, response: NextGoal.Response):
+        if not self.active:
+            self.get_logger().error(
+                f"goal requested but strategy is {self.gen.strategy}: no goals for actuator strategies",
+                throttle_duration_sec=5.0)
+            response.goal.after_report = request.after_report
+            return response
+        after = request.after_report
+        if after < self.gen.reports:
+            self.get_logger().error(
+                f"goal requested after report {after} but {self.gen.reports} reports were already "
+                "processed: the learner and the generator disagree")
+        if after > self.gen.reports or not self._goal_subscribers_ok():
+            deferred = Deferred(after, response)
+            self.waiting.append(deferred)
+            return deferred  # answered by _release once reports 1..after are in
+        return self._fill(response)
+
+    def _fill(self, response: NextGoal.Response) -> NextGoal.Response:
+        rec = self.gen.next_goal()
+        g = response.goal
+        g.header.stamp = self.get_clock().now().to_msg()
+        g.header.frame_id = "task_space"
+        g.seq = rec.seq
+        g.after_report = rec.after_report
+        g.mode = rec.mode
+        g.position = array.array("d", rec.position.tobytes())
+        self.goal_pub.publish(g)
+        return response
+
+    # ------------------------------------------------------------ regions
+    def on_regions_timer(self) -> None:
+        if self.waiting and self._goal_subscribers_ok():
+            self._release()
+        if self.regions_dirty:
+            self.publish_regions()
+
+    def publish_regions(self) -> None:
+        gen = self.gen
+        msg = RegionTree()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = "task_space"
+        msg.goals = len(gen.goals)
+        msg.reports = gen.reports
+        msg.splits = len(gen.tree.splits)
+        regions = []
+        for r in gen.region_snapshot():
+            reg = Region()
+            reg.id = int(r["id"])
+            reg.lower = r["lower"]
+            reg.upper = r["upper"]
+            reg.interest = float(r["interest"])
+            reg.count = int(r["count"])
+            mc = r["mean_competence"]
+            reg.mean_competence = float(mc) if reg.count and mc is not None else math.nan
+            regions.append(reg)
+        msg.regions = regions
+        self.region_pub.publish(msg)
+        self.splits_published = msg.splits
+        self.regions_dirty = False
+
+
+def main(args: list[str] | None = None) -> int:
+    code = run_node(NODE_NAME, GoalGeneratorNode, args, executor="events")
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,367 @@
+"""The learner node (``learner``): the SAGG-RIAC low level on ROS 2, speaking the hardware contract.
+
+It drives the :class:`~sagg_low_level.learner.EvolvingContextLearner` coroutine from callbacks (a
+state machine; nothing ever sleeps or blocks the executor):
+
+- ``Observe``: answered with the latest observation (joint_states mapped by name + task point);
+- ``Command``: publishes ``std_msgs/Float64MultiArray`` on ``/<controller>/commands`` (joint order =
+  the ``joints`` parameter) and waits for a *fresh, settled* observation: a joint state and a task
+  point both received after the command was published and stamped later than the newest ones
+  received before it (plus ``observation_delay``); settled when every |velocity| is below
+  ``settle_velocity``, or, after ``settle_timeout`` seconds, the latest fresh one is taken;
+- ``GoalRequest``: calls ``/sagg/next_goal`` (the generator answers once it has processed the
+  reports 1..after_report), answered from the response.
+
+Every report is published on ``/sagg/competence`` and every stored sample on ``/sagg/sample`` (in
+order, as they happen); ``/sagg/status`` at 2 Hz. At ``max_micro_actions`` the learner stops
+acting (exactly where the in-process ``InProcessRun.step_until`` stops) and says so in its status.
+"""
+from __future__ import annotations
+
+import array
+import math
+import sys
+import time
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from geometry_msgs.msg import PointStamped
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.ros_params import declare_schema, run_node
+from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
+from sagg_goal_generator.core import KIND_EXPLORATION
+from sagg_msgs.srv import NextGoal
+
+from .learner import SCHEMA as CORE_SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe, Robot
+
+NODE_NAME = "sagg_learner"
+HALF_PI = math.pi / 2
+# Defaults = the default simulated arm (sagg_sim_bridge ArmSpec(): 8 DOF, limits ±π/2, rest bent by
+# π/3 with the tip on +x); test_nodes_params checks they agree. A real arm sets its own.
+DEFAULT_JOINTS = [f"joint_{i}" for i in range(8)]
+DEFAULT_REST = [-0.5235987755982987] + [0.1495996501709425] * 7
+
+NODE_SCHEMA: Schema = (
+    Param("joints", "str_list", DEFAULT_JOINTS,
+          "Joint names, in the order of the controller's commands; joint_states are matched by name."),
+    Param("joint_limits.lower", "float_list", [-HALF_PI] * 8, "Lower joint limits (rad), one per joint."),
+    Param("joint_limits.upper", "float_list", [HALF_PI] * 8, "Upper joint limits (rad), one per joint."),
+    Param("rest_posture", "float_list", DEFAULT_REST, "Rest posture α_rest (rad), one per joint."),
+    Param("controller", "str", "forward_position_controller",
+          "Position controller name: commands go to /<controller>/commands."),
+    Param("task_topic", "str", "/tip_position",
+          "geometry_msgs/PointStamped topic of the effector position in Y (the paper's camera)."),
+    Param("settle_velocity", "float", 0.05,
+          "An observation counts as settled when every |joint velocity| is below this (rad/s). "
+          "Joint states without velocities count as settled.", low=0.0, high=1e6, low_open=True),
+    Param("settle_timeout", "float", 2.0,
+          "Seconds after a command after which the latest fresh observation is taken even if not "
+          "settled.", low=0.0, high=3600.0, low_open=True),
+    Param("observation_delay", "float", 0.0,
+          "An observation answers a command only if its stamp is later than the newest one received "
+          "before the command by more than this (s). 0 for a lockstep bridge; about two publish "
+          "periods for real-time drivers, so that a state sampled before the command arrived is "
+          "not taken for the settled result.", low=0.0, high=3600.0),
+    Param("max_micro_actions", "int", 0,
+          "Stop acting after this many micro-actions (0 = unlimited).", low=0),
+    Param("min_sample_subscribers", "int", 0,
+          "Start only once /sagg/sample has at least this many matched subscribers (e.g. 1 when a "
+          "recorder must see every sample). 0 = do not wait.", low=0, high=1000),
+)
+SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
+GOAL_STRATEGIES = ("sagg-riac", "sagg-random")
+
+
+def reliable(depth: int, transient_local: bool = False) -> QoSProfile:
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient_local else DurabilityPolicy.VOLATILE)
+
+
+def darray(x: np.ndarray) -> array.array:
+    """float64 numpy -> array('d') (the fast path of rosidl's sequence setters; bit-exact)."""
+    a = array.array("d")
+    a.frombytes(np.ascontiguousarray(x, dtype=np.float64).tobytes())
+    return a
+
+
+def robot_from_params(p: dict) -> Robot:
+    n = len(p["joints"])
+    if len(set(p["joints"])) != n:
+        raise ConfigError(f"parameter 'joints': got {p['joints']!r}; allowed: distinct joint names")
+    for name in ("joint_limits.lower", "joint_limits.upper", "rest_posture"):
+        if len(p[name]) != n:
+            raise ConfigError(f"parameter '{name}': got {len(p[name])} values; allowed: one per joint "
+                              f"({n}, as in 'joints')")
+    try:
+        return Robot(list(p["joints"]), p["joint_limits.lower"], p["joint_limits.upper"], p["rest_posture"])
+    except ValueError as exc:
+        raise ConfigError(f"parameters 'joint_limits.*'/'rest_posture': {exc}") from exc
+
+
+def stamp_ns(header) -> int:
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
+class LearnerNode(Node):
+    # coroutine states
+    STARTING, RUNNING_COMMAND, RUNNING_GOAL, STOPPED = "starting", "command", "goal", "stopped"
+
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        p = self.params = declare_schema(self, SCHEMA)
+        self.robot = robot_from_params(p)
+        core = {q.name: p[q.name] for q in CORE_SCHEMA}
+        self.m = len(core["task_space.lower"])
+        if self.m not in (2, 3):
+            raise ConfigError(f"parameter 'task_space.lower': {self.m} dimensions; allowed: 2 or 3 "
+                              "(the task point is a geometry_msgs/PointStamped)")
+        try:
+            self.learner = EvolvingContextLearner(core, self.robot, self.m)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
+        self.uses_goals = core["strategy"] in GOAL_STRATEGIES
+        self.max_micro_actions = p["max_micro_actions"]
+        self.settle_velocity = p["settle_velocity"]
+        self.settle_timeout = p["settle_timeout"]
+        self.delay_ns = int(round(p["observation_delay"] * 1e9))
+        self.exit_code = 0
+        self.done = False
+
+        # --- topics
+        self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
+        self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(10))
+        self.report_pub = self.create_publisher(CompetenceReport, "/sagg/competence", reliable(10000))
+        self.sample_pub = self.create_publisher(Sample, "/sagg/sample", reliable(10000))
+        self.status_pub = self.create_publisher(LearnerStatus, "/sagg/status", reliable(10))
+        self.create_subscription(JointState, "/joint_states", self.on_joint_state, reliable(10))
+        self.create_subscription(PointStamped, p["task_topic"], self.on_task_point, reliable(10))
+        self.goal_client = self.create_client(NextGoal, "/sagg/next_goal")
+
+        # --- observation state
+        self._names: tuple | None = None     # joint-name order of the last JointState seen
+        self._idx: np.ndarray | None = None  # positions in that message of our joints
+        self.js_alpha: np.ndarray | None = None   # newest joint state (mapped), its stamp, settled
+        self.js_stamp = -1
+        self.js_settled = False
+        self.tip: np.ndarray | None = None
+        self.tip_stamp = -1
+        # freshness of the answer to the pending command
+        self.js_min = self.tip_min = 0
+        self.js_fresh = self.tip_fresh = False
+        self.cmd_time = 0.0
+
+        # --- coroutine
+        self.state = self.STARTING
+        self.pause_reason = "waiting for joint_states, task point, controller and goal generator"
+        self.learner.on_report = self.publish_report
+        self.learner.on_sample = self.publish_sample
+        self.coro = self.learner.run()
+        self.pending = next(self.coro)  # the first request (Observe)
+        self.cmd_msg = Float64MultiArray()
+        self.report_msg = CompetenceReport()
+        self.sample_msg = Sample()
+        self.goals_received = 0
+        self.rate_window: list[tuple[float, int]] = [(time.monotonic(), 0)]
+        self.create_timer(0.5, self.publish_status)
+        self.poll_timer = self.create_timer(0.05, self.on_poll)
+        self.get_logger().info(
+            f"strategy {core['strategy']}, {self.robot.n} joints, commands on {self.cmd_topic}, "
+            f"task point on {p['task_topic']}"
+            + (f", stops at {self.max_micro_actions} micro-actions" if self.max_micro_actions else ""))
+
+    # ------------------------------------------------------------------ observations
+    def on_joint_state(self, msg: JointState) -> None:
+        names = msg.name
+        if self._names is None or len(names) != len(self._names) or tuple(names) != self._names:
+            if not self._map_names(names):
+                return
+        idx = self._idx
+        alpha = np.frombuffer(msg.position, dtype=np.float64)[idx] if len(msg.position) == len(names) \
+            else None
+        if alpha is None:
+            self.get_logger().error("joint_states: position length differs from name length",
+                                    throttle_duration_sec=5.0)
+            return
+        vel = msg.velocity
+        if len(vel) == len(names):
+            settled = bool(np.abs(np.frombuffer(vel, dtype=np.float64)[idx]).max() < self.settle_velocity)
+        else:
+            settled = True
+        st = stamp_ns(msg.header)
+        if st < self.js_stamp:
+            return  # older than what we have (out of order): keep the newest
+        self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
+        if self.state is self.RUNNING_COMMAND and st > self.js_min:
+            self.js_fresh = True
+            self._try_answer_command(False)
+
+    def _map_names(self, names) -> bool:
+        where = {n: i for i, n in enumerate(names)}
+        missing = [j for j in self.robot.joint_names if j not in where]
+        if missing:
+            self.get_logger().error(f"joint_states lacks joint(s) {', '.join(missing)}; ignored",
+                                    throttle_duration_sec=5.0)
+            return False
+        self._names = tuple(names)
+        self._idx = np.array([where[j] for j in self.robot.joint_names], dtype=np.intp)
+        return True
+
+    def on_task_point(self, msg: PointStamped) -> None:
+        st = stamp_ns(msg.header)
+        if st < self.tip_stamp:
+            return
+        p = msg.point
+        self.tip = np.array((p.x, p.y) if self.m == 2 else (p.x, p.y, p.z))
+        self.tip_stamp = st
+        if self.state is self.RUNNING_COMMAND and st > self.tip_min:
+            self.tip_fresh = True
+            self._try_answer_command(False)
+
+    def _try_answer_command(self, timed_out: bool) -> None:
+        if not (self.js_fresh and self.tip_fresh):
+            return
+        if not self.js_settled and not timed_out:
+            return
+        self.advance((self.js_alpha, self.tip))
+
+    # ------------------------------------------------------------------ coroutine driving
+    def on_poll(self) -> None:
+        """Start-up checks, and the settle timeout of a pending command."""
+        if self.state is self.STARTING:
+            if self._ready():
+                self.state = None
+                self.pause_reason = ""
+                self.get_logger().info("graph ready: starting")
+                self.dispatch(self.pending)
+        elif self.state is self.RUNNING_COMMAND:
+            if time.monotonic() - self.cmd_time > self.settle_timeout:
+                if self.js_fresh and self.tip_fresh:
+                    self.get_logger().warning(
+                        f"no settled observation {self.settle_timeout} s after a command: taking the "
+                        "latest", throttle_duration_sec=5.0)
+                    self._try_answer_command(True)
+                else:
+                    self.get_logger().warning(
+                        f"no fresh joint_states/task point {time.monotonic() - self.cmd_time:.1f} s after "
+                        f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
+
+    def _ready(self) -> bool:
+        if self.js_alpha is None or self.tip is None:
+            return False
+        # the controller must be listening, or the first command is lost
+        if self.cmd_pub.get_subscription_count() < max(1, self.count_subscribers(self.cmd_topic)):
+            return False
+        if self.uses_goals:
+            if not self.goal_client.service_is_ready():
+                return False
+            infos = self.get_subscriptions_info_by_topic("/sagg/competence")
+            if not any(i.node_name == "sagg_goal_generator" for i in infos):
+                return False
+            if self.report_pub.get_subscription_count() < len(infos):
+                return False
+        need = self.params["min_sample_subscribers"]
+        return self.sample_pub.get_subscription_count() >= need
+
+    def advance(self, answer) -> None:
+        """Send ``answer`` to the pending request and dispatch the next request."""
+        self.state = None
+        self.dispatch(self.coro.send(answer))
+
+    def dispatch(self, req) -> None:
+        learner = self.learner
+        while True:
+            if self.max_micro_actions and learner.micro_actions >= self.max_micro_actions:
+                self.pending = req
+                self.state = self.STOPPED
+                self.pause_reason = f"max_micro_actions ({self.max_micro_actions}) reached"
+                self.get_logger().info(f"{self.pause_reason}: stopped acting")
+                self.publish_status()
+                return
+            if type(req) is Command:
+                msg = self.cmd_msg
+                msg.data = darray(req.target)
+                self.js_min = self.js_stamp + self.delay_ns
+                self.tip_min = self.tip_stamp + self.delay_ns
+                self.js_fresh = self.tip_fresh = False
+                self.state = self.RUNNING_COMMAND
+                self.cmd_time = time.monotonic()
+                self.cmd_pub.publish(msg)
+                return
+            if type(req) is GoalRequest:
+                self.state = self.RUNNING_GOAL
+                fut = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
+                fut.add_done_callback(self.on_goal)
+                return
+            if type(req) is Observe:
+                req = self.coro.send((self.js_alpha.copy(), self.tip.copy()))
+                continue
+            raise TypeError(f"unknown learner request {req!r}")
+
+    def on_goal(self, fut) -> None:
+        resp = fut.result()
+        if resp is None:
+            self.get_logger().error("/sagg/next_goal call failed")
+            self.exit_code = 1
+            self.done = True
+            return
+        g = resp.goal
+        self.goals_received += 1
+        self.advance((int(g.seq), np.array(g.position, dtype=np.float64)))
+
+    # ------------------------------------------------------------------ outputs
+    def publish_report(self, r) -> None:
+        msg = self.report_msg
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.seq = r.seq
+        msg.goal_seq = r.goal_seq
+        msg.kind = r.kind
+        # exploration reports have no target (the message's convention); the generator uses reached
+        msg.target = darray(r.target) if r.kind != KIND_EXPLORATION else array.array("d")
+        msg.reached = darray(r.reached)
+        msg.start = darray(r.start)
+        msg.competence = r.competence
+        msg.micro_actions = r.micro_actions
+        self.report_pub.publish(msg)
+
+    def publish_sample(self, idx: int) -> None:
+        mem = self.learner.memory
+        msg = self.sample_msg
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.index = idx
+        msg.alpha = darray(mem.alpha[idx])
+        msg.delta_alpha = darray(mem.delta_alpha[idx])
+        msg.delta_y = darray(mem.delta_y[idx])
+        self.sample_pub.publish(msg)
+
+    def publish_status(self) -> None:
+        learner = self.learner
+        now = time.monotonic()
+        self.rate_window.append((now, learner.micro_actions))
+        while len(self.rate_window) > 2 and now - self.rate_window[0][0] > 5.0:
+            self.rate_window.pop(0)
+        (t0, n0), (t1, n1) = self.rate_window[0], self.rate_window[-1]
+        msg = LearnerStatus()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.strategy = learner.strategy.upper()
+        msg.micro_actions = learner.micro_actions
+        msg.goals = self.goals_received
+        msg.samples = len(learner.memory)
+        msg.last_competence = float(learner.last_competence)
+        msg.micro_actions_per_second = (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
+        msg.paused = self.state in (self.STARTING, self.STOPPED)
+        msg.pause_reason = self.pause_reason if msg.paused else ""
+        self.status_pub.publish(msg)
+
+
+def main(args: list[str] | None = None) -> int:
+    sys.exit(run_node(NODE_NAME, LearnerNode, args, executor="events"))
+
+
+if __name__ == "__main__":
+    main()

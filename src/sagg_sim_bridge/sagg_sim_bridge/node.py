@@ -1,0 +1,201 @@
+"""The MuJoCo bridge node (``mujoco_bridge``): a simulated arm behind the hardware contract.
+
+Builds ``ArmSim(spec, seed=substream_seed(seed, "sim"))`` from the ``arm.*`` parameters, exactly as
+the in-process run does, and speaks like a ros2_control position-controlled arm plus a tracker:
+
+- subscribes ``/<controller>/commands`` (std_msgs/Float64MultiArray, joint order = the arm's joint
+  order ``joint_0..joint_{n-1}``, i.e. the controller's ``joints``);
+- publishes ``/joint_states`` (positions, velocities; names ``joint_i``) and the tip on
+  ``task_topic`` (geometry_msgs/PointStamped, x/y in task units).
+
+Timing (parameter ``timing``):
+
+- ``lockstep``: physics advances only on a command (``ArmSim.command``: one micro-action, settled);
+  then joint_states and the tip are published once, stamped with the simulation time (dynamic
+  mode: MuJoCo time; kinematic mode has no physics time, so a virtual clock advancing by
+  ``arm.timestep`` per command). The current state is also re-published every
+  ``idle_publish_period`` s with its unchanged stamp, so late subscribers get an initial
+  observation; a listener can tell a re-publication from a new state by the stamp.
+  The run is then a deterministic function of the seeds (DESIGN §4).
+- ``realtime``: physics runs at real-time rate (dynamic mode; a command sets the position targets
+  with the same motor noise as ``ArmSim.command``, then the actuators move the arm over the next
+  steps; kinematic mode applies a command at once), joint_states + tip are published at
+  ``publish_rate`` Hz and the simulation time on ``/clock``.
+"""
+from __future__ import annotations
+
+import array
+import sys
+import time
+
+import mujoco
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PointStamped
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from sagg_common.params import Param, Schema
+from sagg_common.ros_params import declare_schema, run_node
+from sagg_common.rng import substream_seed
+
+from .arm import ArmSim
+from .params import SCHEMA as CORE_SCHEMA, arm_spec_from_params
+
+NODE_NAME = "sagg_sim_bridge"
+NODE_SCHEMA: Schema = (
+    Param("timing", "str", "lockstep",
+          "'lockstep': physics advances only on a command, state published once settled (deterministic); "
+          "'realtime': physics at real-time rate, state published at publish_rate Hz, /clock.",
+          choices=("lockstep", "realtime")),
+    Param("publish_rate", "float", 100.0, "Real-time mode: joint_states + tip publication rate (Hz).",
+          low=0.0, high=10_000.0, low_open=True),
+    Param("controller", "str", "forward_position_controller",
+          "Position controller name: commands are read from /<controller>/commands."),
+    Param("task_topic", "str", "/tip_position", "Topic of the tip position (geometry_msgs/PointStamped)."),
+    Param("frame_id", "str", "world", "frame_id of the published tip position and joint states."),
+    Param("idle_publish_period", "float", 0.5,
+          "Lockstep mode: re-publish the current state (same stamp) this often (s).",
+          low=0.01, high=3600.0),
+)
+SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
+
+
+def reliable(depth: int) -> QoSProfile:
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE)
+
+
+def darray(x: np.ndarray) -> array.array:
+    a = array.array("d")
+    a.frombytes(np.ascontiguousarray(x, dtype=np.float64).tobytes())
+    return a
+
+
+def to_time(ns: int) -> Time:
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+class BridgeNode(Node):
+    def __init__(self):
+        super().__init__(NODE_NAME)
+        p = self.params = declare_schema(self, SCHEMA)
+        self.spec = arm_spec_from_params(p)  # ConfigError names the bad arm.* parameter
+        self.sim = ArmSim(self.spec, seed=substream_seed(p["seed"], "sim"))
+        self.n = self.sim.n_joints
+        self.lockstep = p["timing"] == "lockstep"
+        self.dynamic = self.spec.mode == "dynamic"
+        self.dt_ns = int(round(self.spec.timestep * 1e9))
+        self.exit_code = 0
+
+        self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
+        self.js_pub = self.create_publisher(JointState, "/joint_states", reliable(10))
+        self.tip_pub = self.create_publisher(PointStamped, p["task_topic"], reliable(10))
+        self.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(10))
+
+        self.js_msg = JointState()
+        self.js_msg.name = list(self.sim.joint_names)
+        self.js_msg.header.frame_id = p["frame_id"]
+        self.tip_msg = PointStamped()
+        self.tip_msg.header.frame_id = p["frame_id"]
+        self.zeros = darray(np.zeros(self.n))
+        self.commands = 0
+        self.virtual_ns = 0   # lockstep + kinematic: simulation clock (no physics time)
+
+        if self.lockstep:
+            self.create_timer(p["idle_publish_period"], self.publish_state)
+        else:
+            self.clock_pub = self.create_publisher(Clock, "/clock", reliable(10))
+            self.t_start = time.monotonic()
+            self.steps_done = 0
+            period = self.spec.timestep if self.dynamic else 1.0 / p["publish_rate"]
+            self.create_timer(min(period, 1.0 / p["publish_rate"]), self.on_physics)
+            self.create_timer(1.0 / p["publish_rate"], self.publish_state)
+        self.publish_state()
+        self.get_logger().info(
+            f"{self.n}-DOF {self.spec.mode} arm, {p['timing']}: commands on {self.cmd_topic}, "
+            f"tip on {p['task_topic']}")
+
+    # ------------------------------------------------------------------ time
+    def sim_ns(self) -> int:
+        if self.lockstep:
+            return int(round(self.sim.data.time * 1e9)) if self.dynamic else self.virtual_ns
+        if self.dynamic:
+            return int(round(self.sim.data.time * 1e9))
+        return int((time.monotonic() - self.t_start) * 1e9)
+
+    # ------------------------------------------------------------------ commands
+    def on_command(self, msg: Float64MultiArray) -> None:
+        data = msg.data
+        if len(data) != self.n:
+            self.get_logger().error(
+                f"{self.cmd_topic}: got {len(data)} values; allowed: {self.n} (joint_0..joint_{self.n - 1})",
+                throttle_duration_sec=5.0)
+            return
+        target = np.frombuffer(data, dtype=np.float64) if isinstance(data, array.array) \
+            else np.asarray(data, dtype=np.float64)
+        if not np.all(np.isfinite(target)):
+            self.get_logger().error(f"{self.cmd_topic}: non-finite command ignored", throttle_duration_sec=5.0)
+            return
+        self.commands += 1
+        if self.lockstep:
+            self.sim.command(target)
+            if not self.dynamic:
+                self.virtual_ns += self.dt_ns
+            self.publish_state()
+        elif self.dynamic:
+            self._set_realtime_target(target)
+        else:
+            self.sim.command(target)
+
+    def _set_realtime_target(self, target: np.ndarray) -> None:
+        """Real-time dynamic mode: the motor-noise model of ``ArmSim.command`` (realised
+        Δ = Δ·(1 + noise·N(0,1)), clipped to the limits), but the actuators then move the arm over
+        the following physics steps instead of settling at once."""
+        sim = self.sim
+        q = sim.data.qpos
+        delta = target - q
+        if sim.spec.motor_noise > 0.0:
+            delta *= 1.0 + sim.spec.motor_noise * sim.rng.standard_normal(self.n)
+        sim.data.ctrl[:] = np.clip(q + delta, sim.lower, sim.upper)
+
+    # ------------------------------------------------------------------ real time
+    def on_physics(self) -> None:
+        ns = int((time.monotonic() - self.t_start) * 1e9)
+        if self.dynamic:
+            due = ns // self.dt_ns - self.steps_done
+            if due > 0:
+                due = min(due, 1000)  # if we fell far behind, do not try to catch up at once
+                mujoco.mj_step(self.sim.model, self.sim.data, nstep=int(due))
+                mujoco.mj_kinematics(self.sim.model, self.sim.data)
+                self.steps_done += int(due)
+                if ns // self.dt_ns - self.steps_done > 1000:
+                    self.steps_done = ns // self.dt_ns
+        self.clock_pub.publish(Clock(clock=to_time(self.sim_ns())))
+
+    # ------------------------------------------------------------------ output
+    def publish_state(self) -> None:
+        stamp = to_time(self.sim_ns())
+        alpha, tip = self.sim.observe()
+        js = self.js_msg
+        js.header.stamp = stamp
+        js.position = darray(alpha)
+        js.velocity = darray(self.sim.data.qvel) if self.dynamic else self.zeros
+        t = self.tip_msg
+        t.header.stamp = stamp
+        t.point.x = float(tip[0])
+        t.point.y = float(tip[1])
+        self.js_pub.publish(js)
+        self.tip_pub.publish(t)
+
+
+def main(args: list[str] | None = None) -> int:
+    sys.exit(run_node(NODE_NAME, BridgeNode, args, executor="events"))
+
+
+if __name__ == "__main__":
+    main()
