@@ -1,0 +1,144 @@
+"""Bare rclpy topic ping-pong between two processes: the transport's round-trip floor.
+
+The graph's cost per micro-action is compared with this: one lockstep micro-action is at least one
+topic round trip (command out, observation back). :func:`measure` starts an echo process and a ping
+process (both ``python -m sagg_bringup.pingpong``) on a private ``ROS_DOMAIN_ID`` and returns the
+ping side's result. The message is the learner's command type (std_msgs/Float64MultiArray with
+``size`` doubles), echoed back on a second topic; reliable QoS, depth 10, as in the graph.
+
+    python -m sagg_bringup.pingpong --count 3000 --executor events
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+
+PING, PONG = "/sagg_pingpong/ping", "/sagg_pingpong/pong"
+
+
+def _echo(executor_kind: str) -> None:
+    import rclpy
+    from rclpy.node import Node
+    from std_msgs.msg import Float64MultiArray
+
+    from sagg_common.ros_params import make_executor
+
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = Node("sagg_pingpong_echo")
+    pub = node.create_publisher(Float64MultiArray, PONG, 10)
+    node.create_subscription(Float64MultiArray, PING, pub.publish, 10)
+    stop = []
+    signal.signal(signal.SIGINT, lambda *a: stop.append(1))
+    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
+    ex = make_executor(executor_kind)
+    ex.add_node(node)
+    while not stop and rclpy.ok():
+        ex.spin_once(timeout_sec=0.1)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float) -> dict:
+    import rclpy
+    from rclpy.node import Node
+    from std_msgs.msg import Float64MultiArray
+
+    from sagg_common.ros_params import make_executor
+
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = Node("sagg_pingpong_ping")
+    pub = node.create_publisher(Float64MultiArray, PING, 10)
+    state = {"received": 0}
+    msg = Float64MultiArray()
+    msg.data = [0.0] * size
+
+    def on_pong(_):
+        state["received"] += 1
+        pub.publish(msg)
+
+    node.create_subscription(Float64MultiArray, PONG, on_pong, 10)
+    ex = make_executor(executor_kind)
+    ex.add_node(node)
+    deadline = time.monotonic() + timeout
+    # wait until the echo's subscription and publisher are matched both ways
+    while (pub.get_subscription_count() < 1 or node.count_publishers(PONG) < 1) and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+    time.sleep(0.3)  # let the echo side match our subscription too
+    t0 = None
+    pub.publish(msg)
+    while state["received"] < warmup + count and time.monotonic() < deadline:
+        if t0 is None and state["received"] >= warmup:
+            t0 = time.perf_counter()
+            n0 = state["received"]
+        ex.spin_once(timeout_sec=0.5)
+    done = state["received"] - (n0 if t0 is not None else 0)
+    elapsed = time.perf_counter() - t0 if t0 is not None else float("nan")
+    node.destroy_node()
+    rclpy.shutdown()
+    ok = t0 is not None and done >= count
+    return {"executor": executor_kind, "round_trips": done, "seconds": elapsed,
+            "rate": done / elapsed if ok else float("nan"),
+            "rtt_ms": 1000.0 * elapsed / done if ok and done else float("nan"), "complete": ok}
+
+
+def measure(count: int = 3000, warmup: int = 300, executor: str = "events", size: int = 8,
+            timeout: float = 120.0, domain_id: int | None = None) -> dict:
+    """Round trips per second between two fresh processes. Returns ``{"rate", "rtt_ms", ...}``."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(100, 200))
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    cmd = [sys.executable, "-m", "sagg_bringup.pingpong", "--executor", executor]
+    echo = subprocess.Popen(cmd + ["--echo"], env=env)
+    try:
+        out = subprocess.run(cmd + ["--ping", "--count", str(count), "--warmup", str(warmup), "--size", str(size),
+                                    "--timeout", str(timeout)],
+                             env=env, capture_output=True, text=True, timeout=timeout + 30)
+    finally:
+        stop_process(echo)
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith("{")]
+    if out.returncode != 0 or not lines:
+        raise RuntimeError(f"pingpong failed (exit {out.returncode}): {out.stderr[-500:]}")
+    return json.loads(lines[-1])
+
+
+def stop_process(proc: subprocess.Popen, grace: float = 5.0) -> int | None:
+    """SIGINT, then SIGKILL after ``grace`` seconds. Returns the exit code."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(grace)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    return proc.returncode
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--echo", action="store_true", help="run the echo side (internal)")
+    ap.add_argument("--executor", choices=["events", "single"], default="events")
+    ap.add_argument("--count", type=int, default=3000)
+    ap.add_argument("--warmup", type=int, default=300)
+    ap.add_argument("--size", type=int, default=8, help="doubles per message")
+    ap.add_argument("--timeout", type=float, default=120.0)
+    ap.add_argument("--ping", action="store_true", help="run the ping side only (internal)")
+    a = ap.parse_args(argv)
+    if a.echo:
+        _echo(a.executor)
+        return 0
+    if a.ping:
+        print(json.dumps(_ping(a.executor, a.count, a.warmup, a.size, a.timeout)))
+        return 0
+    res = measure(a.count, a.warmup, a.executor, a.size, a.timeout)
+    print(json.dumps(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
