@@ -94,7 +94,8 @@ $(DATA_LIST): FORCE $(STAMP_VENV)
 # Editable installs (PEP 660). pip puts the console scripts in .venv/bin; the setup.cfg
 # [develop]/[install] script dirs (lib/<pkg>, for `ros2 run`) only apply to colcon/setup.py.
 $(STAMP_PKGS): $(STAMP_WHEELS) $(PY_PKG_META) $(DATA_LIST)
-	$(PIP) install --no-input -q --no-deps --no-build-isolation $(foreach p,$(PY_PKGS),-e src/$(p))
+	@# PYTHONWARNINGS: hide setuptools' generic "editable installation" banner (a UserWarning).
+	PYTHONWARNINGS=ignore::UserWarning $(PIP) install --no-input -q --no-deps --no-build-isolation $(foreach p,$(PY_PKGS),-e src/$(p))
 	@touch $@
 
 # Regenerate the full lock in a throw-away venv: install requirements.in, then record every
