@@ -37,7 +37,8 @@ from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
 from sagg_goal_generator.core import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
-from .learner import SCHEMA as CORE_SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe, Robot
+from .learner import (SCHEMA as CORE_SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe, Report,
+                      Robot)
 
 NODE_NAME = "sagg_learner"
 HALF_PI = math.pi / 2
@@ -159,8 +160,12 @@ class LearnerNode(Node):
         # --- coroutine
         self.state = self.STARTING
         self.pause_reason = "waiting for joint_states, task point, controller and goal generator"
-        self.learner.on_report = self.publish_report
-        self.learner.on_sample = self.publish_sample
+        # Reports and samples are queued while the coroutine runs and published right after the
+        # next command (or goal request) went out: the driver then works on the command while we
+        # publish, instead of waiting for us (same messages, same order).
+        self.outbox: list = []
+        self.learner.on_report = self.outbox.append
+        self.learner.on_sample = self.outbox.append
         self.coro = self.learner.run()
         self.pending = next(self.coro)  # the first request (Observe)
         self.cmd_msg = Float64MultiArray()
@@ -281,6 +286,7 @@ class LearnerNode(Node):
                 self.state = self.STOPPED
                 self.pause_reason = f"max_micro_actions ({self.max_micro_actions}) reached"
                 self.get_logger().info(f"{self.pause_reason}: stopped acting")
+                self.flush()
                 self.publish_status()
                 return
             if type(req) is Command:
@@ -292,11 +298,15 @@ class LearnerNode(Node):
                 self.state = self.RUNNING_COMMAND
                 self.cmd_time = time.monotonic()
                 self.cmd_pub.publish(msg)
+                if self.outbox:
+                    self.flush()
                 return
             if type(req) is GoalRequest:
                 self.state = self.RUNNING_GOAL
                 fut = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
                 fut.add_done_callback(self.on_goal)
+                if self.outbox:
+                    self.flush()
                 return
             if type(req) is Observe:
                 req = self.coro.send((self.js_alpha.copy(), self.tip.copy()))
@@ -315,6 +325,16 @@ class LearnerNode(Node):
         self.advance((int(g.seq), np.array(g.position, dtype=np.float64)))
 
     # ------------------------------------------------------------------ outputs
+    def flush(self) -> None:
+        """Publish the queued reports (Report) and samples (memory index), in order."""
+        box = self.outbox
+        for item in box:
+            if not isinstance(item, Report):
+                self.publish_sample(item)
+            else:
+                self.publish_report(item)
+        box.clear()
+
     def publish_report(self, r) -> None:
         msg = self.report_msg
         msg.header.stamp = self.get_clock().now().to_msg()
