@@ -1,0 +1,364 @@
+"""Run reports: ``report.md`` + PNG figures in the spirit of the paper's (ROS-free).
+
+:func:`write_report` takes a result-like dict, either an in-process ``result.json``
+(:func:`sagg_bringup.experiment.build_result`) or a graph run's ``summary.json`` (same keys, plus the
+recording), and writes into ``out_dir``:
+
+- ``learning_curve.png``: mean / median test error vs micro-actions (paper Fig. 9-12 style);
+- ``goals_over_time.png``: 2-D histograms of the self-generated goals (not subgoals) in 6 time
+  windows, reachable-area contour drawn (paper Fig. 7);
+- ``regions_over_time.png``: the region tree's leaves at several times, rebuilt from the split
+  history (paper Fig. 8); the last panel is the final tree coloured by interest;
+- ``competence_map.png``: goals coloured by the competence of their attempt (paper Fig. 5/6);
+- ``report.md`` referencing them, with the run's numbers.
+
+Figures need a task space of at least 2 dimensions (the first two are drawn).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+# Choices for the figures (not from the paper): number of goal windows (the paper's Fig. 7 has 6),
+# histogram resolution along the longer side of Y, and the number of region-tree snapshots.
+GOAL_WINDOWS = 6
+HIST_BINS = 20
+REGION_PANELS = 6
+
+
+# ----------------------------------------------------------------------------------- helpers
+def _task_box(result: dict) -> tuple[np.ndarray, np.ndarray]:
+    lp = result["config"]["sagg_learner"]
+    return np.asarray(lp["task_space.lower"], float), np.asarray(lp["task_space.upper"], float)
+
+
+def reachable_mask(result: dict):
+    """The reachable area of the run's arm inside Y (a ReachableArea), or None when the config
+    has no simulated arm (e.g. a real-arm run) or Y is not 2-D."""
+    try:
+        from sagg_sim_bridge.arm import reachable_area
+        from sagg_sim_bridge.params import arm_spec_from_params
+        lower, upper = _task_box(result)
+        if len(lower) != 2:
+            return None
+        spec = arm_spec_from_params(result["config"]["sagg_sim_bridge"])
+        seed = int(result["config"]["sagg_learner"].get("eval.seed", 0))
+        return reachable_area(spec, lower, upper, seed=seed)
+    except Exception:  # noqa: BLE001 - a figure overlay, never worth failing the report for
+        return None
+
+
+def _draw_area(ax, area, fill: bool = False) -> None:
+    if area is None:
+        return
+    m = area.mask.astype(float).T  # mask[i, j]: i along x, j along y -> image rows = y
+    extent = (area.lower[0], area.upper[0], area.lower[1], area.upper[1])
+    if fill:
+        ax.imshow(np.where(m > 0, 1.0, np.nan), origin="lower", extent=extent, cmap="Greys",
+                  vmin=0, vmax=8, interpolation="nearest", aspect="auto", zorder=0)
+    nx, ny = area.mask.shape
+    xs = area.lower[0] + (np.arange(nx) + 0.5) * (area.upper[0] - area.lower[0]) / nx
+    ys = area.lower[1] + (np.arange(ny) + 0.5) * (area.upper[1] - area.lower[1]) / ny
+    ax.contour(xs, ys, m, levels=[0.5], colors="tab:red", linewidths=1.0, zorder=3)
+
+
+def _setup_axes(ax, lower, upper, title: str) -> None:
+    ax.set_xlim(lower[0], upper[0])
+    ax.set_ylim(lower[1], upper[1])
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=9)
+    ax.tick_params(labelsize=7)
+
+
+def _goal_arrays(result: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    goals = result.get("goals") or []
+    lower, _ = _task_box(result)
+    pos = np.array([g["position"] for g in goals], float).reshape(-1, len(lower))
+    ma = np.array([g.get("micro_actions", 0) for g in goals], float)
+    comp = np.array([np.nan if g.get("competence") is None else g["competence"] for g in goals], float)
+    return pos, ma, comp
+
+
+def leaves_after(splits: list[dict], lower, upper, stamp: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Leaf boxes of the region tree once every split with ``stamp <= stamp`` is applied (splits in
+    the order they happened; format of ``RegionTree.splits``: region, dim, value, left, right)."""
+    boxes = {0: (np.asarray(lower, float), np.asarray(upper, float))}
+    leaves = [0]  # the root region has id 0 (RegionTree numbers regions from 0)
+    for s in splits:
+        if s.get("stamp") is not None and s["stamp"] > stamp:
+            break
+        if s["region"] not in boxes:
+            continue
+        lo, hi = boxes[s["region"]]
+        lu = hi.copy()
+        lu[s["dim"]] = s["value"]
+        rl = lo.copy()
+        rl[s["dim"]] = s["value"]
+        boxes[s["left"]] = (lo.copy(), lu)
+        boxes[s["right"]] = (rl, hi.copy())
+        i = leaves.index(s["region"])
+        leaves[i:i + 1] = [s["left"], s["right"]]
+    return [boxes[i] for i in leaves]
+
+
+# ----------------------------------------------------------------------------------- figures
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def fig_learning_curve(result: dict, path: Path) -> Path | None:
+    curve = result.get("curve") or []
+    if not curve:
+        return None
+    plt = _plt()
+    x = [c["micro_actions"] for c in curve]
+    fig, ax = plt.subplots(figsize=(6, 3.6), dpi=110)
+    ax.plot(x, [c["mean_error"] for c in curve], "o-", ms=3, label="mean")
+    ax.plot(x, [c["median_error"] for c in curve], "s--", ms=3, label="median")
+    ax.set_xlabel("micro-actions")
+    ax.set_ylabel("test error (task units)")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title(f"{result['strategy']} seed {result['seed']}: reaching error on "
+                 f"{result['config']['sagg_learner'].get('eval.goals', '?')} test goals", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def fig_goals_over_time(result: dict, path: Path, area) -> Path | None:
+    lower, upper = _task_box(result)
+    pos, ma, _ = _goal_arrays(result)
+    if len(lower) < 2 or len(pos) == 0:
+        return None
+    plt = _plt()
+    total = max(float(result.get("micro_actions", 0)), float(ma.max(initial=0)), 1.0)
+    edges = np.linspace(0.0, total, GOAL_WINDOWS + 1)
+    ext = upper[:2] - lower[:2]
+    nb = (np.maximum(1, np.round(HIST_BINS * ext / ext.max()))).astype(int)
+    hists, labels, sels = [], [], []
+    for w in range(GOAL_WINDOWS):
+        last = w == GOAL_WINDOWS - 1
+        sel = (ma >= edges[w]) & ((ma <= edges[w + 1]) if last else (ma < edges[w + 1]))
+        h, _, _ = np.histogram2d(pos[sel, 0], pos[sel, 1], bins=nb,
+                                 range=[[lower[0], upper[0]], [lower[1], upper[1]]])
+        n = int(sel.sum())
+        sels.append(sel)
+        hists.append(h / n if n else h)
+        labels.append(f"micro-actions {edges[w]:,.0f}-{edges[w + 1]:,.0f}\n{n} goals")
+    vmax = max(float(h.max()) for h in hists) or 1.0
+    cols = 3
+    rows = math.ceil(GOAL_WINDOWS / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 3.2 * rows * ext[1] / ext[0] + 0.6),
+                             dpi=110, squeeze=False)
+    im = None
+    for w, ax in enumerate(axes.flat):
+        if w >= GOAL_WINDOWS:
+            ax.axis("off")
+            continue
+        im = ax.imshow(hists[w].T, origin="lower", extent=(lower[0], upper[0], lower[1], upper[1]),
+                       cmap="Blues", vmin=0, vmax=vmax, interpolation="nearest")
+        _draw_area(ax, area)
+        sel = sels[w]
+        if sel.sum() <= 400:  # few goals: also show each one
+            ax.plot(pos[sel, 0], pos[sel, 1], ".", color="k", ms=2.5, zorder=4)
+        _setup_axes(ax, lower, upper, labels[w])
+    fig.suptitle("Self-generated goals over time (colour: share of the window's goals per cell; "
+                 "red: reachable area)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 0.92, 0.95))
+    cax = fig.add_axes((0.93, 0.15, 0.015, 0.7))
+    fig.colorbar(im, cax=cax).ax.tick_params(labelsize=7)
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def fig_regions_over_time(result: dict, path: Path, area) -> Path | None:
+    lower, upper = _task_box(result)
+    if len(lower) < 2:
+        return None
+    splits = result.get("splits") or []
+    plt = _plt()
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Rectangle
+    _, ma, _ = _goal_arrays(result)
+    n_goals = len(result.get("goals") or [])
+    stamps = np.linspace(0, n_goals, REGION_PANELS)[1:-1] if n_goals else np.zeros(0)
+    panels = [float(s) for s in stamps]
+    cols = 3
+    rows = math.ceil(REGION_PANELS / cols)
+    ext = upper[:2] - lower[:2]
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 3.2 * rows * ext[1] / ext[0] + 0.6),
+                             dpi=110, squeeze=False)
+    flat = list(axes.flat)
+
+    def when(goals: float) -> str:
+        k = int(goals)
+        if 0 < k <= len(ma):
+            return f"after {k} goals\n(~{ma[k - 1]:,.0f} micro-actions)"
+        return f"after {k} goals"
+
+    # early panels: leaf outlines from the split history
+    for ax, s in zip(flat, [0.0] + panels):
+        boxes = leaves_after(splits, lower, upper, s)
+        _draw_area(ax, area, fill=True)
+        rects = [Rectangle(lo[:2], *(hi[:2] - lo[:2])) for lo, hi in boxes]
+        ax.add_collection(PatchCollection(rects, facecolor="none", edgecolor="k", linewidth=0.6))
+        _setup_axes(ax, lower, upper, f"{when(s)}: {len(boxes)} region{'s' if len(boxes) != 1 else ''}")
+    # last panel: the final tree, coloured by interest
+    ax = flat[len(panels) + 1]
+    final = result.get("regions") or []
+    if final:
+        rects = [Rectangle(np.asarray(r["lower"][:2]), *(np.asarray(r["upper"][:2]) - np.asarray(r["lower"][:2])))
+                 for r in final]
+        coll = PatchCollection(rects, cmap="magma", edgecolor="0.6", linewidth=0.3)
+        coll.set_array(np.array([r["interest"] for r in final], float))
+        ax.add_collection(coll)
+        cb = fig.colorbar(coll, ax=ax, fraction=0.046, pad=0.03)
+        cb.set_label("interest", fontsize=8)
+        cb.ax.tick_params(labelsize=7)
+    _draw_area(ax, area)
+    _setup_axes(ax, lower, upper, f"final: {len(final)} regions\ncoloured by interest")
+    for ax in flat[len(panels) + 2:]:
+        ax.axis("off")
+    fig.suptitle("Region tree over time (grey / red: reachable area)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def fig_competence_map(result: dict, path: Path, area) -> Path | None:
+    lower, upper = _task_box(result)
+    pos, _, comp = _goal_arrays(result)
+    ok = np.isfinite(comp)
+    if len(lower) < 2 or not ok.any():
+        return None
+    plt = _plt()
+    ext = upper[:2] - lower[:2]
+    fig, ax = plt.subplots(figsize=(6, 5.2 * ext[1] / ext[0] + 0.6), dpi=110)
+    _draw_area(ax, area, fill=True)
+    order = np.argsort(-comp[ok])  # draw the worst on top
+    sc = ax.scatter(pos[ok, 0][order], pos[ok, 1][order], c=comp[ok][order], cmap="RdYlGn",
+                    vmin=-1.0, vmax=0.0, s=16, edgecolors="none", zorder=4)
+    cb = fig.colorbar(sc, ax=ax, fraction=0.046, pad=0.03, shrink=0.8)
+    cb.set_label("competence Γ of the goal's attempt (0 = reached)", fontsize=8)
+    _setup_axes(ax, lower, upper, f"Competence map: {int(ok.sum())} goals (red contour: reachable area)")
+    fig.tight_layout()
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+# ----------------------------------------------------------------------------------- markdown
+def _fmt(x: Any, digits: int = 4) -> str:
+    if isinstance(x, float):
+        return "nan" if math.isnan(x) else f"{x:.{digits}g}"
+    if isinstance(x, int):
+        return f"{x:,}"
+    return str(x)
+
+
+def _curve_rows(curve: list[dict], max_rows: int = 12) -> list[dict]:
+    if len(curve) <= max_rows:
+        return curve
+    idx = np.unique(np.round(np.linspace(0, len(curve) - 1, max_rows)).astype(int))
+    return [curve[i] for i in idx]
+
+
+def write_report(result: dict | str | Path, out_dir: str | Path) -> Path:
+    """Write ``report.md`` and its PNG figures into ``out_dir`` and return the report's path.
+
+    ``result`` is a result-like dict (or a path to ``result.json`` / ``summary.json``)."""
+    if not isinstance(result, dict):
+        result = json.loads(Path(result).read_text())
+    for key in ("strategy", "seed", "config", "micro_actions", "curve"):
+        if key not in result:
+            raise ValueError(f"result: missing key {key!r}; a result.json or summary.json is required")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    area = reachable_mask(result)
+    figs = {
+        "learning_curve": fig_learning_curve(result, out / "learning_curve.png"),
+        "goals_over_time": fig_goals_over_time(result, out / "goals_over_time.png", area),
+        "regions_over_time": fig_regions_over_time(result, out / "regions_over_time.png", area),
+        "competence_map": fig_competence_map(result, out / "competence_map.png", area),
+    }
+    lp = result["config"]["sagg_learner"]
+    bp = result["config"].get("sagg_sim_bridge", {})
+    graph = "bag" in result
+    lines = [f"# {'Graph' if graph else 'In-process'} run: {result['strategy']}, seed {result['seed']}", ""]
+    rows = [
+        ("strategy", result["strategy"]), ("seed", result["seed"]),
+        ("micro-actions", result["micro_actions"]),
+        ("micro-actions / s (learning)", float(result.get("micro_actions_per_second", float("nan")))),
+    ]
+    if "wall_seconds" in result:
+        rows.append(("wall time (s)", float(result["wall_seconds"])))
+    if "timing" in result:
+        rows.append(("bridge timing", result["timing"]))
+    rows += [
+        ("final mean test error", float(result.get("final_mean_error", float("nan")))),
+        ("final median test error", float(result.get("final_median_error", float("nan")))),
+        ("initial mean test error", float(result["curve"][0]["mean_error"]) if result["curve"] else float("nan")),
+        ("goals", len(result.get("goals") or [])),
+        ("regions (final)", len(result.get("regions") or [])),
+        ("splits", len(result.get("splits") or [])),
+    ]
+    mem = result.get("memory") or {}
+    if mem:
+        rows.append(("memory samples", mem.get("samples")))
+        rows.append(("memory digest", f"`{mem.get('digest')}`"))
+    gs = result.get("goal_stats") or {}
+    if gs:
+        rows.append(("reachable share of Y", float(gs.get("reachable_share_of_Y", float("nan")))))
+        rows.append(("goals in reachable area (all / 2nd half)",
+                     f"{_fmt(float(gs.get('goal_share_reachable', float('nan'))), 3)} / "
+                     f"{_fmt(float(gs.get('goal_share_reachable_second_half', float('nan'))), 3)}"))
+    task = f"[{', '.join(_fmt(float(v)) for v in lp['task_space.lower'])}] – " \
+           f"[{', '.join(_fmt(float(v)) for v in lp['task_space.upper'])}]"
+    rows.append(("task space Y (lower – upper)", task))
+    if bp:
+        arm = {k[4:]: v for k, v in bp.items() if k.startswith("arm.")}
+        rows.append(("arm", f"{arm.get('dof')} DOF, {arm.get('link_profile')} links, length "
+                            f"{arm.get('total_length')}, {arm.get('mode')}, motor noise {arm.get('motor_noise')}"))
+    lines += ["| | |", "|---|---|"] + [f"| {k} | {_fmt(v)} |" for k, v in rows] + [""]
+
+    lines += ["## Learning curve", "",
+              f"Test error of the frozen model on {lp.get('eval.goals')} fixed test goals "
+              f"(eval.seed {lp.get('eval.seed')}), reached from the rest posture without learning.", ""]
+    if figs["learning_curve"]:
+        lines += ["![learning curve](learning_curve.png)", ""]
+    lines += ["| micro-actions | mean error | median error |", "|---:|---:|---:|"]
+    lines += [f"| {c['micro_actions']:,} | {c['mean_error']:.3f} | {c['median_error']:.3f} |"
+              for c in _curve_rows(result["curve"])] + [""]
+    sections = [
+        ("goals_over_time", "Goals over time (cf. paper Fig. 7)",
+         "2-D histograms of the self-generated goals (not subgoals) in equal windows of micro-actions."),
+        ("regions_over_time", "Region splits over time (cf. paper Fig. 8)",
+         "Leaves of the goal generator's region tree, rebuilt from the split history."),
+        ("competence_map", "Competence map (cf. paper Fig. 5/6)",
+         "Each goal coloured by the competence Γ of its reaching attempt."),
+    ]
+    for key, title, text in sections:
+        lines += [f"## {title}", "", text, ""]
+        lines += [f"![{key.replace('_', ' ')}]({key}.png)", ""] if figs[key] else ["(no figure: no goals, "
+                                                                                     "or Y is 1-D)", ""]
+    if graph:
+        bag = result["bag"]
+        lines += ["## Recording", "", f"rosbag2 (mcap) at `{bag.get('path')}`.", "",
+                  "| topic | type | messages |", "|---|---|---:|"]
+        lines += [f"| `{t}` | `{v['type']}` | {v['count']:,} |" for t, v in sorted(bag.get("topics", {}).items())]
+        lines.append("")
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path
