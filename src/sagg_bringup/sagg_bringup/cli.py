@@ -51,6 +51,24 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override any parameter, e.g. --set arm.dof=7 (repeatable)")
     e.add_argument("--quiet", action="store_true", help="no progress display")
+    e.add_argument("--report", action="store_true", help="also write report.md + figures into --out")
+
+    r = sub.add_parser("run", help="run the ROS 2 graph (three node processes), record a bag, "
+                                   "evaluate, report")
+    r.add_argument("config", help="experiment YAML (ROS 2 parameter-file form)")
+    r.add_argument("--micro-actions", type=positive_int, default=10_000,
+                   help="learning budget (the learner stops there)")
+    r.add_argument("--seed", type=int, help="overrides the config's seed")
+    r.add_argument("--strategy", choices=STRATEGIES, help="overrides the config's strategy")
+    r.add_argument("--out", help="output directory (default runs/<config>-<strategy>-seed<S>-<time>)")
+    r.add_argument("--timing", choices=["lockstep", "realtime"], default="lockstep",
+                   help="bridge timing: lockstep (deterministic) or realtime (like hardware)")
+    r.add_argument("--eval-every", type=positive_int, default=1000,
+                   help="evaluate the frozen model on the test goals every K micro-actions")
+    r.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override any node parameter, e.g. --set arm.dof=7 (repeatable)")
+    r.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: a random private one)")
+    r.add_argument("--quiet", action="store_true", help="no progress display")
 
     b = sub.add_parser("bench", help="benchmarks")
     bsub = b.add_subparsers(dest="bench", required=True)
@@ -66,6 +84,34 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _run(args) -> int:
+    import time
+
+    from .graph import GraphError, run_graph
+    out = args.out
+    if out is None:
+        seed = "" if args.seed is None else f"-seed{args.seed}"
+        strategy = "" if args.strategy is None else f"-{args.strategy}"
+        out = Path("runs") / f"{Path(args.config).stem}{strategy}{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    try:
+        s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
+                      timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
+                      progress=not args.quiet, domain_id=args.domain_id)
+    except GraphError as exc:
+        print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
+        return exc.code
+    except KeyboardInterrupt:
+        print(f"\nsagg: interrupted; bag closed, partial results in {out}", file=sys.stderr)
+        return 130
+    print(f"{s['strategy']} seed {s['seed']} (graph, {s['timing']}): final mean test error "
+          f"{s['final_mean_error']:.3f} (median {s['final_median_error']:.3f}) after {s['micro_actions']} "
+          f"micro-actions at {s['micro_actions_per_second']:,.0f}/s; wall {s['wall_seconds']:.1f} s; "
+          f"{len(s['goals'])} goals, {len(s['regions'])} regions, "
+          f"{sum(t['count'] for t in s['bag']['topics'].values()):,} messages recorded\n"
+          f"-> {Path(out) / 'summary.json'}, {Path(out) / 'report.md'}, {s['bag']['path']}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -79,7 +125,12 @@ def main(argv: list[str] | None = None) -> int:
                   f"{res['micro_actions']} micro-actions at {res['micro_actions_per_second']:,.0f}/s; "
                   f"{len(res['goals'])} goals, {len(res['regions'])} regions -> "
                   f"{Path(args.out) / 'result.json'}")
+            if args.report:
+                from .report import write_report
+                print(f"report: {write_report(res, args.out)}")
             return 0
+        if args.command == "run":
+            return _run(args)
         if args.command == "bench" and args.bench == "speed":
             from .bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategy)

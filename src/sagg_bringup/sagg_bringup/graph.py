@@ -1,0 +1,653 @@
+"""``sagg run``: the three nodes as processes, recorded, evaluated and reported.
+
+One run:
+
+1. resolves the config (like :func:`~sagg_bringup.experiment.load_experiment_config`, with the
+   nodes' full schemas, so node-only parameters such as the bridge's ``timing`` are accepted) and
+   writes ``DIR/params.yaml`` for the nodes: every resolved parameter, plus the learner's
+   ``joints`` / ``joint_limits`` / ``rest_posture`` from the simulated arm and
+   ``max_micro_actions``;
+2. starts ``goal_generator``, ``learner`` and ``mujoco_bridge`` (console scripts next to
+   ``sys.executable``) with ``--ros-args --params-file DIR/params.yaml`` on a private
+   ``ROS_DOMAIN_ID`` with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``; logs in ``DIR/logs``;
+3. records every graph topic into the mcap bag ``DIR/bag`` (:mod:`.recorder`) from a node in this
+   process, and shows live progress;
+4. evaluates the frozen model every ``eval_every`` micro-actions and at the end, in a worker
+   thread of this process: the learner memory is rebuilt from ``/sagg/sample`` and an
+   :class:`~sagg_low_level.learner.EvolvingContextLearner` built from the same parameters reaches
+   the test goals on its own simulator (exactly what ``InProcessRun.evaluate`` does, so in lockstep
+   the curve equals the in-process one); results go to ``/sagg/evaluation``. The nodes never wait
+   for it, and it is not counted as learning;
+5. stops when the learner reports ``max_micro_actions`` done (``/sagg/status``) or on Ctrl-C:
+   SIGINT to every node, SIGKILL after a timeout; the bag is closed in every case;
+6. writes ``DIR/summary.json`` (keys of ``result.json`` plus the recording) and ``DIR/report.md``.
+"""
+from __future__ import annotations
+
+import ctypes
+import importlib
+import math
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from sagg_common.params import ConfigError, check_wildcard, node_params, read_config
+from sagg_common.progress import Progress
+
+from .recorder import BagWriter, TopicRecorder, TopicSpec
+
+# node section -> (module holding the node's full SCHEMA, console script)
+NODES = {
+    "sagg_sim_bridge": ("sagg_sim_bridge.node", "mujoco_bridge"),
+    "sagg_goal_generator": ("sagg_goal_generator.node", "goal_generator"),
+    "sagg_learner": ("sagg_low_level.node", "learner"),
+}
+TIMINGS = ("lockstep", "realtime")
+# Seconds to wait for the nodes to exit after SIGINT before SIGKILL (DESIGN §5: nodes sometimes
+# ignore SIGINT under load).
+STOP_TIMEOUT = 5.0
+# Niceness of the evaluation thread: the graph (the nodes, and this process's DDS threads that
+# receive the recorded topics) must win the CPU over the evaluator. Measured here on 2 cores: with
+# the evaluator at normal priority, the recorder lost bursts of ~12 /<controller>/commands messages
+# (the learner's writer keeps only 10); at niceness 19 none.
+EVAL_NICE = 19
+
+
+class GraphError(RuntimeError):
+    """The graph failed (a node died, stalled, ...); ``code`` is the exit code to return."""
+
+    def __init__(self, message: str, code: int = 1):
+        super().__init__(message)
+        self.code = code
+
+
+# ------------------------------------------------------------------------------------ config
+def node_schemas() -> dict[str, tuple]:
+    """Full parameter schemas (core + node-only) of the three nodes, from the node modules."""
+    return {name: importlib.import_module(mod).SCHEMA for name, (mod, _) in NODES.items()}
+
+
+def core_schemas() -> dict[str, tuple]:
+    from sagg_goal_generator.core import SCHEMA as GEN
+    from sagg_low_level.learner import SCHEMA as LEARNER
+    from sagg_sim_bridge.params import SCHEMA as BRIDGE
+    return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER, "sagg_sim_bridge": BRIDGE}
+
+
+def load_graph_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
+    """Resolved parameters of the three nodes (full schemas): defaults < ``/**`` < node section <
+    overrides. Same checks as the in-process loader; an override no node declares is an error."""
+    schemas = node_schemas()
+    sections = read_config(path)
+    check_wildcard(sections, schemas.values())
+    ov = dict(overrides or {})
+    known = {p.name for s in schemas.values() for p in s}
+    unknown = sorted(set(ov) - known)
+    if unknown:
+        raise ConfigError(f"--set: unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+    out = {name: node_params(sections, name, schemas[name], ov) for name in NODES}
+    g, l = out["sagg_goal_generator"], out["sagg_learner"]
+    for key in ("seed", "strategy", "task_space.lower", "task_space.upper"):
+        if g[key] != l[key]:
+            raise ConfigError(f"parameter '{key}' differs between sagg_goal_generator ({g[key]!r}) and "
+                              f"sagg_learner ({l[key]!r}); set it once under '/**'")
+    from sagg_sim_bridge.params import arm_spec_from_params
+    arm_spec_from_params(out["sagg_sim_bridge"])
+    return out
+
+
+def core_config(full: dict[str, dict]) -> dict[str, dict]:
+    """The core parameters only (the ``config`` of an in-process ``result.json``)."""
+    return {name: {p.name: full[name][p.name] for p in schema} for name, schema in core_schemas().items()}
+
+
+def _nest(flat: dict[str, Any]) -> dict:
+    """``{"a.b": 1}`` -> ``{"a": {"b": 1}}`` (the ROS 2 parameter-file form)."""
+    out: dict = {}
+    for key, value in flat.items():
+        parts = key.split(".")
+        d = out
+        for p in parts[:-1]:
+            d = d.setdefault(p, {})
+        d[parts[-1]] = value
+    return out
+
+
+def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str) -> dict[str, dict]:
+    """The parameters the nodes get: the resolved config plus what ``sagg run`` fills in."""
+    from sagg_sim_bridge.params import arm_spec_from_params
+    params = {name: dict(values) for name, values in full.items()}
+    spec = arm_spec_from_params(full["sagg_sim_bridge"])
+    lower, upper = spec.limits()
+    lp = params["sagg_learner"]
+    extra = {"joints": spec.joint_names(), "joint_limits.lower": lower.tolist(),
+             "joint_limits.upper": upper.tolist(), "rest_posture": spec.rest_posture().tolist(),
+             "max_micro_actions": int(max_micro_actions)}
+    for k, v in extra.items():
+        if k in lp:
+            lp[k] = v
+    # the bridge and the learner must agree on the topics
+    bp = params["sagg_sim_bridge"]
+    if "timing" in bp:
+        bp["timing"] = timing
+    for k in ("controller", "task_topic"):
+        if k in bp and k in lp and bp[k] != lp[k]:
+            raise ConfigError(f"parameter '{k}' differs between sagg_sim_bridge ({bp[k]!r}) and "
+                              f"sagg_learner ({lp[k]!r}); set it once under '/**'")
+    # every goal and sample must reach the recorder: nodes that can wait for subscribers do so
+    for name, key in (("sagg_goal_generator", "min_goal_subscribers"), ("sagg_learner", "min_sample_subscribers"),
+                      ("sagg_learner", "min_subscribers")):
+        if key in params[name] and params[name][key] == 0:
+            params[name][key] = 1
+    return params
+
+
+def write_params_file(path: Path, params: dict[str, dict]) -> None:
+    doc = {name: {"ros__parameters": _nest(values)} for name, values in params.items()}
+    header = ("# Generated by `sagg run`: the resolved parameters of the three nodes "
+              "(ROS 2 parameter-file form).\n")
+    path.write_text(header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120))
+
+
+def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSpec]:
+    controller = learner_params.get("controller", "forward_position_controller")
+    task_topic = learner_params.get("task_topic", "/tip_position")
+    if not task_topic.startswith("/"):
+        task_topic = "/" + task_topic
+    return [
+        TopicSpec("/sagg/goal", "sagg_msgs/msg/Goal"),
+        TopicSpec("/sagg/competence", "sagg_msgs/msg/CompetenceReport"),
+        TopicSpec("/sagg/regions", "sagg_msgs/msg/RegionTree", depth=1000, transient_local=True),
+        TopicSpec("/sagg/sample", "sagg_msgs/msg/Sample"),
+        TopicSpec("/sagg/status", "sagg_msgs/msg/LearnerStatus", depth=100),
+        TopicSpec("/sagg/evaluation", "sagg_msgs/msg/Evaluation", depth=100),
+        TopicSpec("/joint_states", "sensor_msgs/msg/JointState"),
+        TopicSpec(f"/{controller}/commands", "std_msgs/msg/Float64MultiArray"),
+        TopicSpec(task_topic, "geometry_msgs/msg/PointStamped"),
+    ] + ([TopicSpec("/clock", "rosgraph_msgs/msg/Clock", depth=100)] if timing == "realtime" else [])
+
+
+# ------------------------------------------------------------------------------------ processes
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
+    """Children get SIGKILL if `sagg run` itself dies (PR_SET_PDEATHSIG), so no orphan graph."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)
+    except Exception:  # noqa: BLE001
+        pass
+
+
+@dataclass
+class NodeProcess:
+    name: str
+    exe: Path
+    log_path: Path
+    popen: subprocess.Popen | None = None
+    exit_code: int | None = None
+
+    def start(self, params_file: Path, env: dict) -> None:
+        log = open(self.log_path, "wb")
+        try:
+            self.popen = subprocess.Popen(
+                [str(self.exe), "--ros-args", "--params-file", str(params_file)],
+                stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
+                start_new_session=True,  # a terminal Ctrl-C reaches `sagg run` only; it stops us in order
+                preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+        finally:
+            log.close()
+
+    def poll(self) -> int | None:
+        if self.popen is not None and self.exit_code is None:
+            self.exit_code = self.popen.poll()
+        return self.exit_code
+
+    def log_tail(self, lines: int = 8) -> str:
+        try:
+            text = self.log_path.read_text(errors="replace").strip().splitlines()
+        except OSError:
+            return ""
+        return "\n".join("    " + s for s in text[-lines:])
+
+
+def stop_processes(procs: list[NodeProcess], timeout: float = STOP_TIMEOUT) -> None:
+    """SIGINT to every running node, then SIGKILL to those still alive after ``timeout`` s."""
+    running = [p for p in procs if p.popen is not None and p.poll() is None]
+    for p in running:
+        try:
+            p.popen.send_signal(signal.SIGINT)
+        except ProcessLookupError:
+            pass
+    deadline = time.monotonic() + timeout
+    for p in running:
+        try:
+            p.popen.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.popen.kill()
+            p.popen.wait()
+        p.poll()
+
+
+def pick_domain_id() -> int:
+    """A random ROS_DOMAIN_ID in 1..200 (private per run: concurrent runs and tests do not mix),
+    avoiding the caller's own. Drawn from OS entropy: not part of any experiment's randomness."""
+    own = os.environ.get("ROS_DOMAIN_ID", "")
+    rng = np.random.default_rng()
+    while True:
+        d = int(rng.integers(1, 201))
+        if str(d) != own:
+            return d
+
+
+# ------------------------------------------------------------------------------------ evaluation
+class Evaluator(threading.Thread):
+    """Rebuilds the learner memory from /sagg/sample (fed through :meth:`add`) and evaluates the
+    frozen model at each checkpoint, as ``InProcessRun.evaluate`` does, on its own simulator."""
+
+    def __init__(self, learner_params: dict, bridge_params: dict, test_goals: np.ndarray,
+                 checkpoints: list[int], publish):
+        super().__init__(name="sagg-evaluator", daemon=True)
+        from sagg_low_level.learner import EvolvingContextLearner, Robot
+        from sagg_low_level.memory import SampleMemory
+        from sagg_sim_bridge.params import arm_spec_from_params
+        self.spec = arm_spec_from_params(bridge_params)
+        self.seed = learner_params["seed"]
+        lower, upper = self.spec.limits()
+        robot = Robot(self.spec.joint_names(), lower, upper, self.spec.rest_posture())
+        n, m = robot.n, len(learner_params["task_space.lower"])
+        self.memory = SampleMemory(n, n, m)
+        self.learner = EvolvingContextLearner(learner_params, robot, m, memory=self.memory)
+        self.learner.memory = self.memory  # (an empty memory is falsy: make sure it is this one)
+        self.goals = test_goals
+        self.checkpoints = list(checkpoints)
+        self.publish = publish
+        self.curve: list[dict] = []
+        self.eval_seconds = 0.0
+        self.error: str | None = None
+        self.inbox: queue.Queue = queue.Queue()
+        self.stop_flag = threading.Event()
+        self.idle = threading.Event()  # set when every checkpoint so far is evaluated
+
+    def add(self, index: int, alpha, delta_alpha, delta_y) -> None:
+        self.inbox.put((index, alpha, delta_alpha, delta_y))
+
+    def add_checkpoint(self, micro_actions: int) -> None:
+        """An extra, final checkpoint (e.g. the run stopped early); evaluated once reached."""
+        self.inbox.put(("checkpoint", micro_actions))
+
+    @property
+    def pending(self) -> list[int]:
+        return self.checkpoints
+
+    def _evaluate(self, at: int) -> None:
+        from sagg_common.rng import substream_seed
+        from sagg_low_level.evaluate import evaluate
+        from sagg_sim_bridge.arm import ArmSim
+        t0 = time.perf_counter()
+        sim = ArmSim(self.spec, seed=substream_seed(self.seed, "eval_sim"))
+        errors = evaluate(self.learner, sim, self.goals)
+        self.eval_seconds += time.perf_counter() - t0
+        point = {"micro_actions": at, "mean_error": float(errors.mean()), "median_error": float(np.median(errors))}
+        self.curve.append(point)
+        self.publish(at, errors)
+
+    def run(self) -> None:
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), EVAL_NICE)  # this thread only
+        except (AttributeError, OSError):
+            pass
+        try:
+            while not self.stop_flag.is_set():
+                while self.checkpoints and len(self.memory) == self.checkpoints[0]:
+                    at = self.checkpoints.pop(0)
+                    if not self.curve or self.curve[-1]["micro_actions"] != at:
+                        self._evaluate(at)
+                if not self.checkpoints:
+                    self.idle.set()
+                try:
+                    item = self.inbox.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                if item[0] == "checkpoint":
+                    at = int(item[1])
+                    self.checkpoints = sorted({c for c in self.checkpoints if c < at} | {at})
+                    if at < len(self.memory):
+                        raise RuntimeError(f"checkpoint {at} is behind the rebuilt memory ({len(self.memory)})")
+                    continue
+                self.idle.clear()
+                index, a, da, dy = item
+                if index != len(self.memory):
+                    raise RuntimeError(f"/sagg/sample index {index} received when {len(self.memory)} samples "
+                                       "were rebuilt: samples were lost or reordered")
+                self.memory.add(a, da, dy)
+        except Exception as exc:  # noqa: BLE001 - reported by the orchestrator
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.idle.set()
+
+
+# ------------------------------------------------------------------------------------ split history
+class SplitTracker:
+    """Rebuilds the goal generator's split history (``RegionTree.splits`` format: region, dim, value,
+    left, right, stamp) from successive /sagg/regions snapshots.
+
+    A snapshot is published on every split, but a reliable depth-1 writer may coalesce several; the
+    leaves that replaced a region are then split back into a tree by guillotine cuts (ids of
+    never-seen intermediate regions are negative). The leaves at every observed time are exact."""
+
+    def __init__(self, lower, upper):
+        self.leaves: dict[int, tuple[np.ndarray, np.ndarray]] = {0: (np.asarray(lower, float), np.asarray(upper, float))}
+        self.splits: list[dict] = []
+        self._synthetic = -1
+        self.inconsistent = 0
+
+    def update(self, regions: list[tuple[int, np.ndarray, np.ndarray]], stamp: int) -> None:
+        new = {rid: (np.asarray(lo, float), np.asarray(hi, float)) for rid, lo, hi in regions}
+        removed = [r for r in self.leaves if r not in new]
+        added = [r for r in new if r not in self.leaves]
+        for rid in removed:
+            lo, hi = self.leaves[rid]
+            kids = [a for a in added if np.all(new[a][0] >= lo) and np.all(new[a][1] <= hi)]
+            self._decompose(rid, lo, hi, kids, new, stamp)
+        self.leaves = new
+
+    def _decompose(self, rid, lo, hi, kids, boxes, stamp) -> None:
+        if len(kids) < 2:
+            self.inconsistent += 1
+            return
+        for d in range(len(lo)):
+            for v in sorted({float(boxes[k][0][d]) for k in kids if boxes[k][0][d] > lo[d]}):
+                left = [k for k in kids if boxes[k][1][d] <= v]
+                right = [k for k in kids if boxes[k][0][d] >= v]
+                if left and right and len(left) + len(right) == len(kids):
+                    ids = []
+                    for side in (left, right):
+                        if len(side) == 1:
+                            ids.append(side[0])
+                        else:
+                            ids.append(self._synthetic)
+                            self._synthetic -= 1
+                    self.splits.append({"stamp": int(stamp), "region": int(rid), "dim": d, "value": v,
+                                        "left": int(ids[0]), "right": int(ids[1])})
+                    llo, lhi = lo, hi.copy()
+                    lhi[d] = v
+                    rlo, rhi = lo.copy(), hi
+                    rlo[d] = v
+                    if len(left) > 1:
+                        self._decompose(ids[0], llo, lhi, left, boxes, stamp)
+                    if len(right) > 1:
+                        self._decompose(ids[1], rlo, rhi, right, boxes, stamp)
+                    return
+        self.inconsistent += 1
+
+
+# ------------------------------------------------------------------------------------ the run
+@dataclass
+class RunState:
+    """What the orchestrator learns from the topics."""
+
+    samples: int = 0
+    sample_t0: float | None = None
+    sample_t1: float | None = None
+    status: dict | None = None
+    goals: dict[int, dict] = field(default_factory=dict)
+    goal_competence: dict[int, float] = field(default_factory=dict)
+    report_ma: dict[int, int] = field(default_factory=dict)
+    reports: int = 0
+    last_regions: Any = None
+    last_competence: float = float("nan")
+    last_error: float = float("nan")
+
+
+def _status_dict(m) -> dict:
+    return {"strategy": m.strategy, "micro_actions": int(m.micro_actions), "goals": int(m.goals),
+            "samples": int(m.samples), "last_competence": float(m.last_competence),
+            "micro_actions_per_second": float(m.micro_actions_per_second), "paused": bool(m.paused),
+            "pause_reason": m.pause_reason}
+
+
+def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
+              seed: int | None = None, strategy: str | None = None, timing: str = "lockstep",
+              eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
+              domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True) -> dict:
+    """Run the graph for ``micro_actions`` micro-actions; returns the summary (also in DIR)."""
+    from .experiment import goal_share_stats, write_json_atomic
+    from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES
+    from sagg_sim_bridge.arm import reachable_area, test_goals
+    from sagg_sim_bridge.params import arm_spec_from_params
+
+    if micro_actions < 1:
+        raise ConfigError(f"--micro-actions: got {micro_actions}; allowed: an integer >= 1")
+    if eval_every < 1:
+        raise ConfigError(f"--eval-every: got {eval_every}; allowed: an integer >= 1")
+    if timing not in TIMINGS:
+        raise ConfigError(f"--timing: got {timing!r}; allowed: one of {', '.join(TIMINGS)}")
+    if domain_id is not None and not 0 <= domain_id <= 232:
+        raise ConfigError(f"--domain-id: got {domain_id}; allowed: an integer in [0, 232]")
+    ov = dict(overrides or {})
+    if strategy is not None:
+        ov["strategy"] = strategy
+    if seed is not None:
+        ov["seed"] = seed
+    full = load_graph_config(config_path, ov)
+    out = Path(out_dir)
+    if (out / "bag").exists():
+        raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
+    bin_dir = Path(sys.executable).parent
+    procs = []
+    for name, (_, script) in NODES.items():
+        exe = bin_dir / script
+        if not exe.is_file():
+            raise ConfigError(f"console script '{exe}' not found: run `make setup` (or use the venv's python)")
+        procs.append(NodeProcess(name, exe, out / "logs" / f"{script}.log"))
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+
+    params = graph_params(full, micro_actions, timing)
+    params_file = out / "params.yaml"
+    write_params_file(params_file, params)
+    config = core_config(full)
+    lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
+    spec = arm_spec_from_params(bp)
+    t_lower, t_upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
+    area = reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
+    goals_test = test_goals(spec, t_lower, t_upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
+    checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
+
+    domain = pick_domain_id() if domain_id is None else domain_id
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONUNBUFFERED="1")
+    # this process joins the same private domain (the rmw reads the discovery range at init)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+    from sagg_msgs.msg import Evaluation
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node("sagg_run", context=ctx)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    topics = graph_topics(params["sagg_learner"], timing)
+    bag = BagWriter(out / "bag", topics)
+    st = RunState()
+    eval_pub = node.create_publisher(Evaluation, "/sagg/evaluation", 100)
+
+    def publish_eval(at: int, errors: np.ndarray) -> None:
+        msg = Evaluation()
+        msg.header.stamp = node.get_clock().now().to_msg()
+        msg.micro_actions = int(at)
+        msg.mean_error = float(errors.mean())
+        msg.median_error = float(np.median(errors))
+        msg.errors = errors.tolist()
+        eval_pub.publish(msg)
+        st.last_error = msg.mean_error
+
+    evaluator = Evaluator(lp, bp, goals_test, checkpoints, publish_eval)
+
+    def on_sample(m) -> None:
+        now = time.perf_counter()
+        if st.sample_t0 is None:
+            st.sample_t0 = now
+        st.sample_t1 = now
+        st.samples += 1
+        evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
+
+    def on_goal(m) -> None:
+        st.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
+                                "mode_name": MODE_NAMES.get(int(m.mode), str(m.mode)),
+                                "after_report": int(m.after_report)}
+
+    def on_report(m) -> None:
+        st.reports += 1
+        st.report_ma[int(m.seq)] = int(m.micro_actions)
+        if m.kind == KIND_GOAL:
+            st.goal_competence[int(m.goal_seq)] = float(m.competence)
+            st.last_competence = float(m.competence)
+
+    tracker = SplitTracker(t_lower, t_upper)
+
+    def on_regions(m) -> None:
+        st.last_regions = m
+        tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
+
+    def on_status(m) -> None:
+        st.status = _status_dict(m)
+
+    recorder = TopicRecorder(node, bag, topics, {
+        "/sagg/sample": on_sample, "/sagg/goal": on_goal, "/sagg/competence": on_report,
+        "/sagg/regions": on_regions, "/sagg/status": on_status})
+    bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
+    interrupted = False
+    error: GraphError | None = None
+    t_first = None
+    try:
+        evaluator.start()
+        for p in procs:
+            p.start(params_file, env)
+        t_nodes = time.perf_counter()
+        last_progress = (0, time.perf_counter())
+        done_at = None
+        while True:
+            executor.spin_once(timeout_sec=0.02)
+            now = time.perf_counter()
+            if st.samples and t_first is None:
+                t_first = now
+            if st.samples < micro_actions:  # (the bar always prints a full one: once, below)
+                bar.update(st.samples, goals=len(st.goals),
+                           regions=len(st.last_regions.regions) if st.last_regions is not None else 1,
+                           competence=st.last_competence, error=st.last_error)
+            if evaluator.error:
+                raise GraphError(f"evaluation failed: {evaluator.error}")
+            learner_done = st.status is not None and st.status["micro_actions"] >= micro_actions
+            for p in procs:
+                code = p.poll()
+                if code is not None and not (learner_done and code == 0):
+                    raise GraphError(f"node {p.name} exited with code {code} (log {p.log_path}):\n"
+                                     f"{p.log_tail()}", code=2 if code == 2 else 1)
+            if st.samples != last_progress[0]:
+                last_progress = (st.samples, now)
+            elif not learner_done and now - last_progress[1] > stall_timeout:
+                raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} micro-actions); "
+                                 f"node logs in {out / 'logs'}")
+            if learner_done and st.samples >= st.status["samples"]:
+                if done_at is None:
+                    done_at = now
+                # a short drain so reports/goals published just before the end are recorded too
+                if now - done_at > 0.5 and evaluator.idle.is_set():
+                    break
+                if now - done_at > stall_timeout:
+                    raise GraphError("the final evaluation did not finish")
+        bar.update(st.samples, force=True, goals=len(st.goals),
+                   regions=len(st.last_regions.regions) if st.last_regions is not None else 1,
+                   competence=st.last_competence, error=st.last_error)
+        # the final Evaluation message is published from the worker: let the recorder take it
+        t_end = time.perf_counter() + 0.3
+        while time.perf_counter() < t_end:
+            executor.spin_once(timeout_sec=0.02)
+    except KeyboardInterrupt:
+        interrupted = True
+    except GraphError as exc:
+        error = exc
+    finally:
+        bar.close()
+        stop_processes(procs)
+        evaluator.stop_flag.set()
+        evaluator.join(timeout=10.0)
+        recorder.destroy()
+        bag.close()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    wall = time.perf_counter() - t_start
+
+    # ---- summary
+    learn_seconds = (st.sample_t1 - st.sample_t0) if st.samples > 1 else 0.0
+    goals = []
+    for seq in sorted(st.goals):
+        g = dict(st.goals[seq])
+        g["competence"] = st.goal_competence.get(seq)
+        g["micro_actions"] = st.report_ma.get(g["after_report"], 0)
+        goals.append(g)
+    pos = np.array([g["position"] for g in goals], float).reshape(-1, len(t_lower))
+    gma = np.array([g["micro_actions"] for g in goals], float)
+    done = st.status["micro_actions"] if st.status else st.samples
+    regions = []
+    if st.last_regions is not None:
+        regions = [{"id": int(r.id), "lower": list(r.lower), "upper": list(r.upper),
+                    "interest": float(r.interest), "count": int(r.count),
+                    "mean_competence": float(r.mean_competence)} for r in st.last_regions.regions]
+    curve = list(evaluator.curve)
+    bag_topics = bag.topics()
+    span = {t: (recorder.last_ns[t] - recorder.first_ns[t]) / 1e9 for t in recorder.first_ns}
+    summary = {
+        "format": "sagg.summary/1",
+        "strategy": lp["strategy"],
+        "seed": lp["seed"],
+        "config": config,
+        "node_params": params,
+        "params_file": str(params_file),
+        "timing": timing,
+        "domain_id": domain,
+        "micro_actions": int(done),
+        "micro_actions_requested": int(micro_actions),
+        "micro_actions_per_second": (st.samples - 1) / learn_seconds if learn_seconds > 0 else float("nan"),
+        "learn_seconds": learn_seconds,
+        "startup_seconds": (t_first - t_nodes) if t_first is not None else float("nan"),
+        "eval_seconds": evaluator.eval_seconds,
+        "wall_seconds": wall,
+        "curve": curve,
+        "final_mean_error": curve[-1]["mean_error"] if curve else float("nan"),
+        "final_median_error": curve[-1]["median_error"] if curve else float("nan"),
+        "memory": {"samples": len(evaluator.memory), "digest": evaluator.memory.digest(),
+                   "bytes": int(getattr(evaluator.memory, "nbytes", 0))},
+        "learner_status": st.status,
+        "reports": st.reports,
+        "goals": goals,
+        "goal_stats": goal_share_stats(pos, gma, area, micro_actions),
+        "regions": regions,
+        "splits": tracker.splits,
+        "bag": {"path": str(out / "bag"), "storage": "mcap", "topics": bag_topics},
+        "rates": {t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0},
+        "nodes": {p.name: {"exit_code": p.exit_code, "log": str(p.log_path)} for p in procs},
+        "interrupted": interrupted,
+        "error": str(error) if error else None,
+    }
+    write_json_atomic(out / "summary.json", summary)
+    if report and curve:
+        from .report import write_report
+        write_report(summary, out)
+    if error is not None:
+        raise error
+    if interrupted:
+        raise KeyboardInterrupt
+    return summary

@@ -1,0 +1,166 @@
+"""Recording the graph's topics into an mcap rosbag2 bag (no rosbag2 on PyPI: rosbags writes it).
+
+Two parts:
+
+- :class:`BagWriter` (ROS-free): a rosbags ``Writer`` (rosbag2 format version 9, mcap storage)
+  with the sagg_msgs types registered from their ``.msg`` text, one connection per topic, and
+  per-topic message counts.
+- :class:`TopicRecorder`: raw (``raw=True``) rclpy subscriptions on an existing node; the CDR bytes
+  are written exactly as received (DESIGN §5: they are valid CDR, unlike the output of
+  ``rclpy.serialization.serialize_message``), and optional per-topic handlers get the deserialized
+  message as well.
+
+Timestamps are the receive times (ns since the epoch), as ``ros2 bag record`` does.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+SAGG_MSGS = ("Goal", "CompetenceReport", "Region", "RegionTree", "Sample", "LearnerStatus", "Evaluation")
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One recorded topic: name, ROS type (``pkg/msg/Name``), subscription depth, durability."""
+
+    name: str
+    msgtype: str
+    depth: int = 10000
+    transient_local: bool = False
+
+
+def find_msg_dir() -> Path:
+    """The sagg_msgs ``msg`` folder: the installed share dir (venv prefix, AMENT_PREFIX_PATH) first,
+    then the source tree (src/sagg_msgs/msg)."""
+    candidates = [Path(sys.prefix) / "share" / "sagg_msgs" / "msg"]
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            candidates.append(Path(prefix) / "share" / "sagg_msgs" / "msg")
+    candidates.append(Path(__file__).resolve().parents[2] / "sagg_msgs" / "msg")
+    for c in candidates:
+        if all((c / f"{name}.msg").is_file() for name in SAGG_MSGS):
+            return c
+    raise FileNotFoundError("sagg_msgs .msg files not found in: " + ", ".join(str(c) for c in candidates))
+
+
+def make_typestore(msg_dir: Path | None = None):
+    """A rosbags typestore with the ROS 2 Jazzy types plus sagg_msgs (parsed from .msg text)."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    msg_dir = msg_dir or find_msg_dir()
+    types = {}
+    for name in SAGG_MSGS:
+        types.update(get_types_from_msg((msg_dir / f"{name}.msg").read_text(), f"sagg_msgs/msg/{name}"))
+    store.register(types)
+    return store
+
+
+def _qos(spec: TopicSpec):
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
+                                    QosTime)
+    zero = QosTime(0, 0)  # rosbag2's "unspecified" (the rmw default)
+    return Qos(QosHistory.KEEP_LAST, spec.depth, QosReliability.RELIABLE,
+               QosDurability.TRANSIENT_LOCAL if spec.transient_local else QosDurability.VOLATILE,
+               zero, zero, QosLiveliness.AUTOMATIC, zero, False)
+
+
+class BagWriter:
+    """An mcap rosbag2 bag (version 9) being written; one connection per topic."""
+
+    def __init__(self, path: str | Path, topics: list[TopicSpec], typestore=None):
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        self.path = Path(path)
+        if self.path.exists():
+            raise FileExistsError(f"bag path '{self.path}' exists already; allowed: a new path")
+        self.typestore = typestore or make_typestore()
+        self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer.open()
+        self._conn = {}
+        self.counts: dict[str, int] = {}
+        self.types: dict[str, str] = {}
+        try:
+            for t in topics:
+                self._conn[t.name] = self._writer.add_connection(
+                    t.name, t.msgtype, typestore=self.typestore, serialization_format="cdr",
+                    offered_qos_profiles=[_qos(t)])
+                self.counts[t.name] = 0
+                self.types[t.name] = t.msgtype
+        except Exception:
+            self.abort()
+            raise
+        self.closed = False
+
+    def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        self._writer.write(self._conn[topic], int(timestamp_ns), data)
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        """Write the mcap footer and metadata.yaml (idempotent)."""
+        if not self.closed:
+            self.closed = True
+            self._writer.close()
+
+    def abort(self) -> None:
+        self.closed = True
+        try:
+            self._writer.close()
+        except Exception:  # noqa: BLE001 - best effort
+            pass
+
+    def topics(self) -> dict[str, dict]:
+        return {t: {"type": self.types[t], "count": self.counts[t]} for t in self.counts}
+
+
+def _msg_class(msgtype: str):
+    import importlib
+    pkg, kind, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+class TopicRecorder:
+    """Raw subscriptions on ``node`` writing every message of ``topics`` into ``bag``.
+
+    ``handlers[topic](msg)`` is called (in the executor's thread) with the deserialized message
+    after it has been written, for the topics that have one."""
+
+    def __init__(self, node, bag: BagWriter, topics: list[TopicSpec],
+                 handlers: dict[str, Callable] | None = None):
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.serialization import deserialize_message
+
+        self.node = node
+        self.bag = bag
+        self.handlers = handlers or {}
+        self.first_ns: dict[str, int] = {}
+        self.last_ns: dict[str, int] = {}
+        self._subs = []
+        for t in topics:
+            cls = _msg_class(t.msgtype)
+            qos = QoSProfile(
+                history=HistoryPolicy.KEEP_LAST, depth=t.depth,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local else DurabilityPolicy.VOLATILE)
+            handler = self.handlers.get(t.name)
+
+            def callback(data, topic=t.name, cls=cls, handler=handler):
+                now = time.time_ns()
+                if not self.bag.closed:
+                    self.bag.write(topic, now, data)
+                self.first_ns.setdefault(topic, now)
+                self.last_ns[topic] = now
+                if handler is not None:
+                    handler(deserialize_message(data, cls))
+
+            self._subs.append(node.create_subscription(cls, t.name, callback, qos, raw=True))
+
+    def destroy(self) -> None:
+        for s in self._subs:
+            self.node.destroy_subscription(s)
+        self._subs = []
