@@ -109,8 +109,8 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     lp = config["sagg_learner"]
     lower = np.asarray(lp["task_space.lower"])
     upper = np.asarray(lp["task_space.upper"])
-    goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"])
     area = reachable_area(run.spec, lower, upper, seed=lp["eval.seed"])
+    goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
 
     curve = []
     eval_seconds = 0.0

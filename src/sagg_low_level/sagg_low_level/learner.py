@@ -66,6 +66,18 @@ SCHEMA: Schema = (
     Param("max_joint_step", "float", 0.5,
           "Safety bound on |Δα_i| of any commanded micro-action (rad); larger steps are scaled down.",
           low=0.0, high=100.0, low_open=True),
+    Param("jacobian_rcond", "float", 1e-10,
+          "Relative cut-off of singular values of the neighbours' Δα matrix in the least-squares "
+          "Jacobian (truncated SVD): directions the neighbours barely excite are left out instead of "
+          "fitted to noise. Not in the paper.", low=0.0, high=1.0),
+    Param("reach_noise", "float", 0.01,
+          "Uniform noise ±a (rad) added to every reaching micro-action Δα = J⁺Δy_next. The paper "
+          "bypasses singularities 'by adding noise in the joint configurations' (Sec. 3.3) without a "
+          "value. Without it the neighbours' Δα collapse onto J⁺'s row space (every attempt starts "
+          "at rest with r = 1), the least-squares Jacobian fits curvature along unexcited "
+          "directions and reaching stalls: measured on the 15-DOF arm, seeds 0/1, 20k micro-actions, "
+          "mean test error 4.3/6.1 with 0 against 0.69/0.99 with 0.01 (see docs/results.md).",
+          low=0.0, high=10.0),
     Param("pinv_rcond", "float", 1e-2,
           "Relative cut-off of singular values in J⁺ (Sec. 3.3); paper: noise bypasses singularities.",
           low=0.0, high=1.0),
@@ -263,7 +275,8 @@ class EvolvingContextLearner:
         if len(self.memory) < self.min_samples:
             return None
         idx = self.memory.neighbours(alpha, self.k)
-        jac = local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx])
+        jac = local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx],
+                             self.p["jacobian_rcond"])
         return pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
 
     def predict(self, alpha: np.ndarray, dalpha: np.ndarray) -> np.ndarray:
@@ -271,7 +284,8 @@ class EvolvingContextLearner:
         if len(self.memory) < self.min_samples:
             return np.zeros(self.m)
         idx = self.memory.neighbours(alpha, self.k)
-        return local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx]) @ dalpha
+        return local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx],
+                              self.p["jacobian_rcond"]) @ dalpha
 
     def _random_step(self) -> np.ndarray:
         a = self.p["explore_amplitude"]
@@ -327,6 +341,9 @@ class EvolvingContextLearner:
                 dalpha = self.inverse(self.alpha, dy_next)
                 need_explore = dalpha is None
                 if dalpha is not None:
+                    if self.p["reach_noise"] > 0:
+                        a = self.p["reach_noise"]
+                        dalpha = dalpha + self.rng.uniform(-a, a, self.robot.n)
                     dy = yield from self._act(self.alpha + dalpha, "reach")
                     used += 1
                     self._report(KIND_REACHED, goal_seq, self.y, self.y, 0.0)
