@@ -30,9 +30,12 @@ def interest(values: np.ndarray, zeta: int) -> float:
     return abs(float(older.sum()) - float(recent.sum())) / (2 * h)
 
 
-@dataclass
+@dataclass(eq=False)
 class Region:
-    """A node of the tree: an axis-aligned box and the points attempted inside it, in time order."""
+    """A node of the tree: an axis-aligned box and the points attempted inside it, in time order.
+
+    ``interest`` is computed lazily (on read) from the last ζ values, so adding points is cheap and
+    the interest is evaluated at most once per goal selection."""
 
     id: int
     lower: np.ndarray
@@ -40,7 +43,9 @@ class Region:
     points: np.ndarray  # (capacity, d) storage; rows [:count] are filled
     values: np.ndarray  # (capacity,) competences (or -errors), same order
     count: int = 0
-    interest: float = 0.0
+    zeta: int = 20
+    _interest: float = 0.0
+    _dirty: bool = False
     children: tuple["Region", "Region"] | None = None
     split_dim: int = -1
     split_value: float = 0.0
@@ -53,6 +58,19 @@ class Region:
         self.points[self.count] = y
         self.values[self.count] = value
         self.count += 1
+        self._dirty = True
+
+    @property
+    def interest(self) -> float:
+        if self._dirty:
+            self._interest = interest(self.values[: self.count], self.zeta)
+            self._dirty = False
+        return self._interest
+
+    @interest.setter
+    def interest(self, value: float) -> None:  # for tests and restored snapshots
+        self._interest = float(value)
+        self._dirty = False
 
     @property
     def filled_points(self) -> np.ndarray:
@@ -137,6 +155,8 @@ class RegionTree:
         if n_candidates < 1:
             raise ValueError(f"split_candidates: got {n_candidates}; allowed: an integer >= 1")
         self.dim = len(self.lower)
+        self._lower_list = self.lower.tolist()
+        self._upper_list = self.upper.tolist()
         self.g_max = g_max
         self.zeta = zeta
         self.n_candidates = n_candidates
@@ -148,19 +168,23 @@ class RegionTree:
         self.n_added = 0
 
     def _new_region(self, lower, upper, cap: int = 8) -> Region:
-        r = Region(self._next_id, lower, upper, np.empty((cap, self.dim)), np.empty(cap))
+        r = Region(self._next_id, lower, upper, np.empty((cap, self.dim)), np.empty(cap),
+                   zeta=self.zeta)
         self._next_id += 1
         return r
 
     def inside(self, y) -> bool:
         y = np.asarray(y, dtype=float)
-        return y.shape == (self.dim,) and bool(np.all(y >= self.lower) and np.all(y <= self.upper))
+        if y.shape != (self.dim,):
+            return False
+        return all(lo <= v <= hi for lo, v, hi in zip(self._lower_list, y.tolist(), self._upper_list))
 
-    def find(self, y: np.ndarray) -> Region:
+    def find(self, y) -> Region:
         """The leaf containing ``y`` (``y`` must be inside the root box)."""
+        yl = y.tolist() if isinstance(y, np.ndarray) else list(y)
         r = self.root
         while r.children is not None:
-            r = r.children[0] if y[r.split_dim] < r.split_value else r.children[1]
+            r = r.children[0] if yl[r.split_dim] < r.split_value else r.children[1]
         return r
 
     def leaves(self) -> list[Region]:
@@ -177,7 +201,6 @@ class RegionTree:
             return None
         leaf = self.find(y)
         leaf.add(y, float(value))
-        leaf.interest = interest(leaf.filled_values, self.zeta)
         self.n_added += 1
         if leaf.count > self.g_max:
             self._split(leaf, stamp)
@@ -202,16 +225,18 @@ class RegionTree:
             child.points[:n] = pts[m]
             child.values[:n] = vals[m]
             child.count = n
-            child.interest = interest(child.filled_values, self.zeta)
+            child._dirty = True
         region.children = (left, right)
         region.split_dim, region.split_value = j, v
         # free the parent's storage: the children hold its points
         region.points = np.empty((0, self.dim))
         region.values = np.empty(0)
-        idx = self._leaves.index(region)
+        idx = next(i for i, r in enumerate(self._leaves) if r is region)
         self._leaves[idx:idx + 1] = [left, right]
         self.splits.append({"stamp": stamp, "region": region.id, "dim": j, "value": v,
-                            "quality": choice.quality, "left": left.id, "right": right.id})
+                            "quality": choice.quality, "left": left.id, "right": right.id,
+                            "left_lower": left.lower.tolist(), "left_upper": left.upper.tolist(),
+                            "right_lower": right.lower.tolist(), "right_upper": right.upper.tolist()})
 
     def interests(self) -> np.ndarray:
         return np.array([r.interest for r in self._leaves])

@@ -197,10 +197,10 @@ def safe_target(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: R
     """Clip a commanded posture to ``max_step`` per joint from ``alpha`` (the step is scaled down
     as a whole so its direction is kept) and to the robot's joint limits."""
     step = target - alpha
-    big = float(np.max(np.abs(step))) if step.size else 0.0
+    big = float(np.abs(step).max()) if step.size else 0.0
     if big > max_step:
         step = step * (max_step / big)
-    return np.clip(alpha + step, robot.lower, robot.upper)
+    return np.minimum(np.maximum(alpha + step, robot.lower), robot.upper)
 
 
 class EvolvingContextLearner:
