@@ -22,7 +22,7 @@ import time
 PING, PONG = "/sagg_pingpong/ping", "/sagg_pingpong/pong"
 
 
-def _echo(executor_kind: str) -> None:
+def _echo(executor_kind: str, raw: bool = False) -> None:
     import rclpy
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray
@@ -32,7 +32,7 @@ def _echo(executor_kind: str) -> None:
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = Node("sagg_pingpong_echo")
     pub = node.create_publisher(Float64MultiArray, PONG, 10)
-    node.create_subscription(Float64MultiArray, PING, pub.publish, 10)
+    node.create_subscription(Float64MultiArray, PING, pub.publish, 10, raw=raw)
     stop = []
     signal.signal(signal.SIGINT, lambda *a: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
@@ -44,7 +44,7 @@ def _echo(executor_kind: str) -> None:
     rclpy.shutdown()
 
 
-def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float) -> dict:
+def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float, raw: bool = False) -> dict:
     import rclpy
     from rclpy.node import Node
     from std_msgs.msg import Float64MultiArray
@@ -57,12 +57,16 @@ def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float
     state = {"received": 0}
     msg = Float64MultiArray()
     msg.data = [0.0] * size
+    if raw:
+        from rclpy.serialization import serialize_message
+
+        msg = serialize_message(msg)
 
     def on_pong(_):
         state["received"] += 1
         pub.publish(msg)
 
-    node.create_subscription(Float64MultiArray, PONG, on_pong, 10)
+    node.create_subscription(Float64MultiArray, PONG, on_pong, 10, raw=raw)
     ex = make_executor(executor_kind)
     ex.add_node(node)
     deadline = time.monotonic() + timeout
@@ -82,18 +86,19 @@ def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float
     node.destroy_node()
     rclpy.shutdown()
     ok = t0 is not None and done >= count
-    return {"executor": executor_kind, "round_trips": done, "seconds": elapsed,
+    return {"executor": executor_kind, "raw": raw, "round_trips": done, "seconds": elapsed,
             "rate": done / elapsed if ok else float("nan"),
             "rtt_ms": 1000.0 * elapsed / done if ok and done else float("nan"), "complete": ok}
 
 
 def measure(count: int = 3000, warmup: int = 300, executor: str = "events", size: int = 8,
-            timeout: float = 120.0, domain_id: int | None = None) -> dict:
-    """Round trips per second between two fresh processes. Returns ``{"rate", "rtt_ms", ...}``."""
+            timeout: float = 120.0, domain_id: int | None = None, raw: bool = False) -> dict:
+    """Round trips per second between two fresh processes. Returns ``{"rate", "rtt_ms", ...}``.
+    ``raw``: both sides exchange serialized bytes (no message conversion in Python)."""
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(100, 200))
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    cmd = [sys.executable, "-m", "sagg_bringup.pingpong", "--executor", executor]
+    cmd = [sys.executable, "-m", "sagg_bringup.pingpong", "--executor", executor] + (["--raw"] if raw else [])
     echo = subprocess.Popen(cmd + ["--echo"], env=env)
     try:
         out = subprocess.run(cmd + ["--ping", "--count", str(count), "--warmup", str(warmup), "--size", str(size),
@@ -128,14 +133,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", type=int, default=8, help="doubles per message")
     ap.add_argument("--timeout", type=float, default=120.0)
     ap.add_argument("--ping", action="store_true", help="run the ping side only (internal)")
+    ap.add_argument("--raw", action="store_true", help="exchange serialized bytes (raw subscriptions)")
     a = ap.parse_args(argv)
     if a.echo:
-        _echo(a.executor)
+        _echo(a.executor, a.raw)
         return 0
     if a.ping:
-        print(json.dumps(_ping(a.executor, a.count, a.warmup, a.size, a.timeout)))
+        print(json.dumps(_ping(a.executor, a.count, a.warmup, a.size, a.timeout, a.raw)))
         return 0
-    res = measure(a.count, a.warmup, a.executor, a.size, a.timeout)
+    res = measure(a.count, a.warmup, a.executor, a.size, a.timeout, raw=a.raw)
     print(json.dumps(res))
     return 0
 

@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import array
 import math
+import struct
 import sys
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.service import Service
 
+from sagg_common.cdr import decode_report
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import declare_schema, run_node
 from sagg_msgs.msg import CompetenceReport, Goal, Region, RegionTree
@@ -85,7 +87,8 @@ class GoalGeneratorNode(Node):
         self.exit_code = 0
         self.goal_pub = self.create_publisher(Goal, "/sagg/goal", reliable(100))
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
-        self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report, reliable(10000))
+        # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
+        self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report, reliable(10000), raw=True)
         srv = self.create_service(NextGoal, "/sagg/next_goal", self.on_next_goal)
         srv.__class__ = DeferrableService
         self.waiting: list[Deferred] = []   # requests waiting for their reports
@@ -98,8 +101,13 @@ class GoalGeneratorNode(Node):
             + ("serving /sagg/next_goal" if self.active else "idle (actuator strategy: no goals)"))
 
     # ------------------------------------------------------------ reports
-    def on_report(self, msg: CompetenceReport) -> None:
+    def on_report(self, raw: bytes) -> None:
         gen = self.gen
+        try:
+            msg = decode_report(raw)
+        except (ValueError, IndexError, struct.error) as exc:
+            self.get_logger().error(f"/sagg/competence: undecodable message ({exc})")
+            return
         if msg.seq != gen.reports + 1:
             self.get_logger().error(
                 f"competence report {msg.seq} received after report {gen.reports}: reports were lost "

@@ -18,8 +18,8 @@ acting (exactly where the in-process ``InProcessRun.step_until`` stops) and says
 """
 from __future__ import annotations
 
-import array
 import math
+import struct
 import sys
 import time
 
@@ -31,6 +31,8 @@ from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64_array, encode_report,
+                             encode_sample)
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import declare_schema, run_node
 from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
@@ -84,13 +86,6 @@ def reliable(depth: int, transient_local: bool = False) -> QoSProfile:
         durability=DurabilityPolicy.TRANSIENT_LOCAL if transient_local else DurabilityPolicy.VOLATILE)
 
 
-def darray(x: np.ndarray) -> array.array:
-    """float64 numpy -> array('d') (the fast path of rosidl's sequence setters; bit-exact)."""
-    a = array.array("d")
-    a.frombytes(np.ascontiguousarray(x, dtype=np.float64).tobytes())
-    return a
-
-
 def robot_from_params(p: dict) -> Robot:
     n = len(p["joints"])
     if len(set(p["joints"])) != n:
@@ -103,10 +98,6 @@ def robot_from_params(p: dict) -> Robot:
         return Robot(list(p["joints"]), p["joint_limits.lower"], p["joint_limits.upper"], p["rest_posture"])
     except ValueError as exc:
         raise ConfigError(f"parameters 'joint_limits.*'/'rest_posture': {exc}") from exc
-
-
-def stamp_ns(header) -> int:
-    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
 
 
 class LearnerNode(Node):
@@ -133,6 +124,7 @@ class LearnerNode(Node):
         self.delay_ns = int(round(p["observation_delay"] * 1e9))
         self.exit_code = 0
         self.done = False
+        self.sim_time = bool(self.get_parameter("use_sim_time").value)
 
         # --- topics
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
@@ -140,12 +132,14 @@ class LearnerNode(Node):
         self.report_pub = self.create_publisher(CompetenceReport, "/sagg/competence", reliable(10000))
         self.sample_pub = self.create_publisher(Sample, "/sagg/sample", reliable(10000))
         self.status_pub = self.create_publisher(LearnerStatus, "/sagg/status", reliable(10))
-        self.create_subscription(JointState, "/joint_states", self.on_joint_state, reliable(10))
-        self.create_subscription(PointStamped, p["task_topic"], self.on_task_point, reliable(10))
+        # hot path: raw CDR in and out (sagg_common.cdr), no message objects
+        self.create_subscription(JointState, "/joint_states", self.on_joint_state, reliable(10), raw=True)
+        self.create_subscription(PointStamped, p["task_topic"], self.on_task_point, reliable(10), raw=True)
+        self.js_decoder = JointStateDecoder()
         self.goal_client = self.create_client(NextGoal, "/sagg/next_goal")
 
         # --- observation state
-        self._names: tuple | None = None     # joint-name order of the last JointState seen
+        self._names: tuple | None = None     # joint-name order of the last JointState seen (cached)
         self._idx: np.ndarray | None = None  # positions in that message of our joints
         self.js_alpha: np.ndarray | None = None   # newest joint state (mapped), its stamp, settled
         self.js_stamp = -1
@@ -168,9 +162,6 @@ class LearnerNode(Node):
         self.learner.on_sample = self.outbox.append
         self.coro = self.learner.run()
         self.pending = next(self.coro)  # the first request (Observe)
-        self.cmd_msg = Float64MultiArray()
-        self.report_msg = CompetenceReport()
-        self.sample_msg = Sample()
         self.goals_received = 0
         self.rate_window: list[tuple[float, int]] = [(time.monotonic(), 0)]
         self.create_timer(0.5, self.publish_status)
@@ -181,48 +172,48 @@ class LearnerNode(Node):
             + (f", stops at {self.max_micro_actions} micro-actions" if self.max_micro_actions else ""))
 
     # ------------------------------------------------------------------ observations
-    def on_joint_state(self, msg: JointState) -> None:
-        names = msg.name
-        if self._names is None or len(names) != len(self._names) or tuple(names) != self._names:
-            if not self._map_names(names):
-                return
-        idx = self._idx
-        alpha = np.frombuffer(msg.position, dtype=np.float64)[idx] if len(msg.position) == len(names) \
-            else None
-        if alpha is None:
+    def on_joint_state(self, data: bytes) -> None:
+        try:
+            st, names, pos, vel = self.js_decoder.decode(data)
+        except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
+            self.get_logger().error(f"joint_states: undecodable message ({exc})", throttle_duration_sec=5.0)
+            return
+        if names is not self._names and not self._map_names(names):
+            return
+        if len(pos) != len(names):
             self.get_logger().error("joint_states: position length differs from name length",
                                     throttle_duration_sec=5.0)
             return
-        vel = msg.velocity
-        if len(vel) == len(names):
-            settled = bool(np.abs(np.frombuffer(vel, dtype=np.float64)[idx]).max() < self.settle_velocity)
-        else:
-            settled = True
-        st = stamp_ns(msg.header)
         if st < self.js_stamp:
             return  # older than what we have (out of order): keep the newest
+        idx = self._idx
+        alpha = pos[idx]
+        settled = len(vel) != len(names) or bool(np.abs(vel[idx]).max() < self.settle_velocity)
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
         if self.state is self.RUNNING_COMMAND and st > self.js_min:
             self.js_fresh = True
             self._try_answer_command(False)
 
-    def _map_names(self, names) -> bool:
+    def _map_names(self, names: tuple) -> bool:
         where = {n: i for i, n in enumerate(names)}
         missing = [j for j in self.robot.joint_names if j not in where]
         if missing:
             self.get_logger().error(f"joint_states lacks joint(s) {', '.join(missing)}; ignored",
                                     throttle_duration_sec=5.0)
             return False
-        self._names = tuple(names)
+        self._names = names
         self._idx = np.array([where[j] for j in self.robot.joint_names], dtype=np.intp)
         return True
 
-    def on_task_point(self, msg: PointStamped) -> None:
-        st = stamp_ns(msg.header)
+    def on_task_point(self, data: bytes) -> None:
+        try:
+            st, xyz = decode_point_stamped(data)
+        except (ValueError, IndexError, struct.error) as exc:
+            self.get_logger().error(f"task point: undecodable message ({exc})", throttle_duration_sec=5.0)
+            return
         if st < self.tip_stamp:
             return
-        p = msg.point
-        self.tip = np.array((p.x, p.y) if self.m == 2 else (p.x, p.y, p.z))
+        self.tip = np.array(xyz[:self.m])
         self.tip_stamp = st
         if self.state is self.RUNNING_COMMAND and st > self.tip_min:
             self.tip_fresh = True
@@ -290,14 +281,13 @@ class LearnerNode(Node):
                 self.publish_status()
                 return
             if type(req) is Command:
-                msg = self.cmd_msg
-                msg.data = darray(req.target)
+                data = encode_f64_array(req.target)
                 self.js_min = self.js_stamp + self.delay_ns
                 self.tip_min = self.tip_stamp + self.delay_ns
                 self.js_fresh = self.tip_fresh = False
                 self.state = self.RUNNING_COMMAND
                 self.cmd_time = time.monotonic()
-                self.cmd_pub.publish(msg)
+                self.cmd_pub.publish(data)
                 if self.outbox:
                     self.flush()
                 return
@@ -335,29 +325,20 @@ class LearnerNode(Node):
                 self.publish_report(item)
         box.clear()
 
-    def publish_report(self, r) -> None:
-        msg = self.report_msg
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.seq = r.seq
-        msg.goal_seq = r.goal_seq
-        msg.kind = r.kind
+    def now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds if self.sim_time else time.time_ns()
+
+    def publish_report(self, r: Report) -> None:
         # exploration reports have no target (the message's convention); the generator uses reached
-        msg.target = darray(r.target) if r.kind != KIND_EXPLORATION else array.array("d")
-        msg.reached = darray(r.reached)
-        msg.start = darray(r.start)
-        msg.competence = r.competence
-        msg.micro_actions = r.micro_actions
-        self.report_pub.publish(msg)
+        target = r.target if r.kind != KIND_EXPLORATION else ()
+        self.report_pub.publish(encode_report(
+            self.now_ns(), r.seq, r.goal_seq, r.kind, target, r.reached, r.start, r.competence,
+            r.micro_actions))
 
     def publish_sample(self, idx: int) -> None:
         mem = self.learner.memory
-        msg = self.sample_msg
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.index = idx
-        msg.alpha = darray(mem.alpha[idx])
-        msg.delta_alpha = darray(mem.delta_alpha[idx])
-        msg.delta_y = darray(mem.delta_y[idx])
-        self.sample_pub.publish(msg)
+        self.sample_pub.publish(encode_sample(
+            self.now_ns(), idx, mem.alpha[idx], mem.delta_alpha[idx], mem.delta_y[idx]))
 
     def publish_status(self) -> None:
         learner = self.learner

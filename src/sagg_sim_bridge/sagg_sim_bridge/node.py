@@ -24,7 +24,7 @@ Timing (parameter ``timing``):
 """
 from __future__ import annotations
 
-import array
+import struct
 import sys
 import time
 
@@ -39,6 +39,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
 from sagg_common.params import Param, Schema
 from sagg_common.ros_params import declare_schema, run_node
 from sagg_common.rng import substream_seed
@@ -70,12 +71,6 @@ def reliable(depth: int) -> QoSProfile:
                       reliability=ReliabilityPolicy.RELIABLE)
 
 
-def darray(x: np.ndarray) -> array.array:
-    a = array.array("d")
-    a.frombytes(np.ascontiguousarray(x, dtype=np.float64).tobytes())
-    return a
-
-
 def to_time(ns: int) -> Time:
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
@@ -95,14 +90,11 @@ class BridgeNode(Node):
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
         self.js_pub = self.create_publisher(JointState, "/joint_states", reliable(10))
         self.tip_pub = self.create_publisher(PointStamped, p["task_topic"], reliable(10))
-        self.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(10))
-
-        self.js_msg = JointState()
-        self.js_msg.name = list(self.sim.joint_names)
-        self.js_msg.header.frame_id = p["frame_id"]
-        self.tip_msg = PointStamped()
-        self.tip_msg.header.frame_id = p["frame_id"]
-        self.zeros = darray(np.zeros(self.n))
+        # hot path: raw CDR in and out (sagg_common.cdr), no message objects
+        self.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(10), raw=True)
+        self.js_encoder = JointStateEncoder(list(self.sim.joint_names), p["frame_id"])
+        self.tip_encoder = PointStampedEncoder(p["frame_id"])
+        self.zeros = np.zeros(self.n)
         self.commands = 0
         self.virtual_ns = 0   # lockstep + kinematic: simulation clock (no physics time)
 
@@ -129,15 +121,17 @@ class BridgeNode(Node):
         return int((time.monotonic() - self.t_start) * 1e9)
 
     # ------------------------------------------------------------------ commands
-    def on_command(self, msg: Float64MultiArray) -> None:
-        data = msg.data
-        if len(data) != self.n:
+    def on_command(self, raw: bytes) -> None:
+        try:
+            target = decode_f64_array(raw)
+        except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
+            self.get_logger().error(f"{self.cmd_topic}: undecodable message ({exc})", throttle_duration_sec=5.0)
+            return
+        if len(target) != self.n:
             self.get_logger().error(
-                f"{self.cmd_topic}: got {len(data)} values; allowed: {self.n} (joint_0..joint_{self.n - 1})",
+                f"{self.cmd_topic}: got {len(target)} values; allowed: {self.n} (joint_0..joint_{self.n - 1})",
                 throttle_duration_sec=5.0)
             return
-        target = np.frombuffer(data, dtype=np.float64) if isinstance(data, array.array) \
-            else np.asarray(data, dtype=np.float64)
         if not np.all(np.isfinite(target)):
             self.get_logger().error(f"{self.cmd_topic}: non-finite command ignored", throttle_duration_sec=5.0)
             return
@@ -179,18 +173,11 @@ class BridgeNode(Node):
 
     # ------------------------------------------------------------------ output
     def publish_state(self) -> None:
-        stamp = to_time(self.sim_ns())
-        alpha, tip = self.sim.observe()
-        js = self.js_msg
-        js.header.stamp = stamp
-        js.position = darray(alpha)
-        js.velocity = darray(self.sim.data.qvel) if self.dynamic else self.zeros
-        t = self.tip_msg
-        t.header.stamp = stamp
-        t.point.x = float(tip[0])
-        t.point.y = float(tip[1])
-        self.js_pub.publish(js)
-        self.tip_pub.publish(t)
+        ns = self.sim_ns()
+        sim = self.sim
+        self.js_pub.publish(self.js_encoder.encode(ns, sim.data.qpos, sim.data.qvel if self.dynamic else self.zeros))
+        tip = sim.observe()[1]
+        self.tip_pub.publish(self.tip_encoder.encode(ns, float(tip[0]), float(tip[1])))
 
 
 def main(args: list[str] | None = None) -> int:
