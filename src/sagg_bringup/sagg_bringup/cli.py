@@ -36,6 +36,23 @@ def positive_int(text: str) -> int:
     return v
 
 
+def node_schemas() -> dict:
+    """Every node's full parameter schema (core parameters + node-only ones: topics, timing...)."""
+    from sagg_goal_generator.node import SCHEMA as GEN
+    from sagg_low_level.node import SCHEMA as LEARNER
+    from sagg_sim_bridge.node import SCHEMA as BRIDGE
+    return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER, "sagg_sim_bridge": BRIDGE}
+
+
+def params_markdown(node: str | None = None) -> str:
+    from sagg_common.params import schema_markdown
+    parts = []
+    for name, schema in node_schemas().items():
+        if node is None or node == name:
+            parts.append(f"### `{name}`\n\n{schema_markdown(schema)}\n")
+    return "\n".join(parts)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sagg", description="SAGG-RIAC goal babbling for ROS 2.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -69,6 +86,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override any node parameter, e.g. --set arm.dof=7 (repeatable)")
     r.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: a random private one)")
     r.add_argument("--quiet", action="store_true", help="no progress display")
+
+    pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
+                                       "description) as Markdown tables")
+    pp.add_argument("--node", choices=["sagg_goal_generator", "sagg_learner", "sagg_sim_bridge"],
+                    help="only this node")
 
     b = sub.add_parser("bench", help="benchmarks")
     bsub = b.add_subparsers(dest="bench", required=True)
@@ -131,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "run":
             return _run(args)
+        if args.command == "params":
+            print(params_markdown(args.node))
+            return 0
         if args.command == "bench" and args.bench == "speed":
             from .bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategy)
