@@ -28,11 +28,9 @@ import ctypes
 import importlib
 import math
 import os
-import queue
 import signal
 import subprocess
 import sys
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,11 +54,13 @@ TIMINGS = ("lockstep", "realtime")
 # Seconds to wait for the nodes to exit after SIGINT before SIGKILL (DESIGN §5: nodes sometimes
 # ignore SIGINT under load).
 STOP_TIMEOUT = 5.0
-# Niceness of the evaluation thread: the graph (the nodes, and this process's DDS threads that
-# receive the recorded topics) must win the CPU over the evaluator. Measured here on 2 cores: with
-# the evaluator at normal priority, the recorder lost bursts of ~12 /<controller>/commands messages
-# (the learner's writer keeps only 10); at niceness 19 none.
-EVAL_NICE = 19
+# Niceness of the evaluation process: a mild preference for the graph (the nodes, and this
+# process's DDS threads receiving the recorded topics). Evaluation first ran in a thread of this
+# process at normal priority: on 2 cores the recorder then lost bursts of ~12 /<controller>/commands
+# messages (GIL + CPU contention; the learner's writer keeps only 10). As a separate process, runs
+# of 4000 micro-actions at niceness 0 and 10 lost nothing; a high niceness starves the evaluation
+# on a busy machine (the live test error then lags far behind).
+EVAL_NICE = 5
 
 
 class GraphError(RuntimeError):
@@ -248,89 +248,176 @@ def pick_domain_id() -> int:
 
 
 # ------------------------------------------------------------------------------------ evaluation
-class Evaluator(threading.Thread):
-    """Rebuilds the learner memory from /sagg/sample (fed through :meth:`add`) and evaluates the
-    frozen model at each checkpoint, as ``InProcessRun.evaluate`` does, on its own simulator."""
-
-    def __init__(self, learner_params: dict, bridge_params: dict, test_goals: np.ndarray,
-                 checkpoints: list[int], publish):
-        super().__init__(name="sagg-evaluator", daemon=True)
-        from sagg_low_level.learner import EvolvingContextLearner, Robot
-        from sagg_low_level.memory import SampleMemory
-        from sagg_sim_bridge.params import arm_spec_from_params
-        self.spec = arm_spec_from_params(bridge_params)
-        self.seed = learner_params["seed"]
-        lower, upper = self.spec.limits()
-        robot = Robot(self.spec.joint_names(), lower, upper, self.spec.rest_posture())
-        n, m = robot.n, len(learner_params["task_space.lower"])
-        self.memory = SampleMemory(n, n, m)
-        self.learner = EvolvingContextLearner(learner_params, robot, m, memory=self.memory)
-        self.learner.memory = self.memory  # (an empty memory is falsy: make sure it is this one)
-        self.goals = test_goals
-        self.checkpoints = list(checkpoints)
-        self.publish = publish
-        self.curve: list[dict] = []
-        self.eval_seconds = 0.0
-        self.error: str | None = None
-        self.inbox: queue.Queue = queue.Queue()
-        self.stop_flag = threading.Event()
-        self.idle = threading.Event()  # set when every checkpoint so far is evaluated
-
-    def add(self, index: int, alpha, delta_alpha, delta_y) -> None:
-        self.inbox.put((index, alpha, delta_alpha, delta_y))
-
-    def add_checkpoint(self, micro_actions: int) -> None:
-        """An extra, final checkpoint (e.g. the run stopped early); evaluated once reached."""
-        self.inbox.put(("checkpoint", micro_actions))
-
-    @property
-    def pending(self) -> list[int]:
-        return self.checkpoints
-
-    def _evaluate(self, at: int) -> None:
+def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, checkpoints: list[int],
+                 nice: int) -> None:
+    """Evaluation process: computes the reachable area and the test goals (as ``run_experiment``
+    does: ``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``), then rebuilds the memory from the
+    sample batches in ``inbox`` and, whenever it holds exactly a checkpoint's number of samples,
+    evaluates the frozen model as ``InProcessRun.evaluate`` does (fresh
+    ``ArmSim(spec, substream_seed(seed, "eval_sim"))``). Sends ``("area", ...)``, then
+    ``("eval", at, errors, seconds)`` per checkpoint, or ``("error", text)``, to ``outbox``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # `sagg run` stops us (a terminal Ctrl-C reaches us too)
+    try:
+        os.nice(nice)
+    except OSError:
+        pass
+    try:
         from sagg_common.rng import substream_seed
         from sagg_low_level.evaluate import evaluate
-        from sagg_sim_bridge.arm import ArmSim
-        t0 = time.perf_counter()
-        sim = ArmSim(self.spec, seed=substream_seed(self.seed, "eval_sim"))
-        errors = evaluate(self.learner, sim, self.goals)
-        self.eval_seconds += time.perf_counter() - t0
-        point = {"micro_actions": at, "mean_error": float(errors.mean()), "median_error": float(np.median(errors))}
-        self.curve.append(point)
-        self.publish(at, errors)
+        from sagg_low_level.learner import EvolvingContextLearner, Robot
+        from sagg_low_level.memory import SampleMemory
+        from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
+        from sagg_sim_bridge.params import arm_spec_from_params
+        spec = arm_spec_from_params(bridge_params)
+        lp = learner_params
+        area = reachable_area(spec, lp["task_space.lower"], lp["task_space.upper"], seed=lp["eval.seed"])
+        goals = test_goals(spec, lp["task_space.lower"], lp["task_space.upper"], n=lp["eval.goals"],
+                           seed=lp["eval.seed"], area=area)
+        outbox.put(("area", area.lower, area.upper, area.resolution, area.mask, area.cell_points, goals))
+        lower, upper = spec.limits()
+        robot = Robot(spec.joint_names(), lower, upper, spec.rest_posture())
+        n, m = robot.n, len(learner_params["task_space.lower"])
+        memory = SampleMemory(n, n, m)
+        learner = EvolvingContextLearner(learner_params, robot, m, memory=memory)
+        learner.memory = memory  # (an empty memory is falsy: make sure the learner uses this one)
+        pending = sorted(set(checkpoints))
 
-    def run(self) -> None:
+        def due() -> None:
+            while pending and len(memory) == pending[0]:
+                at = pending.pop(0)
+                t0 = time.perf_counter()
+                errors = evaluate(learner, ArmSim(spec, seed=substream_seed(learner_params["seed"], "eval_sim")), goals)
+                outbox.put(("eval", at, errors, time.perf_counter() - t0))
+
+        while True:
+            due()
+            item = inbox.get()
+            if item[0] == "stop":
+                return
+            if item[0] == "checkpoint":
+                at = int(item[1])
+                if at < len(memory):
+                    raise RuntimeError(f"checkpoint {at} is behind the rebuilt memory ({len(memory)})")
+                pending = sorted({c for c in pending if c < at} | {at})
+                continue
+            _, start, alpha, dalpha, dy = item
+            if start != len(memory):
+                raise RuntimeError(f"sample batch starts at {start} but {len(memory)} samples were rebuilt")
+            for i in range(len(alpha)):
+                memory.add(alpha[i], dalpha[i], dy[i])
+                due()
+    except Exception as exc:  # noqa: BLE001 - reported by the orchestrator
+        outbox.put(("error", f"{type(exc).__name__}: {exc}"))
+
+
+class Evaluator:
+    """The run's evaluation, in a separate process (its own GIL: the recorder in this process keeps
+    up) at a lower CPU priority than the graph. Samples from /sagg/sample are checked for order,
+    batched and shipped to it; results come back through :meth:`poll`."""
+
+    def __init__(self, learner_params: dict, bridge_params: dict, checkpoints: list[int],
+                 nice: int = EVAL_NICE):
+        import multiprocessing
+        ctx = multiprocessing.get_context("spawn")  # never fork a process that runs DDS threads
+        self.inbox, self.outbox = ctx.Queue(), ctx.Queue()
+        self.proc = ctx.Process(target=_eval_worker, name="sagg-evaluator", daemon=True,
+                                args=(self.inbox, self.outbox, learner_params, bridge_params,
+                                      list(checkpoints), nice))
+        self.area = None  # the ReachableArea of Y, once the worker has computed it
+        self.test_goals: np.ndarray | None = None
+        self.checkpoints = sorted(set(checkpoints))
+        self.curve: list[dict] = []
+        self.errors: dict[int, np.ndarray] = {}
+        self.eval_seconds = 0.0
+        self.error: str | None = None
+        self.samples = 0  # samples received (in order) so far
+        self._batch: list[tuple] = []
+        self._sent = 0
+        # this process's copy of the samples: the memory digest of the summary
+        self.alpha: list[np.ndarray] = []
+        self.delta_alpha: list[np.ndarray] = []
+        self.delta_y: list[np.ndarray] = []
+
+    def start(self) -> None:
+        self.proc.start()
+
+    def add(self, index: int, alpha, delta_alpha, delta_y) -> None:
+        if index != self.samples:
+            if self.error is None:
+                self.error = (f"/sagg/sample index {index} received after {self.samples} samples: samples "
+                              "were lost or reordered")
+            return
+        self.samples += 1
+        self.alpha.append(alpha)
+        self.delta_alpha.append(delta_alpha)
+        self.delta_y.append(delta_y)
+
+    def flush(self) -> None:
+        """Ship the samples received since the last flush (non-blocking: a feeder thread sends)."""
+        if self._sent < self.samples:
+            a, b = self._sent, self.samples
+            self.inbox.put(("samples", a, np.array(self.alpha[a:b]), np.array(self.delta_alpha[a:b]),
+                            np.array(self.delta_y[a:b])))
+            self._sent = b
+
+    def add_checkpoint(self, at: int) -> None:
+        """An extra, final checkpoint (the run stopped before the planned end)."""
+        self.checkpoints = sorted({c for c in self.checkpoints if c < at} | {at})
+        self.inbox.put(("checkpoint", at))
+
+    def poll(self) -> list[tuple[int, np.ndarray]]:
+        """Evaluations finished since the last call, as ``(micro_actions, errors)``."""
+        import queue
+        done = []
+        while True:
+            try:
+                item = self.outbox.get_nowait()
+            except queue.Empty:
+                break
+            if item[0] == "error":
+                self.error = item[1]
+                continue
+            if item[0] == "area":
+                from sagg_sim_bridge.arm import ReachableArea
+                self.area = ReachableArea(*item[1:6])
+                self.test_goals = item[6]
+                continue
+            _, at, errors, secs = item
+            self.eval_seconds += secs
+            self.errors[at] = errors
+            self.curve.append({"micro_actions": int(at), "mean_error": float(errors.mean()),
+                               "median_error": float(np.median(errors))})
+            done.append((at, errors))
+        if self.error is None and not self.proc.is_alive() and self.proc.exitcode not in (None, 0):
+            self.error = f"evaluation process exited with code {self.proc.exitcode}"
+        return done
+
+    def finished(self, upto: int) -> bool:
+        """Every checkpoint up to ``upto`` micro-actions is evaluated."""
+        return all(c in self.errors for c in self.checkpoints if c <= upto)
+
+    def stop(self, timeout: float = 5.0) -> None:
         try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), EVAL_NICE)  # this thread only
-        except (AttributeError, OSError):
+            self.inbox.put(("stop",))
+        except (OSError, ValueError):
             pass
-        try:
-            while not self.stop_flag.is_set():
-                while self.checkpoints and len(self.memory) == self.checkpoints[0]:
-                    at = self.checkpoints.pop(0)
-                    if not self.curve or self.curve[-1]["micro_actions"] != at:
-                        self._evaluate(at)
-                if not self.checkpoints:
-                    self.idle.set()
-                try:
-                    item = self.inbox.get(timeout=0.1)
-                except queue.Empty:
-                    continue
-                if item[0] == "checkpoint":
-                    at = int(item[1])
-                    self.checkpoints = sorted({c for c in self.checkpoints if c < at} | {at})
-                    if at < len(self.memory):
-                        raise RuntimeError(f"checkpoint {at} is behind the rebuilt memory ({len(self.memory)})")
-                    continue
-                self.idle.clear()
-                index, a, da, dy = item
-                if index != len(self.memory):
-                    raise RuntimeError(f"/sagg/sample index {index} received when {len(self.memory)} samples "
-                                       "were rebuilt: samples were lost or reordered")
-                self.memory.add(a, da, dy)
-        except Exception as exc:  # noqa: BLE001 - reported by the orchestrator
-            self.error = f"{type(exc).__name__}: {exc}"
-            self.idle.set()
+        self.proc.join(timeout)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        for q in (self.inbox, self.outbox):
+            q.cancel_join_thread()
+            q.close()
+
+    def memory(self):
+        """A SampleMemory of the received samples (for the digest; same class as the learner's)."""
+        from sagg_low_level.memory import SampleMemory
+        n = len(self.alpha[0]) if self.alpha else 1
+        m = len(self.delta_y[0]) if self.delta_y else 1
+        mem = SampleMemory(n, n, m, capacity=max(1, len(self.alpha)))
+        for a, da, dy in zip(self.alpha, self.delta_alpha, self.delta_y):
+            mem.add(a, da, dy)
+        return mem
 
 
 # ------------------------------------------------------------------------------------ split history
@@ -420,7 +507,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     """Run the graph for ``micro_actions`` micro-actions; returns the summary (also in DIR)."""
     from .experiment import goal_share_stats, write_json_atomic
     from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES
-    from sagg_sim_bridge.arm import reachable_area, test_goals
+    from sagg_sim_bridge.arm import reachable_area
     from sagg_sim_bridge.params import arm_spec_from_params
 
     if micro_actions < 1:
@@ -457,8 +544,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
     spec = arm_spec_from_params(bp)
     t_lower, t_upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
-    area = reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
-    goals_test = test_goals(spec, t_lower, t_upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
     checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
 
     domain = pick_domain_id() if domain_id is None else domain_id
@@ -483,6 +568,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     eval_pub = node.create_publisher(Evaluation, "/sagg/evaluation", 100)
 
     def publish_eval(at: int, errors: np.ndarray) -> None:
+        """/sagg/evaluation (published from here, the executor's thread; recorded like the rest)."""
         msg = Evaluation()
         msg.header.stamp = node.get_clock().now().to_msg()
         msg.micro_actions = int(at)
@@ -492,7 +578,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         eval_pub.publish(msg)
         st.last_error = msg.mean_error
 
-    evaluator = Evaluator(lp, bp, goals_test, checkpoints, publish_eval)
+    evaluator = Evaluator(lp, bp, checkpoints)  # computes the area and test goals meanwhile
 
     def on_sample(m) -> None:
         now = time.perf_counter()
@@ -530,6 +616,14 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     interrupted = False
     error: GraphError | None = None
     t_first = None
+    # Ctrl-C / SIGTERM set a flag checked between spins: a KeyboardInterrupt raised inside a
+    # callback (e.g. in rclpy's C++ deserializer) would surface as an unrelated error.
+    stop_signal: list[int] = []
+
+    def on_signal(signum, frame):  # noqa: ARG001
+        stop_signal.append(signum)
+
+    old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         evaluator.start()
         for p in procs:
@@ -539,6 +633,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         done_at = None
         while True:
             executor.spin_once(timeout_sec=0.02)
+            if stop_signal:
+                raise KeyboardInterrupt
             now = time.perf_counter()
             if st.samples and t_first is None:
                 t_first = now
@@ -546,6 +642,9 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                 bar.update(st.samples, goals=len(st.goals),
                            regions=len(st.last_regions.regions) if st.last_regions is not None else 1,
                            competence=st.last_competence, error=st.last_error)
+            evaluator.flush()
+            for at, errors in evaluator.poll():
+                publish_eval(at, errors)
             if evaluator.error:
                 raise GraphError(f"evaluation failed: {evaluator.error}")
             learner_done = st.status is not None and st.status["micro_actions"] >= micro_actions
@@ -563,14 +662,14 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                 if done_at is None:
                     done_at = now
                 # a short drain so reports/goals published just before the end are recorded too
-                if now - done_at > 0.5 and evaluator.idle.is_set():
+                if now - done_at > 0.5 and evaluator.finished(st.samples):
                     break
                 if now - done_at > stall_timeout:
                     raise GraphError("the final evaluation did not finish")
         bar.update(st.samples, force=True, goals=len(st.goals),
                    regions=len(st.last_regions.regions) if st.last_regions is not None else 1,
                    competence=st.last_competence, error=st.last_error)
-        # the final Evaluation message is published from the worker: let the recorder take it
+        # let the recorder take the final Evaluation message
         t_end = time.perf_counter() + 0.3
         while time.perf_counter() < t_end:
             executor.spin_once(timeout_sec=0.02)
@@ -581,8 +680,9 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     finally:
         bar.close()
         stop_processes(procs)
-        evaluator.stop_flag.set()
-        evaluator.join(timeout=10.0)
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+        evaluator.stop()
         recorder.destroy()
         bag.close()
         executor.shutdown()
@@ -606,7 +706,9 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         regions = [{"id": int(r.id), "lower": list(r.lower), "upper": list(r.upper),
                     "interest": float(r.interest), "count": int(r.count),
                     "mean_competence": float(r.mean_competence)} for r in st.last_regions.regions]
-    curve = list(evaluator.curve)
+    curve = sorted(evaluator.curve, key=lambda c: c["micro_actions"])
+    area = evaluator.area or reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
+    memory = evaluator.memory()
     bag_topics = bag.topics()
     span = {t: (recorder.last_ns[t] - recorder.first_ns[t]) / 1e9 for t in recorder.first_ns}
     summary = {
@@ -628,24 +730,25 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         "curve": curve,
         "final_mean_error": curve[-1]["mean_error"] if curve else float("nan"),
         "final_median_error": curve[-1]["median_error"] if curve else float("nan"),
-        "memory": {"samples": len(evaluator.memory), "digest": evaluator.memory.digest(),
-                   "bytes": int(getattr(evaluator.memory, "nbytes", 0))},
+        "memory": {"samples": len(memory), "digest": memory.digest(), "bytes": int(memory.nbytes)},
         "learner_status": st.status,
         "reports": st.reports,
         "goals": goals,
         "goal_stats": goal_share_stats(pos, gma, area, micro_actions),
+        "test_goals": evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
         "regions": regions,
         "splits": tracker.splits,
         "bag": {"path": str(out / "bag"), "storage": "mcap", "topics": bag_topics},
         "rates": {t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0},
-        "nodes": {p.name: {"exit_code": p.exit_code, "log": str(p.log_path)} for p in procs},
+        "nodes": {p.name: {"pid": p.popen.pid if p.popen else None, "exit_code": p.exit_code,
+                           "log": str(p.log_path)} for p in procs},
         "interrupted": interrupted,
         "error": str(error) if error else None,
     }
     write_json_atomic(out / "summary.json", summary)
     if report and curve:
         from .report import write_report
-        write_report(summary, out)
+        write_report(summary, out, area=area)
     if error is not None:
         raise error
     if interrupted:

@@ -275,10 +275,11 @@ def _curve_rows(curve: list[dict], max_rows: int = 12) -> list[dict]:
     return [curve[i] for i in idx]
 
 
-def write_report(result: dict | str | Path, out_dir: str | Path) -> Path:
+def write_report(result: dict | str | Path, out_dir: str | Path, area=None) -> Path:
     """Write ``report.md`` and its PNG figures into ``out_dir`` and return the report's path.
 
-    ``result`` is a result-like dict (or a path to ``result.json`` / ``summary.json``)."""
+    ``result`` is a result-like dict (or a path to ``result.json`` / ``summary.json``); ``area``
+    (optional) the run's ReachableArea of Y when already computed."""
     if not isinstance(result, dict):
         result = json.loads(Path(result).read_text())
     for key in ("strategy", "seed", "config", "micro_actions", "curve"):
@@ -286,7 +287,8 @@ def write_report(result: dict | str | Path, out_dir: str | Path) -> Path:
             raise ValueError(f"result: missing key {key!r}; a result.json or summary.json is required")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    area = reachable_mask(result)
+    if area is None:
+        area = reachable_mask(result)
     figs = {
         "learning_curve": fig_learning_curve(result, out / "learning_curve.png"),
         "goals_over_time": fig_goals_over_time(result, out / "goals_over_time.png", area),
