@@ -163,6 +163,7 @@ class LearnerNode(Node):
         self.coro = self.learner.run()
         self.pending = next(self.coro)  # the first request (Observe)
         self.goals_received = 0
+        self.t_started = time.monotonic()
         self.rate_window: list[tuple[float, int]] = [(time.monotonic(), 0)]
         self.create_timer(0.5, self.publish_status)
         self.poll_timer = self.create_timer(0.05, self.on_poll)
@@ -234,6 +235,7 @@ class LearnerNode(Node):
                 self.state = None
                 self.pause_reason = ""
                 self.get_logger().info("graph ready: starting")
+                self.t_started = time.monotonic()
                 self.dispatch(self.pending)
         elif self.state is self.RUNNING_COMMAND:
             if time.monotonic() - self.cmd_time > self.settle_timeout:
@@ -276,7 +278,10 @@ class LearnerNode(Node):
                 self.pending = req
                 self.state = self.STOPPED
                 self.pause_reason = f"max_micro_actions ({self.max_micro_actions}) reached"
-                self.get_logger().info(f"{self.pause_reason}: stopped acting")
+                secs = time.monotonic() - self.t_started
+                self.get_logger().info(
+                    f"{self.pause_reason}: stopped acting ({learner.micro_actions} micro-actions in "
+                    f"{secs:.3f} s: {learner.micro_actions / max(secs, 1e-9):.1f}/s)")
                 self.flush()
                 self.publish_status()
                 return
