@@ -208,6 +208,7 @@ def test_lockstep_graph_equals_in_process_run(ros_env, tmp_path, config, arm, st
     ("mujoco_bridge", "sagg_sim_bridge", "timing", "sometimes", "one of 'lockstep', 'realtime'"),
     ("mujoco_bridge", "sagg_sim_bridge", "arm.dof", 0, "[1, 100]"),
     ("learner", "sagg_learner", "max_micro_actions", 1.5, "an integer"),
+    ("learner", "sagg_learner", "settle_velocty", 0.1, "allowed: "),  # a typo in the node's section
 ])
 def test_bad_parameter_exits_2_naming_it(ros_env, tmp_path, script, section, name, value, allowed):
     data = yaml.safe_load((ROOT / "config" / "arm15.yaml").read_text())

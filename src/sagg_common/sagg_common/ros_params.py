@@ -19,7 +19,9 @@ import signal
 import sys
 from typing import Any, Callable
 
-from sagg_common.params import ConfigError, Param, Schema
+import yaml
+
+from sagg_common.params import ConfigError, Param, Schema, flatten
 
 FLOAT_MAX = sys.float_info.max
 INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
@@ -73,13 +75,58 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def declare_schema(node, schema: Schema) -> dict[str, Any]:
+_ARGS: list[str] | None = None  # the command line given to run_node (for the parameter files)
+
+
+def params_files(args: list[str]) -> list[str]:
+    """The ``--params-file`` paths of a ROS command line (after ``--ros-args``)."""
+    out, ros = [], False
+    for i, a in enumerate(args):
+        if a == "--ros-args":
+            ros = True
+        elif a == "--":
+            ros = False
+        elif ros and a == "--params-file" and i + 1 < len(args):
+            out.append(args[i + 1])
+    return out
+
+
+def check_own_sections(node, schema: Schema, args: list[str]) -> None:
+    """Unknown parameters in this node's own section of a parameter file are an error (most
+    likely a typo), as for in-process configs; ``/**`` entries for other nodes are not."""
+    known = {p.name for p in schema}
+    name = node.get_name()
+    for path in params_files(args):
+        try:
+            with open(path) as fh:
+                data = yaml.safe_load(fh)
+        except (OSError, yaml.YAMLError):
+            continue  # rclpy reports unreadable files itself
+        if not isinstance(data, dict):
+            continue
+        for section in (name, "/" + name):
+            body = data.get(section)
+            if not isinstance(body, dict) or not isinstance(body.get("ros__parameters"), dict):
+                continue
+            unknown = sorted(
+                n for n in flatten(body["ros__parameters"])
+                if n not in known and not node.has_parameter(n) and not n.startswith("qos_overrides."))
+            if unknown:
+                raise ConfigError(
+                    f"unknown parameter(s) {', '.join(unknown)} in section '{section}' of {path}; "
+                    f"allowed: {', '.join(sorted(known))}")
+
+
+def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[str, Any]:
     """Declare every parameter of ``schema`` on ``node`` and return the validated values.
 
     The value is the override (parameter file / ``-p``) if given, else the schema default; it is
     validated and coerced by :meth:`Param.validate` and then declared with that exact value.
-    Raises :class:`ConfigError` naming the first bad parameter.
+    Raises :class:`ConfigError` naming the first bad parameter, or the unknown parameters of the
+    node's own section in a parameter file of ``args`` (default: the command line of
+    :func:`run_node`, else ``sys.argv``).
     """
+    check_own_sections(node, schema, args if args is not None else (_ARGS or sys.argv))
     overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps the raw overrides here
     values: dict[str, Any] = {}
     for p in schema:
@@ -130,8 +177,10 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
+    global _ARGS
     if args is None:
         args = sys.argv
+    _ARGS = list(args)
     try:
         rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     except Exception as exc:  # noqa: BLE001 - e.g. an unreadable parameter file
