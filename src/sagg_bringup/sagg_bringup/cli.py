@@ -103,6 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--measure", type=positive_int, default=2000,
                    help="micro-actions timed at each size")
     s.add_argument("--strategy", choices=STRATEGIES, default="sagg-riac")
+    t = bsub.add_parser("table", help="compare strategies from result.json files (Markdown table "
+                                      "and Mann-Whitney / Welch tests)")
+    t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
     return p
 
 
@@ -155,6 +158,13 @@ def main(argv: list[str] | None = None) -> int:
             return _run(args)
         if args.command == "params":
             print(params_markdown(args.node))
+            return 0
+        if args.command == "bench" and args.bench == "table":
+            from .compare import load_results, summary_markdown
+            results = load_results(args.results)
+            if not results:
+                raise ConfigError(f"no result.json found under {', '.join(args.results)}")
+            print(summary_markdown(results))
             return 0
         if args.command == "bench" and args.bench == "speed":
             from .bench import bench_speed

@@ -128,6 +128,8 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     bar.close()
 
     result = build_result(run, curve, area, micro_actions, eval_seconds)
+    result["test_goals"] = goals.tolist()
+    result["final_errors"] = errors.tolist()
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
