@@ -108,6 +108,50 @@ def test_ties_are_broken_by_index():
     assert ring.neighbours(np.zeros(2), 13).tolist() == list(range(13))
 
 
+@pytest.mark.parametrize("order", ORDERS)
+def test_exact_duplicate_groups_inside_blocks(order):
+    """Blocks store identical alpha once; answers still list every sample, ties by index."""
+    rng = np.random.default_rng(4)
+    n = 5
+    rest = np.full(n, 0.15)
+    alphas = trajectory_alphas(n, 2500, rng, reset_every=9)  # ~280 copies of the rest posture
+    alphas[::50] = alphas[7]  # and a second group
+    mem = SampleMemory(n, 1, 1, leaf_order=order, buffer_size=64, leaf_size=8, fanout=4, max_roots=8)
+    fill(mem, alphas, rng)
+    assert mem._ngroups >= 2 * len(mem._blocks) - 1  # the groups really were formed
+    for q in (rest, alphas[7], rest + 1e-3, alphas[7] + rng.normal(0, 0.05, n)):
+        for k in (1, 5, 40, 300, 400):
+            assert np.array_equal(mem.neighbours(q, k), brute(alphas, q, k)), k
+    copies = np.flatnonzero((alphas == rest).all(axis=1))
+    assert len(copies) > 250
+    assert mem.neighbours(rest, 400)[: len(copies)].tolist() == copies.tolist()
+
+
+@pytest.mark.parametrize("persistence", [0.0, 0.9])
+def test_sequential_queries_use_the_cache_and_stay_exact(persistence):
+    """The learner's pattern: query at alpha_t, then add it; consecutive queries hit the cache."""
+    rng = np.random.default_rng(6)
+    n = 7
+    alphas = trajectory_alphas(n, 6000, rng, reset_every=150, persistence=persistence)
+    mem = SampleMemory(n, 1, 1, buffer_size=64)
+    for a in alphas[:3000]:
+        mem.add(a, [0.0], [0.0])
+    ks = [16, 16, 16, 3, 16, 40, 16]  # a larger k right after a smaller one must not use the cache
+    for t in range(3000, 6000):
+        k = ks[t % len(ks)]
+        if t % 4 == 0:
+            assert np.array_equal(mem.neighbours(alphas[t], k), brute(alphas[:t], alphas[t], k)), t
+        else:
+            mem.neighbours(alphas[t], k)
+        mem.add(alphas[t], [0.0], [0.0])
+    assert mem.cache_hits > 1000
+    nocache = SampleMemory(n, 1, 1, buffer_size=64, cache_expand=0)
+    fill(nocache, alphas, rng)
+    qs = alphas[5900:] + rng.normal(0, 0.01, (100, n))
+    assert np.array_equal(nocache.neighbours_batch(qs, 16), mem.neighbours_batch(qs, 16))
+    assert nocache.cache_hits == 0
+
+
 def test_k_larger_than_len_and_empty():
     mem = SampleMemory(3, 1, 1)
     assert mem.neighbours(np.zeros(3), 5).shape == (0,)
@@ -287,6 +331,9 @@ def test_query_and_constructor_validation():
         (dict(max_roots=0), "max_roots"),
         (dict(leaf_order="random"), "leaf_order"),
         (dict(refine_nodes=0), "refine_nodes"),
+        (dict(cache_expand=1.0), "cache_expand"),
+        (dict(cache_max=0), "cache_max"),
+        (dict(tune_k=0), "tune_k"),
     ]:
         full = dict(state_dim=3, action_dim=2, outcome_dim=2) | kw
         with pytest.raises(ValueError, match=name):

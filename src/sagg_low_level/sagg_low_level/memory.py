@@ -7,28 +7,35 @@ nearest-neighbour index (FLANN k-means tree); we return the EXACT k nearest inst
 deterministic function of the stored samples (ties broken by index), independent of how the index is
 built, and identical after save/load.
 
-Design (numbers behind every choice are in ``memory_bench``):
+Design (measured with ``python -m sagg_low_level.memory_bench``; numbers in the commit messages):
 
 * Samples live in preallocated float64 arrays that double their capacity (amortised O(1) add).
-* The k-NN index over alpha is a logarithmic method (Bentley-Saxe): the newest samples sit in a small
-  brute-force *buffer*; whenever it holds ``2 * buffer_size`` samples, its oldest ``buffer_size``
-  become a new static *block*, merged (like a binary counter) with every trailing block of equal size,
-  so each sample is rebuilt O(log(N / buffer_size)) times in all and blocks hold contiguous index
-  ranges. The buffer keeps the newest ``buffer_size`` samples because they give, for free, a tight
-  first upper bound on the k-th distance along a trajectory (the learner's queries follow alpha).
-* A static block is a balanced kd-partition of its samples into leaves of ``leaf_size`` points, with a
-  hierarchy of axis-aligned bounding boxes of fan-out ``fanout`` above the leaves, capped so that a
-  block exposes at most ``max_roots`` top nodes. All blocks' nodes of one height live in ONE array, so a
-  query walks all blocks at once with a handful of vectorised numpy calls per height: the cost is a
-  function of the depth (log_fanout of the size), not of the number of blocks.
-* Why not scipy's cKDTree: one ``cKDTree.query`` call costs ~30 us on this machine even on a 10-point
-  tree (Python-level argument handling), so a logarithmic set of trees needs several calls per query
-  and blows the per-micro-action budget; its k-th-neighbour ties are also not broken by index.
-* Layouts are dimension-major ((..., n, points)) so numpy's inner loops run over points, not over the
-  7-30 coordinates, and so every squared distance is summed in the SAME order (coordinate 0, 1, ...,
-  n-1, sequentially) whichever path found the point: distances are bit-identical across the buffer,
-  the leaves and the brute-force path, which is what makes ties exact and the result independent of
-  the index structure.
+* Index = logarithmic method (Bentley-Saxe): the newest samples sit in a brute-force *buffer*;
+  whenever it holds ``2 * buffer_size`` samples, its oldest ``buffer_size`` become a static *block*,
+  merged like a binary counter with every trailing block of equal size, so a sample takes part in
+  O(log(N / buffer_size)) block builds and blocks hold contiguous index ranges (a bulk rebuild, e.g.
+  after load, reproduces the incremental state exactly). The buffer keeps its newest samples because
+  along a trajectory they give a first upper bound on the k-th distance for free.
+* A static block partitions its samples into leaves of ``leaf_size`` points (balanced kd partition,
+  or consecutive samples, chosen per block: ``leaf_order``), with bounding boxes of fan-out ``fanout``
+  above the leaves up to at most ``max_roots`` top nodes. The nodes of one height of ALL blocks live
+  in one array, so a query walks every block at once with a few vectorised numpy calls per height.
+* Exact duplicates of alpha (the rest posture after each reset) are stored once per block: median
+  splits would otherwise spread them over almost every leaf and inflate every box.
+* Bounds: the buffer's k-th distance, refined when it is loose by a greedy descent to the few
+  leaves closest to q (``refine_*``). Pruning uses box distance <= bound, which is exact: boxes and
+  points use the same canonical distance, so no float slack is needed.
+* Trajectory cache (``cache_*``): a query that walks the index also collects every sample within
+  ``cache_expand`` times the bound's radius; the next queries along the trajectory are answered from
+  that small set alone while the triangle inequality proves it contains their k nearest
+  (``sqrt(kth) + |q - centre| < radius``, with a 1e-9 relative margin for float rounding).
+* Why not scipy's cKDTree: one ``cKDTree.query`` costs ~30 us even on a 10-point tree here (Python
+  argument handling), a logarithmic forest needs one call per tree, and its k-th-neighbour ties are
+  not broken by index (a forest of cKDTrees measured no faster: ``memory_bench --ckdtree``).
+* Layouts are dimension-major ((n, points)) so numpy's inner loops run over points, not over the
+  7-30 coordinates, and every squared distance is summed in the SAME order (coordinate 0, 1, ...,
+  n-1, sequentially) whichever path found the point: distances are bit-identical across buffer,
+  leaves, cache and brute force, which makes ties exact and results independent of the index.
 
 Distances are squared Euclidean distances in float64, summed over coordinates in index order; the
 order of results is by (that distance, sample index).
@@ -37,6 +44,7 @@ order of results is by (that distance, sample index).
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 
 import numpy as np
@@ -105,7 +113,8 @@ def _kd_order(x: np.ndarray, leaf_size: int, split_sample: int) -> np.ndarray:
         seg = idx.reshape(segs, s)
         step = max(1, s // split_sample)
         sample = x[seg[:, ::step]]  # (segs, <=split_sample, n)
-        dim = (sample.max(axis=1) - sample.min(axis=1)).argmax(axis=1)
+        # NaN rows (padding) are ignored by fmax/fmin and sort last in argpartition
+        dim = (np.fmax.reduce(sample, axis=1) - np.fmin.reduce(sample, axis=1)).argmax(axis=1)
         vals = x[seg, dim[:, None]]  # (segs, s)
         half = s // 2
         part = np.argpartition(vals, half, axis=1)
@@ -117,7 +126,7 @@ def _kd_order(x: np.ndarray, leaf_size: int, split_sample: int) -> np.ndarray:
 class _Block:
     """Bookkeeping of one static block: rows [start, start + size) of the memory."""
 
-    __slots__ = ("start", "size", "top", "nblocks", "offset")
+    __slots__ = ("start", "size", "top", "nblocks", "offset", "ngroups", "nmembers")
 
     def __init__(self, start: int, size: int, top: int, nblocks: list[int]):
         self.start = start
@@ -125,6 +134,8 @@ class _Block:
         self.top = top  # height of its root nodes
         self.nblocks = nblocks  # number of F-wide node groups at heights 0..top
         self.offset = [0] * (top + 1)  # first group index at heights 0..top in the global arrays
+        self.ngroups = 0  # groups of exact duplicates (stored once in the leaves)
+        self.nmembers = 0  # samples in those groups
 
 
 class SampleMemory:
@@ -148,6 +159,11 @@ class SampleMemory:
                    splits each coordinate at most once), or "auto" (per block, the one whose leaves
                    meet fewer exact tune_k-NN balls of sample queries drawn from the block).
       tune_k       k used by "auto" (default 2 * state_dim + 2).
+      cache_expand consecutive queries along a trajectory: a query that walks the index also keeps
+                   every sample within cache_expand times (an upper bound of) its k-th distance;
+                   later queries are answered from that cache alone while the triangle inequality
+                   proves it holds their k nearest (0 disables; otherwise in (1, 16]).
+      cache_max    the cache is shrunk to about this many samples (>= 1).
     """
 
     def __init__(
@@ -163,9 +179,11 @@ class SampleMemory:
         max_roots: int = 64,
         split_sample: int = 16,
         refine_nodes: int = 64,
-        refine_leaves: int = 8,
+        refine_leaves: int = 16,
         leaf_order: str = "auto",
         tune_k: int | None = None,
+        cache_expand: float = 1.6,
+        cache_max: int = 4096,
     ):
         self._sd = _check_int("state_dim", state_dim, 1)
         self._ad = _check_int("action_dim", action_dim, 1)
@@ -191,6 +209,11 @@ class SampleMemory:
         self._leaf_order = leaf_order
         # k the 'auto' leaf order is tuned for; default 2n + 2 (see memory_bench.default_k)
         self._tune_k = _check_int("tune_k", 2 * self._sd + 2 if tune_k is None else tune_k, 1)
+        if isinstance(cache_expand, bool) or not isinstance(cache_expand, (int, float, np.floating)) \
+                or not (cache_expand == 0 or 1.0 < cache_expand <= 16.0):
+            raise ValueError(f"cache_expand must be 0 (no cache) or in (1, 16], got {cache_expand!r}")
+        self._cache_expand = float(cache_expand)
+        self._cache_max = _check_int("cache_max", cache_max, 1)
 
         n = self._sd
         self._n = 0  # number of samples
@@ -203,18 +226,38 @@ class SampleMemory:
         # query scratch: rows (q, -q, 0) against boxes stored as (lo, -hi, 0)
         self._q3 = np.zeros((3, n, 1))
         self._arange_f = np.arange(self._fan)
+        self._arange_b = np.arange(self._leaf)
+        # query cache: every stored sample within sqrt(_cache_r2) of _cache_c (plus every sample added
+        # since), dimension-major; _cache_m < 0 means no cache
+        self._cache_t = np.empty((n, 0))
+        self._cache_i = np.empty(0, dtype=np.int64)
+        self._cache_c = np.zeros(n)
+        self._cache_r = 0.0
+        self._cache_m = -1
+        self._cache_k = 0
+        self.cache_hits = 0  # queries answered from the cache (statistics only)
         self._reset_index()
 
     # ------------------------------------------------------------------ index storage
     def _reset_index(self) -> None:
-        n, b = self._sd, self._leaf
+        n = self._sd
         self._blocks: list[_Block] = []
-        self._boxes: list[np.ndarray] = []  # per height: (groups_cap, 3, n, F)
-        self._used: list[int] = []  # per height: groups in use
-        self._pts = np.empty((0, n, b))  # per leaf slot: its points, dimension-major
-        self._pidx = np.empty((0, b), dtype=np.int64)  # per leaf slot: sample indices
-        self._roots: list[np.ndarray] = []  # per height: group ids holding root nodes
+        # per height: (3, n, slots) rows (lo, -hi, 0) of every node's box; node id = slot; a node
+        # at height h + 1 with id j has the children slots j*F .. j*F + F - 1 at height h
+        self._boxes: list[np.ndarray] = []
+        self._used: list[int] = []  # per height: F-wide groups in use
+        self._pts = np.empty((n, 0))  # leaf slot j holds points j*b .. j*b + b - 1, dimension-major
+        self._pidx = np.empty(0, dtype=np.int64)  # their sample indices
+        self._roots: list[tuple[int, int]] = []  # per height: slot range of root nodes
         self._height = -1  # highest height in use
+        # Exact duplicates of alpha (the rest posture after every reset!) would be spread by the
+        # median splits over almost every leaf of a block, each leaf box then reaching from the
+        # duplicate to its other points. So a block stores each distinct alpha once; a leaf slot of
+        # a point standing for a group holds -(group + 2) in _pidx, and the group's sample indices
+        # (ascending) are _dup[_dup_off[group]:_dup_off[group + 1]].
+        self._dup = np.empty(0, dtype=np.int64)
+        self._dup_off = np.zeros(1, dtype=np.int64)
+        self._ngroups = 0
 
     def _plan(self, size: int) -> tuple[int, list[int]]:
         """Top height and F-wide groups per height for a block of ``size`` samples."""
@@ -230,25 +273,25 @@ class SampleMemory:
         return top, groups
 
     def _ensure_height(self, h: int, groups_needed: int) -> None:
-        n, f = self._sd, self._fan
+        n, f, b = self._sd, self._fan, self._leaf
         while len(self._boxes) <= h:
-            self._boxes.append(np.empty((0, 3, n, f)))
+            self._boxes.append(np.empty((3, n, 0)))
             self._used.append(0)
         arr = self._boxes[h]
-        if arr.shape[0] < groups_needed:
-            new = np.empty((max(groups_needed, 2 * arr.shape[0], 4), 3, n, f))
-            new[: self._used[h]] = arr[: self._used[h]]
+        slots = groups_needed * f
+        if arr.shape[2] < slots:
+            new = np.empty((3, n, max(slots, 2 * arr.shape[2], 4 * f)))
+            used = self._used[h] * f
+            new[:, :, :used] = arr[:, :, :used]
             self._boxes[h] = new
-        if h == 0:
-            slots = groups_needed * f
-            if self._pts.shape[0] < slots:
-                cap = max(slots, 2 * self._pts.shape[0], 4 * f)
-                pts = np.empty((cap, n, self._leaf))
-                pidx = np.empty((cap, self._leaf), dtype=np.int64)
-                used = self._used[0] * f
-                pts[:used] = self._pts[:used]
-                pidx[:used] = self._pidx[:used]
-                self._pts, self._pidx = pts, pidx
+        if h == 0 and self._pts.shape[1] < slots * b:
+            cap = max(slots * b, 2 * self._pts.shape[1])
+            pts = np.empty((n, cap))
+            pidx = np.empty(cap, dtype=np.int64)
+            used = self._used[0] * f * b
+            pts[:, :used] = self._pts[:, :used]
+            pidx[:used] = self._pidx[:used]
+            self._pts, self._pidx = pts, pidx
 
     def _build_block(self, start: int, size: int) -> _Block:
         """Build the static block over rows [start, start + size) and write it after the kept blocks."""
@@ -258,33 +301,85 @@ class SampleMemory:
         # offsets: right after the blocks that have each height (they precede this one)
         for h in range(top + 1):
             blk.offset[h] = sum(o.nblocks[h] for o in self._blocks if o.top >= h)
-        x = self._alpha[start : start + size]
+        x, ids = self._distinct_rows(blk, start, size)  # (size, n): distinct alpha, NaN padding
         perm = self._leaf_perm(x)
         nleaf = size // b
         slots0 = groups[0] * f
-        pts_t = np.ascontiguousarray(x[perm].reshape(nleaf, b, n).transpose(0, 2, 1))  # (L, n, b)
-        lo = np.full((slots0, n), np.inf)
-        nhi = np.full((slots0, n), np.inf)  # stores -hi
-        lo[:nleaf] = pts_t.min(axis=2)
-        nhi[:nleaf] = -pts_t.max(axis=2)
+        xp = x[perm]  # (size, n) in leaf order
+        leaves = xp.reshape(nleaf, b, n)
+        lo = np.full((n, slots0), np.inf)
+        nhi = np.full((n, slots0), np.inf)  # -hi
+        with np.errstate(invalid="ignore"):
+            lo[:, :nleaf] = np.fmin.reduce(leaves, axis=1).T  # NaN only for all-padding leaves
+            nhi[:, :nleaf] = -np.fmax.reduce(leaves, axis=1).T
+        lo[np.isnan(lo)] = np.inf
+        nhi[np.isnan(nhi)] = np.inf
         for h in range(top + 1):
             self._ensure_height(h, blk.offset[h] + groups[h])
-        s0 = blk.offset[0] * f
-        self._pts[s0 : s0 + nleaf] = pts_t
-        self._pts[s0 + nleaf : s0 + slots0] = np.nan  # empty leaf slots never match
-        self._pidx[s0 : s0 + nleaf] = (perm + start).reshape(nleaf, b)
-        self._pidx[s0 + nleaf : s0 + slots0] = -1
+        p0, p1, p2 = blk.offset[0] * f * b, (blk.offset[0] * f + nleaf) * b, (blk.offset[0] * f + slots0) * b
+        self._pts[:, p0:p1] = xp.T
+        self._pts[:, p1:p2] = np.nan  # empty leaf slots never match
+        self._pidx[p0:p1] = ids[perm]
+        self._pidx[p1:p2] = -1
         for h in range(top + 1):
-            g0 = blk.offset[h]
-            box = self._boxes[h][g0 : g0 + groups[h]]
-            box[:, 0] = lo.reshape(groups[h], f, n).transpose(0, 2, 1)
-            box[:, 1] = nhi.reshape(groups[h], f, n).transpose(0, 2, 1)
-            box[:, 2] = 0.0
-            self._used[h] = g0 + groups[h]
+            s0, cnt = blk.offset[h] * f, groups[h] * f
+            box = self._boxes[h]
+            box[0, :, s0 : s0 + cnt] = lo
+            box[1, :, s0 : s0 + cnt] = nhi
+            box[2, :, s0 : s0 + cnt] = 0.0
+            self._used[h] = blk.offset[h] + groups[h]
             if h < top:  # parents: boxes of their F children
-                lo = lo.reshape(groups[h], f, n).min(axis=1)
-                nhi = nhi.reshape(groups[h], f, n).min(axis=1)
+                lo = lo.reshape(n, groups[h], f).min(axis=2)
+                nhi = nhi.reshape(n, groups[h], f).min(axis=2)
         return blk
+
+    def _distinct_rows(self, blk: _Block, start: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+        """The block's rows with exact duplicates stored once, and their _pidx codes.
+
+        Returns (x, codes): the distinct rows in index order followed by NaN padding up to ``size``
+        rows, and per row its sample index, or -(group + 2) for the first sample of a group of
+        identical rows (whose samples are appended to _dup), or -1 for padding.
+        """
+        x = self._alpha[start : start + size]
+        # groups are appended after those of the blocks kept before this one
+        g0 = sum(o.ngroups for o in self._blocks)
+        m0 = sum(o.nmembers for o in self._blocks)
+        self._ngroups = g0
+        # identical rows share their first coordinate: a float sort finds the few candidates,
+        # only those are compared whole
+        o = np.argsort(x[:, 0], kind="stable")
+        first_col = x[o, 0]
+        eq = first_col[1:] == first_col[:-1]
+        if not eq.any():
+            return x, np.arange(start, start + size)
+        rep = np.zeros(size, dtype=bool)
+        rep[1:] = eq
+        rep[:-1] |= eq
+        cand = np.sort(o[rep])  # rows whose first coordinate repeats, ascending
+        keys = np.ascontiguousarray(x[cand]).view(np.dtype((np.void, 8 * x.shape[1]))).ravel()
+        _, first, inverse, counts = np.unique(keys, return_index=True, return_inverse=True, return_counts=True)
+        inverse = inverse.ravel()
+        grp = np.flatnonzero(counts > 1)
+        if not len(grp):
+            return x, np.arange(start, start + size)
+        order = np.argsort(inverse, kind="stable")  # grouped by value, ascending index inside
+        members = cand[order[counts[inverse[order]] > 1]]  # local rows, group after group
+        blk.ngroups, blk.nmembers = len(grp), len(members)
+        self._dup = np.concatenate((self._dup[:m0], members + start))
+        self._dup_off = np.concatenate((self._dup_off[: g0 + 1], m0 + np.cumsum(counts[grp])))
+        self._ngroups = g0 + len(grp)
+        firsts = cand[first[grp]]
+        kept = np.ones(size, dtype=bool)
+        kept[members] = False
+        kept[firsts] = True
+        codes = np.arange(start, start + size)
+        codes[firsts] = -(g0 + np.arange(len(grp))) - 2
+        distinct = np.flatnonzero(kept)
+        xd = np.full(x.shape, np.nan)
+        xd[: len(distinct)] = x[distinct]
+        out = np.full(size, -1, dtype=np.int64)
+        out[: len(distinct)] = codes[distinct]
+        return xd, out
 
     def _leaf_perm(self, x: np.ndarray) -> np.ndarray:
         """Order of the block's rows: leaf i holds rows perm[i * leaf_size:(i + 1) * leaf_size]."""
@@ -307,14 +402,15 @@ class SampleMemory:
     def _leaf_cost(self, x: np.ndarray, perm: np.ndarray) -> int:
         """Leaves whose box meets the k-NN ball of a few sample queries taken from the block itself."""
         p, n = x.shape
-        stride = -(-p // self._TUNE_SUBSET)
-        sub = np.ascontiguousarray(x[::stride].T)
+        u = p - int(np.count_nonzero(np.isnan(x[:, 0])))  # distinct rows (then NaN padding)
+        stride = -(-u // self._TUNE_SUBSET)
+        sub = np.ascontiguousarray(x[:u:stride].T)
         k = max(1, min(sub.shape[1] - 1, round(self._tune_k / stride)))
         pts = x[perm].reshape(p // self._leaf, self._leaf, n)
         lo, hi = pts.min(axis=1), pts.max(axis=1)
         cost = 0
         for i in range(self._TUNE_QUERIES):
-            q = x[(2 * i + 1) * p // (2 * self._TUNE_QUERIES)]
+            q = x[(2 * i + 1) * u // (2 * self._TUNE_QUERIES)]
             r = np.partition(_sqdist_cols(sub, q), k)[k]
             gap = np.maximum(np.maximum(lo - q, q - hi), 0.0)
             cost += int(np.count_nonzero(np.einsum("ij,ij->i", gap, gap) <= r))
@@ -323,10 +419,11 @@ class SampleMemory:
     def _refresh_roots(self) -> None:
         self._height = max((blk.top for blk in self._blocks), default=-1)
         self._roots = []
+        f = self._fan
         for h in range(self._height + 1):
             firsts = [blk.offset[h] for blk in self._blocks if blk.top == h]
             end = sum(blk.nblocks[h] for blk in self._blocks if blk.top >= h)
-            self._roots.append(np.arange(firsts[0], end) if firsts else np.empty(0, dtype=np.int64))
+            self._roots.append((firsts[0] * f, end * f) if firsts else (0, 0))
             self._used[h] = end
         for h in range(self._height + 1, len(self._used)):
             self._used[h] = 0
@@ -400,7 +497,7 @@ class SampleMemory:
         """Bytes held by the sample arrays and the index (allocated capacity included)."""
         total = self._alpha.nbytes + self._dalpha.nbytes + self._dy.nbytes + self._buf_t.nbytes
         total += self._pts.nbytes + self._pidx.nbytes + sum(b.nbytes for b in self._boxes)
-        total += sum(r.nbytes for r in self._roots)
+        total += self._cache_t.nbytes + self._cache_i.nbytes + self._dup.nbytes + self._dup_off.nbytes
         return int(total)
 
     @staticmethod
@@ -431,6 +528,14 @@ class SampleMemory:
         self._dalpha[i] = da
         self._dy[i] = dy
         self._buf_t[:, i - self._ns] = a
+        m = self._cache_m
+        if m >= 0:
+            if m < self._cache_t.shape[1]:
+                self._cache_t[:, m] = a
+                self._cache_i[m] = i
+                self._cache_m = m + 1
+            else:
+                self._cache_m = -1
         self._n = i + 1
         if self._n - self._ns == 2 * self._buf:
             self._index_batch()
@@ -482,9 +587,32 @@ class SampleMemory:
                 return np.empty(0, dtype=np.int64)
             d = _sqdist_cols(np.ascontiguousarray(self._alpha[:n_all].T), q)
             return np.lexsort((np.arange(n_all), d))
+        m = self._cache_m
+        cache_kth = np.inf
+        if m >= k and k <= self._cache_k:
+            dq = q - self._cache_c
+            delta = math.sqrt(dq.dot(dq))
+            if delta < self._cache_r:
+                d = _sqdist_cols(self._cache_t[:, :m], q)
+                kth = np.partition(d, k - 1)[k - 1]
+                # Any sample outside the cache is farther than r from the centre, so farther than
+                # r - delta from q; if that exceeds the k-th cached distance the cache holds the
+                # answer. The 1e-9 margins dwarf the float rounding of all these distances.
+                if (math.sqrt(kth) + delta) * (1.0 + 1e-9) + 1e-150 < self._cache_r * (1.0 - 1e-9):
+                    self.cache_hits += 1
+                    keep = d <= kth
+                    ci = self._cache_i[:m][keep]
+                    return ci[np.lexsort((ci, d[keep]))[:k]]
+                cache_kth = kth  # k real samples: still an upper bound of the k-th distance
         nb = n_all - ns
         bd = _sqdist_cols(self._buf_t[:, :nb], q) if nb else np.empty(0)
-        bound = np.partition(bd, k - 1)[k - 1] if nb >= k else np.inf
+        # tight: an upper bound of the k-th distance (any k stored samples give one). wide: the walk
+        # also looks that far for the cache; at the leaves it stops after cache_leaves extra leaves.
+        tight = np.partition(bd, k - 1)[k - 1] if nb >= k else np.inf
+        if cache_kth < tight:
+            tight = cache_kth
+        grow = self._cache_expand**2 if self._cache_expand else 1.0
+        wide = tight * grow
         if self._height < 0:  # everything is in the buffer
             leaf_d = leaf_i = None
         else:
@@ -492,79 +620,138 @@ class SampleMemory:
             q3[0, :, 0] = q
             np.negative(q, out=q3[1, :, 0])
             fan = self._fan
-            sel = None  # node ids at the height above = group ids at this height
+            sel = None  # selected node ids (slots) at the height above
             refined = False
             for h in range(self._height, -1, -1):
-                roots = self._roots[h]
+                r0, r1 = self._roots[h]
                 if sel is None or not len(sel):
-                    if not len(roots):
+                    if r0 == r1:
                         sel = None
                         continue
-                    groups = roots
-                    g = self._boxes[h][roots[0] : roots[-1] + 1] - q3
+                    slots = None
+                    g = self._boxes[h][:, :, r0:r1] - q3
                 else:
-                    groups = np.concatenate((sel, roots)) if len(roots) else sel
-                    g = self._boxes[h][groups]
+                    slots = (sel[:, None] * fan + self._arange_f).ravel()
+                    if r0 < r1:
+                        slots = np.concatenate((slots, np.arange(r0, r1)))
+                    g = self._boxes[h].take(slots, axis=2)
                     g -= q3
-                lb = g.max(axis=1)
+                lb = g.max(axis=0)
                 lb *= lb
-                lb = np.add.reduce(lb, axis=1)  # (groups, F): squared box distances, canonical order
-                keep = lb <= bound
-                gi, slot = keep.nonzero()
-                if not refined and len(gi) > self._refine_nodes:
+                lb = np.add.reduce(lb, axis=0)  # squared box distances, canonical order
+                keep = lb <= wide
+                if not refined and np.count_nonzero(keep) > self._refine_nodes:
                     refined = True
-                    better = self._refine_bound(h, groups, lb, q, k, bd)
-                    if better < bound:
-                        bound = better
-                        gi, slot = (lb <= bound).nonzero()
-                sel = groups[gi]
-                sel *= fan
-                sel += slot
+                    ids = np.arange(r0, r1) if slots is None else slots
+                    better = self._refine_bound(h, ids, g, lb, q, k, bd)
+                    if better < tight:
+                        tight, wide = better, better * grow
+                        keep = lb <= wide
+                if slots is None:
+                    sel = np.flatnonzero(keep)
+                    sel += r0
+                else:
+                    sel = slots[keep]
             if sel is None or not len(sel):
                 leaf_d = leaf_i = None
             else:
-                p = self._pts[sel]
+                idx = (sel[:, None] * self._leaf + self._arange_b).ravel()
+                p = self._pts.take(idx, axis=1)
                 p -= q[:, None]
                 p *= p
-                leaf_d = np.add.reduce(p, axis=1).ravel()
-                leaf_i = self._pidx[sel].ravel()
+                leaf_d = np.add.reduce(p, axis=0)
+                leaf_i = self._pidx[idx]
         if leaf_d is None:
             all_d, all_i = bd, np.arange(ns, n_all)
         else:
             all_d = np.concatenate((bd, leaf_d))
             all_i = np.concatenate((np.arange(ns, n_all), leaf_i))
-        m = all_d <= bound
-        cd, ci = all_d[m], all_i[m]
+        # every stored sample with distance <= wide (>= tight) is among (all_d, all_i): >= k of them
+        keep = all_d <= wide
+        cd, ci = all_d[keep], all_i[keep]
+        if self._ngroups and ci.min() < -1:
+            cd, ci = self._expand_groups(cd, ci, k)
+        if grow > 1.0:
+            self._fill_cache(q, cd, ci, wide, k)
+            kth = np.partition(cd, k - 1)[k - 1]
+            keep = cd <= kth
+            cd, ci = cd[keep], ci[keep]
         return ci[np.lexsort((ci, cd))[:k]]
 
-    def _refine_bound(self, h, groups, lb, q, k, bd) -> float:
+    def _expand_groups(self, cd, ci, k):
+        """Replace group codes by their samples (the k smallest indices are all a top-k can use)."""
+        ci = ci.copy()
+        ds, js = [cd], [ci]
+        for j in np.flatnonzero(ci < -1):
+            g = -int(ci[j]) - 2
+            a, b = int(self._dup_off[g]), int(self._dup_off[g + 1])
+            mem = self._dup[a : min(b, a + k)]
+            ci[j] = mem[0]
+            js.append(mem[1:])
+            ds.append(np.full(len(mem) - 1, cd[j]))
+        return np.concatenate(ds), np.concatenate(js)
+
+    def _fill_cache(self, q, cd, ci, bound, k) -> None:
+        """Keep the samples within sqrt(r2) of q (all of them are in cd/ci when r2 <= bound)."""
+        r2 = bound
+        if len(cd) > self._cache_max:
+            r2 = np.partition(cd, self._cache_max - 1)[self._cache_max - 1]
+            keep = cd <= r2
+            cd, ci = cd[keep], ci[keep]
+        m = len(ci)
+        if not r2 < np.inf or m < k:
+            self._cache_m = -1
+            return
+        cap = self._cache_t.shape[1]
+        if cap < m + 64 or cap > 4 * (m + 64):
+            cap = 2 * (m + 64)
+            self._cache_t = np.empty((self._sd, cap))
+            self._cache_i = np.empty(cap, dtype=np.int64)
+        self._cache_t[:, :m] = self._alpha[ci].T
+        self._cache_i[:m] = ci
+        self._cache_c[:] = q
+        self._cache_r = math.sqrt(r2)
+        self._cache_m = m
+        self._cache_k = k  # duplicate groups were cut to k samples: answers only for k' <= k
+
+    @staticmethod
+    def _beam_key(g: np.ndarray, lb: np.ndarray) -> np.ndarray:
+        """Rank of nodes for the beam: box distance + distance to the farthest box corner.
+
+        The box distance alone ties at 0 for every box containing q (dense regions); the farthest
+        corner favours small boxes close to q, which hold q's nearest samples.
+        """
+        far = np.maximum(np.abs(g[0]), np.abs(g[1]))
+        far *= far
+        return np.add.reduce(far, axis=0) + lb
+
+    def _refine_bound(self, h, ids, g, lb, q, k, bd) -> float:
         """Upper bound on the k-th distance from a greedy beam descent to the most promising leaves.
 
-        Keeps the ``width`` nodes of smallest box distance at each height, scans their leaves and
+        Keeps the ``width`` nodes of smallest _beam_key at each height, scans their leaves and
         returns the k-th smallest distance among those points and the buffer: an upper bound of the
-        true k-th distance (any k stored points give one). Speed only, never results.
+        true k-th distance (any k stored samples give one). Speed only, never results.
         """
         fan = self._fan
         width = max(self._refine_leaves, -(-k // self._leaf) + 1)
         q3 = self._q3
-        nodes = (groups[:, None] * fan + self._arange_f).ravel()
-        flat = lb.ravel()
+        nodes, flat = ids, self._beam_key(g, lb)
         for hh in range(h, -1, -1):
             if len(nodes) > width:
-                pick = np.argpartition(flat, width - 1)[:width]
-                nodes = nodes[pick]
+                nodes = nodes[np.argpartition(flat, width - 1)[:width]]
             if hh == 0:
                 break
-            g = self._boxes[hh - 1][nodes]
-            g -= q3
-            m = g.max(axis=1)
-            m *= m
-            flat = np.add.reduce(m, axis=1).ravel()
             nodes = (nodes[:, None] * fan + self._arange_f).ravel()
-        p = self._pts[nodes]
+            g = self._boxes[hh - 1].take(nodes, axis=2)
+            g -= q3
+            m = g.max(axis=0)
+            m *= m
+            flat = self._beam_key(g, np.add.reduce(m, axis=0))
+        idx = (nodes[:, None] * self._leaf + self._arange_b).ravel()
+        p = self._pts.take(idx, axis=1)
         p -= q[:, None]
         p *= p
-        d = np.concatenate((bd, np.add.reduce(p, axis=1).ravel()))
+        d = np.concatenate((bd, np.add.reduce(p, axis=0)))
         if len(d) < k:
             return np.inf
         kth = np.partition(d, k - 1)[k - 1]
@@ -595,6 +782,7 @@ class SampleMemory:
                 self._refine_leaves,
                 _LEAF_ORDERS.index(self._leaf_order),
                 self._tune_k,
+                self._cache_max,
             ],
             dtype=np.int64,
         )
@@ -607,6 +795,7 @@ class SampleMemory:
             np.savez(
                 fh,
                 params=self._params(),
+                float_params=np.array([self._cache_expand]),
                 alpha=self._alpha[: self._n],
                 delta_alpha=self._dalpha[: self._n],
                 delta_y=self._dy[: self._n],
@@ -620,21 +809,23 @@ class SampleMemory:
     def load(cls, path) -> "SampleMemory":
         """Read a file written by :meth:`save`; the index is rebuilt exactly as it was."""
         with np.load(os.fspath(path), allow_pickle=False) as z:
-            missing = {"params", "alpha", "delta_alpha", "delta_y", "digest"} - set(z.files)
+            missing = {"params", "float_params", "alpha", "delta_alpha", "delta_y", "digest"} - set(z.files)
             if missing:
                 raise ValueError(f"path is not a SampleMemory file: missing {sorted(missing)}")
             params = z["params"]
+            fparams = z["float_params"]
             alpha, dalpha, dy = z["alpha"], z["delta_alpha"], z["delta_y"]
             digest = str(z["digest"])
-        if params.shape != (13,) or int(params[0]) != _FORMAT_VERSION:
+        if params.shape != (14,) or fparams.shape != (1,) or int(params[0]) != _FORMAT_VERSION:
             raise ValueError(f"path has an unsupported SampleMemory format (params {params.tolist()})")
-        _, sd, ad, od, buf, leaf, fan, roots, split, refine, rleaves, order, tune_k = (int(v) for v in params)
+        _, sd, ad, od, buf, leaf, fan, roots, split, refine, rleaves, order, tune_k, cmax = (int(v) for v in params)
         if not 0 <= order < len(_LEAF_ORDERS):
             raise ValueError(f"path has an unknown leaf_order code {order}")
         mem = cls(
             sd, ad, od, capacity=max(1, alpha.shape[0]), buffer_size=buf, leaf_size=leaf, fanout=fan,
             max_roots=roots, split_sample=split, refine_nodes=refine, refine_leaves=rleaves,
-            leaf_order=_LEAF_ORDERS[order], tune_k=tune_k,
+            leaf_order=_LEAF_ORDERS[order], tune_k=tune_k, cache_expand=float(fparams[0]),
+            cache_max=cmax,
         )
         n = alpha.shape[0]
         for name, arr, dim in (("alpha", alpha, sd), ("delta_alpha", dalpha, ad), ("delta_y", dy, od)):
