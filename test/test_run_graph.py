@@ -90,6 +90,7 @@ def test_bag_holds_every_topic_and_sample(run):
     samples = msgs["/sagg/sample"]
     assert len(samples) == s["memory"]["samples"] == s["learner_status"]["samples"] == N
     assert [m.index for m in samples] == list(range(N))
+    assert s["bag"]["sequence_gaps"] == {"/sagg/sample": 0, "/sagg/competence": 0, "/sagg/goal": 0}
     # one command per micro-action + one per reset (one reset per goal in this config)
     assert len(msgs["/forward_position_controller/commands"]) == N + len(s["goals"])
     assert [m.seq for m in msgs["/sagg/goal"]] == [g["seq"] for g in s["goals"]]

@@ -125,6 +125,12 @@ def test_params_file_gives_every_node_its_parameters(tmp_path):
     assert lp["rest_posture"] == arm_spec_from_params(full["sagg_sim_bridge"]).rest_posture().tolist()
     names = [t.name for t in graph_topics(params["sagg_learner"])]
     assert "/forward_position_controller/commands" in names and "/tip_position" in names
+    assert lp["observation_delay"] == 0.0 and "/clock" not in names
+    # real-time bridge: the learner waits two publish periods for a post-command state; /clock recorded
+    rt = graph_params(full, 10, "realtime")
+    assert rt["sagg_sim_bridge"]["timing"] == "realtime"
+    assert rt["sagg_learner"]["observation_delay"] == 2.0 / rt["sagg_sim_bridge"]["publish_rate"]
+    assert "/clock" in [t.name for t in graph_topics(rt["sagg_learner"], "realtime")]
 
 
 def test_graph_config_errors_name_the_parameter():

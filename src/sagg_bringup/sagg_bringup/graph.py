@@ -140,6 +140,10 @@ def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str) -> 
     bp = params["sagg_sim_bridge"]
     if "timing" in bp:
         bp["timing"] = timing
+    # real-time bridge: a joint state sampled before a command arrived must not be taken for its
+    # settled result; the learner's own advice is about two publish periods (0 = lockstep value)
+    if timing == "realtime" and lp.get("observation_delay") == 0.0 and "publish_rate" in bp:
+        lp["observation_delay"] = 2.0 / bp["publish_rate"]
     for k in ("controller", "task_topic"):
         if k in bp and k in lp and bp[k] != lp[k]:
             raise ConfigError(f"parameter '{k}' differs between sagg_sim_bridge ({bp[k]!r}) and "
@@ -491,6 +495,9 @@ class RunState:
     last_regions: Any = None
     last_competence: float = float("nan")
     last_error: float = float("nan")
+    # messages missing from sequences the recorder can check (seq/index not consecutive)
+    gaps: dict[str, int] = field(default_factory=lambda: {"/sagg/sample": 0, "/sagg/competence": 0,
+                                                          "/sagg/goal": 0})
 
 
 def _status_dict(m) -> dict:
@@ -585,15 +592,21 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         if st.sample_t0 is None:
             st.sample_t0 = now
         st.sample_t1 = now
+        if int(m.index) != st.samples:
+            st.gaps["/sagg/sample"] += 1
         st.samples += 1
         evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
 
     def on_goal(m) -> None:
+        if int(m.seq) != len(st.goals) + 1:
+            st.gaps["/sagg/goal"] += 1
         st.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
                                 "mode_name": MODE_NAMES.get(int(m.mode), str(m.mode)),
                                 "after_report": int(m.after_report)}
 
     def on_report(m) -> None:
+        if int(m.seq) != st.reports + 1:
+            st.gaps["/sagg/competence"] += 1
         st.reports += 1
         st.report_ma[int(m.seq)] = int(m.micro_actions)
         if m.kind == KIND_GOAL:
@@ -738,7 +751,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         "test_goals": evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
         "regions": regions,
         "splits": tracker.splits,
-        "bag": {"path": str(out / "bag"), "storage": "mcap", "topics": bag_topics},
+        "bag": {"path": str(out / "bag"), "storage": "mcap", "topics": bag_topics,
+                "sequence_gaps": st.gaps},
         "rates": {t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0},
         "nodes": {p.name: {"pid": p.popen.pid if p.popen else None, "exit_code": p.exit_code,
                            "log": str(p.log_path)} for p in procs},
