@@ -163,6 +163,8 @@ class SampleMemory:
                    every sample within cache_expand times (an upper bound of) its k-th distance;
                    later queries are answered from that cache alone while the triangle inequality
                    proves it holds their k nearest (0 disables; otherwise in (1, 16]).
+      cache_scan   the wider walk scans at most cache_scan times the leaves the answer needs; the
+                   cache radius is cut to what those leaves cover (in [1, 1e6]).
       cache_max    the cache is shrunk to about this many samples (>= 1).
     """
 
@@ -183,6 +185,7 @@ class SampleMemory:
         leaf_order: str = "auto",
         tune_k: int | None = None,
         cache_expand: float = 1.6,
+        cache_scan: float = 4.0,
         cache_max: int = 4096,
     ):
         self._sd = _check_int("state_dim", state_dim, 1)
@@ -213,6 +216,10 @@ class SampleMemory:
                 or not (cache_expand == 0 or 1.0 < cache_expand <= 16.0):
             raise ValueError(f"cache_expand must be 0 (no cache) or in (1, 16], got {cache_expand!r}")
         self._cache_expand = float(cache_expand)
+        if isinstance(cache_scan, bool) or not isinstance(cache_scan, (int, float, np.floating)) \
+                or not 1.0 <= cache_scan <= 1e6:
+            raise ValueError(f"cache_scan must be in [1, 1e6], got {cache_scan!r}")
+        self._cache_scan = float(cache_scan)
         self._cache_max = _check_int("cache_max", cache_max, 1)
 
         n = self._sd
@@ -647,6 +654,14 @@ class SampleMemory:
                     if better < tight:
                         tight, wide = better, better * grow
                         keep = lb <= wide
+                if h == 0 and grow > 1.0:
+                    # cap the extra scan for the cache at cache_scan times the leaves the answer
+                    # needs (in 15-30 dims a wider ball holds most of the memory); the cache radius
+                    # is then what the scanned leaves cover
+                    need = int(self._cache_scan * np.count_nonzero(lb <= tight)) + 1
+                    if np.count_nonzero(keep) > need:
+                        wide = max(tight, np.partition(lb, need)[need])
+                        keep = lb <= wide
                 if slots is None:
                     sel = np.flatnonzero(keep)
                     sel += r0
@@ -795,7 +810,7 @@ class SampleMemory:
             np.savez(
                 fh,
                 params=self._params(),
-                float_params=np.array([self._cache_expand]),
+                float_params=np.array([self._cache_expand, self._cache_scan]),
                 alpha=self._alpha[: self._n],
                 delta_alpha=self._dalpha[: self._n],
                 delta_y=self._dy[: self._n],
@@ -816,7 +831,7 @@ class SampleMemory:
             fparams = z["float_params"]
             alpha, dalpha, dy = z["alpha"], z["delta_alpha"], z["delta_y"]
             digest = str(z["digest"])
-        if params.shape != (14,) or fparams.shape != (1,) or int(params[0]) != _FORMAT_VERSION:
+        if params.shape != (14,) or fparams.shape != (2,) or int(params[0]) != _FORMAT_VERSION:
             raise ValueError(f"path has an unsupported SampleMemory format (params {params.tolist()})")
         _, sd, ad, od, buf, leaf, fan, roots, split, refine, rleaves, order, tune_k, cmax = (int(v) for v in params)
         if not 0 <= order < len(_LEAF_ORDERS):
@@ -825,7 +840,7 @@ class SampleMemory:
             sd, ad, od, capacity=max(1, alpha.shape[0]), buffer_size=buf, leaf_size=leaf, fanout=fan,
             max_roots=roots, split_sample=split, refine_nodes=refine, refine_leaves=rleaves,
             leaf_order=_LEAF_ORDERS[order], tune_k=tune_k, cache_expand=float(fparams[0]),
-            cache_max=cmax,
+            cache_scan=float(fparams[1]), cache_max=cmax,
         )
         n = alpha.shape[0]
         for name, arr, dim in (("alpha", alpha, sd), ("delta_alpha", dalpha, ad), ("delta_y", dy, od)):

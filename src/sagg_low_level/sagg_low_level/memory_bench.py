@@ -11,10 +11,14 @@ the logarithmic method is reported amortised: a sample takes part in one block b
 so rebuild/add = sum over the block sizes B * 2**i <= N of (build time of that size) / (its size),
 measured on this data.
 
-Data ("traj"): alpha from seeded random walks of the joint angles, successive alpha differing by
-``step`` rad per joint (std), with a fixed rest posture every ``reset_every`` samples (so the rest
-posture is stored many times, exactly); ``persistence`` makes the walk directed (AR(1) velocity), as a
-learner moving towards goals does. "unif": alpha uniform in [-pi, pi]^n (queries too).
+Data: "traj": alpha from seeded directed random walks of the joint angles (AR(1) velocity with
+persistence 0.9, as a learner moving towards goals), successive alpha differing by ~0.03 rad per joint,
+restarted exactly at a fixed rest posture every 200 samples (so the rest posture is stored many times,
+exactly); "walk": the same without persistence (diffusive); "unif": alpha uniform in [-pi, pi]^n
+(queries too; the hard case for any exact index in 15-30 dims).
+
+The timed micro-actions are split in 3 consecutive windows and the median of the window means is
+reported (the shared machine's load spikes otherwise dominate a mean); q.med is the per-query median.
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from .memory import SampleMemory, _sqdist_cols
+
+KINDS = {"traj": 0.9, "walk": 0.0}  # persistence of the random walk per data kind
 
 __all__ = ["default_k", "trajectory_alphas", "uniform_alphas", "bench_memory", "bench_ckdtree_forest"]
 
@@ -72,6 +78,14 @@ def uniform_alphas(n: int, count: int, rng) -> np.ndarray:
     return _rng(rng).uniform(-np.pi, np.pi, size=(count, n))
 
 
+def _data(kind: str, dim: int, count: int, rng) -> np.ndarray:
+    if kind == "unif":
+        return uniform_alphas(dim, count, rng)
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {sorted(KINDS) + ['unif']}, got {kind!r}")
+    return trajectory_alphas(dim, count, rng, persistence=KINDS[kind])
+
+
 def _memory_at(alphas: np.ndarray, outcome_dim: int, **kw) -> tuple[SampleMemory, float]:
     """Memory holding ``alphas`` (delta arrays zero) built in bulk; returns it and the build seconds."""
     n_rows, n = alphas.shape
@@ -108,11 +122,12 @@ def bench_memory(dim: int, sizes, k: int | None = None, queries: int = 500, *, k
     rng = np.random.default_rng(seed)
     total = sizes[-1] + queries
     if data is None:
-        data = trajectory_alphas(dim, total, rng) if kind == "traj" else uniform_alphas(dim, total, rng)
+        data = _data(kind, dim, total, rng)
     da, dy = np.zeros(dim), np.zeros(outcome_dim)
     rows, build_cache = [], {}
     for n_rows in sizes:
         mem, build_s = _memory_at(data[:n_rows], outcome_dim, **memory_kwargs)
+        nbytes = mem.nbytes  # before the timed adds grow the arrays (capacity doubling)
         t_query, t_add, t_wall = [], [], []
         w0 = time.perf_counter()
         for t in range(n_rows, n_rows + queries):
@@ -127,13 +142,15 @@ def bench_memory(dim: int, sizes, k: int | None = None, queries: int = 500, *, k
             if mem._ns == ns:  # adds that built a block are counted by the amortised rebuild
                 t_add.append(c2 - c1)
         t_wall = (time.perf_counter() - w0) / queries
-        nbytes = mem.nbytes
         rebuild = _amortised_rebuild(mem, n_rows, build_cache)  # scribbles on mem: measured last
-        q_us, a_us, r_us = np.mean(t_query) * 1e6, np.mean(t_add) * 1e6, rebuild * 1e6
+        hits = mem.cache_hits
+        q_us = float(np.median([np.mean(w) for w in np.array_split(t_query, 3)])) * 1e6
+        a_us = float(np.median([np.mean(w) for w in np.array_split(t_add, 3)])) * 1e6
+        r_us = rebuild * 1e6
         rows.append(dict(
             dim=dim, k=k, kind=kind, size=n_rows, query_us=q_us, query_median_us=np.median(t_query) * 1e6,
             add_us=a_us, rebuild_us=r_us, total_us=q_us + a_us + r_us, wall_us=t_wall * 1e6,
-            bytes_per_sample=nbytes / n_rows, blocks=len(mem._blocks), bulk_build_s=build_s,
+            bytes_per_sample=nbytes / n_rows, cache_hit_rate=hits / queries, blocks=len(mem._blocks), bulk_build_s=build_s,
         ))
     for row in rows:
         row["ratio"] = row["total_us"] / rows[0]["total_us"]
@@ -148,7 +165,8 @@ def bench_ckdtree_forest(dim: int, sizes, k: int | None = None, queries: int = 3
 
     Same block decomposition as SampleMemory (binary counter over buffer_size batches); a query asks
     every tree for its k nearest (distance_upper_bound = the buffer's k-th distance) and merges.
-    Query cost only (its rebuild cost is of the same order as SampleMemory's).
+    Query cost only (its rebuild cost is of the same order as SampleMemory's). Also times one static
+    cKDTree over all N samples (no inserts possible: a lower bound for any cKDTree-based design).
     """
     from scipy.spatial import cKDTree
 
@@ -156,7 +174,7 @@ def bench_ckdtree_forest(dim: int, sizes, k: int | None = None, queries: int = 3
     k = default_k(dim) if k is None else int(k)
     rng = np.random.default_rng(seed)
     total = sizes[-1] + queries
-    data = trajectory_alphas(dim, total, rng) if kind == "traj" else uniform_alphas(dim, total, rng)
+    data = _data(kind, dim, total, rng)
     rows = []
     for n_rows in sizes:
         flushes = max(0, (n_rows - buffer_size) // buffer_size)
@@ -168,6 +186,13 @@ def bench_ckdtree_forest(dim: int, sizes, k: int | None = None, queries: int = 3
                                              balanced_tree=balanced_tree, compact_nodes=compact_nodes)))
                 start += size
         buf_t = np.ascontiguousarray(data[start:n_rows].T)
+        static = cKDTree(data[:n_rows], leafsize=leafsize, balanced_tree=balanced_tree,
+                         compact_nodes=compact_nodes)
+        t_static = []
+        for t in range(n_rows, n_rows + queries):
+            c0 = time.thread_time()
+            static.query(data[t], k)
+            t_static.append(time.thread_time() - c0)
         times = []
         for t in range(n_rows, n_rows + queries):
             q = data[t]
@@ -184,7 +209,7 @@ def bench_ckdtree_forest(dim: int, sizes, k: int | None = None, queries: int = 3
             i[np.lexsort((i, d))[:k]]
             times.append(time.thread_time() - c0)
         rows.append(dict(dim=dim, k=k, kind=kind, size=n_rows, trees=len(trees),
-                         query_us=np.mean(times) * 1e6))
+                         query_us=float(np.mean(times)) * 1e6, static_query_us=float(np.mean(t_static)) * 1e6))
     for row in rows:
         row["ratio"] = row["query_us"] / rows[0]["query_us"]
     return rows
@@ -192,12 +217,12 @@ def bench_ckdtree_forest(dim: int, sizes, k: int | None = None, queries: int = 3
 
 def _print_table(rows: list[dict], out=sys.stdout) -> None:
     head = (f"{'n':>3} {'k':>3} {'data':>4} {'N':>8} {'query':>8} {'q.med':>7} {'add':>6} {'rebuild':>7} "
-            f"{'total':>8} {'ratio':>6} {'B/sample':>8} {'wall':>8}")
+            f"{'total':>8} {'ratio':>6} {'B/sample':>8} {'wall':>8} {'hits':>5}")
     print(head, file=out)
     for r in rows:
         print(f"{r['dim']:>3} {r['k']:>3} {r['kind']:>4} {r['size']:>8} {r['query_us']:>8.1f} "
               f"{r['query_median_us']:>7.1f} {r['add_us']:>6.1f} {r['rebuild_us']:>7.1f} {r['total_us']:>8.1f} "
-              f"{r['ratio']:>6.2f} {r['bytes_per_sample']:>8.1f} {r['wall_us']:>8.1f}", file=out)
+              f"{r['ratio']:>6.2f} {r['bytes_per_sample']:>8.1f} {r['wall_us']:>8.1f} {r['cache_hit_rate']:>5.2f}", file=out)
     out.flush()
 
 
@@ -209,7 +234,8 @@ def main(argv=None) -> int:
                    help="largest n benchmarked at sizes above 200k (bench time)")
     p.add_argument("--k", type=int, default=None, help="neighbours (default 2n+2)")
     p.add_argument("--queries", type=int, default=400, help="timed micro-actions per size")
-    p.add_argument("--kind", choices=["traj", "unif", "both"], default="both")
+    p.add_argument("--kind", choices=["traj", "walk", "unif", "all"], default="all",
+                   help="all = traj for every n, walk for n=7, unif at --unif-sizes")
     p.add_argument("--unif-sizes", default="10000,100000,200000")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--ckdtree", action="store_true", help="also time the cKDTree-forest alternative")
@@ -217,17 +243,20 @@ def main(argv=None) -> int:
     dims = [int(x) for x in args.dims.split(",")]
     print("us = CPU microseconds per micro-action; total = query + add + amortised rebuild; "
           "ratio = total / total at the smallest N; wall = wall-clock us per (query + add)")
-    for kind in (["traj", "unif"] if args.kind == "both" else [args.kind]):
-        sizes_all = [int(x) for x in (args.sizes if kind == "traj" else args.unif_sizes).split(",")]
+    for kind in (["traj", "walk", "unif"] if args.kind == "all" else [args.kind]):
+        sizes_all = [int(x) for x in (args.unif_sizes if kind == "unif" else args.sizes).split(",")]
         for dim in dims:
+            if kind == "walk" and args.kind == "all" and dim != dims[0]:
+                continue
             sizes = [s for s in sizes_all if s <= 200_000 or dim <= args.max_1m_dim]
             rows = bench_memory(dim, sizes, args.k, args.queries, kind=kind, seed=args.seed)
             _print_table(rows)
             if args.ckdtree:
                 for r in bench_ckdtree_forest(dim, sizes, args.k, min(args.queries, 300), kind=kind,
                                               seed=args.seed):
-                    print(f"    cKDTree forest: n={r['dim']} N={r['size']} trees={r['trees']} "
-                          f"query {r['query_us']:.1f} us ratio {r['ratio']:.2f}")
+                    print(f"    alternative: cKDTree forest (n={r['dim']} N={r['size']}, {r['trees']} trees) "
+                          f"query {r['query_us']:.1f} us, ratio {r['ratio']:.2f}; one static cKDTree "
+                          f"(cannot take inserts) {r['static_query_us']:.1f} us")
     return 0
 
 
