@@ -28,7 +28,13 @@ from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 def load_experiment_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
     """Resolve the three nodes' parameters from a config file (+ overrides applied to every node)."""
     sections = read_config(path)
-    check_wildcard(sections, (GEN_SCHEMA, LEARNER_SCHEMA, BRIDGE_SCHEMA))
+    schemas = (GEN_SCHEMA, LEARNER_SCHEMA, BRIDGE_SCHEMA)
+    check_wildcard(sections, schemas)
+    known = {p.name for s in schemas for p in s}
+    unknown = sorted(set(overrides or {}) - known)
+    if unknown:
+        raise ConfigError(f"unknown parameter(s) {', '.join(unknown)} in overrides (--set); "
+                          "see `sagg params` for every parameter")
     out = {
         "sagg_goal_generator": node_params(sections, "sagg_goal_generator", GEN_SCHEMA, overrides),
         "sagg_learner": node_params(sections, "sagg_learner", LEARNER_SCHEMA, overrides),

@@ -219,7 +219,7 @@ class EvolvingContextLearner:
         if self.m != len(self.task_lower):
             raise ValueError(f"task_space: {len(self.task_lower)} dimensions but the robot reports {self.m}")
         n = robot.n
-        self.memory = memory or SampleMemory(n, n, self.m)
+        self.memory = memory if memory is not None else SampleMemory(n, n, self.m)
         self.k = params["neighbours"] or 2 * n
         self.min_samples = params["min_samples"] or n
         self.v = params["v"]
