@@ -64,6 +64,8 @@ def test_bad_config_values_name_the_parameter(tmp_path):
         load_experiment_config(ROOT / "config/arm15.yaml", {"v": -1.0})
     with pytest.raises(ConfigError, match="arm.dof"):
         load_experiment_config(ROOT / "config/arm15.yaml", {"arm.dof": 0})
+    with pytest.raises(ConfigError, match="nope"):
+        load_experiment_config(ROOT / "config/arm15.yaml", {"nope": 1})
     bad = tmp_path / "bad.yaml"
     bad.write_text("sagg_learner:\n  ros__parameters:\n    q: [1, 2\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
