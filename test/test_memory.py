@@ -333,6 +333,7 @@ def test_query_and_constructor_validation():
         (dict(refine_nodes=0), "refine_nodes"),
         (dict(cache_expand=1.0), "cache_expand"),
         (dict(cache_max=0), "cache_max"),
+        (dict(cache_scan=0.5), "cache_scan"),
         (dict(tune_k=0), "tune_k"),
     ]:
         full = dict(state_dim=3, action_dim=2, outcome_dim=2) | kw

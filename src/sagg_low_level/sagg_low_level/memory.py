@@ -614,7 +614,7 @@ class SampleMemory:
         nb = n_all - ns
         bd = _sqdist_cols(self._buf_t[:, :nb], q) if nb else np.empty(0)
         # tight: an upper bound of the k-th distance (any k stored samples give one). wide: the walk
-        # also looks that far for the cache; at the leaves it stops after cache_leaves extra leaves.
+        # also collects everything that far for the cache (capped at the leaves by cache_scan).
         tight = np.partition(bd, k - 1)[k - 1] if nb >= k else np.inf
         if cache_kth < tight:
             tight = cache_kth
