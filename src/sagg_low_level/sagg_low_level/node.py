@@ -321,12 +321,16 @@ class LearnerNode(Node):
 
     # ------------------------------------------------------------------ outputs
     def flush(self) -> None:
-        """Publish the queued reports (Report) and samples (memory index), in order."""
+        """Publish the queued reports (Report) and samples (memory index), in order. Encoding is
+        skipped for a topic nobody subscribes to (the message would be dropped anyway)."""
         box = self.outbox
+        samples = self.sample_pub.get_subscription_count() > 0
+        reports = self.report_pub.get_subscription_count() > 0
         for item in box:
             if not isinstance(item, Report):
-                self.publish_sample(item)
-            else:
+                if samples:
+                    self.publish_sample(item)
+            elif reports:
                 self.publish_report(item)
         box.clear()
 
