@@ -644,6 +644,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         t_nodes = time.perf_counter()
         last_progress = (0, time.perf_counter())
         done_at = None
+        waiting_note = False
         while True:
             executor.spin_once(timeout_sec=0.02)
             if stop_signal:
@@ -677,8 +678,17 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                 # a short drain so reports/goals published just before the end are recorded too
                 if now - done_at > 0.5 and evaluator.finished(st.samples):
                     break
-                if now - done_at > stall_timeout:
-                    raise GraphError("the final evaluation did not finish")
+                # evaluation is niced and may lag behind learning on a busy machine: wait for it as
+                # long as its process lives (it reports its own errors), telling the user once
+                if not evaluator.proc.is_alive():
+                    raise GraphError("the evaluation process stopped before the final evaluation")
+                if not waiting_note and now - done_at > 2.0:
+                    waiting_note = True
+                    pending = sum(1 for c in evaluator.checkpoints
+                                  if c <= st.samples and c not in evaluator.errors)
+                    if progress:
+                        print(f"\nlearning done; waiting for {pending} pending evaluation(s)",
+                              file=sys.stderr, flush=True)
         bar.update(st.samples, force=True, goals=len(st.goals),
                    regions=len(st.last_regions.regions) if st.last_regions is not None else 1,
                    competence=st.last_competence, error=st.last_error)
