@@ -106,6 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
     t = bsub.add_parser("table", help="compare strategies from result.json files (Markdown table "
                                       "and Mann-Whitney / Welch tests)")
     t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
+    t.add_argument("--plot", metavar="PNG", help="also draw the curves (mean ± std over seeds)")
+    t.add_argument("--title", default="", help="plot title")
     return p
 
 
@@ -165,6 +167,9 @@ def main(argv: list[str] | None = None) -> int:
             if not results:
                 raise ConfigError(f"no result.json found under {', '.join(args.results)}")
             print(summary_markdown(results))
+            if args.plot:
+                from .compare import plot_curves
+                plot_curves(results, args.plot, args.title)
             return 0
         if args.command == "bench" and args.bench == "speed":
             from .bench import bench_speed

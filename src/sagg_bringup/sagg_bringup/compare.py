@@ -59,3 +59,28 @@ def summary_markdown(results: list[dict]) -> str:
         t = pairwise_tests(finals[a], finals[b])
         lines.append(f"| {a} | {b} | {t['mannwhitney_p']:.3g} | {t['welch_p']:.3g} |")
     return "\n".join(lines)
+
+
+def plot_curves(results: list[dict], path, title: str = "", key: str = "mean_error") -> None:
+    """Test error against micro-actions, one line per strategy: mean over seeds with a shaded
+    ±1 std band (like the paper's Figs. 10-12)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for name, rs in by_strategy(results).items():
+        xs = [c["micro_actions"] for c in rs[0]["curve"]]
+        ys = np.array([[c[key] for c in r["curve"]] for r in rs if len(r["curve"]) == len(xs)])
+        m, s = ys.mean(axis=0), ys.std(axis=0)
+        ax.plot(xs, m, label=f"{name} (n={len(ys)})")
+        ax.fill_between(xs, np.maximum(m - s, 1e-3), m + s, alpha=0.2)
+    ax.set_yscale("log")
+    ax.set_xlabel("micro-actions")
+    ax.set_ylabel(f"test error ({key.replace('_', ' ')}, task units)")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
