@@ -25,6 +25,7 @@ _U64 = struct.Struct("<Q")
 _F64 = struct.Struct("<d")
 _3F64 = struct.Struct("<3d")
 _NS = 1_000_000_000
+_F8 = np.dtype("<f8")
 
 
 def split_ns(ns: int) -> tuple[int, int]:
@@ -94,11 +95,12 @@ class Writer:
 class Reader:
     """Sequential CDR reader over received bytes (encapsulation header skipped)."""
 
-    __slots__ = ("d", "o")
+    __slots__ = ("raw", "d", "o")
 
     def __init__(self, data: bytes):
         if len(data) < 4 or data[1] != 1:
             raise ValueError("not little-endian plain CDR (encapsulation 00 01)")
+        self.raw = data
         self.d = memoryview(data)[4:]
         self.o = 0
 
@@ -145,12 +147,15 @@ class Reader:
         self.o += n
 
     def f64_seq(self) -> np.ndarray:
-        """A float64 sequence as a fresh array (a copy: safe to keep)."""
+        """A float64 sequence as a READ-ONLY array viewing the received bytes (immutable, kept
+        alive by the array): copy it before modifying it in place."""
         n = self.u32()
         if n == 0:
             return np.empty(0)
         self.o += -self.o % 8
-        a = np.frombuffer(self.d, dtype="<f8", count=n, offset=self.o).astype(np.float64)
+        if len(self.d) < self.o + 8 * n:
+            raise ValueError("truncated float64 sequence")
+        a = np.frombuffer(self.raw, dtype=_F8, count=n, offset=4 + self.o)
         self.o += 8 * n
         return a
 
@@ -225,26 +230,31 @@ def encode_joint_state(stamp_ns: int, frame_id: str, names, position, velocity=(
 
 class JointStateDecoder:
     """Decodes stamp, names, positions and velocities; the names tuple is cached and returned as
-    the same object while the publisher's name list does not change (cheap re-mapping check)."""
+    the same object while the publisher's name list does not change (cheap re-mapping check).
+    Fast path: when the frame_id and name list bytes equal the previous message's, their parsing
+    is skipped (one bytes comparison)."""
 
     def __init__(self):
-        self._blob = b""
+        self._blob = b""       # bytes of frame_id + names of the last message (payload offsets 8..end)
+        self._end = 0          # payload offset just after the names
         self.names: tuple[str, ...] = ()
 
     def decode(self, data: bytes) -> tuple[int, tuple[str, ...], np.ndarray, np.ndarray]:
         r = Reader(data)
         stamp = r.stamp()
-        r.skip_string()  # frame_id
-        start = r.o
-        count = r.u32()
-        for _ in range(count):
-            r.skip_string()
-        blob = r.d[start:r.o]
-        if blob != self._blob:
-            self._blob = bytes(blob)
+        end = self._end
+        if not (end and data[12:4 + end] == self._blob):
+            r.skip_string()  # frame_id
+            start = r.o
+            count = r.u32()
+            for _ in range(count):
+                r.skip_string()
+            end = r.o
             r2 = Reader(data)
             r2.o = start
             self.names = tuple(r2.string() for _ in range(r2.u32()))
+            self._blob, self._end = bytes(data[12:4 + end]), end
+        r.o = end
         position = r.f64_seq()
         velocity = r.f64_seq()
         return stamp, self.names, position, velocity
