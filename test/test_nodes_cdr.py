@@ -17,7 +17,7 @@ from sagg_msgs.msg import CompetenceReport, Sample
 floats = st.floats(allow_nan=False, width=64)
 arrays = st.lists(floats, max_size=9).map(lambda v: np.array(v, dtype=np.float64))
 # (no NUL inside strings: ROS strings are NUL-terminated, rclpy cuts them there)
-text = st.text(alphabet=st.characters(blacklist_characters="\x00"), max_size=12)
+text = st.text(alphabet=st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00"), max_size=12)
 names = st.lists(text, max_size=6)
 stamps = st.integers(0, 2**31 * 10**9 - 1)
 frames = text
