@@ -12,8 +12,9 @@ state machine; nothing ever sleeps or blocks the executor):
 - ``GoalRequest``: calls ``/sagg/next_goal`` (the generator answers once it has processed the
   reports 1..after_report), answered from the response.
 
-Every report is published on ``/sagg/competence`` and every stored sample on ``/sagg/sample`` (in
-order, as they happen); ``/sagg/status`` at 2 Hz. At ``max_micro_actions`` the learner stops
+Every report is published on ``/sagg/competence`` and every stored sample on ``/sagg/sample``, in
+order, right after the command (or goal request) that follows them, so the driver works while we
+publish; ``/sagg/status`` at 2 Hz. Hot-path topics travel as raw CDR (``sagg_common.cdr``). At ``max_micro_actions`` the learner stops
 acting (exactly where the in-process ``InProcessRun.step_until`` stops) and says so in its status.
 """
 from __future__ import annotations
