@@ -28,6 +28,7 @@ import ctypes
 import importlib
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -51,6 +52,23 @@ NODES = {
     "sagg_learner": ("sagg_low_level.node", "learner"),
 }
 TIMINGS = ("lockstep", "realtime")
+
+
+def find_node_executable(package: str, script: str) -> Path:
+    """A node's console script: next to this Python (the venv's bin, pip installs), else in an
+    ament prefix's ``lib/<package>`` (colcon installs, ``ros2 run`` layout), else on PATH."""
+    candidates = [Path(sys.executable).parent / script]
+    for prefix in filter(None, os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep)):
+        candidates.append(Path(prefix) / "lib" / package / script)
+    found = shutil.which(script)
+    if found:
+        candidates.append(Path(found))
+    for c in candidates:
+        if c.is_file() and os.access(c, os.X_OK):
+            return c
+    raise ConfigError(f"node executable '{script}' of package '{package}' not found (looked in "
+                      f"{', '.join(str(c.parent) for c in candidates)}): run `make setup`, or "
+                      "source your colcon workspace")
 # Seconds to wait for the nodes to exit after SIGINT before SIGKILL (DESIGN §5: nodes sometimes
 # ignore SIGINT under load).
 STOP_TIMEOUT = 5.0
@@ -534,12 +552,9 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     out = Path(out_dir)
     if (out / "bag").exists():
         raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
-    bin_dir = Path(sys.executable).parent
     procs = []
-    for name, (_, script) in NODES.items():
-        exe = bin_dir / script
-        if not exe.is_file():
-            raise ConfigError(f"console script '{exe}' not found: run `make setup` (or use the venv's python)")
+    for name, (module, script) in NODES.items():
+        exe = find_node_executable(module.split(".")[0], script)
         procs.append(NodeProcess(name, exe, out / "logs" / f"{script}.log"))
     (out / "logs").mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
