@@ -12,7 +12,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from sagg_common import cdr
-from sagg_msgs.msg import CompetenceReport, Sample
+from sagg_msgs.msg import CompetenceReport, RegionTree, Sample
 
 floats = st.floats(allow_nan=False, width=64)
 arrays = st.lists(floats, max_size=9).map(lambda v: np.array(v, dtype=np.float64))
@@ -121,3 +121,24 @@ def test_report_both_ways(stamp, seq, goal_seq, kind, target, reached, start, co
     assert (r.stamp, r.seq, r.goal_seq, r.kind, r.micro_actions) == (stamp, seq, goal_seq, kind, ma)
     assert same(r.target, target) and same(r.reached, reached) and same(r.start, start)
     assert same([r.competence], [comp])
+
+
+@settings(max_examples=40, deadline=None)
+@given(stamps, frames, st.integers(0, 2**64 - 1), st.integers(0, 2**64 - 1), st.integers(0, 2**32 - 1),
+       st.integers(1, 4), st.integers(0, 5), st.data())
+def test_region_tree(stamp, frame, goals, reports, splits, m, k, data):
+    vec = st.lists(floats, min_size=k * m, max_size=k * m).map(lambda v: np.array(v).reshape(k, m))
+    lowers, uppers = data.draw(vec), data.draw(vec)
+    ids = data.draw(st.lists(st.integers(0, 2**32 - 1), min_size=k, max_size=k))
+    counts = data.draw(st.lists(st.integers(0, 2**32 - 1), min_size=k, max_size=k))
+    interests = data.draw(st.lists(floats, min_size=k, max_size=k))
+    means = data.draw(st.lists(st.floats(width=64), min_size=k, max_size=k))  # NaN allowed
+    raw = cdr.encode_region_tree(stamp, frame, goals, reports, splits, ids, lowers.reshape(k, m),
+                                 uppers.reshape(k, m), interests, counts, means)
+    msg = deserialize_message(raw, RegionTree)
+    assert stamp_of(msg) == stamp and msg.header.frame_id == frame
+    assert (msg.goals, msg.reports, msg.splits, len(msg.regions)) == (goals, reports, splits, k)
+    for i, r in enumerate(msg.regions):
+        assert (r.id, r.count) == (ids[i], counts[i])
+        assert same(r.lower, lowers[i]) and same(r.upper, uppers[i])
+        assert same([r.interest, r.mean_competence], [interests[i], means[i]])

@@ -22,7 +22,7 @@ import yaml
 import rclpy
 import rclpy.executors
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
@@ -32,7 +32,7 @@ from sagg_bringup.experiment import InProcessRun, load_experiment_config
 from sagg_common.params import node_params, read_config
 from sagg_common.rng import substream_seed
 from sagg_low_level.memory import SampleMemory
-from sagg_msgs.msg import CompetenceReport, Goal, LearnerStatus, Sample
+from sagg_msgs.msg import CompetenceReport, Goal, LearnerStatus, RegionTree, Sample
 from sagg_sim_bridge.arm import ArmSim
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
@@ -112,7 +112,11 @@ class Collector:
         self.goals: list[Goal] = []
         self.reports: list[CompetenceReport] = []
         self.status: LearnerStatus | None = None
+        self.regions: RegionTree | None = None
         n = self.node
+        n.create_subscription(RegionTree, "/sagg/regions", self._on_regions,
+                              QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                         durability=DurabilityPolicy.TRANSIENT_LOCAL))
         n.create_subscription(Sample, "/sagg/sample", self.samples.append, qos(10000))
         n.create_subscription(Goal, "/sagg/goal", self.goals.append, qos(10000))
         n.create_subscription(CompetenceReport, "/sagg/competence", self.reports.append, qos(10000))
@@ -122,6 +126,9 @@ class Collector:
 
     def _on_status(self, msg):
         self.status = msg
+
+    def _on_regions(self, msg):
+        self.regions = msg
 
     def stopped(self) -> bool:
         return self.status is not None and self.status.paused and "max_micro_actions" in self.status.pause_reason
@@ -149,6 +156,10 @@ def memory_from_samples(samples: list[Sample], n: int, m: int) -> SampleMemory:
     for s in samples:
         mem.add(np.array(s.alpha), np.array(s.delta_alpha), np.array(s.delta_y))
     return mem
+
+
+def same_bits(a, b) -> bool:
+    return np.asarray(a, dtype=np.float64).tobytes() == np.asarray(b, dtype=np.float64).tobytes()
 
 
 def in_process(base: Path, overrides: dict, micro_actions: int):
@@ -186,7 +197,8 @@ def test_lockstep_graph_equals_in_process_run(ros_env, tmp_path, config, arm, st
     procs = [start(ros_env, s, params, tmp_path) for s in ("mujoco_bridge", "goal_generator", "learner")]
     ok = col.spin_until(lambda: col.stopped() and len(col.samples) >= steps, STARTUP_TIMEOUT + RUN_TIMEOUT, procs)
     assert ok, f"graph did not finish: {len(col.samples)} samples\n{logs(tmp_path)}"
-    col.spin_for(1.0)  # the last goal/report messages
+    # the last goal/report messages, and the region tree once all reports are in
+    col.spin_until(lambda: col.regions is not None and col.regions.reports == len(col.reports) > 0, 10.0)
 
     run, reports = in_process(base, {f"arm.{k}": v for k, v in arm.items()}, steps)
     assert run.learner.micro_actions == steps == len(col.samples)
@@ -200,6 +212,15 @@ def test_lockstep_graph_equals_in_process_run(ros_env, tmp_path, config, arm, st
     inproc_reports = [(r.seq, r.kind, r.goal_seq, r.competence, r.micro_actions) for r in reports]
     assert graph_reports == inproc_reports
     assert col.status.micro_actions == steps and col.status.samples == steps
+    # the generator's region tree (/sagg/regions, transient_local) is the in-process one
+    tree = col.regions
+    assert (tree.reports, tree.goals, tree.splits) == (len(reports), len(run.generator.goals),
+                                                         len(run.generator.tree.splits))
+    snap = run.generator.region_snapshot()
+    assert [r.id for r in tree.regions] == [r["id"] for r in snap]
+    for r, s in zip(tree.regions, snap):
+        assert same_bits(r.lower, s["lower"]) and same_bits(r.upper, s["upper"]) and r.count == s["count"]
+        assert same_bits([r.interest], [s["interest"]])
 
 
 @pytest.mark.parametrize("script,section,name,value,allowed", [

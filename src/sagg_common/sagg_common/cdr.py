@@ -339,3 +339,47 @@ def decode_report(data: bytes) -> DecodedReport:
     out.competence = r.f64()
     out.micro_actions = r.u64()
     return out
+
+
+# ------------------------------------------------------------------ sagg_msgs/RegionTree
+def _region_dtype(m: int) -> np.dtype:
+    """Layout of one sagg_msgs/Region with m-dimensional bounds, starting 8-aligned: id u32,
+    lower (u32 count, f64×m at 8), upper (u32 count at 8+8m, f64×m at 16+8m), interest f64,
+    count u32, mean_competence f64. Its size 40+16m is a multiple of 8, so every region of the
+    array starts 8-aligned and shares this layout."""
+    return np.dtype({
+        "names": ["id", "nlo", "lower", "nup", "upper", "interest", "count", "mean"],
+        "formats": ["<u4", "<u4", ("<f8", (m,)), "<u4", ("<f8", (m,)), "<f8", "<u4", "<f8"],
+        "offsets": [0, 4, 8, 8 + 8 * m, 16 + 8 * m, 16 + 16 * m, 24 + 16 * m, 32 + 16 * m],
+        "itemsize": 40 + 16 * m,
+    })
+
+
+def encode_region_tree(stamp_ns: int, frame_id: str, goals: int, reports: int, splits: int,
+                       ids, lowers, uppers, interests, counts, means) -> bytes:
+    """sagg_msgs/RegionTree from per-region arrays (k regions, bounds of shape (k, m)); the
+    regions are laid out with one numpy structured array instead of k message objects."""
+    lowers = np.asarray(lowers, dtype=np.float64)
+    k = len(ids)
+    m = lowers.shape[1] if k else 0
+    w = Writer()
+    w.header(stamp_ns, frame_id)
+    w.u64(goals)
+    w.u64(reports)
+    w.u32(splits)
+    w.u32(k)
+    if not k:
+        return w.tobytes()
+    if m == 0:
+        raise ValueError("regions need at least one dimension")
+    w.align(8)  # (already aligned: the u64s put the two u32s at an 8-aligned pair)
+    arr = np.zeros(k, dtype=_region_dtype(m))
+    arr["id"] = ids
+    arr["nlo"] = m
+    arr["lower"] = lowers
+    arr["nup"] = m
+    arr["upper"] = uppers
+    arr["interest"] = interests
+    arr["count"] = counts
+    arr["mean"] = means
+    return ENCAP + bytes(w.b) + arr.tobytes()
