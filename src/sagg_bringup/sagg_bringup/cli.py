@@ -118,6 +118,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--measure", type=positive_int, default=2000,
                    help="micro-actions timed at each size")
     s.add_argument("--strategy", choices=STRATEGIES, default="sagg-riac")
+    g = bsub.add_parser("graph", help="graph vs in-process micro-actions/s vs a bare rclpy ping-pong")
+    g.add_argument("--config", default="config/arm8.yaml")
+    g.add_argument("--micro-actions", type=positive_int, default=3000)
+    g.add_argument("--repeats", type=positive_int, default=2)
+    g.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
     t = bsub.add_parser("table", help="compare strategies from result.json files (Markdown table "
                                       "and Mann-Whitney / Welch tests)")
     t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
@@ -180,6 +185,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"updated the parameter tables in {path}")
             else:
                 print(params_markdown(args.node))
+            return 0
+        if args.command == "bench" and args.bench == "graph":
+            from .bench import bench_graph
+            bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
         if args.command == "bench" and args.bench == "table":
             from .compare import load_results, summary_markdown
