@@ -219,3 +219,17 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
         if rclpy.ok():
             rclpy.shutdown()
     return code
+
+
+# History depth of the hardware-contract topics (commands, joint states, task point) published by our
+# nodes: deep enough that a slow reader such as the bag recorder never loses a reliable message
+# (depth 10 lost ~3 % of them on a loaded machine).
+HW_DEPTH = 1000
+
+
+def reliable(depth: int, transient_local: bool = False):
+    """Reliable, keep-last ``depth`` QoS (transient_local for latched topics such as /sagg/regions)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient_local else DurabilityPolicy.VOLATILE)

@@ -23,12 +23,11 @@ import sys
 import numpy as np
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.service import Service
 
 from sagg_common.cdr import decode_report, encode_region_tree
 from sagg_common.params import ConfigError, Param, Schema
-from sagg_common.ros_params import declare_schema, run_node
+from sagg_common.ros_params import declare_schema, reliable, run_node
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
 
@@ -69,11 +68,6 @@ class DeferrableService(Service):
             return
         super().send_response(response, header)
 
-
-def reliable(depth: int, transient_local: bool = False) -> QoSProfile:
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient_local else DurabilityPolicy.VOLATILE)
 
 
 class GoalGeneratorNode(Node):

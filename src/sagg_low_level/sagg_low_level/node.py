@@ -26,7 +26,6 @@ import time
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
@@ -35,7 +34,7 @@ from std_msgs.msg import Float64MultiArray
 from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64_array, encode_report,
                              encode_sample)
 from sagg_common.params import ConfigError, Param, Schema
-from sagg_common.ros_params import declare_schema, run_node
+from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
 from sagg_goal_generator.core import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
@@ -81,11 +80,6 @@ SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 GOAL_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
-def reliable(depth: int, transient_local: bool = False) -> QoSProfile:
-    return QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient_local else DurabilityPolicy.VOLATILE)
-
 
 def robot_from_params(p: dict) -> Robot:
     n = len(p["joints"])
@@ -129,7 +123,7 @@ class LearnerNode(Node):
 
         # --- topics
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
-        self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(10))
+        self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
         self.report_pub = self.create_publisher(CompetenceReport, "/sagg/competence", reliable(10000))
         self.sample_pub = self.create_publisher(Sample, "/sagg/sample", reliable(10000))
         self.status_pub = self.create_publisher(LearnerStatus, "/sagg/status", reliable(10))

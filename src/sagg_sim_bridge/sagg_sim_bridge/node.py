@@ -31,7 +31,6 @@ import time
 import mujoco
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PointStamped
@@ -41,7 +40,7 @@ from std_msgs.msg import Float64MultiArray
 
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
 from sagg_common.params import Param, Schema
-from sagg_common.ros_params import declare_schema, run_node
+from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.rng import substream_seed
 
 from .arm import ArmSim
@@ -66,10 +65,6 @@ NODE_SCHEMA: Schema = (
 SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 
 
-def reliable(depth: int) -> QoSProfile:
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE)
-
 
 def to_time(ns: int) -> Time:
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
@@ -88,10 +83,10 @@ class BridgeNode(Node):
         self.exit_code = 0
 
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
-        self.js_pub = self.create_publisher(JointState, "/joint_states", reliable(10))
-        self.tip_pub = self.create_publisher(PointStamped, p["task_topic"], reliable(10))
+        self.js_pub = self.create_publisher(JointState, "/joint_states", reliable(HW_DEPTH))
+        self.tip_pub = self.create_publisher(PointStamped, p["task_topic"], reliable(HW_DEPTH))
         # hot path: raw CDR in and out (sagg_common.cdr), no message objects
-        self.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(10), raw=True)
+        self.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(HW_DEPTH), raw=True)
         self.js_encoder = JointStateEncoder(list(self.sim.joint_names), p["frame_id"])
         self.tip_encoder = PointStampedEncoder(p["frame_id"])
         self.zeros = np.zeros(self.n)
