@@ -7,9 +7,8 @@ from pathlib import Path
 
 import yaml
 
-from sagg_common.params import ConfigError
+from sagg_common.params import STRATEGIES, ConfigError
 
-STRATEGIES = ["sagg-riac", "sagg-random", "actuator-random", "actuator-riac"]
 
 
 def parse_set(items: list[str] | None) -> dict:

@@ -125,6 +125,20 @@ class Param:
 
 Schema = tuple[Param, ...]
 
+# Strategies of paper Sec. 3.7 (shared by the generator and the learner)
+STRATEGIES = ("sagg-riac", "sagg-random", "actuator-random", "actuator-riac")
+
+# Parameters every learning node declares; set them once under ``/**`` in a config.
+SHARED_SCHEMA: Schema = (
+    Param("seed", "int", 0, "Run seed; every random stream is derived from it.", low=0),
+    Param("strategy", "str", "sagg-riac",
+          "Exploration strategy (Sec. 3.7): sagg-riac (goals by competence progress), sagg-random "
+          "(goals uniform in Y), actuator-random, actuator-riac. The generator is idle for the "
+          "actuator strategies.", choices=STRATEGIES),
+    Param("task_space.lower", "float_list", [0.0, -150.0], "Lower corner of the task space Y."),
+    Param("task_space.upper", "float_list", [150.0, 150.0], "Upper corner of the task space Y."),
+)
+
 
 def schema_defaults(schema: Schema) -> dict[str, Any]:
     return {p.name: p.default for p in schema}

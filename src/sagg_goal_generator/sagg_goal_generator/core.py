@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sagg_common.params import Param, Schema
+from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.rng import stream
 
 from .regions import RegionTree
@@ -24,16 +24,8 @@ KIND_GOAL, KIND_SUBGOAL, KIND_REACHED, KIND_EXPLORATION = 0, 1, 2, 3
 KIND_NAMES = {KIND_GOAL: "goal", KIND_SUBGOAL: "subgoal", KIND_REACHED: "reached",
               KIND_EXPLORATION: "exploration"}
 
-STRATEGIES = ("sagg-riac", "sagg-random", "actuator-random", "actuator-riac")
 
-SCHEMA: Schema = (
-    Param("seed", "int", 0, "Run seed; every random stream is derived from it.", low=0),
-    Param("strategy", "str", "sagg-riac",
-          "Exploration strategy (Sec. 3.7). The generator chooses goals for sagg-riac (by interest) "
-          "and sagg-random (uniform in Y); it is idle for the actuator strategies.",
-          choices=STRATEGIES),
-    Param("task_space.lower", "float_list", [0.0, -150.0], "Lower corner of the task space Y."),
-    Param("task_space.upper", "float_list", [150.0, 150.0], "Upper corner of the task space Y."),
+SCHEMA: Schema = SHARED_SCHEMA + (
     Param("g_max", "int", 50, "Maximal number of points in a region before it splits (Sec. 2.4.4).",
           low=2, high=1_000_000),
     Param("zeta", "int", 20,

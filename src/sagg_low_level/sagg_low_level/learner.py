@@ -15,21 +15,16 @@ from typing import Callable, Generator
 
 import numpy as np
 
-from sagg_common.params import Param, Schema
+from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.rng import stream
 from sagg_goal_generator.competence import competence, gamma, is_reached
-from sagg_goal_generator.core import (KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL,
-                                      STRATEGIES)
+from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_goal_generator.regions import RegionTree
 
 from .local_model import desired_displacement, local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
 
-SCHEMA: Schema = (
-    Param("seed", "int", 0, "Run seed; every random stream is derived from it.", low=0),
-    Param("strategy", "str", "sagg-riac", "Exploration strategy (Sec. 3.7).", choices=STRATEGIES),
-    Param("task_space.lower", "float_list", [0.0, -150.0], "Lower corner of the task space Y."),
-    Param("task_space.upper", "float_list", [150.0, 150.0], "Upper corner of the task space Y."),
+SCHEMA: Schema = SHARED_SCHEMA + (
     Param("v", "float", 2.0, "Desired effector speed, task units per micro-action (Sec. 3.6.1).",
           low=0.0, high=1e9, low_open=True),
     Param("q", "int", 20, "Number of exploratory micro-actions per exploration phase (Sec. 3.6.2).",
