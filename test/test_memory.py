@@ -404,3 +404,181 @@ def test_property_exact_for_arbitrary_insert_query_sequences(ops, order, params)
             got = mem.neighbours(q, op[2])
             want = brute(np.array(stored).reshape(-1, 3), q, op[2])
             assert np.array_equal(got, want)
+
+
+# ------------------------------------------------------------------ approximate mode (checks > 0)
+APPROX_SMALL = dict(buffer_size=64, leaf_size=8, fanout=4, max_roots=8)
+
+
+def approx_queries(alphas, rng, n):
+    """Stored points, points near them, points between far samples, and the rest posture itself."""
+    pick = rng.integers(0, len(alphas), size=(3, 25))
+    return np.concatenate([alphas[pick[0]], alphas[pick[1]] + rng.normal(0, 0.02, (25, n)),
+                           0.5 * (alphas[pick[1]] + alphas[pick[2]]), alphas[:1]])
+
+
+@pytest.mark.parametrize("n", [7, 15])
+def test_approximate_results_are_stored_samples_sorted_with_exact_distances(n):
+    rng = np.random.default_rng(20 + n)
+    alphas = trajectory_alphas(n, 4000, rng, reset_every=80, persistence=0.9)
+    checks = 2
+    mem = SampleMemory(n, 1, 1, checks=checks, **APPROX_SMALL)
+    fill(mem, alphas, rng)
+    assert len(mem._blocks) >= 3 and mem._height >= 1
+    differs = 0
+    for q in approx_queries(alphas, rng, n):
+        copy = bool((alphas == q).all(axis=1).any())
+        for k in (1, 2 * n, 3 * n):
+            before = mem.leaves_scanned
+            got = mem.neighbours(q, k)
+            if not copy:  # the leaves of stored copies of q come on top of the budget
+                assert mem.leaves_scanned - before <= checks
+            assert got.shape == (k,) and got.dtype == np.int64
+            assert len(np.unique(got)) == k and got.min() >= 0 and got.max() < len(alphas)
+            d = seq_sqdist(alphas[got], q)  # the documented distance of each returned sample
+            assert np.array_equal(np.lexsort((got, d)), np.arange(k))  # sorted by (distance, index)
+            want = brute(alphas, q, k)
+            assert d[-1] >= seq_sqdist(alphas[want[-1:]], q)[0]  # never better than the truth
+            differs += not np.array_equal(got, want)
+    assert differs > 20  # the budget really cut the search short
+
+
+@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("params", [TINY, SMALL])
+def test_approximate_is_exact_when_the_budget_covers_everything(order, params):
+    rng = np.random.default_rng(9)
+    n = 3
+    mem = SampleMemory(n, 2, 2, capacity=1, leaf_order=order, checks=2**31, beam_ratio=1.0, **params)
+    alphas = grid_alphas(rng, 400, n)  # exact ties everywhere: index order must hold too
+    for i, a in enumerate(alphas):
+        mem.add(a, np.zeros(2), np.ones(2))
+        for k in (1, 3, 7, 25):
+            q = grid_alphas(rng, 1, n)[0] + rng.choice([0.0, 0.5])
+            assert np.array_equal(mem.neighbours(q, k), brute(alphas[: i + 1], q, k)), (i, k)
+    assert mem.leaves_scanned > 0 and mem.cache_hits == 0
+
+
+@pytest.mark.parametrize("n", [7, 15])
+def test_approximate_exact_on_trajectory_data_with_a_covering_budget(n):
+    rng = np.random.default_rng(n + 1)
+    alphas = trajectory_alphas(n, 3000, rng, reset_every=60)
+    mem = SampleMemory(n, n, 2, checks=10**6, beam_ratio=1.0, **APPROX_SMALL)
+    fill(mem, alphas, rng)
+    for q in approx_queries(alphas, rng, n):
+        for k in (2 * n, 5):
+            assert np.array_equal(mem.neighbours(q, k), brute(alphas, q, k))
+
+
+# Stated recall of the default approximate search on trajectory data (memory_bench's "traj" kind,
+# the learner's pattern: query alpha_t, then add it), 20k samples: measured mean recall 0.99 (n=7)
+# and 0.97 (n=15); asserted with margin. Recall counts a returned sample as correct when it is no
+# farther than the true k-th nearest (exact ties are interchangeable).
+@pytest.mark.parametrize("n,min_recall", [(7, 0.95), (15, 0.9)])
+def test_approximate_recall_on_trajectory_data(n, min_recall):
+    from sagg_low_level.learner import SCHEMA
+
+    checks = next(p.default for p in SCHEMA if p.name == "neighbour_checks")
+    assert checks > 0  # the learner's default is the approximate search
+    rng = np.random.default_rng(40 + n)
+    alphas = trajectory_alphas(n, 20_600, rng, persistence=0.9)
+    mem = SampleMemory(n, 1, 1, checks=checks)
+    for a in alphas[:20_000]:
+        mem.add(a, [0.0], [0.0])
+    k = 2 * n
+    recall, ratio = [], []
+    for t in range(20_000, 20_600):
+        q = alphas[t]
+        got = mem.neighbours(q, k)
+        truth = seq_sqdist(alphas[:t], q)
+        kth = np.partition(truth, k - 1)[k - 1]
+        dg = truth[got]
+        recall.append(np.count_nonzero(dg <= kth) / k)
+        ratio.append(np.sqrt(dg.max() / kth) if kth > 0 else 1.0 if dg.max() == 0 else np.inf)
+        mem.add(q, [0.0], [0.0])
+    print(f"n={n}: mean recall {np.mean(recall):.3f}, mean k-th distance ratio {np.mean(ratio):.4f}")
+    assert np.mean(recall) >= min_recall, np.mean(recall)
+    assert np.mean(ratio) <= 1.05, np.mean(ratio)
+    assert mem.cache_hits == 0
+
+
+def test_approximate_answers_do_not_depend_on_query_history_or_save_load(tmp_path):
+    rng = np.random.default_rng(12)
+    n = 15
+    alphas = trajectory_alphas(n, 5000, rng, reset_every=100, persistence=0.9)
+    kw = dict(checks=3, beam_ratio=0.5, **APPROX_SMALL)
+    a, b = SampleMemory(n, 1, 1, **kw), SampleMemory(n, 1, 1, **kw)
+    fill(a, alphas, rng)
+    fill(b, alphas, rng)
+    qs = approx_queries(alphas, rng, n)
+    first = [a.neighbours(q, 2 * n) for q in qs]
+    # b: other queries first, then the same ones in reverse order
+    b.neighbours_batch(alphas[::50] + 0.01, 2 * n)
+    rev = [b.neighbours(q, 2 * n) for q in qs[::-1]][::-1]
+    assert all(np.array_equal(x, y) for x, y in zip(first, rev))
+    assert np.array_equal(a.neighbours_batch(qs, 2 * n), np.array(first))
+    path = tmp_path / "approx.npz"
+    a.save(path)
+    loaded = SampleMemory.load(path)
+    assert loaded._checks == 3 and loaded._beam_ratio == 0.5
+    assert np.array_equal(loaded.neighbours_batch(qs, 2 * n), np.array(first))
+    assert any(not np.array_equal(x, brute(alphas, q, 2 * n)) for x, q in zip(first, qs))
+
+
+def test_approximate_finds_every_stored_copy_of_the_query():
+    """With r = 1 each attempt's first query is the rest posture, stored once per attempt."""
+    rng = np.random.default_rng(13)
+    n = 15
+    alphas = trajectory_alphas(n, 6000, rng, reset_every=50, persistence=0.9)
+    rest = alphas[0]
+    copies = np.flatnonzero((alphas == rest).all(axis=1))
+    assert len(copies) == 120
+    mem = SampleMemory(n, 1, 1, checks=1, **APPROX_SMALL)
+    fill(mem, alphas, rng)
+    for k in (5, 30, 120):
+        got = mem.neighbours(rest, k)
+        assert np.array_equal(got, copies[:k])  # all at distance 0, by index
+    # one ulp away it is an ordinary query again: answers at distance > 0 are allowed
+    near = np.nextafter(rest, 1.0)
+    assert seq_sqdist(alphas[mem.neighbours(near, 30)], near).max() > 0
+
+
+def test_approximate_validation_and_version_1_files(tmp_path):
+    for bad in (-1, 1.5, True, 2**31 + 1):
+        with pytest.raises(ValueError, match="checks"):
+            SampleMemory(3, 1, 1, checks=bad)
+    for bad in (0, -0.5, 1.5, True, "0.5"):
+        with pytest.raises(ValueError, match="beam_ratio"):
+            SampleMemory(3, 1, 1, beam_ratio=bad)
+    rng = np.random.default_rng(1)
+    mem = SampleMemory(3, 1, 1, checks=4)
+    fill(mem, rng.normal(size=(700, 3)), rng)
+    path = tmp_path / "v2.npz"
+    mem.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        content = {key: z[key] for key in z.files}
+    content["params"] = np.concatenate(([1], content["params"][1:14]))  # a version-1 file
+    content["float_params"] = content["float_params"][:2]
+    old = tmp_path / "v1.npz"
+    np.savez(old, **content)
+    loaded = SampleMemory.load(old)
+    assert loaded._checks == 0 and loaded.digest() == mem.digest()
+    q = rng.normal(size=3)
+    assert np.array_equal(loaded.neighbours(q, 9), brute(np.array(mem.alpha), q, 9))
+    content["params"] = np.concatenate(([1], content["params"][1:14], [4]))  # mixed up: rejected
+    np.savez(old, **content)
+    with pytest.raises(ValueError, match="format"):
+        SampleMemory.load(old)
+
+
+def test_learner_builds_its_memory_with_neighbour_checks():
+    from sagg_common.params import resolve
+    from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
+
+    robot = Robot(["a", "b", "c"], np.full(3, -2.0), np.full(3, 2.0), np.zeros(3))
+    base = {"task_space.lower": [-3.0, -3.0], "task_space.upper": [3.0, 3.0]}
+    default = EvolvingContextLearner(resolve(SCHEMA, base), robot, 2)
+    assert default.memory._checks == next(p.default for p in SCHEMA if p.name == "neighbour_checks")
+    exact = EvolvingContextLearner(resolve(SCHEMA, {**base, "neighbour_checks": 0}), robot, 2)
+    assert exact.memory._checks == 0
+    with pytest.raises(ValueError, match="neighbour_checks"):
+        resolve(SCHEMA, {**base, "neighbour_checks": -1})
