@@ -1,6 +1,6 @@
 """Benchmark of SampleMemory: cost of one micro-action's (k-NN query + add) as the memory grows.
 
-    python -m sagg_low_level.memory_bench            # table for n = 7, 15, 30 (about 2-3 minutes)
+    python -m sagg_low_level.memory_bench            # n = 7, 15, 30, exact and approximate (~10 min)
     python -m sagg_low_level.memory_bench --help
 
 Per size N the memory is filled to N samples (bulk, giving exactly the index state N incremental adds
@@ -19,6 +19,12 @@ exactly); "walk": the same without persistence (diffusive); "unif": alpha unifor
 
 The timed micro-actions are split in 3 consecutive windows and the median of the window means is
 reported (the shared machine's load spikes otherwise dominate a mean); q.med is the per-query median.
+
+Search modes (``--checks``): 0 = exact, c > 0 = approximate with at most c leaves per query (the
+learner's ``neighbour_checks``). Both run in one command, so their times are comparable. Quality
+of every ``recall_every``-th answer against brute force (untimed): recall = share of the returned
+samples no farther than the true k-th nearest (exact ties are interchangeable), d.ratio = mean of
+(returned k-th distance / true k-th distance), as plain (not squared) distances.
 """
 
 from __future__ import annotations
@@ -113,9 +119,18 @@ def _amortised_rebuild(mem: SampleMemory, n_rows: int, cache: dict) -> float:
     return total
 
 
+def _quality(data: np.ndarray, t: int, q: np.ndarray, got: np.ndarray, k: int) -> tuple[float, float]:
+    """(recall, k-th distance ratio) of one answer against brute force over data[:t]."""
+    d = _sqdist_cols(np.ascontiguousarray(data[:t].T), q) if t < 200_000 else ((data[:t] - q) ** 2).sum(axis=1)
+    kth = np.partition(d, k - 1)[k - 1]
+    dg = d[got]
+    ratio = np.sqrt(dg.max() / kth) if kth > 0 else (1.0 if dg.max() == 0 else np.inf)
+    return float(np.count_nonzero(dg <= kth)) / k, float(ratio)
+
+
 def bench_memory(dim: int, sizes, k: int | None = None, queries: int = 500, *, kind: str = "traj",
                  seed: int = 0, outcome_dim: int = 2, data: np.ndarray | None = None,
-                 **memory_kwargs) -> list[dict]:
+                 recall_every: int = 4, **memory_kwargs) -> list[dict]:
     """Time (query + add) per micro-action at each size; one dict per size, ratios against the first."""
     sizes = sorted(int(s) for s in sizes)
     k = default_k(dim) if k is None else int(k)
@@ -128,13 +143,15 @@ def bench_memory(dim: int, sizes, k: int | None = None, queries: int = 500, *, k
     for n_rows in sizes:
         mem, build_s = _memory_at(data[:n_rows], outcome_dim, **memory_kwargs)
         nbytes = mem.nbytes  # before the timed adds grow the arrays (capacity doubling)
-        t_query, t_add, t_wall = [], [], []
+        t_query, t_add, t_wall, answers = [], [], [], []
         w0 = time.perf_counter()
         for t in range(n_rows, n_rows + queries):
             a = data[t]
             c0 = time.thread_time()
-            mem.neighbours(a, k)
+            got = mem.neighbours(a, k)
             c1 = time.thread_time()
+            if recall_every and (t - n_rows) % recall_every == 0:
+                answers.append((t, got))
             ns = mem._ns
             mem.add(a, da, dy)
             c2 = time.thread_time()
@@ -144,6 +161,7 @@ def bench_memory(dim: int, sizes, k: int | None = None, queries: int = 500, *, k
         t_wall = (time.perf_counter() - w0) / queries
         rebuild = _amortised_rebuild(mem, n_rows, build_cache)  # scribbles on mem: measured last
         hits = mem.cache_hits
+        qual = np.array([_quality(data, t, data[t], got, k) for t, got in answers]).reshape(-1, 2)
         q_us = float(np.median([np.mean(w) for w in np.array_split(t_query, 3)])) * 1e6
         a_us = float(np.median([np.mean(w) for w in np.array_split(t_add, 3)])) * 1e6
         r_us = rebuild * 1e6
@@ -151,6 +169,8 @@ def bench_memory(dim: int, sizes, k: int | None = None, queries: int = 500, *, k
             dim=dim, k=k, kind=kind, size=n_rows, query_us=q_us, query_median_us=np.median(t_query) * 1e6,
             add_us=a_us, rebuild_us=r_us, total_us=q_us + a_us + r_us, wall_us=t_wall * 1e6,
             bytes_per_sample=nbytes / n_rows, cache_hit_rate=hits / queries, blocks=len(mem._blocks), bulk_build_s=build_s,
+            checks=mem._checks, recall=float(qual[:, 0].mean()) if len(qual) else float("nan"),
+            distance_ratio=float(qual[:, 1].mean()) if len(qual) else float("nan"),
         ))
     for row in rows:
         row["ratio"] = row["total_us"] / rows[0]["total_us"]
@@ -216,13 +236,16 @@ def bench_ckdtree_forest(dim: int, sizes, k: int | None = None, queries: int = 3
 
 
 def _print_table(rows: list[dict], out=sys.stdout) -> None:
-    head = (f"{'n':>3} {'k':>3} {'data':>4} {'N':>8} {'query':>8} {'q.med':>7} {'add':>6} {'rebuild':>7} "
-            f"{'total':>8} {'ratio':>6} {'B/sample':>8} {'wall':>8} {'hits':>5}")
+    head = (f"{'n':>3} {'k':>3} {'data':>4} {'mode':>5} {'N':>8} {'query':>8} {'q.med':>7} {'add':>6} "
+            f"{'rebuild':>7} {'total':>8} {'ratio':>6} {'B/sample':>8} {'wall':>8} {'hits':>5} {'recall':>6} "
+            f"{'d.ratio':>7}")
     print(head, file=out)
     for r in rows:
-        print(f"{r['dim']:>3} {r['k']:>3} {r['kind']:>4} {r['size']:>8} {r['query_us']:>8.1f} "
+        mode = f"c{r['checks']}" if r.get("checks") else "exact"
+        print(f"{r['dim']:>3} {r['k']:>3} {r['kind']:>4} {mode:>5} {r['size']:>8} {r['query_us']:>8.1f} "
               f"{r['query_median_us']:>7.1f} {r['add_us']:>6.1f} {r['rebuild_us']:>7.1f} {r['total_us']:>8.1f} "
-              f"{r['ratio']:>6.2f} {r['bytes_per_sample']:>8.1f} {r['wall_us']:>8.1f} {r['cache_hit_rate']:>5.2f}", file=out)
+              f"{r['ratio']:>6.2f} {r['bytes_per_sample']:>8.1f} {r['wall_us']:>8.1f} {r['cache_hit_rate']:>5.2f} "
+              f"{r.get('recall', float('nan')):>6.3f} {r.get('distance_ratio', float('nan')):>7.4f}", file=out)
     out.flush()
 
 
@@ -238,9 +261,14 @@ def main(argv=None) -> int:
                    help="all = traj for every n, walk for n=7, unif at --unif-sizes")
     p.add_argument("--unif-sizes", default="10000,100000,200000")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--checks", default="0,32",
+                   help="search modes, comma-separated: 0 = exact, c > 0 = approximate, c leaves")
+    p.add_argument("--recall-every", type=int, default=4,
+                   help="check every i-th answer against brute force (0 = never; untimed)")
     p.add_argument("--ckdtree", action="store_true", help="also time the cKDTree-forest alternative")
     args = p.parse_args(argv)
     dims = [int(x) for x in args.dims.split(",")]
+    checks = [int(x) for x in args.checks.split(",")]
     print("us = CPU microseconds per micro-action; total = query + add + amortised rebuild; "
           "ratio = total / total at the smallest N; wall = wall-clock us per (query + add)")
     for kind in (["traj", "walk", "unif"] if args.kind == "all" else [args.kind]):
@@ -249,8 +277,10 @@ def main(argv=None) -> int:
             if kind == "walk" and args.kind == "all" and dim != dims[0]:
                 continue
             sizes = [s for s in sizes_all if s <= 200_000 or dim <= args.max_1m_dim]
-            rows = bench_memory(dim, sizes, args.k, args.queries, kind=kind, seed=args.seed)
-            _print_table(rows)
+            for c in checks:
+                rows = bench_memory(dim, sizes, args.k, args.queries, kind=kind, seed=args.seed,
+                                    recall_every=args.recall_every, checks=c)
+                _print_table(rows)
             if args.ckdtree:
                 for r in bench_ckdtree_forest(dim, sizes, args.k, min(args.queries, 300), kind=kind,
                                               seed=args.seed):
