@@ -370,6 +370,11 @@ def test_canonical_distance_order_on_every_path(n):
     fill(mem, pts, rng)
     for k in (1, 10, 299):
         assert np.array_equal(mem.neighbours(q, k), brute(pts, q, k))
+    # the approximate search's leaf path (exact here: the budget covers everything)
+    approx = SampleMemory(n, 1, 1, checks=2**31, beam_ratio=1.0, **SMALL)
+    fill(approx, pts, rng)
+    for k in (1, 10, 299):
+        assert np.array_equal(approx.neighbours(q, k), brute(pts, q, k))
 
 
 _ops = st.lists(

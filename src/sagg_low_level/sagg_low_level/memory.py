@@ -40,10 +40,11 @@ Design (measured with ``python -m sagg_low_level.memory_bench``; numbers in the 
   that small set alone while the triangle inequality proves it contains their k nearest
   (``sqrt(kth) + |q - centre| < radius``, with a 1e-9 relative margin for float rounding).
 * Approximate mode: blocks use kd leaves (``leaf_order="auto"`` means "kd" there: ranking leaves by
-  their box distance works best on compact kd cells; measured recall at 1M trajectory samples,
-  32 leaves: 0.87 (n=7) / 0.81 (n=15) with kd leaves against 0.71 / 0.72 with the exact mode's
-  per-block choice), and exact duplicates of the query (the rest posture) are always found through
-  a hash of the duplicate groups.
+  their box distance works best on compact kd cells. Measured on the learner's own queries after
+  ``sagg bench speed``'s prefill to 1M samples, 32 leaves: recall 0.87 (n=7) / 0.81 (n=15) with kd
+  leaves against 0.71 / 0.72 with the exact mode's per-block choice; ranking by distance to the
+  leaf's centroid (k-means-like) or box centre did no better), and exact duplicates of the query
+  (the rest posture) are always found through a hash of the duplicate groups.
 * Why not scipy's cKDTree: one ``cKDTree.query`` costs ~30 us even on a 10-point tree here (Python
   argument handling), a logarithmic forest needs one call per tree, and its k-th-neighbour ties are
   not broken by index (a forest of cKDTrees measured no faster: ``memory_bench --ckdtree``).
@@ -56,9 +57,11 @@ Distances are squared Euclidean distances in float64, summed over coordinates in
 order of results is by (that distance, sample index).
 
 Pauses: a block build is done inside the ``add`` that triggers it. Builds double in size (binary
-counter): the add that creates a 512k-sample block takes ~0.5-1 s (n = 7-15 on the development
-machine), once per 512k adds; in-process runs just take it, a real-time robot loop would see that
-add stall (building in a background thread is the remedy, not done here).
+counter): the add that creates a 512k-sample block (once per 512k adds) took 0.76 s (n = 7) /
+0.95 s (n = 15) with kd leaves (approximate mode) and 1.0 / 1.3 s with the exact mode's "auto"
+leaf order on the development machine; the 1M-sample merge about twice that. In-process runs
+just take the pause; a real-time robot loop would see that add stall (building the new block in
+a background thread while queries use the old blocks is the remedy, not done here).
 """
 
 from __future__ import annotations
@@ -394,7 +397,7 @@ class SampleMemory:
                 del self._dupmap[key]
         for pos in np.flatnonzero(codes < -1).tolist():
             g = -int(codes[pos]) - 2
-            key = xp[pos].tobytes()
+            key = (xp[pos] + 0.0).tobytes()  # + 0.0: -0.0 -> 0.0, equal values give equal keys
             self._ginfo[g] = (key, (p0 + pos) // self._leaf)
             self._dupmap.setdefault(key, []).append(g)
 
@@ -803,7 +806,7 @@ class SampleMemory:
                     keep = keep[np.argsort(lb[keep], kind="stable")[:cap]]
                 sel = groups[keep // fan] * fan + keep % fan
             if self._dupmap:
-                dups = self._dupmap.get(q.tobytes())
+                dups = self._dupmap.get((q + 0.0).tobytes())
                 if dups:
                     extra = np.array([self._ginfo[g][1] for g in dups], dtype=np.int64)
                     sel = extra if sel is None else np.union1d(sel, extra)
