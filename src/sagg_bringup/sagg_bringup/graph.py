@@ -287,7 +287,6 @@ def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, check
         from sagg_common.rng import substream_seed
         from sagg_low_level.evaluate import evaluate
         from sagg_low_level.learner import EvolvingContextLearner, Robot
-        from sagg_low_level.memory import SampleMemory
         from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
         from sagg_sim_bridge.params import arm_spec_from_params
         spec = arm_spec_from_params(bridge_params)
@@ -299,9 +298,9 @@ def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, check
         lower, upper = spec.limits()
         robot = Robot(spec.joint_names(), lower, upper, spec.rest_posture())
         n, m = robot.n, len(learner_params["task_space.lower"])
-        memory = SampleMemory(n, n, m)
-        learner = EvolvingContextLearner(learner_params, robot, m, memory=memory)
-        learner.memory = memory  # (an empty memory is falsy: make sure the learner uses this one)
+        # the learner builds its memory exactly as the learner node does (same neighbour search)
+        learner = EvolvingContextLearner(learner_params, robot, m)
+        memory = learner.memory
         pending = sorted(set(checkpoints))
 
         def due() -> None:
