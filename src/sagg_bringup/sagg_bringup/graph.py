@@ -661,6 +661,13 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         waiting_note = False
         while True:
             executor.spin_once(timeout_sec=0.02)
+            # drain what is already queued before the bookkeeping below (one callback per loop
+            # made this process fall far behind the learner and show a stale rate)
+            for _ in range(2000):
+                before = bag.written
+                executor.spin_once(timeout_sec=0)
+                if bag.written == before:
+                    break
             if stop_signal:
                 raise KeyboardInterrupt
             now = time.perf_counter()

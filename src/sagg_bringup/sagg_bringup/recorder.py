@@ -84,6 +84,7 @@ class BagWriter:
         self._writer.open()
         self._conn = {}
         self.counts: dict[str, int] = {}
+        self.written = 0  # messages written, all topics
         self.types: dict[str, str] = {}
         try:
             for t in topics:
@@ -100,6 +101,7 @@ class BagWriter:
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
         self._writer.write(self._conn[topic], int(timestamp_ns), data)
         self.counts[topic] += 1
+        self.written += 1
 
     def close(self) -> None:
         """Write the mcap footer and metadata.yaml (idempotent)."""
