@@ -1,10 +1,7 @@
 """In-process experiments on the MuJoCo arm: `sagg experiment` end to end (paper Sec. 3.7)."""
 import json
-import subprocess
-import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from sagg_bringup.cli import main as cli_main

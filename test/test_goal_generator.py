@@ -76,7 +76,7 @@ def test_split_chosen_on_constructed_set_separates_interest():
         pts.append([rng.uniform(0, 1), rng.uniform(0, 1)]); vals.append(-0.5)
         pts.append([rng.uniform(1.2, 2), rng.uniform(0, 1)]); vals.append(-1.0 if t < 20 else 0.0)
     pts, vals = np.array(pts), np.array(vals)
-    choice = choose_split(pts, vals, np.zeros(2), np.array([2.0, 1.0]), n_candidates=300, zeta=80,
+    choice = choose_split(pts, vals, n_candidates=300, zeta=80,
                           rng=np.random.default_rng(2))
     assert choice.dim == 0
     assert pts[pts[:, 0] < 1.0, 0].max() < choice.value <= 1.2
@@ -86,7 +86,7 @@ def test_split_chosen_on_constructed_set_separates_interest():
 def test_split_ties_prefer_balanced_split():
     # all values equal: every quality is 0, so the most balanced candidate wins
     pts = np.column_stack([np.arange(100.0), np.zeros(100)])
-    choice = choose_split(pts, np.zeros(100), np.zeros(2), np.array([100.0, 1]), 50, 20,
+    choice = choose_split(pts, np.zeros(100), 50, 20,
                           np.random.default_rng(0))
     assert choice.dim == 0 and abs(choice.left_count - 50) <= 5
 

@@ -1,7 +1,6 @@
 """`sagg run` end to end: the three nodes as separate processes learn, everything is recorded in an
 mcap bag, the summary and the report are complete; Ctrl-C stops cleanly; bad parameters exit 2."""
 import json
-import os
 import re
 import signal
 import subprocess
@@ -9,7 +8,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from sagg_bringup.experiment import run_experiment

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -17,7 +16,7 @@ import numpy as np
 from sagg_common.params import ConfigError, check_wildcard, node_params, read_config
 from sagg_common.progress import Progress
 from sagg_common.rng import substream_seed
-from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES, SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_goal_generator.core import MODE_NAMES, SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.evaluate import evaluate
 from sagg_low_level.learner import (SCHEMA as LEARNER_SCHEMA, Command, EvolvingContextLearner,
                                     GoalRequest, Observe, Robot)

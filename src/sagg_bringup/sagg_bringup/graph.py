@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import ctypes
 import importlib
-import math
 import os
 import shutil
 import signal
@@ -297,7 +296,7 @@ def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, check
         outbox.put(("area", area.lower, area.upper, area.resolution, area.mask, area.cell_points, goals))
         lower, upper = spec.limits()
         robot = Robot(spec.joint_names(), lower, upper, spec.rest_posture())
-        n, m = robot.n, len(learner_params["task_space.lower"])
+        m = len(learner_params["task_space.lower"])
         # the learner builds its memory exactly as the learner node does (same neighbour search)
         learner = EvolvingContextLearner(learner_params, robot, m)
         memory = learner.memory

@@ -7,7 +7,7 @@ RIAC's interest is the same absolute derivative over a sliding window.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -103,8 +103,8 @@ def split_quality(values_left: np.ndarray, values_right: np.ndarray, zeta: int) 
     )
 
 
-def choose_split(points: np.ndarray, values: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                 n_candidates: int, zeta: int, rng: np.random.Generator) -> SplitChoice | None:
+def choose_split(points: np.ndarray, values: np.ndarray, n_candidates: int, zeta: int,
+                 rng: np.random.Generator) -> SplitChoice | None:
     """Pick the best of ``n_candidates`` random (dimension, value) splits (paper Sec. 2.4.4).
 
     Vague in the paper: how candidates are drawn and what happens when every candidate has quality 0
@@ -208,8 +208,7 @@ class RegionTree:
 
     def _split(self, region: Region, stamp: int | None) -> None:
         pts, vals = region.filled_points, region.filled_values
-        choice = choose_split(pts, vals, region.lower, region.upper, self.n_candidates,
-                              self.zeta, self.rng)
+        choice = choose_split(pts, vals, self.n_candidates, self.zeta, self.rng)
         if choice is None:
             return
         j, v = choice.dim, choice.value

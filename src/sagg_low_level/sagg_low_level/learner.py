@@ -273,22 +273,23 @@ class EvolvingContextLearner:
         self.alpha = np.asarray(alpha, dtype=float)
         self.y = np.asarray(y, dtype=float)
 
-    def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
-        """Δα = J⁺(α)·Δy_next from the k nearest samples in α (None while memory is too small)."""
+    def jacobian_at(self, alpha: np.ndarray) -> np.ndarray | None:
+        """Local Jacobian J(α) from the k nearest samples in α (None while memory is too small)."""
         if len(self.memory) < self.min_samples:
             return None
         idx = self.memory.neighbours(alpha, self.k)
-        jac = local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx],
-                             self.p["jacobian_rcond"])
-        return pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
+        return local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx],
+                              self.p["jacobian_rcond"])
+
+    def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
+        """Δα = J⁺(α)·Δy_next from the local model (None while memory is too small)."""
+        jac = self.jacobian_at(alpha)
+        return None if jac is None else pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
 
     def predict(self, alpha: np.ndarray, dalpha: np.ndarray) -> np.ndarray:
         """Forward prediction Δy ≈ J(α)·Δα from the local model (zeros while memory is too small)."""
-        if len(self.memory) < self.min_samples:
-            return np.zeros(self.m)
-        idx = self.memory.neighbours(alpha, self.k)
-        return local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx],
-                              self.p["jacobian_rcond"]) @ dalpha
+        jac = self.jacobian_at(alpha)
+        return np.zeros(self.m) if jac is None else jac @ dalpha
 
     def _random_step(self) -> np.ndarray:
         a = self.p["explore_amplitude"]
