@@ -122,6 +122,17 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--micro-actions", type=positive_int, default=3000)
     g.add_argument("--repeats", type=positive_int, default=2)
     g.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
+    sk = bsub.add_parser("soak", help="long run: RSS growth per stored sample, fds, /dev/shm "
+                                      "(in-process and/or through the graph)")
+    sk.add_argument("--config", default="config/arm8.yaml")
+    sk.add_argument("--mode", choices=["inprocess", "graph"], nargs="+", default=["inprocess", "graph"])
+    sk.add_argument("--micro-actions", type=positive_int, default=None,
+                    help="default: 1,000,000 in-process, 100,000 through the graph")
+    sk.add_argument("--every", type=positive_int, default=None, help="rows every K micro-actions "
+                    "(default: micro-actions / 20)")
+    sk.add_argument("--out", default=None, help="directory for the graph's logs/params and soak.json "
+                    "(default runs/soak-<time>)")
+    sk.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
     t = bsub.add_parser("table", help="compare strategies from result.json files (Markdown table "
                                       "and Mann-Whitney / Welch tests)")
     t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
@@ -189,6 +200,9 @@ def main(argv: list[str] | None = None) -> int:
             from .bench import bench_graph
             bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
+        if args.command == "bench" and args.bench == "soak":
+            from .soak import main_soak
+            return main_soak(args, parse_set(args.set))
         if args.command == "bench" and args.bench == "table":
             from .compare import load_results, summary_markdown
             results = load_results(args.results)
