@@ -133,6 +133,24 @@ def build_parser() -> argparse.ArgumentParser:
     sk.add_argument("--out", default=None, help="directory for the graph's logs/params and soak.json "
                     "(default runs/soak-<time>)")
     sk.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
+    c = bsub.add_parser("compare", help="every (strategy, seed) experiment in parallel (process pool "
+                                        "or Ray), resumable; mean ± std tables, Mann-Whitney / Welch "
+                                        "tests, curves")
+    c.add_argument("--config", required=True, help="experiment YAML (ROS 2 parameter-file form)")
+    c.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    c.add_argument("--seeds", type=positive_int, required=True,
+                   help="number of seeds: seed i = base seed + i")
+    c.add_argument("--base-seed", type=int, help="first seed (default: the config's seed)")
+    c.add_argument("--micro-actions", type=positive_int, required=True, help="learning budget per run")
+    c.add_argument("--eval-every", type=positive_int, required=True,
+                   help="evaluate on the test goals every K micro-actions")
+    c.add_argument("--out", required=True, help="output directory (resumable: rerun the same command)")
+    c.add_argument("--workers", type=positive_int, help="parallel runs (default: os.cpu_count())")
+    c.add_argument("--ray", metavar="ADDRESS",
+                   help="run on Ray: 'local' starts a local instance, else a cluster address "
+                        "(needs the optional extra: make ray)")
+    c.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override any parameter for every run (repeatable)")
     t = bsub.add_parser("table", help="compare strategies from result.json files (Markdown table "
                                       "and Mann-Whitney / Welch tests)")
     t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
@@ -213,6 +231,12 @@ def main(argv: list[str] | None = None) -> int:
                 from .compare import plot_curves
                 plot_curves(results, args.plot, args.title)
             return 0
+        if args.command == "bench" and args.bench == "compare":
+            from .sweep import run_compare
+            summ = run_compare(args.config, args.strategies, args.seeds, args.micro_actions,
+                               args.eval_every, args.out, workers=args.workers, ray_address=args.ray,
+                               overrides=parse_set(args.set), base_seed=args.base_seed)
+            return 1 if summ["failed_runs"] else 0
         if args.command == "bench" and args.bench == "speed":
             from .bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategy)

@@ -28,12 +28,83 @@ def by_strategy(results: list[dict]) -> dict[str, list[dict]]:
     return groups
 
 
-def pairwise_tests(a: np.ndarray, b: np.ndarray) -> dict:
-    """Two-sided Mann-Whitney U (rank) and Welch t-test between two samples of final errors."""
+def pairwise_tests(a, b) -> dict:
+    """Two-sided Mann-Whitney U (rank) and Welch t-test between two samples of final errors
+    (scipy: exact U distribution for small samples without ties), plus the one-sided
+    Mann-Whitney p of "a lower than b" (the paper's claims are orderings)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    nan = float("nan")
     if len(a) < 2 or len(b) < 2:
-        return {"mannwhitney_p": float("nan"), "welch_p": float("nan")}
-    return {"mannwhitney_p": float(stats.mannwhitneyu(a, b, alternative="two-sided").pvalue),
-            "welch_p": float(stats.ttest_ind(a, b, equal_var=False).pvalue)}
+        return {"mannwhitney_u": nan, "mannwhitney_p": nan, "mannwhitney_p_less": nan,
+                "welch_t": nan, "welch_p": nan}
+    mw = stats.mannwhitneyu(a, b, alternative="two-sided")
+    less = stats.mannwhitneyu(a, b, alternative="less")
+    w = stats.ttest_ind(a, b, equal_var=False)
+    return {"mannwhitney_u": float(mw.statistic), "mannwhitney_p": float(mw.pvalue),
+            "mannwhitney_p_less": float(less.pvalue),
+            "welch_t": float(w.statistic), "welch_p": float(w.pvalue)}
+
+
+def curve_stats(results: list[dict], key: str = "mean_error") -> dict:
+    """Mean, std (ddof 1; 0 for one seed) and median over seeds of ``key`` at each evaluation
+    point of runs that share the same evaluation points."""
+    xs = [c["micro_actions"] for c in results[0]["curve"]]
+    ys = np.array([[c[key] for c in r["curve"]] for r in results
+                   if [c["micro_actions"] for c in r["curve"]] == xs])
+    std = ys.std(axis=0, ddof=1) if len(ys) > 1 else np.zeros(len(xs))
+    return {"micro_actions": xs, "mean": ys.mean(axis=0).tolist(), "std": std.tolist(),
+            "median": np.median(ys, axis=0).tolist(), "n": int(len(ys))}
+
+
+def summary_json(results: list[dict], order: list[str] | None = None) -> dict:
+    """Per strategy: seeds, final errors, curve statistics; every pair: the tests above."""
+    groups = by_strategy(results)
+    names = [n for n in (order or list(groups)) if n in groups]
+    out = {"strategies": {}, "tests": []}
+    for n in names:
+        rs = groups[n]
+        f = np.array([r["final_mean_error"] for r in rs])
+        out["strategies"][n] = {
+            "seeds": [r["seed"] for r in rs], "final_mean_error": f.tolist(),
+            "final_mean": float(f.mean()), "final_std": float(f.std(ddof=1)) if len(f) > 1 else 0.0,
+            "final_median": float(np.median(f)), "curve": curve_stats(rs),
+            "goal_share_reachable_second_half": [r["goal_stats"]["goal_share_reachable_second_half"]
+                                                 for r in rs]}
+    for a, b in itertools.combinations(names, 2):
+        t = pairwise_tests(out["strategies"][a]["final_mean_error"],
+                           out["strategies"][b]["final_mean_error"])
+        out["tests"].append({"a": a, "b": b, **t})
+    return out
+
+
+def curve_table(summary: dict) -> str:
+    """Markdown: one row per evaluation point, one column per strategy (mean ± std over seeds)."""
+    names = list(summary["strategies"])
+    xs = summary["strategies"][names[0]]["curve"]["micro_actions"]
+    lines = ["| micro-actions | " + " | ".join(f"{n} (n={summary['strategies'][n]['curve']['n']})"
+                                              for n in names) + " |",
+             "|---|" + "---|" * len(names)]
+    for i, x in enumerate(xs):
+        cells = []
+        for n in names:
+            c = summary["strategies"][n]["curve"]
+            cells.append(f"{c['mean'][i]:.3f} ± {c['std'][i]:.3f}" if i < len(c["mean"]) else "—")
+        lines.append(f"| {x} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def pairwise_table(summary: dict) -> str:
+    """Markdown: Mann-Whitney U and Welch t (statistics and two-sided p) for every pair, and the
+    one-sided Mann-Whitney p that A is below B."""
+    lines = ["| A | B | mean A | mean B | Mann-Whitney U | p (two-sided) | p (A < B) | Welch t | "
+             "p (two-sided) |", "|---|---|---|---|---|---|---|---|---|"]
+    for t in summary["tests"]:
+        ma = summary["strategies"][t["a"]]["final_mean"]
+        mb = summary["strategies"][t["b"]]["final_mean"]
+        lines.append(f"| {t['a']} | {t['b']} | {ma:.3f} | {mb:.3f} | {t['mannwhitney_u']:.1f} | "
+                     f"{t['mannwhitney_p']:.3g} | {t['mannwhitney_p_less']:.3g} | "
+                     f"{t['welch_t']:.3f} | {t['welch_p']:.3g} |")
+    return "\n".join(lines)
 
 
 def summary_markdown(results: list[dict]) -> str:
@@ -63,17 +134,16 @@ def summary_markdown(results: list[dict]) -> str:
 
 def plot_curves(results: list[dict], path, title: str = "", key: str = "mean_error") -> None:
     """Test error against micro-actions, one line per strategy: mean over seeds with a shaded
-    ±1 std band (like the paper's Figs. 10-12)."""
+    ±1 std band (ddof 1; like the paper's Figs. 10-12)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for name, rs in by_strategy(results).items():
-        xs = [c["micro_actions"] for c in rs[0]["curve"]]
-        ys = np.array([[c[key] for c in r["curve"]] for r in rs if len(r["curve"]) == len(xs)])
-        m, s = ys.mean(axis=0), ys.std(axis=0)
-        ax.plot(xs, m, label=f"{name} (n={len(ys)})")
+        c = curve_stats(rs, key)
+        xs, m, s = c["micro_actions"], np.array(c["mean"]), np.array(c["std"])
+        ax.plot(xs, m, label=f"{name} (n={c['n']})")
         ax.fill_between(xs, np.maximum(m - s, 1e-3), m + s, alpha=0.2)
     ax.set_yscale("log")
     ax.set_xlabel("micro-actions")
