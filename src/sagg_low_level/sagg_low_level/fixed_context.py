@@ -1,0 +1,493 @@
+"""Low-level learner with a fixed (reset) context: motor synergies θ → outcome y (paper Sec. 4.4,
+Algorithm 4 inside Algorithm 1; used for the quadruped, Sec. 4, and the fishing rod, Sec. 5). ROS-free.
+
+Every experiment starts from the same rest state, runs the synergy π_θ and yields one outcome y
+(or nothing: a fishing cast whose float never touches the water, which is discarded and counted).
+Like :class:`~sagg_low_level.learner.EvolvingContextLearner`, the learner is a coroutine:
+:meth:`FixedContextLearner.run` yields :class:`Observe` (answer: the rest outcome y_rest),
+:class:`Execute` (answer: y, or None when the trial produced no outcome) and
+:class:`~sagg_low_level.learner.GoalRequest` (answer: ``(goal_seq, position)``). The in-process
+driver answers from a simulator object, the synergy learner node from ROS topics, so both produce
+the same samples for the same seeds.
+
+Internally θ is normalised to [0, 1] per dimension by its bounds and, when ``competence_rescale``,
+y is rescaled to [0, 1] per dimension by Y's extent (paper Sec. 4.3): neighbour searches, the local
+model and the exploration noise all work in these units (our choice: amplitudes and phases, or u, v
+and φ, have different units and must weigh the same, as the paper does for the competence).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Generator
+
+import numpy as np
+
+from sagg_common.params import SHARED_SCHEMA, Param, Schema
+from sagg_common.rng import stream
+from sagg_goal_generator.competence import competence, gamma, is_reached
+from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
+from sagg_goal_generator.regions import RegionTree
+
+from .learner import GoalRequest, Observe, Report
+from .local_model import local_jacobian, pseudo_inverse_step
+from .memory import SampleMemory
+
+SCHEMA: Schema = SHARED_SCHEMA + (
+    Param("l", "int", 10,
+          "l: nearest neighbours of the goal in Y whose θ seed the candidate sets (Sec. 4.4.1). "
+          "Not given in the paper; our choice.", low=1, high=10_000),
+    Param("m", "int", 0,
+          "m: nearest neighbours in θ of each of the l samples; the set of least θ spread is used for "
+          "the local model (Sec. 4.4.1). 0 = dim(θ) + 1 (our choice; the paper gives none).",
+          low=0, high=100_000),
+    Param("q", "int", 10,
+          "q: budget of exploratory experiments per exploration phase (Alg. 4). Not given for the "
+          "synergy setups; our choice.", low=1, high=100_000),
+    Param("lambda", "float", 0.5,
+          "λ > 0 of the exploration noise θ_c + λ·rand(n)·D(y_g, y_c) (Sec. 4.4.2), in normalised θ "
+          "units per unit of rescaled distance. Not given in the paper; our choice.",
+          low=0.0, high=1e6, low_open=True),
+    Param("rounds", "int", 1,
+          "Timeout of a goal: at most this many rounds of (one reaching experiment + an exploration "
+          "phase when inefficient) per goal (Alg. 1 'timeout'; no value in the paper: ours 1).",
+          low=1, high=10_000),
+    Param("goal_competence", "str", "best",
+          "Outcome the goal's competence Γ is computed from: 'best' (the closest outcome of the "
+          "attempt, the θ_k Alg. 4 keeps) or 'last' (the last experiment). Vague in the paper.",
+          choices=("best", "last")),
+    Param("min_samples", "int", 0,
+          "Fewest stored outcomes before the inverse model is used; before, reaching experiments draw "
+          "θ uniformly (bootstrap, our choice). 0 = dim(θ) + 1.", low=0, high=1_000_000),
+    Param("jacobian_rcond", "float", 1e-10,
+          "Relative singular-value cut-off of the least-squares forward model on the chosen set.",
+          low=0.0, high=1.0),
+    Param("pinv_rcond", "float", 1e-2,
+          "Relative singular-value cut-off of the pseudo-inverse (Sec. 3.3 reused in Sec. 4.4.1).",
+          low=0.0, high=1.0),
+    Param("eps_c", "float", 0.01,
+          "ε_C: a goal closer than this to the rest outcome has competence 0 (rescaled units when "
+          "competence_rescale).", low=0.0, high=1e9),
+    Param("eps_sim", "float", -0.05,
+          "ε_sim < 0: a goal counts as reached when C > ε_sim (Sec. 2.4.1). Paper gives no value.",
+          low=-1.0, high=0.0),
+    Param("competence_rescale", "bool", True,
+          "Rescale each task dimension to [0, 1] by Y's extent before distances (Sec. 4.3)."),
+    Param("riac.g_max", "int", 30, "ACTUATOR-RIAC: points per θ region before a split.",
+          low=2, high=1_000_000),
+    Param("riac.zeta", "int", 20, "ACTUATOR-RIAC: interest window over prediction errors.",
+          low=2, high=1_000_000),
+    Param("riac.split_candidates", "int", 20, "ACTUATOR-RIAC: random split candidates.",
+          low=1, high=10_000),
+    Param("riac.p_random", "float", 0.2,
+          "ACTUATOR-RIAC: share of experiments with θ drawn uniformly instead of by region interest.",
+          low=0.0, high=1.0),
+    Param("riac.neighbours", "int", 0,
+          "ACTUATOR-RIAC: nearest samples in θ of the local forward model that predicts y. "
+          "0 = dim(θ) + 1.", low=0, high=100_000),
+    Param("eval.goals", "int", 100, "Number of test goals (Sec. 4.6, 5.3).", low=1, high=100_000),
+    Param("eval.seed", "int", 0,
+          "Seed of the test-goal set; independent of the run seed.", low=0),
+    Param("eval.pool", "int", 1000,
+          "Test goals are picked spread over the outcomes of this many uniformly random synergies "
+          "(the reachable area is unknown beforehand, Sec. 4.2; our choice).", low=1, high=10_000_000),
+)
+
+
+@dataclass
+class Execute:
+    """Request one experiment: run synergy θ from the rest state. Answer: the outcome y, or None
+    when the trial has no outcome (e.g. the float never touched the water). ``kind`` is "reach",
+    "explore" or "babble"."""
+
+    theta: np.ndarray
+    kind: str
+
+
+@dataclass
+class ThetaSpace:
+    """What the learner knows of the synergy: the bounds of θ (the driver knows the rest)."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def __post_init__(self):
+        self.lower = np.asarray(self.lower, dtype=float)
+        self.upper = np.asarray(self.upper, dtype=float)
+        if self.lower.shape != self.upper.shape or self.lower.ndim != 1 or not len(self.lower):
+            raise ValueError("theta bounds: lower and upper must be equal-length non-empty vectors")
+        if not (np.all(np.isfinite(self.lower)) and np.all(np.isfinite(self.upper))
+                and np.all(self.upper > self.lower)):
+            raise ValueError("theta bounds: allowed: finite, every upper > lower")
+
+    @property
+    def n(self) -> int:
+        return len(self.lower)
+
+
+def set_spread(theta_norm: np.ndarray) -> float:
+    """σ(M_j) of Sec. 4.4.1: the standard deviation of the synergy parameters of a neighbour set.
+    The paper does not say how the std of vectors is taken; ours: the RMS over dimensions of the
+    per-dimension standard deviations (normalised θ), i.e. the RMS distance to the set's mean / √n."""
+    return float(np.sqrt(np.mean(np.var(theta_norm, axis=0))))
+
+
+def least_spread_set(candidate_sets: list[np.ndarray], theta_norm: np.ndarray) -> int:
+    """``M_k = argmin_i σ(M_i)`` (Sec. 4.4.1, equation M_k); ties: the first (closest goal neighbour)."""
+    spreads = [set_spread(theta_norm[s]) for s in candidate_sets]
+    return int(np.argmin(spreads))
+
+
+def local_inverse(theta_norm: np.ndarray, y_scaled: np.ndarray, goal: np.ndarray,
+                  jacobian_rcond: float, pinv_rcond: float) -> np.ndarray:
+    """Local linear inverse model on the chosen set M_k (Sec. 4.4.1, "estimate a local linear inverse
+    model ((u,v,φ) → θ) by using a pseudo-inverse as introduced in the reaching experiment").
+
+    Fits the forward model ``Δy = J Δθ`` by least squares on the set's deviations from its means
+    (:func:`~sagg_low_level.local_model.local_jacobian`), then ``θ_g = θ_r + J⁺ (y_g − y_r)`` from the
+    set member r whose outcome is closest to the goal (our choice of linearisation point; eq.
+    jacobianPseudo of Sec. 3.3). Normalised θ, rescaled y in, normalised θ out (unclipped)."""
+    dth = theta_norm - theta_norm.mean(axis=0)
+    dy = y_scaled - y_scaled.mean(axis=0)
+    jac = local_jacobian(dth, dy, jacobian_rcond)
+    r = int(np.argmin(np.sum((y_scaled - goal) ** 2, axis=1)))
+    return theta_norm[r] + pseudo_inverse_step(jac, goal - y_scaled[r], pinv_rcond)
+
+
+def exploration_theta(theta_c: np.ndarray, distance: float, lam: float,
+                      rng: np.random.Generator) -> np.ndarray:
+    """Exploration around the closest reached outcome (Sec. 4.4.2, equation θ_{t+1}):
+    ``θ_{t+1} = θ_c + λ · rand(n) · D(y_g, y_c)`` with rand in [−1, 1]^n; normalised θ (unclipped)."""
+    return theta_c + lam * rng.uniform(-1.0, 1.0, theta_c.shape) * distance
+
+
+class FixedContextLearner:
+    """Goal-directed optimisation of synergies with a fixed context (Alg. 1 + Alg. 4) and the
+    ACTUATOR-RANDOM / ACTUATOR-RIAC baselines over θ."""
+
+    def __init__(self, params: dict, theta_space: ThetaSpace, task_dim: int | None = None):
+        self.p = params
+        self.space = theta_space
+        self.strategy = params["strategy"]
+        self.task_lower = np.asarray(params["task_space.lower"], dtype=float)
+        self.task_upper = np.asarray(params["task_space.upper"], dtype=float)
+        if self.task_lower.shape != self.task_upper.shape or not np.all(self.task_upper > self.task_lower):
+            raise ValueError("task_space.lower/upper: equal lengths and upper > lower required")
+        self.mdim = task_dim or len(self.task_lower)
+        if self.mdim != len(self.task_lower):
+            raise ValueError(f"task_space: {len(self.task_lower)} dimensions but the robot reports {self.mdim}")
+        n = theta_space.n
+        self.scale = (self.task_upper - self.task_lower) if params["competence_rescale"] else np.ones(self.mdim)
+        self.l_nb = params["l"]
+        self.m_nb = params["m"] or n + 1
+        self.min_samples = params["min_samples"] or n + 1
+        # two indexes over the same samples (same insertion order, so index i is one experiment):
+        # by normalised θ (m-neighbour sets, ACTUATOR-RIAC's forward model) and by rescaled y
+        # (l neighbours of the goal, closest reached outcome y_c); both exact k-NN (checks = 0)
+        self.by_theta = SampleMemory(n, n, self.mdim)
+        self.by_y = SampleMemory(self.mdim, n, self.mdim)
+        self.rng = stream(params["seed"], "fixed_context_learner")
+        self.y_rest = np.zeros(self.mdim)
+        self.experiments = 0       # stored experiments (with an outcome): the learning clock
+        self.trials = 0            # every executed experiment, discarded ones included
+        self.discarded = 0         # experiments without an outcome (not stored)
+        self.reports_sent = 0
+        self.goals_done = 0
+        self.exploration_phases = 0
+        self.last_competence = float("nan")
+        self.on_report: Callable[[Report], None] | None = None
+        self.on_sample: Callable[[int], None] | None = None
+        self.riac_tree: RegionTree | None = None
+
+    # ------------------------------------------------------------------ units
+    def norm_theta(self, theta) -> np.ndarray:
+        return (np.asarray(theta, dtype=float) - self.space.lower) / (self.space.upper - self.space.lower)
+
+    def denorm_theta(self, theta_norm) -> np.ndarray:
+        t = np.clip(np.asarray(theta_norm, dtype=float), 0.0, 1.0)
+        return self.space.lower + t * (self.space.upper - self.space.lower)
+
+    def scale_y(self, y) -> np.ndarray:
+        return np.asarray(y, dtype=float) / self.scale
+
+    def distance(self, a, b) -> float:
+        """D(a, b) in the competence metric (rescaled per dimension when competence_rescale)."""
+        d = (np.asarray(a, dtype=float) - np.asarray(b, dtype=float)) / self.scale
+        return math.sqrt(float(d @ d))
+
+    # --------------------------------------------------------------- memory
+    def __len__(self) -> int:
+        return len(self.by_theta)
+
+    @property
+    def thetas(self) -> np.ndarray:
+        """Stored synergies θ (raw units), in experiment order."""
+        return self.by_theta.delta_alpha
+
+    @property
+    def outcomes(self) -> np.ndarray:
+        """Stored outcomes y (task units), in experiment order."""
+        return self.by_theta.delta_y
+
+    def add_sample(self, theta, y) -> int:
+        """Store one experiment (θ, y) in the memory M (Alg. 1: 'update M and M⁻¹')."""
+        theta = np.asarray(theta, dtype=float)
+        y = np.asarray(y, dtype=float)
+        i = self.by_theta.add(self.norm_theta(theta), theta, y)
+        self.by_y.add(self.scale_y(y), theta, y)
+        return i
+
+    def closest(self, goal) -> int | None:
+        """Index of the stored outcome y_c closest to ``goal`` (None while the memory is empty)."""
+        if not len(self):
+            return None
+        return int(self.by_y.neighbours(self.scale_y(goal), 1)[0])
+
+    def inverse(self, goal) -> np.ndarray | None:
+        """Reaching phase (Sec. 4.4.1): θ_g from the local inverse model on the neighbour set of least
+        θ spread; None while the memory holds fewer than min_samples outcomes."""
+        if len(self) < self.min_samples:
+            return None
+        g = self.scale_y(goal)
+        seeds = self.by_y.neighbours(g, self.l_nb)                       # L: l neighbours of y_g in Y
+        tn = self.by_theta.alpha                                        # normalised θ of every sample
+        sets = [self.by_theta.neighbours(tn[i], self.m_nb) for i in seeds]  # M_i: m neighbours in θ
+        best = sets[least_spread_set(sets, tn)]
+        ys = self.by_y.alpha[best]
+        return self.denorm_theta(local_inverse(tn[best], ys, g, self.p["jacobian_rcond"],
+                                               self.p["pinv_rcond"]))
+
+    def predict(self, theta) -> np.ndarray | None:
+        """Forward prediction of y at θ from the local linear model of the nearest samples in θ
+        (ACTUATOR-RIAC's predictor; task units); None while the memory is too small."""
+        k = self.p["riac.neighbours"] or self.space.n + 1
+        if len(self) < 2:
+            return None
+        tq = self.norm_theta(theta)
+        idx = self.by_theta.neighbours(tq, k)
+        tn = self.by_theta.alpha[idx]
+        ys = self.by_y.alpha[idx]
+        jac = local_jacobian(tn - tn.mean(axis=0), ys - ys.mean(axis=0), self.p["jacobian_rcond"])
+        return (ys[0] + jac @ (tq - tn[0])) * self.scale
+
+    # ------------------------------------------------------------- helpers
+    def _report(self, kind, goal_seq, target, comp, y) -> None:
+        self.reports_sent += 1
+        if kind == KIND_GOAL:
+            self.last_competence = comp
+        if self.on_report is not None:
+            self.on_report(Report(self.reports_sent, goal_seq, kind, np.array(target, dtype=float),
+                                  np.array(y, dtype=float), self.y_rest.copy(), float(comp),
+                                  self.experiments))
+
+    def _execute(self, theta, kind: str) -> Generator:
+        """Run one experiment, store it when it has an outcome. Returns y or None."""
+        theta = np.clip(np.asarray(theta, dtype=float), self.space.lower, self.space.upper)
+        y = yield Execute(theta, kind)
+        self.trials += 1
+        if y is None:
+            self.discarded += 1
+            return None
+        y = np.asarray(y, dtype=float)
+        if y.shape != (self.mdim,) or not np.all(np.isfinite(y)):
+            self.discarded += 1
+            return None
+        idx = self.add_sample(theta, y)
+        self.experiments += 1
+        if self.on_sample is not None:
+            self.on_sample(idx)
+        return y
+
+    def _uniform_theta(self) -> np.ndarray:
+        return self.rng.uniform(self.space.lower, self.space.upper)
+
+    def competence_of(self, goal, y) -> float:
+        return competence(goal, y, self.y_rest, self.p["eps_c"], self.scale if self.p["competence_rescale"] else None)
+
+    # ------------------------------------------------------------ main loop
+    def run(self) -> Generator:
+        """The learner's whole life: yields requests, receives answers, never returns."""
+        y_rest = yield Observe()
+        self.y_rest = np.asarray(y_rest, dtype=float)
+        if self.strategy in ("sagg-riac", "sagg-random"):
+            while True:
+                yield from self._goal_attempt()
+        else:
+            yield from self._actuator_babbling(riac=self.strategy == "actuator-riac")
+
+    def _goal_attempt(self) -> Generator:
+        """One goal (Alg. 1 inner loop with Alg. 4): reach with the inverse model; when that does not
+        come closer than the closest known outcome (Inefficient, Sec. 4.4.2), explore q synergies
+        around the best θ with noise ∝ its distance to the goal, keeping the best."""
+        goal_seq, goal = yield GoalRequest(self.reports_sent)
+        goal = np.asarray(goal, dtype=float)
+        best_y = None
+        last_y = None
+        for _ in range(self.p["rounds"]):
+            c_before = self.closest(goal)
+            d_before = math.inf if c_before is None else self.distance(goal, self.outcomes[c_before])
+            theta = self.inverse(goal)
+            if theta is None:
+                theta = self._uniform_theta()
+            y = yield from self._execute(theta, "reach")
+            if y is not None:
+                last_y = y
+                if best_y is None or self.distance(goal, y) < self.distance(goal, best_y):
+                    best_y = y
+                self._report(KIND_REACHED, goal_seq, y, 0.0, y)
+                if is_reached(self.competence_of(goal, y), self.p["eps_sim"]):
+                    break
+            # Inefficient(M⁻¹, ỹ_j, y_j): the reach did not beat the closest known outcome
+            if y is not None and self.distance(goal, y) <= d_before:
+                continue
+            self.exploration_phases += 1
+            k = self.closest(goal)
+            if k is None:  # nothing stored yet: bootstrap with uniform draws
+                theta_k, y_k = None, None
+            else:
+                theta_k, y_k = self.thetas[k].copy(), self.outcomes[k].copy()
+            for _ in range(self.p["q"]):
+                if theta_k is None:
+                    theta_i = self._uniform_theta()
+                else:
+                    tn = exploration_theta(self.norm_theta(theta_k), self.distance(goal, y_k),
+                                           self.p["lambda"], self.rng)
+                    theta_i = self.denorm_theta(tn)
+                y_i = yield from self._execute(theta_i, "explore")
+                if y_i is None:
+                    continue
+                last_y = y_i
+                self._report(KIND_EXPLORATION, goal_seq, y_i, 0.0, y_i)
+                if y_k is None or self.distance(goal, y_i) < self.distance(goal, y_k):
+                    theta_k, y_k = self.thetas[len(self) - 1].copy(), y_i
+                if best_y is None or self.distance(goal, y_i) < self.distance(goal, best_y):
+                    best_y = y_i
+            if best_y is not None and is_reached(self.competence_of(goal, best_y), self.p["eps_sim"]):
+                break
+        final = best_y if self.p["goal_competence"] == "best" else last_y
+        if final is None:  # no outcome at all in this attempt: the rest outcome stands in
+            final = self.y_rest
+        c = self.competence_of(goal, final)
+        self._report(KIND_GOAL, goal_seq, goal, gamma(c, self.p["eps_sim"]), final)
+        self.goals_done += 1
+
+    def _actuator_babbling(self, riac: bool) -> Generator:
+        """ACTUATOR-RANDOM (θ uniform in its bounds) and ACTUATOR-RIAC (θ regions of the normalised
+        synergy space chosen by the progress of the prediction error of y, as RIAC; Sec. 4.5)."""
+        n = self.space.n
+        if riac:
+            self.riac_tree = RegionTree(np.zeros(n), np.ones(n), self.p["riac.g_max"], self.p["riac.zeta"],
+                                        self.p["riac.split_candidates"],
+                                        stream(self.p["seed"], "actuator_riac_splits"))
+        while True:
+            if riac:
+                theta = self._riac_choice()
+                predicted = self.predict(theta)
+            else:
+                theta = self._uniform_theta()
+            y = yield from self._execute(theta, "babble")
+            if y is None:
+                continue
+            if riac:
+                # RIAC's value: minus the prediction error of y (rescaled units); interest = its progress
+                err = self.distance(y, self.y_rest if predicted is None else predicted)
+                self.riac_tree.add(np.clip(self.norm_theta(theta), 0.0, 1.0), -err)
+                self.last_competence = -err
+            self._report(KIND_EXPLORATION, 0, y, 0.0, y)
+
+    def _riac_choice(self) -> np.ndarray:
+        """ACTUATOR-RIAC: a leaf with probability ∝ interest − min (as SAGG-RIAC mode 1), θ uniform in
+        it; with probability ``riac.p_random`` (or while there is one leaf) θ uniform."""
+        leaves = self.riac_tree.leaves()
+        if self.rng.random() < self.p["riac.p_random"] or len(leaves) < 2:
+            return self._uniform_theta()
+        it = np.array([r.interest for r in leaves])
+        w = it - it.min()
+        probs = np.full(len(leaves), 1.0 / len(leaves)) if w.sum() <= 0 else w / w.sum()
+        region = leaves[int(self.rng.choice(len(leaves), p=probs))]
+        return self.denorm_theta(self.rng.uniform(region.lower, region.upper))
+
+
+class Driver:
+    """Steps a :class:`FixedContextLearner` in-process: answers its requests from callables.
+
+    ``execute(theta, kind)`` runs one experiment and returns y or None; ``next_goal()`` returns
+    ``(goal_seq, position)``; ``y_rest`` is the rest outcome. The learner node answers the same
+    requests from ROS topics instead."""
+
+    def __init__(self, learner: FixedContextLearner, execute, next_goal, y_rest):
+        self.learner = learner
+        self.execute = execute
+        self.next_goal = next_goal
+        self._coro = learner.run()
+        self._pending = self._coro.send(None)
+        self._answer(np.asarray(y_rest, dtype=float))
+
+    def _answer(self, answer) -> None:
+        self._pending = self._coro.send(answer)
+
+    def step_until(self, experiments: int) -> None:
+        """Advance until the learner has stored ``experiments`` experiments in total."""
+        while self.learner.experiments < experiments:
+            req = self._pending
+            if isinstance(req, Execute):
+                self._answer(self.execute(req.theta, req.kind))
+            elif isinstance(req, GoalRequest):
+                self._answer(self.next_goal())
+            else:  # pragma: no cover - protocol error
+                raise TypeError(f"unknown learner request {req!r}")
+
+
+def evaluate_fixed(learner: FixedContextLearner, run_theta: Callable[[np.ndarray], np.ndarray | None],
+                   goals: np.ndarray) -> np.ndarray:
+    """Test errors of the frozen model (Sec. 4.6, 5.3): for each test goal one synergy θ_g from the
+    reaching phase (no exploration, no learning), run from rest; error = Euclidean distance in task
+    units between goal and outcome. A trial without outcome (no water contact) scores the distance
+    to the rest outcome (our choice: as if nothing happened). Before the model exists (too few
+    samples) the score is the distance to the rest outcome too."""
+    out = []
+    for g in np.asarray(goals, dtype=float):
+        theta = learner.inverse(g)
+        y = None if theta is None else run_theta(theta)
+        if y is None:
+            y = learner.y_rest
+        out.append(float(np.linalg.norm(g - np.asarray(y, dtype=float))))
+    return np.array(out)
+
+
+def spread_goals(outcomes: np.ndarray, n: int, rng: np.random.Generator, lower, upper,
+                 bins: int = 8) -> np.ndarray:
+    """``n`` test goals spread approximately uniformly over the reached part of Y: the outcomes are
+    binned on a grid of ``bins`` cells per dimension over their bounding box; goals are drawn cell by
+    cell (occupied cells in random order, round robin), one random outcome of the cell each time, so
+    rarely reached areas weigh as much as common ones (Sec. 4.6: 'covering approximately uniformly
+    the reachable part of the task space'). Outcomes outside Y are ignored."""
+    pts = np.asarray(outcomes, dtype=float)
+    lower = np.asarray(lower, dtype=float)
+    upper = np.asarray(upper, dtype=float)
+    pts = pts[np.all((pts >= lower) & (pts <= upper), axis=1)]
+    if len(pts) == 0:
+        raise ValueError("eval.pool: no outcome inside the task space to build test goals from")
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    cells = np.minimum((bins * (pts - lo) / span).astype(int), bins - 1)
+    keys = np.ravel_multi_index(cells.T, (bins,) * pts.shape[1])
+    groups = [np.flatnonzero(keys == k) for k in np.unique(keys)]
+    order = rng.permutation(len(groups))
+    chosen = []
+    used = [set() for _ in groups]
+    while len(chosen) < n:
+        progressed = False
+        for gi in order:
+            free = [i for i in groups[gi] if i not in used[gi]]
+            if not free:
+                continue
+            i = int(free[int(rng.integers(len(free)))])
+            used[gi].add(i)
+            chosen.append(i)
+            progressed = True
+            if len(chosen) == n:
+                break
+        if not progressed:  # fewer distinct outcomes than n: reuse
+            chosen.extend(int(i) for i in rng.integers(0, len(pts), n - len(chosen)))
+    return pts[np.array(chosen)]
