@@ -1,0 +1,215 @@
+"""Checkpoint and resume of the goal generator (ROS-free; used by the goal-generator node).
+
+Files in the checkpoint directory (``g`` = generation):
+
+- ``generator.json``: generation, reports processed, the two random states
+  (``bit_generator.state`` of the goal stream and of the split stream), the split history, the
+  state file's name and the seed / strategy / task space it belongs to;
+- ``generator_state_<g>.npz``: the region tree (every region: box, split, children, the points and
+  competences of the leaves, the order of the leaves) and every goal (seq, position, mode,
+  after_report, competence);
+- ``generator_journal_<k>.bin``: write-ahead journal of the goals chosen after checkpoint ``k``
+  (one record per goal, written before the goal is answered or published).
+
+Why goals are journaled but reports are not: the generator's state is a deterministic function of
+its seed and of the interleaving of reports and goal choices. Reports it misses while it is down
+(or since its last checkpoint) are re-sent by the learner's ``/sagg/competence`` writer, which keeps
+a deep transient_local history; the generator drops sequence numbers it already has. Goals chosen
+since the checkpoint are the journal's: at resume they are chosen again, in the same order, as soon
+as the reports they followed are back in (``after_report``), which reproduces the same random
+draws and tree, and each is checked against the journaled one. A resumed generator therefore
+continues exactly where the killed one was (a lockstep run is unchanged by the kill; tested).
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from sagg_common.journal import Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
+
+from .core import GoalGenerator, GoalRecord
+from .regions import Region
+
+REC_GOAL = 3
+FORMAT = "sagg.generator_checkpoint/1"
+
+
+def tree_arrays(tree) -> dict[str, np.ndarray]:
+    """A RegionTree as arrays (every region, depth first from the root)."""
+    regions = []
+    stack = [tree.root]
+    while stack:
+        r = stack.pop()
+        regions.append(r)
+        if r.children is not None:
+            stack.extend(reversed(r.children))
+    d = tree.dim
+    counts = np.array([r.count if r.children is None else 0 for r in regions], np.int64)
+    pts = [r.filled_points for r in regions if r.children is None and r.count]
+    vals = [r.filled_values for r in regions if r.children is None and r.count]
+    return {
+        "region_id": np.array([r.id for r in regions], np.int64),
+        "region_lower": np.array([r.lower for r in regions], float).reshape(-1, d),
+        "region_upper": np.array([r.upper for r in regions], float).reshape(-1, d),
+        "region_split_dim": np.array([r.split_dim for r in regions], np.int64),
+        "region_split_value": np.array([r.split_value for r in regions], float),
+        "region_children": np.array([[c.id for c in r.children] if r.children else [-1, -1] for r in regions],
+                                    np.int64).reshape(-1, 2),
+        "region_count": counts,
+        "points": np.concatenate(pts) if pts else np.empty((0, d)),
+        "values": np.concatenate(vals) if vals else np.empty(0),
+        "leaf_order": np.array([r.id for r in tree.leaves()], np.int64),
+        "tree_ints": np.array([tree._next_id, tree.n_added], np.int64),
+    }
+
+
+def restore_tree(tree, z) -> None:
+    """Rebuild ``tree`` (a fresh RegionTree with the same bounds and parameters) from
+    :func:`tree_arrays` output."""
+    ids = z["region_id"]
+    by_id: dict[int, Region] = {}
+    off = 0
+    for i, rid in enumerate(ids.tolist()):
+        n = int(z["region_count"][i])
+        cap = max(8, 2 * n)
+        r = Region(rid, z["region_lower"][i].copy(), z["region_upper"][i].copy(),
+                   np.empty((cap, tree.dim)), np.empty(cap), zeta=tree.zeta)
+        if int(z["region_children"][i][0]) < 0:
+            r.points[:n] = z["points"][off:off + n]
+            r.values[:n] = z["values"][off:off + n]
+            r.count = n
+            r._dirty = True  # interest recomputed from the values (a pure function of them)
+            off += n
+        else:
+            r.points, r.values = np.empty((0, tree.dim)), np.empty(0)
+            r.split_dim, r.split_value = int(z["region_split_dim"][i]), float(z["region_split_value"][i])
+        by_id[rid] = r
+    for i, rid in enumerate(ids.tolist()):
+        left, right = (int(c) for c in z["region_children"][i])
+        if left >= 0:
+            by_id[rid].children = (by_id[left], by_id[right])
+    tree.root = by_id[int(ids[0])]
+    tree._leaves = [by_id[int(i)] for i in z["leaf_order"]]
+    tree._next_id, tree.n_added = (int(v) for v in z["tree_ints"])
+
+
+class GeneratorCheckpointer:
+    """Checkpoints and goal journal of one :class:`GoalGenerator` in ``directory``."""
+
+    def __init__(self, directory: str | Path, gen: GoalGenerator, every: int, fsync: bool = False):
+        if int(every) < 1:
+            raise ValueError(f"checkpoint_every: got {every}; allowed: an integer >= 1")
+        self.dir = Path(directory)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.gen = gen
+        self.every = int(every)
+        self.fsync = fsync
+        self.generation = 0
+        self.saved_at = 0
+        self.journal: Journal | None = None
+        self.torn_bytes = 0
+        self.resumed_from: dict | None = None
+
+    def on_goal(self, rec: GoalRecord) -> None:
+        """Journal a goal just chosen (call before answering or publishing it)."""
+        self.journal.append(REC_GOAL, np.concatenate((
+            [float(rec.seq), float(rec.after_report), float(rec.mode)], rec.position)))
+
+    def _path(self, kind: str, g: int) -> Path:
+        return self.dir / f"generator_{kind}_{g}.{'npz' if kind == 'state' else 'bin'}"
+
+    def _generations(self, kind: str) -> list[int]:
+        pat = re.compile(rf"generator_{kind}_(\d+)\.(npz|bin)$")
+        return sorted(int(m.group(1)) for p in self.dir.iterdir() if (m := pat.match(p.name)))
+
+    def _identity(self) -> dict:
+        g = self.gen
+        return {"seed": g.params["seed"], "strategy": g.strategy, "task_space.lower": g.lower.tolist(),
+                "task_space.upper": g.upper.tolist()}
+
+    def save(self) -> None:
+        gen = self.gen
+        g = self.generation + 1
+        old = self.journal
+        self.journal = Journal(self._path("journal", g), self.fsync)
+        if old is not None:
+            old.close()
+        goals = gen.goals
+        state = self._path("state", g)
+        save_npz_atomic(
+            state, **tree_arrays(gen.tree),
+            goal_seq=np.array([r.seq for r in goals], np.int64),
+            goal_position=np.array([r.position for r in goals], float).reshape(-1, gen.dim),
+            goal_mode=np.array([r.mode for r in goals], np.int64),
+            goal_after=np.array([r.after_report for r in goals], np.int64),
+            goal_competence=np.array([np.nan if r.competence is None else r.competence for r in goals], float))
+        write_json_atomic(self.dir / "generator.json", {
+            "format": FORMAT, "generation": g, **self._identity(), "reports": gen.reports,
+            "ignored_outside": gen.ignored_outside, "goals": len(goals), "rng": rng_state(gen.rng),
+            "split_rng": rng_state(gen.tree.rng), "splits": gen.tree.splits, "state_file": state.name})
+        self.generation = g
+        self.saved_at = gen.reports
+        for k in self._generations("journal"):
+            if k < g:
+                self._path("journal", k).unlink(missing_ok=True)
+        for k in self._generations("state"):
+            if k < g:
+                self._path("state", k).unlink(missing_ok=True)
+
+    def maybe_save(self) -> bool:
+        if self.gen.reports - self.saved_at >= self.every:
+            self.save()
+            return True
+        return False
+
+    def close(self) -> None:
+        self.save()
+        self.journal.close()
+
+    def resume(self) -> list[GoalRecord]:
+        """Restore the generator (if the directory holds a checkpoint). Returns the journaled goals
+        chosen after the checkpoint, oldest first: the caller chooses them again (``next_goal``)
+        when ``gen.reports`` reaches their ``after_report`` and compares. The journal stays open
+        (appending) until those goals are replayed; then call :meth:`save`."""
+        meta_path = self.dir / "generator.json"
+        if not meta_path.exists():
+            self.save()
+            return []
+        meta = json.loads(meta_path.read_text())
+        if meta.get("format") != FORMAT:
+            raise ValueError(f"checkpoint_dir: {meta_path} has format {meta.get('format')!r}; allowed: {FORMAT!r}")
+        for k, v in self._identity().items():
+            if meta.get(k) != v:
+                raise ValueError(f"checkpoint_dir: {meta_path} belongs to a run with {k} = {meta.get(k)!r}, "
+                                 f"this generator has {v!r}; allowed: a checkpoint of the same run or an empty directory")
+        gen = self.gen
+        with np.load(self.dir / meta["state_file"], allow_pickle=False) as z:
+            restore_tree(gen.tree, z)
+            gen.goals = [GoalRecord(int(s), p.copy(), int(m), int(a), None if np.isnan(c) else float(c))
+                         for s, p, m, a, c in zip(z["goal_seq"], z["goal_position"], z["goal_mode"],
+                                                  z["goal_after"], z["goal_competence"])]
+        gen.tree.splits = meta["splits"]
+        gen.reports = int(meta["reports"])
+        gen.ignored_outside = int(meta["ignored_outside"])
+        restore_rng(gen.rng, meta["rng"])
+        restore_rng(gen.tree.rng, meta["split_rng"])
+        g = int(meta["generation"])
+        pending: list[GoalRecord] = []
+        for k in self._generations("journal"):
+            if k < g:
+                continue
+            records, torn = read_journal(self._path("journal", k))
+            self.torn_bytes += torn
+            for kind, v in records:
+                if kind == REC_GOAL and int(v[0]) == len(gen.goals) + len(pending) + 1:
+                    pending.append(GoalRecord(int(v[0]), v[3:].copy(), int(v[2]), int(v[1])))
+        self.generation = max([g] + self._generations("journal"))
+        # keep appending to the newest journal: goals replayed from it are in it already
+        self.journal = Journal(self._path("journal", self.generation), self.fsync)
+        self.saved_at = gen.reports
+        self.resumed_from = {"generation": g, "reports": gen.reports, "goals": len(gen.goals),
+                             "pending_goals": len(pending), "torn_bytes": self.torn_bytes}
+        return pending

@@ -1,0 +1,210 @@
+"""Checkpoint and resume of the low-level learner (ROS-free; used by the learner node).
+
+Files in the checkpoint directory (``g`` = generation):
+
+- ``learner.json``: what generation ``g`` holds: counters (micro-actions, reports sent, attempts,
+  goals done, exploration phases, last competence), the learner's random state
+  (``bit_generator.state``), the memory file's name, length and digest, and the seed / strategy /
+  dimensions it belongs to (a checkpoint of another run is refused);
+- ``learner_memory_<g>.npz``: the sample memory (:meth:`SampleMemory.save`, atomic);
+- ``learner_journal_<k>.bin``: the write-ahead journal (:class:`~sagg_common.journal.Journal`) of
+  everything after checkpoint ``k``: one record per stored sample and per report, written *before*
+  the sample or report is published. Generation ``g`` keeps journal ``g - 1`` as well.
+
+A checkpoint is taken every ``every`` micro-actions (by the node, right after it has published the
+queued samples and reports) and at shutdown. Resume = load ``learner.json``'s generation, then
+apply every journal ``>= g`` in order (a torn trailing record, from a kill in mid-write, is
+dropped); so the memory holds every sample whose record was written, exactly once (records of
+samples already in the memory are skipped by index). Since every sample and report is journaled
+before it is published, everything any subscriber ever saw is restored.
+
+What is not restored, by design (documented in the README): the coroutine's position inside the
+current reaching attempt (or actuator babbling cycle). The resumed learner observes the robot and
+starts a new attempt (a return to rest when due, then a goal request after the reports it has
+sent); the interrupted attempt is abandoned (its goal gets no final report). Its random stream is
+the checkpoint's state, jumped ahead (``bit_generator.jumped()``) when the journal had records past
+the checkpoint, so numbers already drawn are not drawn again. ACTUATOR-RIAC's region tree is not
+saved: checkpointing is refused for that strategy.
+
+Republishing: the resumed node republishes the journaled samples and reports of the journals it
+found (the last two checkpoint intervals); receivers drop indices / sequence numbers they have.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from sagg_common.journal import Journal, read_journal, restore_rng, rng_state, write_json_atomic
+
+from .learner import EvolvingContextLearner, Report
+from .memory import SampleMemory
+
+REC_SAMPLE, REC_REPORT = 1, 2
+_COUNTERS = ("micro_actions", "reports_sent", "attempts", "goals_done", "exploration_phases")
+FORMAT = "sagg.learner_checkpoint/1"
+
+
+class LearnerCheckpointer:
+    """Checkpoints and journal of one :class:`EvolvingContextLearner` in ``directory``."""
+
+    def __init__(self, directory: str | Path, learner: EvolvingContextLearner, every: int,
+                 fsync: bool = False):
+        if learner.strategy == "actuator-riac":
+            raise ValueError("checkpoint_dir: checkpoints are not supported for strategy actuator-riac "
+                             "(its region tree is not saved); allowed: an empty checkpoint_dir")
+        if int(every) < 1:
+            raise ValueError(f"checkpoint_every: got {every}; allowed: an integer >= 1")
+        self.dir = Path(directory)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.learner = learner
+        self.every = int(every)
+        self.fsync = fsync
+        self.generation = 0
+        self.saved_at = 0
+        self.journal: Journal | None = None
+        self.torn_bytes = 0
+        self.resumed_from: dict | None = None
+
+    # ------------------------------------------------------------------ journal records
+    def _counters(self) -> list[float]:
+        lr = self.learner
+        return [float(getattr(lr, c)) for c in _COUNTERS] + [float(lr.last_competence)]
+
+    def on_sample(self, idx: int) -> None:
+        """Journal sample ``idx`` (call before publishing it)."""
+        mem = self.learner.memory
+        self.journal.append(REC_SAMPLE, np.concatenate((
+            [float(idx)], self._counters(), mem.alpha[idx], mem.delta_alpha[idx], mem.delta_y[idx])))
+
+    def on_report(self, r: Report) -> None:
+        """Journal report ``r`` (call before publishing it)."""
+        target = np.asarray(r.target, float).ravel()
+        self.journal.append(REC_REPORT, np.concatenate((
+            [float(r.seq), float(r.goal_seq), float(r.kind), float(r.micro_actions), float(r.competence),
+             float(len(target))], self._counters(), target, np.asarray(r.reached, float).ravel(),
+            np.asarray(r.start, float).ravel())))
+
+    # ------------------------------------------------------------------ files
+    def _path(self, kind: str, g: int) -> Path:
+        return self.dir / f"learner_{kind}_{g}.{'npz' if kind == 'memory' else 'bin'}"
+
+    def _generations(self, kind: str) -> list[int]:
+        pat = re.compile(rf"learner_{kind}_(\d+)\.(npz|bin)$")
+        return sorted(int(m.group(1)) for p in self.dir.iterdir() if (m := pat.match(p.name)))
+
+    def _identity(self) -> dict:
+        lr = self.learner
+        return {"seed": lr.p["seed"], "strategy": lr.strategy, "joints": lr.robot.n, "task_dim": lr.m}
+
+    def save(self) -> None:
+        """New generation: switch the journal, save the memory, then the JSON pointing at it; then
+        delete what the new generation no longer needs (journals < g - 1, older memories)."""
+        lr = self.learner
+        g = self.generation + 1
+        old = self.journal
+        self.journal = Journal(self._path("journal", g), self.fsync)
+        if old is not None:
+            old.close()
+        mem_path = self._path("memory", g)
+        lr.memory.save(mem_path)
+        write_json_atomic(self.dir / "learner.json", {
+            "format": FORMAT, "generation": g, **self._identity(),
+            **{c: int(getattr(lr, c)) for c in _COUNTERS},
+            "last_competence": float(lr.last_competence), "rng": rng_state(lr.rng),
+            "memory_file": mem_path.name, "memory_samples": len(lr.memory), "memory_digest": lr.memory.digest()})
+        self.generation = g
+        self.saved_at = lr.micro_actions
+        for k in self._generations("journal"):
+            if k < g - 1:
+                self._path("journal", k).unlink(missing_ok=True)
+        for k in self._generations("memory"):
+            if k < g:
+                self._path("memory", k).unlink(missing_ok=True)
+
+    def maybe_save(self) -> bool:
+        if self.learner.micro_actions - self.saved_at >= self.every:
+            self.save()
+            return True
+        return False
+
+    def close(self) -> None:
+        """Final checkpoint (shutdown) and close the journal."""
+        self.save()
+        self.journal.close()
+
+    # ------------------------------------------------------------------ resume
+    def resume(self) -> list:
+        """Restore the learner from the directory (if it holds a checkpoint) and start a new
+        generation. Returns what to republish, in order: sample indices (int) and
+        :class:`Report` objects from the journals found. Without a checkpoint: starts generation 1
+        from the learner as it is and returns []."""
+        meta_path = self.dir / "learner.json"
+        if not meta_path.exists():
+            self.save()
+            return []
+        meta = json.loads(meta_path.read_text())
+        if meta.get("format") != FORMAT:
+            raise ValueError(f"checkpoint_dir: {meta_path} has format {meta.get('format')!r}; allowed: {FORMAT!r}")
+        ident = self._identity()
+        for k, v in ident.items():
+            if meta.get(k) != v:
+                raise ValueError(f"checkpoint_dir: {meta_path} belongs to a run with {k} = {meta.get(k)!r}, "
+                                 f"this learner has {v!r}; allowed: a checkpoint of the same run or an empty directory")
+        lr = self.learner
+        mem = SampleMemory.load(self.dir / meta["memory_file"])
+        if len(mem) != meta["memory_samples"] or mem.digest() != meta["memory_digest"]:
+            raise ValueError(f"checkpoint_dir: {meta['memory_file']} does not match {meta_path}")
+        lr.memory = mem
+        for c in _COUNTERS:
+            setattr(lr, c, int(meta[c]))
+        lr.last_competence = float(meta["last_competence"])
+        restore_rng(lr.rng, meta["rng"])
+        g = int(meta["generation"])
+        n, m = lr.robot.n, lr.m
+        replay: list = []
+        applied = 0
+        for k in self._generations("journal"):
+            if k < g - 1:
+                continue
+            records, torn = read_journal(self._path("journal", k))
+            self.torn_bytes += torn
+            for kind, v in records:
+                counters = v[1:7] if kind == REC_SAMPLE else v[6:12]
+                if kind == REC_SAMPLE:
+                    idx = int(v[0])
+                    a, da, dy = v[7:7 + n], v[7 + n:7 + 2 * n], v[7 + 2 * n:7 + 2 * n + m]
+                    if idx == len(mem):
+                        mem.add(a, da, dy)
+                    elif idx > len(mem):
+                        raise ValueError(f"checkpoint_dir: journal {k} jumps to sample {idx} with "
+                                         f"{len(mem)} samples restored (a journal file is missing)")
+                    replay.append(idx)
+                elif kind == REC_REPORT:
+                    tlen = int(v[5])
+                    rest = v[12:]
+                    replay.append(Report(int(v[0]), int(v[1]), int(v[2]), rest[:tlen].copy(),
+                                         rest[tlen:tlen + m].copy(), rest[tlen + m:tlen + 2 * m].copy(),
+                                         float(v[4]), int(v[3])))
+                else:
+                    continue
+                if k >= g and counters[0] >= lr.micro_actions and counters[1] >= lr.reports_sent:
+                    for c, val in zip(_COUNTERS, counters[:5]):
+                        setattr(lr, c, int(val))
+                    if not math.isnan(counters[5]):
+                        lr.last_competence = float(counters[5])
+                    applied += 1
+        if lr.micro_actions != len(mem):
+            raise ValueError(f"checkpoint_dir: {lr.micro_actions} micro-actions but {len(mem)} samples restored")
+        if applied:
+            # numbers drawn after the checkpoint must not be drawn again
+            lr.rng = np.random.Generator(lr.rng.bit_generator.jumped())
+        self.resumed_from = {"generation": g, "journal_records_applied": applied,
+                             "torn_bytes": self.torn_bytes, "samples": len(mem),
+                             "reports": lr.reports_sent, "republish": len(replay)}
+        self.generation = max([g] + self._generations("journal"))
+        self.save()
+        return replay
