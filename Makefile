@@ -1,7 +1,8 @@
 # sagg: set-up, build and entry points.
 #
 #   make run     set up (if needed), then run the main experiment: sagg run config/arm8.yaml
-#   make test    set up (if needed), then run the test suite
+#   make test    set up (if needed) + the optional Ray extra, then run the test suite
+#   make ray     install the optional Ray extra (requirements-ray.txt) for sagg bench compare --ray
 #   make setup   everything but running: .venv + pinned wheels + sagg_msgs + editable packages
 #   make msgs    (re)build and install the sagg_msgs interface package into .venv
 #   make lock    regenerate requirements.txt (full pinned lock) from requirements.in
@@ -34,11 +35,12 @@ STAMP_WHEELS := $(VENV)/.stamp-wheels
 STAMP_MSGS := $(VENV)/.stamp-msgs
 STAMP_PKGS := $(VENV)/.stamp-pkgs
 DATA_LIST := $(VENV)/.stamp-datafiles
+STAMP_RAY := $(VENV)/.stamp-ray
 
 # Keep ROS 2 discovery on this machine (the default multicasts on every interface).
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup msgs run test lock clean FORCE
+.PHONY: setup msgs run test lock clean ray FORCE
 
 setup: $(STAMP_MSGS) $(STAMP_PKGS)
 
@@ -47,8 +49,15 @@ msgs: $(STAMP_MSGS)
 run: setup
 	$(VENV)/bin/sagg run config/arm8.yaml
 
-test: setup
+test: setup $(STAMP_RAY)
 	$(PY) -m pytest -q test/
+
+# Optional Ray extra (sagg bench compare --ray); the tests cover that path, `make run` does not need it.
+ray: $(STAMP_RAY)
+
+$(STAMP_RAY): requirements-ray.txt $(STAMP_WHEELS)
+	$(PIP) install --no-input -r requirements-ray.txt
+	@touch $@
 
 $(STAMP_VENV):
 	@test -n "$(PYTHON)" || { echo "error: python3.11 (or python3) not found" >&2; exit 1; }

@@ -13,8 +13,9 @@ state machine; nothing ever sleeps or blocks the executor):
   reports 1..after_report), answered from the response.
 
 Every report is published on ``/sagg/competence`` and every stored sample on ``/sagg/sample``, in
-order, right after the command (or goal request) that follows them, so the driver works while we
-publish; ``/sagg/status`` at 2 Hz. Hot-path topics travel as raw CDR (``sagg_common.cdr``). At ``max_micro_actions`` the learner stops
+order, in bursts right after a command (or goal request) went out, so the driver works while we
+publish: every goal request, every ``publish_batch`` items and at least every ``publish_period``
+(a burst costs each receiver one wake-up, not one per message); ``/sagg/status`` at 2 Hz. Hot-path topics travel as raw CDR (``sagg_common.cdr``). At ``max_micro_actions`` the learner stops
 acting (exactly where the in-process ``InProcessRun.step_until`` stops) and says so in its status.
 """
 from __future__ import annotations
@@ -72,6 +73,15 @@ NODE_SCHEMA: Schema = (
           "not taken for the settled result.", low=0.0, high=3600.0),
     Param("max_micro_actions", "int", 0,
           "Stop acting after this many micro-actions (0 = unlimited).", low=0),
+    Param("publish_batch", "int", 64,
+          "Reports and samples are queued and published in bursts: when this many are queued, "
+          "before every goal request (the generator needs the reports so far), at a stop, and at "
+          "least every publish_period. Bursts cost the receivers one wake-up instead of one per "
+          "message; 1 = publish after every micro-action. Our choice (transport only: the run is "
+          "the same).", low=1, high=1_000_000),
+    Param("publish_period", "float", 0.1,
+          "Longest time (s) a queued report or sample waits before it is published (live views).",
+          low=0.0, high=3600.0, low_open=True),
     Param("min_sample_subscribers", "int", 0,
           "Start only once /sagg/sample has at least this many matched subscribers (e.g. 1 when a "
           "recorder must see every sample). 0 = do not wait.", low=0, high=1000),
@@ -149,9 +159,9 @@ class LearnerNode(Node):
         # --- coroutine
         self.state = self.STARTING
         self.pause_reason = "waiting for joint_states, task point, controller and goal generator"
-        # Reports and samples are queued while the coroutine runs and published right after the
-        # next command (or goal request) went out: the driver then works on the command while we
-        # publish, instead of waiting for us (same messages, same order).
+        # Reports and samples are queued while the coroutine runs and published in bursts right
+        # after a command (or goal request) went out: the driver then works on the command while we
+        # publish, instead of waiting for us (same messages, same order; publish_batch).
         self.outbox: list = []
         self.learner.on_report = self.outbox.append
         self.learner.on_sample = self.outbox.append
@@ -172,6 +182,8 @@ class LearnerNode(Node):
         try:
             st, names, pos, vel = self.js_decoder.decode(data)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
+        self.publish_batch, self.publish_period = p["publish_batch"], p["publish_period"]
+        self.last_flush = time.monotonic()
             self.get_logger().error(f"joint_states: undecodable message ({exc})", throttle_duration_sec=5.0)
             return
         if names is not self._names and not self._map_names(names):
@@ -256,6 +268,9 @@ class LearnerNode(Node):
             infos = self.get_subscriptions_info_by_topic("/sagg/competence")
             if not any(i.node_name == "sagg_goal_generator" for i in infos):
                 return False
+        if (self.outbox and self.state is not self.STARTING
+                and time.monotonic() - self.last_flush >= self.publish_period):
+            self.flush()
             if self.report_pub.get_subscription_count() < len(infos):
                 return False
         need = self.params["min_sample_subscribers"]
@@ -295,7 +310,9 @@ class LearnerNode(Node):
                 self.state = self.RUNNING_GOAL
                 fut = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
                 fut.add_done_callback(self.on_goal)
-                if self.outbox:
+                # while the driver works: publish the queued reports/samples in bursts
+                if self.outbox and (len(self.outbox) >= self.publish_batch
+                                    or self.cmd_time - self.last_flush >= self.publish_period):
                     self.flush()
                 return
             if type(req) is Observe:
@@ -355,6 +372,7 @@ class LearnerNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.strategy = learner.strategy.upper()
         msg.micro_actions = learner.micro_actions
+        self.last_flush = time.monotonic()
         msg.goals = self.goals_received
         msg.samples = len(learner.memory)
         msg.last_competence = float(learner.last_competence)
