@@ -24,7 +24,9 @@ from typing import Callable, Generator
 import numpy as np
 
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
+from sagg_common.params import ConfigError
 from sagg_common.rng import stream
+from sagg_common.synergy import SinusoidSynergy, VelocitySynergy
 from sagg_goal_generator.competence import competence, gamma, is_reached
 from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_goal_generator.regions import RegionTree
@@ -92,6 +94,82 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "Test goals are picked spread over the outcomes of this many uniformly random synergies "
           "(the reachable area is unknown beforehand, Sec. 4.2; our choice).", low=1, high=10_000_000),
 )
+
+
+# Synergy parameters: the learner turns θ into a joint trajectory, so it knows the synergy (the bridge
+# only runs trajectories). Defaults = the simulated quadruped (sagg_sim_bridge.quadruped; the tests
+# check they agree); config/fishing.yaml sets the fishing rod's.
+QUADRUPED_JOINTS = [f"{leg}_{j}" for leg in ("fl", "fr", "hl", "hr") for j in ("hip_abd", "hip_flex", "knee")]
+QUADRUPED_REST = [0.0, 0.35, -0.7, 0.0, 0.35, -0.7, 0.0, -0.35, 0.7, 0.0, -0.35, 0.7]
+
+SYNERGY_SCHEMA: Schema = (
+    Param("joints", "str_list", QUADRUPED_JOINTS,
+          "Joint names of the synergy, in the order of the trajectory's joint_names."),
+    Param("rest_posture", "float_list", QUADRUPED_REST,
+          "Rest posture (rad), one per joint: the sinusoids' centre (synergy.kind 'sinusoid')."),
+    Param("synergy.kind", "str", "sinusoid",
+          "'sinusoid': θ = amplitudes + phases, joint i tracks rest_i + am_i·sin(ωt + ph_i) (Sec. 4.2); "
+          "'velocity': θ ∈ [0,1]^n scaled to joint velocities tracked for synergy.duration, then stop "
+          "(Sec. 5.1).", choices=("sinusoid", "velocity")),
+    Param("synergy.omega", "float", 2 * math.pi,
+          "ω (rad/s) of the sinusoids; fixed (Sec. 4.2; no value in the paper: ours 1 Hz).",
+          low=0.0, high=1e4, low_open=True),
+    Param("synergy.duration", "float", 3.0,
+          "Duration (s) of one experiment's trajectory (Sec. 4.2: fixed, no value; Sec. 5.1: 2 s).",
+          low=0.0, high=3600.0, low_open=True),
+    Param("synergy.rate", "float", 50.0,
+          "Trajectory points per second sent to the controller (our choice).", low=0.0, high=10_000.0,
+          low_open=True),
+    Param("synergy.amplitude_max", "float_list", [0.2, 0.5, 0.5] * 4,
+          "Upper bound (rad) of each joint's amplitude am_i (lower bound 0); the paper gives none.",
+          low=0.0, high=10.0),
+    Param("synergy.velocity_lower", "float_list", [-1.5] * 4,
+          "Joint velocity (rad/s) that θ_i = 0 stands for (synergy.kind 'velocity'; our choice).",
+          low=-100.0, high=100.0),
+    Param("synergy.velocity_upper", "float_list", [1.5] * 4,
+          "Joint velocity (rad/s) that θ_i = 1 stands for (synergy.kind 'velocity'; our choice).",
+          low=-100.0, high=100.0),
+)
+
+# Parameters of the synergy learner node (ROS-free here so that `sagg experiment` accepts the same
+# config files as `sagg run`).
+SYNERGY_NODE_SCHEMA: Schema = (
+    Param("controller", "str", "joint_trajectory_controller",
+          "Trajectory controller name: synergies go to /<controller>/joint_trajectory "
+          "(trajectory_msgs/JointTrajectory, the joint_trajectory_controller contract)."),
+    Param("task_topic", "str", "/body_pose",
+          "Outcome topic: geometry_msgs/PoseStamped (3-D task space: u, v and the yaw φ) or "
+          "PointStamped (2-D: x, y; NaN coordinates = no outcome, e.g. the float missed the water). "
+          "Its header.stamp echoes the trajectory's header.stamp."),
+    Param("response_timeout", "float", 60.0,
+          "Seconds to wait for the outcome of one trajectory before the node gives up with an error.",
+          low=0.0, high=86400.0, low_open=True),
+    Param("max_experiments", "int", 0,
+          "Stop after this many stored experiments (0 = unlimited).", low=0),
+    Param("min_sample_subscribers", "int", 0,
+          "Start only once /sagg/sample has at least this many matched subscribers. 0 = do not wait.",
+          low=0, high=1000),
+)
+
+
+def synergy_from_params(p: dict):
+    """The synergy (θ → trajectory) described by resolved SYNERGY_SCHEMA parameters."""
+    n = len(p["joints"])
+    if len(set(p["joints"])) != n:
+        raise ConfigError(f"parameter 'joints': got {p['joints']!r}; allowed: distinct joint names")
+    names = (("rest_posture", "synergy.amplitude_max") if p["synergy.kind"] == "sinusoid"
+             else ("synergy.velocity_lower", "synergy.velocity_upper"))
+    for name in names:
+        if len(p[name]) != n:
+            raise ConfigError(f"parameter '{name}': got {len(p[name])} values; allowed: one per joint ({n})")
+    try:
+        if p["synergy.kind"] == "sinusoid":
+            return SinusoidSynergy(p["joints"], p["rest_posture"], p["synergy.amplitude_max"],
+                                   p["synergy.omega"], p["synergy.duration"], p["synergy.rate"])
+        return VelocitySynergy(p["joints"], p["synergy.velocity_lower"], p["synergy.velocity_upper"],
+                               p["synergy.duration"], p["synergy.rate"])
+    except ValueError as exc:
+        raise ConfigError(f"parameter {exc}") from exc
 
 
 @dataclass
