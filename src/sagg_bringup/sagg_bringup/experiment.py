@@ -100,6 +100,12 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
                    micro_actions: int, eval_every: int, out_dir: str | Path | None,
                    progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
     """Run one (strategy, seed) experiment in-process and write ``out_dir/result.json``."""
+    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): fixed-context
+    # learner and synergy simulators, same result.json keys (micro_actions = experiments)
+    from .synergy_experiment import config_setup, run_synergy_experiment
+    if config_setup(config_path) is not None:
+        return run_synergy_experiment(config_path, strategy, seed, micro_actions, eval_every, out_dir,
+                                      progress=progress, overrides=overrides)
     if micro_actions < 1:
         raise ConfigError(f"--micro-actions: got {micro_actions}; allowed: an integer >= 1")
     if eval_every < 1:
