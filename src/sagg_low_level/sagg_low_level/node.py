@@ -163,6 +163,8 @@ class LearnerNode(Node):
         # after a command (or goal request) went out: the driver then works on the command while we
         # publish, instead of waiting for us (same messages, same order; publish_batch).
         self.outbox: list = []
+        self.publish_batch, self.publish_period = p["publish_batch"], p["publish_period"]
+        self.last_flush = time.monotonic()
         self.learner.on_report = self.outbox.append
         self.learner.on_sample = self.outbox.append
         self.coro = self.learner.run()
@@ -182,8 +184,6 @@ class LearnerNode(Node):
         try:
             st, names, pos, vel = self.js_decoder.decode(data)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
-        self.publish_batch, self.publish_period = p["publish_batch"], p["publish_period"]
-        self.last_flush = time.monotonic()
             self.get_logger().error(f"joint_states: undecodable message ({exc})", throttle_duration_sec=5.0)
             return
         if names is not self._names and not self._map_names(names):
@@ -255,6 +255,9 @@ class LearnerNode(Node):
                     self.get_logger().warning(
                         f"no fresh joint_states/task point {time.monotonic() - self.cmd_time:.1f} s after "
                         f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
+        if (self.outbox and self.state is not self.STARTING
+                and time.monotonic() - self.last_flush >= self.publish_period):
+            self.flush()
 
     def _ready(self) -> bool:
         if self.js_alpha is None or self.tip is None:
@@ -268,9 +271,6 @@ class LearnerNode(Node):
             infos = self.get_subscriptions_info_by_topic("/sagg/competence")
             if not any(i.node_name == "sagg_goal_generator" for i in infos):
                 return False
-        if (self.outbox and self.state is not self.STARTING
-                and time.monotonic() - self.last_flush >= self.publish_period):
-            self.flush()
             if self.report_pub.get_subscription_count() < len(infos):
                 return False
         need = self.params["min_sample_subscribers"]
@@ -303,16 +303,16 @@ class LearnerNode(Node):
                 self.state = self.RUNNING_COMMAND
                 self.cmd_time = time.monotonic()
                 self.cmd_pub.publish(data)
-                if self.outbox:
+                # while the driver works: publish the queued reports/samples in bursts
+                if self.outbox and (len(self.outbox) >= self.publish_batch
+                                    or self.cmd_time - self.last_flush >= self.publish_period):
                     self.flush()
                 return
             if type(req) is GoalRequest:
                 self.state = self.RUNNING_GOAL
                 fut = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
                 fut.add_done_callback(self.on_goal)
-                # while the driver works: publish the queued reports/samples in bursts
-                if self.outbox and (len(self.outbox) >= self.publish_batch
-                                    or self.cmd_time - self.last_flush >= self.publish_period):
+                if self.outbox:
                     self.flush()
                 return
             if type(req) is Observe:
@@ -345,6 +345,7 @@ class LearnerNode(Node):
             elif reports:
                 self.publish_report(item)
         box.clear()
+        self.last_flush = time.monotonic()
 
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds if self.sim_time else time.time_ns()
@@ -372,7 +373,6 @@ class LearnerNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.strategy = learner.strategy.upper()
         msg.micro_actions = learner.micro_actions
-        self.last_flush = time.monotonic()
         msg.goals = self.goals_received
         msg.samples = len(learner.memory)
         msg.last_competence = float(learner.last_competence)
