@@ -225,3 +225,28 @@ def test_ray_local_instance_gives_the_process_pool_results(resumed, tmp_path):
         assert ray_res["curve"] == pool_res["curve"]
         assert ray_res["memory"]["digest"] == pool_res["memory"]["digest"]
     assert (out / "summary.md").exists()
+
+
+def test_bench_speed_rows_and_bytes_per_sample():
+    from sagg_bringup.bench import babbling_samples, bench_speed
+    from sagg_bringup.experiment import InProcessRun, load_experiment_config
+    run = InProcessRun(load_experiment_config(CONFIG, {"arm.dof": 7}))
+    a, da, dy = babbling_samples(run, 450, period=200)
+    assert a.shape == da.shape == (450, 7) and dy.shape == (450, 2)
+    # walks start at rest every 200 samples, and Δy is the simulator's tip displacement
+    assert np.array_equal(a[200], run.sim.rest) and np.array_equal(a[400], run.sim.rest)
+    tips = run.sim.tip_positions(np.vstack([a[:5], a[4] + da[4]]))
+    assert np.allclose(dy[:5], np.diff(tips, axis=0))
+    lines = []
+    res = bench_speed(CONFIG, dofs=(7,), sizes=(600, 300), measure=40,
+                      strategies=("sagg-riac", "actuator-random"), graph=False, out=lines.append)
+    rows = res["rows"]
+    assert [(r["strategy"], r["stored"]) for r in rows] == [
+        ("sagg-riac", 300), ("sagg-riac", 600), ("actuator-random", 300), ("actuator-random", 600)]
+    for r in rows:
+        assert r["data_bytes_per_sample"] == (7 + 7 + 2) * 8
+        assert r["bytes_per_sample"] > r["data_bytes_per_sample"]
+        assert r["rate"] > 0
+    assert rows[0]["cost_ratio"] == 1.0 and rows[2]["cost_ratio"] == 1.0
+    assert res["worst_cost_ratio"] == max(r["cost_ratio"] for r in rows)
+    assert any("criterion <= 2" in line for line in lines)

@@ -15,58 +15,122 @@ from sagg_common.rng import stream
 from .experiment import InProcessRun, load_experiment_config
 
 
-def prefill(run: InProcessRun, size: int, seed: int = 0) -> None:
-    """Fill the learner's memory with ``size`` samples of motor babbling (a random walk of the
-    joints around rest with periodic returns), computed with the simulator's batched kinematics.
-    Cheap and representative of the samples a run accumulates."""
+def babbling_samples(run: InProcessRun, size: int, seed: int = 0, period: int = 200):
+    """``size`` samples of motor babbling: random walks of the joints from rest (steps uniform in
+    ±explore_amplitude, back to rest every ``period`` steps), all walks stepped together and their
+    tips computed with the simulator's batched kinematics. Cheap and representative of the samples
+    a run accumulates. Returns (alpha, delta_alpha, delta_y)."""
     sim, learner = run.sim, run.learner
     rng = stream(seed, "bench_prefill")
     n = sim.n_joints
     amp = learner.p["explore_amplitude"]
-    period = 200
-    done = 0
-    while done < size:
-        steps = min(period, size - done)
-        walk = np.empty((steps + 1, n))
-        walk[0] = sim.rest
-        for t in range(steps):
-            walk[t + 1] = np.clip(walk[t] + rng.uniform(-amp, amp, n), sim.lower, sim.upper)
-        tips = sim.tip_positions(walk)
-        da, dy = np.diff(walk, axis=0), np.diff(tips, axis=0)
-        for t in range(steps):
-            learner.memory.add(walk[t], da[t], dy[t])
-        done += steps
+    walks = -(-size // period)
+    path = np.empty((period + 1, walks, n))
+    path[0] = sim.rest
+    for t in range(period):
+        path[t + 1] = np.clip(path[t] + rng.uniform(-amp, amp, (walks, n)), sim.lower, sim.upper)
+    tips = sim.tip_positions(path.reshape(-1, n)).reshape(period + 1, walks, -1)
+    # walk by walk, in time order (the order a run stores them)
+    alpha = path[:-1].transpose(1, 0, 2).reshape(-1, n)[:size]
+    dalpha = np.diff(path, axis=0).transpose(1, 0, 2).reshape(-1, n)[:size]
+    dy = np.diff(tips, axis=0).transpose(1, 0, 2).reshape(walks * period, -1)[:size]
+    return alpha, dalpha, dy
 
 
-def bench_speed(config: str | Path, dofs=(7, 15), modes=("kinematic", "dynamic"),
-                sizes=(10_000, 200_000), measure: int = 2000, strategy: str = "sagg-riac",
-                out=print) -> list[dict]:
-    """Micro-actions per second after prefilling the memory to each size; prints a table."""
+def prefill(run: InProcessRun, size: int, seed: int = 0) -> None:
+    """Fill the learner's memory with ``size`` babbling samples (``babbling_samples``)."""
+    add = run.learner.memory.add
+    for a, da, dy in zip(*babbling_samples(run, size, seed)):
+        add(a, da, dy)
+
+
+def _sample_bytes(mem) -> dict:
+    """Bytes per stored sample, measured from the memory's arrays: ``held`` = everything the
+    memory allocates (sample arrays with spare capacity, kd index, buffer, caches) / samples;
+    ``data`` = the (α, Δα, Δy) rows themselves."""
+    n = len(mem)
+    data = (mem.alpha.nbytes + mem.delta_alpha.nbytes + mem.delta_y.nbytes) / n
+    return {"held": mem.nbytes / n, "data": data}
+
+
+def bench_speed(config: str | Path, dofs=(7, 15, 30), modes=("kinematic",),
+                sizes=(10_000, 100_000, 1_000_000), measure: int = 2000,
+                strategies=("sagg-riac", "sagg-random", "actuator-random", "actuator-riac"),
+                graph: bool = True, graph_micro_actions: int = 2000, profile: int = 0,
+                graph_config: str | Path = "config/arm8.yaml", out=print) -> dict:
+    """In-process micro-actions per second after prefilling the memory to each size, for every
+    (dof, mode, strategy); the cost ratio compares each size with the smallest one of the same
+    row group, in this same command. The memory of each (dof, size) is built once (samples added
+    one by one, as a run does), saved as .npz and loaded (index rebuilt identically) for each
+    strategy. With ``graph``, also the graph vs in-process vs bare rclpy ping-pong line
+    (``bench_graph``). With ``profile`` > 0, the top functions (by own time) of the last timed
+    window are printed: where the time goes."""
+    import cProfile
+    import io
+    import pstats
+    import tempfile
+
+    from sagg_low_level.memory import SampleMemory
+
+    sizes = sorted(sizes)
     rows = []
-    out(f"{'dof':>4} {'mode':>10} {'stored':>9} {'micro-actions/s':>16} {'us/micro-action':>16} "
-        f"{'cost ratio':>11}")
-    for dof in dofs:
-        for mode in modes:
-            base = None
-            for size in sizes:
-                cfg = load_experiment_config(config, {"arm.dof": dof, "arm.mode": mode,
-                                                      "strategy": strategy})
-                run = InProcessRun(cfg)
-                prefill(run, size)
-                run.step_until(50)  # warm up caches and code paths
-                start_ma = run.learner.micro_actions
-                t0 = time.perf_counter()
-                run.step_until(start_ma + measure)
-                dt = time.perf_counter() - t0
-                rate = measure / dt
-                cost = dt / measure
-                base = base or cost
-                row = {"dof": dof, "mode": mode, "stored": size, "rate": rate,
-                       "us_per_micro_action": cost * 1e6, "cost_ratio": cost / base}
-                rows.append(row)
-                out(f"{dof:>4} {mode:>10} {size:>9} {rate:>16,.0f} {cost * 1e6:>16.1f} "
-                    f"{cost / base:>11.2f}")
-    return rows
+    out(f"{'dof':>4} {'mode':>10} {'strategy':>16} {'stored':>9} {'micro-actions/s':>16} "
+        f"{'us/micro-action':>16} {'cost ratio':>11} {'bytes/sample held':>18} {'data':>6}")
+    prof_text = ""
+    with tempfile.TemporaryDirectory(prefix="sagg-speed-") as tmp:
+        for dof in dofs:
+            for mode in modes:
+                cfgs = {st: load_experiment_config(config, {"arm.dof": dof, "arm.mode": mode,
+                                                            "strategy": st}) for st in strategies}
+                files = {}
+                for size in sizes:
+                    run = InProcessRun(cfgs[strategies[0]])
+                    prefill(run, size)
+                    files[size] = Path(tmp) / f"mem-{dof}-{mode}-{size}.npz"
+                    run.learner.memory.save(files[size])
+                    del run
+                for st in strategies:
+                    base = None
+                    for size in sizes:
+                        run = InProcessRun(cfgs[st])
+                        run.learner.memory = SampleMemory.load(files[size])
+                        nbytes = _sample_bytes(run.learner.memory)
+                        run.step_until(50)  # warm up caches, code paths, the first array growth
+                        start_ma = run.learner.micro_actions
+                        prof = cProfile.Profile() if profile else None
+                        t0 = time.perf_counter()
+                        if prof:
+                            prof.enable()
+                        run.step_until(start_ma + measure)
+                        if prof:
+                            prof.disable()
+                        dt = time.perf_counter() - t0
+                        cost = dt / measure
+                        base = base or cost
+                        row = {"dof": dof, "mode": mode, "strategy": st, "stored": size,
+                               "rate": measure / dt, "us_per_micro_action": cost * 1e6,
+                               "cost_ratio": cost / base, "bytes_per_sample": nbytes["held"],
+                               "data_bytes_per_sample": nbytes["data"]}
+                        rows.append(row)
+                        out(f"{dof:>4} {mode:>10} {st:>16} {size:>9} {measure / dt:>16,.0f} "
+                            f"{cost * 1e6:>16.1f} {cost / base:>11.2f} {nbytes['held']:>18.0f} "
+                            f"{nbytes['data']:>6.0f}")
+                        if prof:
+                            buf = io.StringIO()
+                            pstats.Stats(prof, stream=buf).sort_stats("tottime").print_stats(profile)
+                            prof_text = (f"profile of the last row ({dof} DOF {mode} {st}, {size} "
+                                         f"stored; cProfile inflates Python-call-heavy code):\n"
+                                         + buf.getvalue())
+                        del run
+    worst = max(r["cost_ratio"] for r in rows)
+    out(f"worst cost ratio (largest / smallest size, same dof, mode, strategy): {worst:.2f} "
+        f"(criterion <= 2)")
+    if prof_text:
+        out(prof_text)
+    res = {"rows": rows, "worst_cost_ratio": worst}
+    if graph:
+        res["graph"] = bench_graph(graph_config, graph_micro_actions, repeats=1, out=out)
+    return res
 
 
 def graph_rate(config: str | Path, micro_actions: int, overrides: dict | None = None,

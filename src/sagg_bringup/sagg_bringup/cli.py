@@ -110,13 +110,19 @@ def build_parser() -> argparse.ArgumentParser:
     bsub = b.add_subparsers(dest="bench", required=True)
     s = bsub.add_parser("speed", help="in-process micro-actions/s against stored samples")
     s.add_argument("--config", default="config/arm15.yaml")
-    s.add_argument("--dof", type=positive_int, nargs="+", default=[7, 15])
-    s.add_argument("--modes", nargs="+", choices=["kinematic", "dynamic"],
-                   default=["kinematic", "dynamic"])
-    s.add_argument("--sizes", type=positive_int, nargs="+", default=[10_000, 200_000])
+    s.add_argument("--dof", type=positive_int, nargs="+", default=[7, 15, 30])
+    s.add_argument("--modes", nargs="+", choices=["kinematic", "dynamic"], default=["kinematic"])
+    s.add_argument("--sizes", type=positive_int, nargs="+", default=[10_000, 100_000, 1_000_000],
+                   help="stored samples before timing (cost ratios against the smallest)")
     s.add_argument("--measure", type=positive_int, default=2000,
                    help="micro-actions timed at each size")
-    s.add_argument("--strategy", choices=STRATEGIES, default="sagg-riac")
+    s.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    s.add_argument("--graph", action=argparse.BooleanOptionalAction, default=True,
+                   help="also measure graph vs in-process vs bare rclpy ping-pong (sagg bench graph)")
+    s.add_argument("--graph-config", default="config/arm8.yaml")
+    s.add_argument("--graph-micro-actions", type=positive_int, default=2000)
+    s.add_argument("--profile", type=int, default=0, metavar="N",
+                   help="print the N functions with the most own time in the last timed window")
     g = bsub.add_parser("graph", help="graph vs in-process micro-actions/s vs a bare rclpy ping-pong")
     g.add_argument("--config", default="config/arm8.yaml")
     g.add_argument("--micro-actions", type=positive_int, default=3000)
@@ -239,7 +245,9 @@ def main(argv: list[str] | None = None) -> int:
             return 1 if summ["failed_runs"] else 0
         if args.command == "bench" and args.bench == "speed":
             from .bench import bench_speed
-            bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategy)
+            bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,
+                        graph=args.graph, graph_micro_actions=args.graph_micro_actions,
+                        profile=args.profile, graph_config=args.graph_config)
             return 0
     except ConfigError as exc:
         print(f"sagg: error: {exc}", file=sys.stderr)
