@@ -209,6 +209,16 @@ class QuadrupedSim:
         """The outcome of doing nothing: (0, 0, 0) by construction of the start frame."""
         return np.zeros(3)
 
+    def set_rest_state(self, qpos, qvel) -> None:
+        """Replace the rest state every experiment starts from (tests: a known start pose/motion)."""
+        qpos = np.asarray(qpos, dtype=float)
+        qvel = np.asarray(qvel, dtype=float)
+        if qpos.shape != self._rest_qpos.shape or qvel.shape != self._rest_qvel.shape:
+            raise ValueError(f"rest state: allowed: qpos shape {self._rest_qpos.shape}, qvel shape "
+                             f"{self._rest_qvel.shape}")
+        self._rest_qpos, self._rest_qvel = qpos.copy(), qvel.copy()
+        self.reset()
+
     def reset(self) -> None:
         """Restore the fixed rest state (Alg. 4: 'Reset the current context: s_t = s_rest')."""
         mujoco.mj_resetData(self.model, self.data)
