@@ -41,6 +41,17 @@ NODE_SCHEMA: Schema = (
     Param("min_goal_subscribers", "int", 0,
           "Answer goal requests only once /sagg/goal has at least this many matched subscribers "
           "(e.g. 1 when a recorder must see every goal). 0 = do not wait.", low=0, high=1000),
+    # checkpoint / resume (sagg_goal_generator.checkpoint)
+    Param("checkpoint_dir", "str", "",
+          "Directory of the generator's checkpoints and goal journal (generator_*). Empty = off. If "
+          "it holds a checkpoint the generator resumes from it exactly (reports it missed come again "
+          "from the learner's transient_local /sagg/competence history)."),
+    Param("checkpoint_every", "int", 1000,
+          "Checkpoint every this many reports (and at shutdown). At most the learner's "
+          "/sagg/competence history (10000 reports), which re-sends the reports since the last "
+          "checkpoint after a crash. Our choice.", low=1, high=10000),
+    Param("journal_fsync", "bool", False,
+          "fsync the goal journal after every goal (survives a power cut, not only a killed process)."),
 )
 SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
@@ -84,10 +95,16 @@ class GoalGeneratorNode(Node):
         self.goal_pub = self.create_publisher(Goal, "/sagg/goal", reliable(100))
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
-        self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report, reliable(10000), raw=True)
+        # transient_local: after a restart, the reports missed come again from the learner's history
+        self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report,
+                                 reliable(10000, transient_local=True), raw=True)
         srv = self.create_service(NextGoal, "/sagg/next_goal", self.on_next_goal)
         srv.__class__ = DeferrableService
         self.waiting: list[Deferred] = []   # requests waiting for their reports
+        self.checkpointer = None
+        self.replay_goals: list = []  # journaled goals to choose again after a resume
+        self.goal_by_after: dict = {}  # after_report -> GoalRecord: a repeated request gets the same goal
+        self._setup_checkpoint()
         self.splits_published = -1
         self.regions_dirty = True
         self.create_timer(self.params["regions_period"], self.on_regions_timer)
@@ -104,6 +121,8 @@ class GoalGeneratorNode(Node):
         except (ValueError, IndexError, struct.error) as exc:
             self.get_logger().error(f"/sagg/competence: undecodable message ({exc})")
             return
+        if msg.seq <= gen.reports:
+            return  # already processed (re-sent from the learner's history or republished after a resume)
         if msg.seq != gen.reports + 1:
             self.get_logger().error(
                 f"competence report {msg.seq} received after report {gen.reports}: reports were lost "
@@ -111,6 +130,8 @@ class GoalGeneratorNode(Node):
         # Reached points / exploration samples carry the reached point (target may be empty).
         target = msg.target if len(msg.target) else msg.reached
         gen.report(msg.kind, target, msg.competence)
+        if self.checkpointer is not None:
+            self._after_report_checkpoint()
         self.regions_dirty = True
         if len(gen.tree.splits) != self.splits_published:
             self.publish_regions()
@@ -140,6 +161,8 @@ class GoalGeneratorNode(Node):
             response.goal.after_report = request.after_report
             return response
         after = request.after_report
+        if after in self.goal_by_after:  # a repeated request (learner's goal_retry): the same goal
+            return self._fill(response, self.goal_by_after[after])
         if after < self.gen.reports:
             self.get_logger().error(
                 f"goal requested after report {after} but {self.gen.reports} reports were already "
@@ -150,8 +173,14 @@ class GoalGeneratorNode(Node):
             return deferred  # answered by _release once reports 1..after are in
         return self._fill(response)
 
-    def _fill(self, response: NextGoal.Response) -> NextGoal.Response:
-        rec = self.gen.next_goal()
+    def _fill(self, response: NextGoal.Response, rec=None) -> NextGoal.Response:
+        if rec is None:
+            rec = self.goal_by_after.get(self.gen.reports)
+        if rec is None:  # (else: a repeated request, answered with the same goal)
+            rec = self.gen.next_goal()
+            if self.checkpointer is not None:
+                self.checkpointer.on_goal(rec)  # journaled before it is answered or published
+            self.goal_by_after = {rec.after_report: rec}  # only the newest goal can be asked again
         g = response.goal
         g.header.stamp = self.get_clock().now().to_msg()
         g.header.frame_id = "task_space"
@@ -161,6 +190,60 @@ class GoalGeneratorNode(Node):
         g.position = array.array("d", rec.position.tobytes())
         self.goal_pub.publish(g)
         return response
+
+    # ------------------------------------------------------------ checkpoint / resume
+    def _setup_checkpoint(self) -> None:
+        p = self.params
+        if not p["checkpoint_dir"]:
+            return
+        from .checkpoint import GeneratorCheckpointer
+        try:
+            ck = GeneratorCheckpointer(p["checkpoint_dir"], self.gen, p["checkpoint_every"], p["journal_fsync"])
+            self.replay_goals = ck.resume()
+        except (ValueError, OSError) as exc:
+            raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc
+        self.checkpointer = ck
+        self.goal_by_after = {r.after_report: r for r in self.gen.goals[-1:]}
+        if ck.resumed_from is not None:
+            info = ck.resumed_from
+            self.get_logger().info(
+                f"resumed from {p['checkpoint_dir']} (generation {info['generation']}): {info['reports']} "
+                f"reports, {info['goals']} goals, {info['pending_goals']} journaled goals to choose again, "
+                f"{info['torn_bytes']} torn bytes dropped")
+        self._replay_due_goals()
+
+    def _replay_due_goals(self) -> None:
+        """Choose again the journaled goals whose reports are all in (same draws as before the
+        crash); each must equal its journal record."""
+        gen = self.gen
+        while self.replay_goals and self.replay_goals[0].after_report == gen.reports:
+            want = self.replay_goals.pop(0)
+            rec = gen.next_goal()
+            if rec.seq != want.seq or rec.position.tobytes() != want.position.tobytes():
+                self.get_logger().error(
+                    f"resumed goal {rec.seq} differs from the journaled goal {want.seq}: using the journaled one")
+                gen.goals[-1] = rec = want
+            self.goal_by_after = {rec.after_report: rec}
+        if self.replay_goals and self.replay_goals[0].after_report < gen.reports:
+            self.get_logger().error(f"journaled goal {self.replay_goals[0].seq} followed report "
+                                    f"{self.replay_goals[0].after_report}, already passed: dropping the replay")
+            self.replay_goals = []
+
+    def _after_report_checkpoint(self) -> None:
+        if self.replay_goals:
+            self._replay_due_goals()
+        else:
+            self.checkpointer.maybe_save()
+
+    def close(self) -> None:
+        """At shutdown: the final checkpoint (unless journaled goals still wait for their reports:
+        the journal then keeps them for the next resume)."""
+        if self.checkpointer is not None:
+            if self.replay_goals:
+                self.checkpointer.journal.close()
+            else:
+                self.checkpointer.close()
+            self.checkpointer = None
 
     # ------------------------------------------------------------ regions
     def on_regions_timer(self) -> None:

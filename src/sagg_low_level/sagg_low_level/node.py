@@ -85,6 +85,23 @@ NODE_SCHEMA: Schema = (
     Param("min_sample_subscribers", "int", 0,
           "Start only once /sagg/sample has at least this many matched subscribers (e.g. 1 when a "
           "recorder must see every sample). 0 = do not wait.", low=0, high=1000),
+    # checkpoint / resume (sagg_low_level.checkpoint)
+    Param("checkpoint_dir", "str", "",
+          "Directory of the learner's checkpoints and write-ahead journal (learner_*). Empty = off. "
+          "If it holds a checkpoint the learner resumes from it (memory, counters, random state; the "
+          "interrupted reaching attempt is abandoned)."),
+    Param("checkpoint_every", "int", 10000,
+          "Checkpoint every this many micro-actions (and at shutdown). Every sample and report is "
+          "journaled before it is published, so nothing is lost between checkpoints; this only "
+          "bounds the journal's length. Our choice.", low=1, high=1_000_000_000),
+    Param("journal_fsync", "bool", False,
+          "fsync the journal after every record: survives a power cut, not only a killed process "
+          "(one disk flush per micro-action)."),
+    Param("goal_retry", "float", 5.0,
+          "Seconds without an answer after which a goal request is sent again (e.g. the goal "
+          "generator was restarted and lost it). The generator answers a repeated request "
+          "(same after_report) with the same goal, so a retry never changes the run. Our choice.",
+          low=0.0, high=3600.0, low_open=True),
 )
 SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 GOAL_STRATEGIES = ("sagg-riac", "sagg-random")
@@ -134,7 +151,9 @@ class LearnerNode(Node):
         # --- topics
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
         self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
-        self.report_pub = self.create_publisher(CompetenceReport, "/sagg/competence", reliable(10000))
+        # transient_local: a restarted goal generator gets the reports it missed (it drops those it has)
+        self.report_pub = self.create_publisher(CompetenceReport, "/sagg/competence",
+                                                reliable(10000, transient_local=True))
         self.sample_pub = self.create_publisher(Sample, "/sagg/sample", reliable(10000))
         self.status_pub = self.create_publisher(LearnerStatus, "/sagg/status", reliable(10))
         # hot path: raw CDR in and out (sagg_common.cdr), no message objects
@@ -167,6 +186,9 @@ class LearnerNode(Node):
         self.last_flush = time.monotonic()
         self.learner.on_report = self.outbox.append
         self.learner.on_sample = self.outbox.append
+        self.checkpointer = None
+        self.goal_future = None
+        self._setup_checkpoint(p)  # may restore the learner, journals samples/reports, queues republishing
         self.coro = self.learner.run()
         self.pending = next(self.coro)  # the first request (Observe)
         self.goals_received = 0
@@ -244,6 +266,8 @@ class LearnerNode(Node):
                 self.get_logger().info("graph ready: starting")
                 self.t_started = time.monotonic()
                 self.dispatch(self.pending)
+        elif self.state is self.RUNNING_GOAL:
+            self._retry_goal_request()
         elif self.state is self.RUNNING_COMMAND:
             if time.monotonic() - self.cmd_time > self.settle_timeout:
                 if self.js_fresh and self.tip_fresh:
@@ -311,6 +335,7 @@ class LearnerNode(Node):
             if type(req) is GoalRequest:
                 self.state = self.RUNNING_GOAL
                 fut = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
+                self.goal_future, self.goal_time = fut, time.monotonic()
                 fut.add_done_callback(self.on_goal)
                 if self.outbox:
                     self.flush()
@@ -321,6 +346,8 @@ class LearnerNode(Node):
             raise TypeError(f"unknown learner request {req!r}")
 
     def on_goal(self, fut) -> None:
+        if fut is not self.goal_future:
+            return  # an answer to a request sent again since (goal_retry)
         resp = fut.result()
         if resp is None:
             self.get_logger().error("/sagg/next_goal call failed")
@@ -346,6 +373,64 @@ class LearnerNode(Node):
                 self.publish_report(item)
         box.clear()
         self.last_flush = time.monotonic()
+        if self.checkpointer is not None:
+            self.checkpointer.maybe_save()  # everything stored so far is published now
+
+    # ------------------------------------------------------------------ checkpoint / resume
+    def _setup_checkpoint(self, p: dict) -> None:
+        """With ``checkpoint_dir``: resume from it if it holds a checkpoint, journal every sample
+        and report before it is queued for publishing, and republish the journaled samples and
+        reports of the last checkpoint intervals (receivers drop those they have)."""
+        if not p["checkpoint_dir"]:
+            return
+        from .checkpoint import LearnerCheckpointer
+        try:
+            ck = LearnerCheckpointer(p["checkpoint_dir"], self.learner, p["checkpoint_every"], p["journal_fsync"])
+            replay = ck.resume()
+        except (ValueError, OSError) as exc:
+            raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc
+        self.checkpointer = ck
+
+        def on_report(r) -> None:
+            ck.on_report(r)
+            self.outbox.append(r)
+
+        def on_sample(idx) -> None:
+            ck.on_sample(idx)
+            self.outbox.append(idx)
+
+        self.learner.on_report = on_report
+        self.learner.on_sample = on_sample
+        self.outbox.extend(replay)
+        if ck.resumed_from is not None:
+            info = ck.resumed_from
+            self.get_logger().info(
+                f"resumed from {p['checkpoint_dir']} (generation {info['generation']}): {info['samples']} "
+                f"samples, {info['reports']} reports, {info['journal_records_applied']} journal records "
+                f"after the checkpoint, {info['torn_bytes']} torn bytes dropped; republishing "
+                f"{info['republish']} samples/reports; the interrupted attempt is abandoned")
+
+    def _retry_goal_request(self) -> None:
+        fut = self.goal_future
+        if fut is None or fut.done() or time.monotonic() - self.goal_time < self.params["goal_retry"]:
+            return
+        if not self.goal_client.service_is_ready():
+            return
+        self.get_logger().warning(f"no answer to the goal request after {self.params['goal_retry']} s: "
+                                  "sending it again", throttle_duration_sec=5.0)
+        self.goal_client.remove_pending_request(fut)
+        new = self.goal_client.call_async(NextGoal.Request(after_report=self.learner.reports_sent))
+        self.goal_future, self.goal_time = new, time.monotonic()
+        new.add_done_callback(self.on_goal)
+
+    def close(self) -> None:
+        """At shutdown: publish what is queued, then the final checkpoint."""
+        if self.checkpointer is not None:
+            try:
+                self.flush()
+            finally:
+                self.checkpointer.close()
+                self.checkpointer = None
 
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds if self.sim_time else time.time_ns()

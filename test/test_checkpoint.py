@@ -1,0 +1,263 @@
+"""Checkpoint and resume: the write-ahead journal, the learner's and the generator's checkpoints
+in-process, and the graph surviving a SIGKILL of the learner and (separately) of the generator."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sagg_bringup.experiment import InProcessRun, load_experiment_config
+from sagg_common.journal import Journal, read_journal
+from sagg_goal_generator.checkpoint import GeneratorCheckpointer
+from sagg_goal_generator.core import GoalGenerator
+from sagg_low_level.checkpoint import LearnerCheckpointer
+from sagg_low_level.memory import SampleMemory
+
+from test_nodes_graph import (ROOT, RUN_TIMEOUT, STARTUP_TIMEOUT, Collector, graph_params, in_process, logs,  # noqa: F401
+                              ros_env, same_bits, start, stop)
+
+SMALL = {"arm.dof": 7, "arm.mode": "kinematic"}
+
+
+# ------------------------------------------------------------------------------- journal
+def test_journal_drops_a_torn_or_corrupt_tail(tmp_path):
+    path = tmp_path / "j.bin"
+    j = Journal(path)
+    recs = [(1, np.array([0.0, -0.0, 5e-324, np.pi])), (2, np.arange(7.0)), (3, np.empty(0))]
+    for kind, v in recs:
+        j.append(kind, v)
+    j.close()
+    full = path.read_bytes()
+    got, torn = read_journal(path)
+    assert torn == 0 and [k for k, _ in got] == [1, 2, 3]
+    assert all(v.tobytes() == w.tobytes() for (_, v), (_, w) in zip(got, recs))
+    # a kill in mid-write: every prefix gives the records complete in it, never a partial one
+    sizes = [0]
+    for kind, v in recs:
+        sizes.append(sizes[-1] + 4 + 1 + 4 + 8 * len(v) + 4)
+    for cut in range(len(full)):
+        path.write_bytes(full[:cut])
+        got, torn = read_journal(path)
+        complete = sum(1 for s in sizes[1:] if s <= cut)
+        assert len(got) == complete and torn == cut - sizes[complete]
+    # a flipped bit in the second record: the first is kept, the rest dropped
+    bad = bytearray(full)
+    bad[sizes[1] + 12] ^= 0x10
+    path.write_bytes(bytes(bad))
+    got, torn = read_journal(path)
+    assert len(got) == 1 and torn == len(full) - sizes[1]
+    with pytest.raises(ValueError, match="kind"):
+        Journal(tmp_path / "k.bin").append(256, [1.0])
+
+
+# ------------------------------------------------------------------------------- in-process
+def _run_with_checkpoints(cfg, ck_dir, steps, learner_every=300, gen_every=200, stop_at=None):
+    """An in-process run whose learner and generator journal and checkpoint into ck_dir (as the
+    nodes do); returns the run. Not closed: as if the process was killed at ``steps``."""
+    run = InProcessRun(cfg)
+    ck = LearnerCheckpointer(ck_dir, run.learner, learner_every)
+    assert ck.resume() == []
+    gk = GeneratorCheckpointer(ck_dir, run.generator, gen_every)
+    assert gk.resume() == []
+    forward = run.learner.on_report
+
+    def on_report(r):
+        ck.on_report(r)
+        forward(r)
+        gk.maybe_save()
+
+    run.learner.on_report = on_report
+    run.learner.on_sample = ck.on_sample
+    choose = run.generator.next_goal
+
+    def next_goal():
+        rec = choose()
+        gk.on_goal(rec)
+        return rec
+
+    run.generator.next_goal = next_goal
+    for t in range(100, steps + 1, 100):
+        run.step_until(t)
+        ck.maybe_save()
+    run.step_until(steps)
+    return run
+
+
+def test_learner_and_generator_resume_in_process(tmp_path):
+    cfg = load_experiment_config(ROOT / "config/arm15_y50.yaml", SMALL)
+    run = _run_with_checkpoints(cfg, tmp_path, 1057)
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert "learner.json" in names and "generator.json" in names
+    assert not [n for n in names if n.endswith(".tmp") or ".tmp." in n]
+    # torn last record (a kill in mid-write): dropped, the rest restored
+    journals = sorted(tmp_path.glob("learner_journal_*.bin"), key=lambda p: int(p.stem.split("_")[-1]))
+    with open(journals[-1], "ab") as fh:
+        fh.write(b"\x4a\x47\x41\x53\x01\x10\x00")
+    run2 = InProcessRun(cfg)
+    ck2 = LearnerCheckpointer(tmp_path, run2.learner, 300)
+    replay = ck2.resume()
+    lr, lr2 = run.learner, run2.learner
+    assert ck2.resumed_from["torn_bytes"] == 7 and ck2.resumed_from["journal_records_applied"] > 0
+    assert lr2.memory.digest() == lr.memory.digest() and len(lr2.memory) == 1057
+    for c in ("micro_actions", "reports_sent", "attempts", "goals_done", "exploration_phases"):
+        assert getattr(lr2, c) == getattr(lr, c), c
+    # the journaled tail is republished: samples and reports, in order, ending with the last ones
+    idx = [r for r in replay if isinstance(r, int)]
+    reps = [r for r in replay if not isinstance(r, int)]
+    assert idx == list(range(idx[0], 1057)) and [r.seq for r in reps] == list(range(reps[0].seq, lr.reports_sent + 1))
+    # the rng continues on a jumped stream (not the numbers drawn since the checkpoint)
+    assert lr2.rng.bit_generator.state != lr.rng.bit_generator.state
+    # the generator: checkpoint + the reports after it + the journaled goals replayed = the original
+    gen2 = GoalGenerator(cfg["sagg_goal_generator"])
+    gk2 = GeneratorCheckpointer(tmp_path, gen2, 200)
+    pending = gk2.resume()
+    assert gen2.reports < run.generator.reports and pending, "the kill must fall between checkpoints"
+    for r in reps:
+        if r.seq <= gen2.reports:
+            continue
+        assert r.seq == gen2.reports + 1
+        gen2.report(r.kind, r.target if len(r.target) else r.reached, r.competence)
+        while pending and pending[0].after_report == gen2.reports:
+            want = pending.pop(0)
+            got = gen2.next_goal()
+            assert (got.seq, got.position.tobytes()) == (want.seq, want.position.tobytes())
+    g1 = run.generator
+    assert not pending and gen2.reports == g1.reports
+    assert [(g.seq, g.mode, g.after_report, g.position.tobytes(), g.competence) for g in gen2.goals] == \
+           [(g.seq, g.mode, g.after_report, g.position.tobytes(), g.competence) for g in g1.goals]
+    assert gen2.region_snapshot() == g1.region_snapshot() and gen2.tree.splits == g1.tree.splits
+    assert gen2.rng.bit_generator.state == g1.rng.bit_generator.state
+    assert gen2.tree.rng.bit_generator.state == g1.tree.rng.bit_generator.state
+    # and it chooses the same next goal
+    assert gen2.next_goal().position.tobytes() == g1.next_goal().position.tobytes()
+
+
+def test_checkpoint_of_another_run_is_refused(tmp_path):
+    cfg = load_experiment_config(ROOT / "config/arm15_y50.yaml", SMALL)
+    _run_with_checkpoints(cfg, tmp_path, 300)
+    other = InProcessRun(load_experiment_config(ROOT / "config/arm15_y50.yaml", {**SMALL, "seed": 3}))
+    with pytest.raises(ValueError, match="seed"):
+        LearnerCheckpointer(tmp_path, other.learner, 100).resume()
+    with pytest.raises(ValueError, match="seed"):
+        GeneratorCheckpointer(tmp_path, other.generator, 100).resume()
+    riac = InProcessRun(load_experiment_config(ROOT / "config/arm15_y50.yaml", {**SMALL, "strategy": "actuator-riac"}))
+    with pytest.raises(ValueError, match="actuator-riac"):
+        LearnerCheckpointer(tmp_path / "r", riac.learner, 100)
+    with pytest.raises(ValueError, match="checkpoint_every"):
+        LearnerCheckpointer(tmp_path / "r", other.learner, 0)
+
+
+# ------------------------------------------------------------------------------- graph
+def _samples_by_index(col) -> dict[int, bytes]:
+    """Received samples by index (republished duplicates must carry the same bits)."""
+    out: dict[int, bytes] = {}
+    for s in col.samples:
+        b = np.concatenate([s.alpha, s.delta_alpha, s.delta_y]).tobytes()
+        assert out.setdefault(int(s.index), b) == b, f"sample {s.index} republished with other values"
+    return out
+
+
+def _final_memory(ck_dir: Path) -> SampleMemory:
+    meta = json.loads((ck_dir / "learner.json").read_text())
+    mem = SampleMemory.load(ck_dir / meta["memory_file"])
+    assert mem.digest() == meta["memory_digest"]
+    return mem
+
+
+def _wait_killed(p) -> None:
+    p.kill()
+    p.wait(10)
+
+
+def test_learner_sigkill_then_resume_keeps_every_published_sample_once(ros_env, tmp_path):
+    base = ROOT / "config" / "arm15_y50.yaml"
+    steps, kill_at = 1500, 600
+    ck = tmp_path / "ck"
+    params = graph_params(base, tmp_path / "params.yaml", {"dof": 7, "mode": "kinematic"},
+                          learner={"max_micro_actions": steps, "min_sample_subscribers": 1,
+                                   "checkpoint_dir": str(ck), "checkpoint_every": 250},
+                          generator={"min_goal_subscribers": 1})
+    col = Collector(ros_env["ctx"])
+    procs = [start(ros_env, s, params, tmp_path) for s in ("mujoco_bridge", "goal_generator")]
+    learner = start(ros_env, "learner", params, tmp_path)
+    assert col.spin_until(lambda: len(col.samples) >= kill_at, STARTUP_TIMEOUT + RUN_TIMEOUT, procs + [learner]), \
+        logs(tmp_path)
+    _wait_killed(learner)
+    col.spin_for(1.0)  # whatever was in flight
+    before = _samples_by_index(col)
+    assert len(before) >= kill_at and sorted(before) == list(range(len(before)))
+    assert sorted(p.name for p in ck.glob("learner_journal_*.bin")), "no journal written"
+    col.status = None
+    learner = start(ros_env, "learner", params, tmp_path)
+    ok = col.spin_until(lambda: col.stopped() and col.status.micro_actions >= steps, STARTUP_TIMEOUT + RUN_TIMEOUT,
+                        procs + [learner])
+    assert ok, logs(tmp_path)
+    col.spin_until(lambda: len(_samples_by_index(col)) >= steps, 20.0)
+    stop(learner)  # SIGINT: final checkpoint
+    assert learner.returncode == 0, logs(tmp_path)
+    assert "resumed from" in (tmp_path / "learner.log").read_text()
+    mem = _final_memory(ck)
+    assert len(mem) == steps
+    rows = [np.concatenate([mem.alpha[i], mem.delta_alpha[i], mem.delta_y[i]]).tobytes() for i in range(len(mem))]
+    assert len(set(rows)) == len(rows)  # no sample twice
+    for i, b in before.items():  # every sample published before the kill, at its index, bit for bit
+        assert rows[i] == b
+    after = _samples_by_index(col)  # ... and everything published at all is in the memory
+    assert sorted(after) == list(range(steps)) and all(rows[i] == b for i, b in after.items())
+    # the generator saw every report once, in order, across the restart (republished ones dropped)
+    sent = json.loads((ck / "learner.json").read_text())["reports_sent"]
+    assert col.spin_until(lambda: col.regions.reports == sent and max(r.seq for r in col.reports) == sent, 20.0), \
+        (col.regions.reports, max(r.seq for r in col.reports), sent)
+    assert "were lost or reordered" not in (tmp_path / "goal_generator.log").read_text()
+
+
+def test_generator_sigkill_then_resume_leaves_the_run_unchanged(ros_env, tmp_path):
+    """The generator is killed mid-run and restarted from its checkpoint + goal journal; the
+    reports it missed come from the learner's history: the lockstep run still equals the
+    in-process one bit for bit (samples, goals, region tree)."""
+    base = ROOT / "config" / "arm15_y50.yaml"
+    arm = {"dof": 7, "mode": "kinematic"}
+    steps, kill_at = 1200, 500
+    ck = tmp_path / "ck"
+    params = graph_params(base, tmp_path / "params.yaml", arm,
+                          learner={"max_micro_actions": steps, "min_sample_subscribers": 1, "goal_retry": 1.0},
+                          generator={"min_goal_subscribers": 1, "checkpoint_dir": str(ck), "checkpoint_every": 150})
+    col = Collector(ros_env["ctx"])
+    bridge = start(ros_env, "mujoco_bridge", params, tmp_path)
+    gen = start(ros_env, "goal_generator", params, tmp_path)
+    learner = start(ros_env, "learner", params, tmp_path)
+    assert col.spin_until(lambda: len(col.samples) >= kill_at, STARTUP_TIMEOUT + RUN_TIMEOUT, [bridge, gen, learner]), \
+        logs(tmp_path)
+    _wait_killed(gen)
+    os.rename(tmp_path / "goal_generator.log", tmp_path / "goal_generator.1.log")
+    col.spin_for(1.0)
+    gen = start(ros_env, "goal_generator", params, tmp_path)
+    ok = col.spin_until(lambda: col.stopped() and len(_samples_by_index(col)) >= steps,
+                        STARTUP_TIMEOUT + RUN_TIMEOUT, [bridge, gen, learner])
+    assert ok, logs(tmp_path)
+    run, reports = in_process(base, {f"arm.{k}": v for k, v in arm.items()}, steps)
+    col.spin_until(lambda: col.regions is not None and col.regions.reports >= len(reports), 30.0)
+    col.spin_for(0.5)
+    assert "resumed from" in (tmp_path / "goal_generator.log").read_text(), logs(tmp_path)
+    got = _samples_by_index(col)
+    mem = SampleMemory(7, 7, 2)
+    for i in range(steps):
+        v = np.frombuffer(got[i])
+        mem.add(v[:7], v[7:14], v[14:])
+    assert mem.digest() == run.learner.memory.digest()
+    goals = {}
+    for g in col.goals:  # a goal asked again after the restart is published again: same values
+        key = (g.mode, g.after_report, np.array(g.position).tobytes())
+        assert goals.setdefault(int(g.seq), key) == key
+    assert [(s, *goals[s]) for s in sorted(goals)] == \
+           [(g.seq, g.mode, g.after_report, g.position.tobytes()) for g in run.generator.goals]
+    tree, snap = col.regions, run.generator.region_snapshot()
+    assert (tree.reports, tree.goals, tree.splits) == (len(reports), len(run.generator.goals),
+                                                         len(run.generator.tree.splits))
+    assert [r.id for r in tree.regions] == [r["id"] for r in snap]
+    for r, s in zip(tree.regions, snap):
+        assert same_bits(r.lower, s["lower"]) and same_bits(r.upper, s["upper"]) and r.count == s["count"]
+        assert same_bits([r.interest], [s["interest"]])
