@@ -16,8 +16,11 @@ from sagg_goal_generator.core import GoalGenerator
 from sagg_low_level.checkpoint import LearnerCheckpointer
 from sagg_low_level.memory import SampleMemory
 
-from test_nodes_graph import (ROOT, RUN_TIMEOUT, STARTUP_TIMEOUT, Collector, graph_params, in_process, logs,  # noqa: F401
-                              ros_env, same_bits, start, stop)
+import test_nodes_graph
+from test_nodes_graph import (ROOT, RUN_TIMEOUT, STARTUP_TIMEOUT, Collector, graph_params, in_process, logs,
+                              same_bits, start, stop)
+
+ros_env = test_nodes_graph.ros_env  # the fixture: a private ROS domain per test
 
 SMALL = {"arm.dof": 7, "arm.mode": "kinematic"}
 
