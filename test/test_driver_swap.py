@@ -21,7 +21,10 @@ from sagg_low_level.learner import EvolvingContextLearner, SCHEMA as LEARNER_COR
 from sagg_low_level.node import robot_from_params, SCHEMA as LEARNER_SCHEMA
 from sagg_sim_bridge.arm import forward_kinematics
 
-from test_nodes_graph import RUN_TIMEOUT, STARTUP_TIMEOUT, Collector, logs, ros_env, start, stop  # noqa: F401
+import test_nodes_graph
+from test_nodes_graph import RUN_TIMEOUT, STARTUP_TIMEOUT, Collector, logs, start, stop
+
+ros_env = test_nodes_graph.ros_env  # the fixture: a private ROS domain per test
 
 HERE = Path(__file__).resolve().parent
 LENGTHS = [20.0, 15.0, 10.0]
