@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'learner = sagg_low_level.node:main',
+            'synergy_learner = sagg_low_level.synergy_node:main',
         ],
     },
 )

@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'mujoco_bridge = sagg_sim_bridge.node:main',
+            'synergy_bridge = sagg_sim_bridge.synergy_node:main',
         ],
     },
 )

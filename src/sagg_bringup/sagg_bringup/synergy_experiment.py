@@ -15,6 +15,7 @@ import numpy as np
 from sagg_common.params import ConfigError, check_wildcard, node_params, read_config
 from sagg_common.progress import Progress
 from sagg_common.rng import stream
+from sagg_common.synergy import transported_outcome
 from sagg_goal_generator.core import MODE_NAMES, SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Driver, FixedContextLearner,
                                           ThetaSpace, evaluate_fixed, spread_goals, synergy_from_params)
@@ -105,7 +106,8 @@ class SynergyRun:
         self.generator.report(r.kind, r.target, r.competence)
 
     def _execute(self, theta, kind):
-        return self.sim.execute(self.synergy.trajectory(theta))
+        # exactly what the learner node receives from the bridge (φ through the PoseStamped quaternion)
+        return transported_outcome(self.sim.execute(self.synergy.trajectory(theta)))
 
     def _next_goal(self):
         g = self.generator.next_goal()
@@ -118,7 +120,7 @@ class SynergyRun:
         self.learn_seconds += time.perf_counter() - t0
 
     def run_eval(self, theta):
-        return self.eval_sim.execute(self.synergy.trajectory(theta))
+        return transported_outcome(self.eval_sim.execute(self.synergy.trajectory(theta)))
 
     def evaluate(self, goals: np.ndarray) -> np.ndarray:
         """Test errors of the frozen model on the evaluation simulator (never counted as learning)."""

@@ -15,6 +15,43 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def canonical_times(t: np.ndarray) -> np.ndarray:
+    """Times rounded to whole nanoseconds, as ``int_ns / 1e9``: exactly what a receiver gets back
+    from a ``builtin_interfaces/Duration`` (sec, nanosec) with :func:`duration_seconds`, so the graph
+    and the in-process run interpolate the same numbers."""
+    return np.round(np.asarray(t, dtype=float) * 1e9) / 1e9
+
+
+def duration_seconds(sec: int, nanosec: int) -> float:
+    """A (sec, nanosec) duration in seconds, computed as ``total_ns / 1e9`` (see canonical_times)."""
+    return (int(sec) * 1_000_000_000 + int(nanosec)) / 1e9
+
+
+def yaw_quaternion(phi: float) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of a rotation by ``phi`` about z, NOT sign-normalised: for phi in (-2π, 2π] the
+    sign of w and z keeps the turn count, so :func:`quaternion_yaw` recovers phi (not only phi mod
+    2π). This is how the quadruped's unwrapped yaw φ ∈ [-2π, 2π] travels in a PoseStamped."""
+    return (math.cos(phi / 2.0), 0.0, 0.0, math.sin(phi / 2.0))
+
+
+def quaternion_yaw(w: float, z: float) -> float:
+    """Inverse of :func:`yaw_quaternion`: ``2·atan2(z, w)`` in (-2π, 2π]."""
+    return 2.0 * math.atan2(z, w)
+
+
+def transported_outcome(y):
+    """The outcome as the learner receives it through the graph: a 3-D outcome (u, v, φ) travels as
+    a PoseStamped, so φ goes through the quaternion and back (bit-level rounding); 2-D outcomes travel
+    unchanged. The in-process run applies the same so both ways see identical numbers. None stays None."""
+    if y is None:
+        return None
+    y = np.asarray(y, dtype=float).copy()
+    if y.shape == (3,):
+        w, _, _, z = yaw_quaternion(float(y[2]))
+        y[2] = quaternion_yaw(w, z)
+    return y
+
+
 def _vec(name: str, value, n: int) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     if arr.shape != (n,) or not np.all(np.isfinite(arr)):
@@ -93,7 +130,7 @@ class SinusoidSynergy:
 
     def times(self) -> np.ndarray:
         k = max(1, int(round(self.duration * self.rate)))
-        return np.linspace(0.0, self.duration, k + 1)
+        return canonical_times(np.linspace(0.0, self.duration, k + 1))
 
     def trajectory(self, theta) -> Trajectory:
         """θ → joint position trajectory ``q_i(t_k) = rest_i + am_i · sin(ω t_k + ph_i)`` (Sec. 4.2)."""
@@ -144,7 +181,7 @@ class VelocitySynergy:
         """θ → velocity trajectory: constant joint velocities on [0, duration), then 0 (Sec. 5.1)."""
         vel = self.joint_velocities(theta)
         k = max(1, int(round(self.duration * self.rate)))
-        t = np.linspace(0.0, self.duration, k + 1)
+        t = canonical_times(np.linspace(0.0, self.duration, k + 1))
         v = np.repeat(vel[None, :], k + 1, axis=0)
         v[-1] = 0.0
         return Trajectory(self.joint_names, t, velocities=v)
