@@ -99,6 +99,23 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: a random private one)")
     r.add_argument("--quiet", action="store_true", help="no progress display")
 
+    rp = sub.add_parser("replay", help="republish a bag's raw CDR with its recorded timing and QoS "
+                                       "(for Foxglove, PlotJuggler, a second learner)")
+    rp.add_argument("bag", help="rosbag2 directory (e.g. runs/<run>/bag)")
+    rp.add_argument("--rate", type=float, default=1.0, help="time scale of the recorded timing (0 = as fast as possible)")
+    rp.add_argument("--topics", nargs="+", help="only these topics (default: all)")
+    rp.add_argument("--loop", action="store_true", help="start again at the end (until Ctrl-C)")
+    rp.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+                    help="start once every topic has N matched subscribers (default 0: at once)")
+    rp.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
+    rp.add_argument("--quiet", action="store_true", help="no progress display")
+    rl = sub.add_parser("relearn", help="rebuild the learner memory and the region tree from bags, "
+                                        "check them against the recording, evaluate")
+    rl.add_argument("bags", nargs="+", help="rosbag2 directories of one run, in order (bag, bag2, ...)")
+    rl.add_argument("--out", required=True, help="output directory (memory.npz, regions.json, summary.json)")
+    rl.add_argument("--params", help="the run's parameter file (default: params.yaml next to the first bag)")
+    rl.add_argument("--no-eval", action="store_true", help="skip the evaluation on the test goals")
+
     pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
                                        "description) as Markdown tables")
     pp.add_argument("--node", choices=["sagg_goal_generator", "sagg_learner", "sagg_sim_bridge"],
@@ -212,6 +229,15 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "run":
             return _run(args)
+        if args.command == "replay":
+            from .bags import replay
+            res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
+                         domain_id=args.domain_id, progress=not args.quiet)
+            return 130 if res["interrupted"] else 0
+        if args.command == "relearn":
+            from .bags import relearn
+            s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval)
+            return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "params":
             if args.update_readme:
                 path = Path(args.update_readme)

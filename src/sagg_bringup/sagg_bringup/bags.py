@@ -1,0 +1,318 @@
+"""``sagg replay`` and ``sagg relearn``: using the bags ``sagg run`` records.
+
+- :func:`replay`: republishes a bag's raw CDR with rclpy publishers of the recorded types (a
+  ``publish()`` of the serialized bytes: what was recorded is what goes out, bit for bit), with the
+  recorded timing scaled by ``rate`` (0 = as fast as possible) and each topic's recorded QoS
+  (reliability, durability, depth; /sagg/regions is transient_local), so Foxglove, PlotJuggler or
+  a second learner see the run. It joins the caller's ``ROS_DOMAIN_ID`` (the usual ROS default),
+  unlike ``sagg run``'s private one.
+- :func:`relearn`: rebuilds, offline, the learner's sample memory from ``/sagg/sample`` (index
+  order) and the goal generator's region tree by feeding the recorded ``/sagg/competence`` reports
+  and choosing the goals into the core :class:`~sagg_goal_generator.core.GoalGenerator` exactly as
+  the node does (report ``seq`` order; a goal is chosen when the reports 1..``after_report`` are in;
+  the report's ``target``, or ``reached`` when it has none), checks every chosen goal against the
+  recorded ``/sagg/goal`` and the final tree against the last recorded ``/sagg/regions``, and
+  evaluates the memory on the run's test goals with ``sagg run``'s own evaluation code.
+
+Several bags may be given (a resumed run records ``bag``, ``bag2``, ...): messages are read in
+bag order; samples, reports and goals republished after a resume are dropped by index / sequence
+number (they carry the same values).
+"""
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import yaml
+
+from sagg_common.params import ConfigError
+
+
+def _open(path: Path):
+    from rosbags.rosbag2 import Reader
+    if not (path / "metadata.yaml").is_file():
+        raise ConfigError(f"bag '{path}': no metadata.yaml; allowed: a rosbag2 directory written by `sagg run`")
+    reader = Reader(path)
+    reader.open()
+    return reader
+
+
+def bag_messages(paths: list[Path], topics: set[str] | None = None):
+    """``(topic, msgtype, timestamp_ns, raw)`` of the bags, in order (bag after bag)."""
+    for path in paths:
+        reader = _open(Path(path))
+        try:
+            conns = [c for c in reader.connections if topics is None or c.topic in topics]
+            for conn, ts, raw in reader.messages(connections=conns):
+                yield conn.topic, conn.msgtype, ts, raw
+        finally:
+            reader.close()
+
+
+# ------------------------------------------------------------------------------------ replay
+def _rclpy_qos(conn):
+    """The recorded offered QoS of a connection as an rclpy profile (reliable, depth 1000,
+    volatile where nothing usable was recorded)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosbags.interfaces import QosDurability, QosReliability
+    profiles = getattr(conn.ext, "offered_qos_profiles", None) or []
+    q = profiles[0] if profiles else None
+    depth = int(q.depth) if q is not None and q.depth > 0 else 1000
+    reliable = q is None or q.reliability != QosReliability.BEST_EFFORT
+    latched = q is not None and q.durability == QosDurability.TRANSIENT_LOCAL
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, loop: bool = False,
+           wait_subscribers: int = 0, wait_timeout: float = 30.0, domain_id: int | None = None,
+           progress: bool = True, out: Callable[[str], None] | None = None) -> dict:
+    """Republish ``bag``; returns per-topic counts and bytes published. Stops cleanly on SIGINT
+    (the current message is finished, publishers are flushed)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.duration import Duration
+    from rclpy.signals import SignalHandlerOptions
+
+    from .recorder import _msg_class
+
+    if not rate >= 0 or rate == float("inf"):
+        raise ConfigError(f"--rate: got {rate}; allowed: a number >= 0 (0 = as fast as possible)")
+    if wait_subscribers < 0:
+        raise ConfigError(f"--wait-subscribers: got {wait_subscribers}; allowed: an integer >= 0")
+    out = out or (lambda s: print(s, file=sys.stderr, flush=True))
+    path = Path(bag)
+    reader = _open(path)
+    try:
+        conns = {c.topic: c for c in reader.connections}
+        total = {c.topic: c.msgcount for c in reader.connections}
+    finally:
+        reader.close()
+    wanted = list(conns) if not topics else list(topics)
+    unknown = [t for t in wanted if t not in conns]
+    if unknown:
+        raise ConfigError(f"--topics: {', '.join(unknown)} not in the bag; allowed: {', '.join(sorted(conns))}")
+    ctx = Context()
+    kw = {} if domain_id is None else {"domain_id": int(domain_id)}
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO, **kw)
+    node = rclpy.create_node("sagg_replay", context=ctx)
+    stop: list[int] = []
+    old = {s: signal.signal(s, lambda signum, frame: stop.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
+    pubs = {}
+    counts = {t: 0 for t in wanted}
+    nbytes = {t: 0 for t in wanted}
+    n_total = sum(total[t] for t in wanted)
+    try:
+        for t in wanted:
+            pubs[t] = node.create_publisher(_msg_class(conns[t].msgtype), t, _rclpy_qos(conns[t]))
+        if wait_subscribers:
+            end = time.monotonic() + wait_timeout
+            while not stop and any(p.get_subscription_count() < wait_subscribers for p in pubs.values()):
+                if time.monotonic() > end:
+                    raise ConfigError(f"--wait-subscribers: fewer than {wait_subscribers} subscriber(s) on "
+                                      f"{', '.join(t for t, p in pubs.items() if p.get_subscription_count() < wait_subscribers)}"
+                                      f" after {wait_timeout:.0f} s")
+                time.sleep(0.05)
+        rounds = 0
+        t_last = 0.0
+        done = 0
+        while not stop:
+            rounds += 1
+            t_wall0 = time.monotonic()
+            t_bag0 = None
+            for topic, _, ts, raw in bag_messages([path], set(wanted)):
+                if t_bag0 is None:
+                    t_bag0 = ts
+                if rate > 0:
+                    delay = t_wall0 + (ts - t_bag0) / 1e9 / rate - time.monotonic()
+                    while delay > 0 and not stop:
+                        time.sleep(min(delay, 0.1))
+                        delay = t_wall0 + (ts - t_bag0) / 1e9 / rate - time.monotonic()
+                if stop:
+                    break
+                pubs[topic].publish(bytes(raw))
+                counts[topic] += 1
+                nbytes[topic] += len(raw)
+                done += 1
+                now = time.monotonic()
+                if progress and now - t_last > 1.0:
+                    t_last = now
+                    out(f"replay {path.name}: {done - (rounds - 1) * n_total:,}/{n_total:,} messages"
+                        + (f" (round {rounds})" if loop else "") + f", bag time {(ts - t_bag0) / 1e9:.1f} s")
+            if not loop:
+                break
+        for p in pubs.values():  # reliable messages still in flight reach the subscribers
+            p.wait_for_all_acked(Duration(seconds=5.0))
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    res = {"bag": str(path), "rate": rate, "interrupted": bool(stop), "topics": {
+        t: {"type": conns[t].msgtype, "count": counts[t], "bytes": nbytes[t]} for t in wanted}}
+    if progress:
+        out(f"replayed {sum(counts.values()):,} messages ({sum(nbytes.values()):,} bytes) on {len(wanted)} topic(s)"
+            + (" (interrupted)" if stop else ""))
+    return res
+
+
+# ------------------------------------------------------------------------------------ relearn
+def _params_from(bag: Path, params_file: str | Path | None) -> dict[str, dict]:
+    """The nodes' parameters: ``params_file``, else ``params.yaml`` next to the bag (``sagg run``'s
+    DIR/params.yaml), resolved against the full node schemas."""
+    from sagg_common.params import flatten
+
+    from .graph import node_schemas
+    path = Path(params_file) if params_file else bag.parent / "params.yaml"
+    if not path.is_file():
+        raise ConfigError(f"--params: '{path}' not found; allowed: the run's params.yaml (sagg run writes DIR/params.yaml)")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"--params: '{path}' is not valid YAML ({exc})") from exc
+    out = {}
+    for name, schema in node_schemas().items():
+        body = (doc or {}).get(name, {}).get("ros__parameters", {})
+        flat = flatten(body)
+        out[name] = {p.name: p.validate(flat[p.name]) if p.name in flat else p.default for p in schema}
+    return out
+
+
+def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path | None = None,
+            evaluate: bool = True, out: Callable[[str], None] = print) -> dict:
+    """Rebuild memory and region tree from ``bags``; write DIR/memory.npz, regions.json, summary.json."""
+    from sagg_common.cdr import decode_report, decode_sample
+    from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
+    from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
+    from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
+
+    from .experiment import write_json_atomic
+    from .graph import evaluate_frozen, evaluation_setup
+
+    paths = [Path(b) for b in bags]
+    if not paths:
+        raise ConfigError("relearn: no bag given")
+    full = _params_from(paths[0], params_file)
+    gp = {p.name: full["sagg_goal_generator"][p.name] for p in GEN_SCHEMA}
+    lp = {p.name: full["sagg_learner"][p.name] for p in LEARNER_SCHEMA}
+    bp = {p.name: full["sagg_sim_bridge"][p.name] for p in BRIDGE_SCHEMA}
+    t0 = time.perf_counter()
+    spec, area, test_goals, learner = evaluation_setup(lp, bp)
+    mem = learner.memory
+    gen = GoalGenerator(gp)
+    reports: dict[int, tuple] = {}
+    goals: dict[int, tuple] = {}
+    snapshots: dict[int, bytes] = {}  # /sagg/regions by reports folded in (the last one of each count)
+    dup = {"samples": 0, "reports": 0, "goals": 0}
+    wanted = {"/sagg/sample", "/sagg/competence", "/sagg/goal", "/sagg/regions"}
+    for topic, _, _, raw in bag_messages(paths, wanted):
+        if topic == "/sagg/sample":
+            _, idx, a, da, dy = decode_sample(raw)
+            if idx < len(mem):
+                dup["samples"] += 1
+                continue
+            if idx != len(mem):
+                raise ConfigError(f"bag: /sagg/sample index {idx} after {len(mem)} samples: samples are missing")
+            mem.add(a, da, dy)
+        elif topic == "/sagg/competence":
+            r = decode_report(raw)
+            if r.seq in reports:
+                dup["reports"] += 1
+            reports.setdefault(int(r.seq), r)
+        elif topic == "/sagg/goal":
+            from rclpy.serialization import deserialize_message
+            from sagg_msgs.msg import Goal
+            g = deserialize_message(bytes(raw), Goal)
+            key = (int(g.mode), int(g.after_report), np.asarray(g.position, float).tobytes())
+            if int(g.seq) in goals:
+                dup["goals"] += 1
+                if goals[int(g.seq)] != key:
+                    raise ConfigError(f"bag: goal {g.seq} recorded twice with different values")
+            goals.setdefault(int(g.seq), key)
+        else:
+            from rclpy.serialization import deserialize_message
+            from sagg_msgs.msg import RegionTree
+            snapshots[int(deserialize_message(bytes(raw), RegionTree).reports)] = bytes(raw)
+    # the generator, fed as the node feeds it: reports in seq order, each goal chosen once the
+    # reports it follows are in
+    seqs = sorted(reports)
+    if seqs != list(range(1, len(seqs) + 1)):
+        missing = sorted(set(range(1, (seqs[-1] if seqs else 0) + 1)) - set(seqs))
+        raise ConfigError(f"bag: /sagg/competence is missing report(s) {missing[:10]}")
+    by_after = {}
+    for seq, (mode, after, pos) in sorted(goals.items()):
+        by_after.setdefault(after, []).append((seq, mode, pos))
+    mismatches = []
+    from rclpy.serialization import deserialize_message
+    from sagg_msgs.msg import RegionTree
+    checked: list[int] = []
+    differ: list[int] = []
+
+    def same_tree(raw: bytes) -> bool:
+        rec = deserialize_message(raw, RegionTree)
+        leaves = gen.tree.leaves()
+        return len(rec.regions) == len(leaves) and all(
+            int(r.id) == g.id and np.asarray(r.lower).tobytes() == g.lower.tobytes()
+            and np.asarray(r.upper).tobytes() == g.upper.tobytes() and int(r.count) == g.count
+            and np.float64(r.interest).tobytes() == np.float64(g.interest).tobytes()
+            for r, g in zip(rec.regions, leaves))
+
+    def check_snapshot() -> None:
+        if gen.reports in snapshots:
+            checked.append(gen.reports)
+            if not same_tree(snapshots[gen.reports]):
+                differ.append(gen.reports)
+
+    check_snapshot()
+
+    def choose_due() -> None:
+        for seq, mode, pos in by_after.pop(gen.reports, []):
+            rec = gen.next_goal()
+            if (rec.seq, rec.mode, rec.position.tobytes()) != (seq, mode, pos):
+                mismatches.append(seq)
+
+    for seq in seqs:
+        choose_due()
+        r = reports[seq]
+        gen.report(r.kind, r.target if len(r.target) else r.reached, r.competence)
+        check_snapshot()
+    choose_due()
+    if by_after:
+        mismatches.extend(s for v in by_after.values() for s, _, _ in v)
+    # every recorded snapshot equals the relearned tree after the same number of reports
+    regions_match = bool(checked) and not differ and (max(snapshots) in checked)
+    outp = Path(out_dir)
+    outp.mkdir(parents=True, exist_ok=True)
+    mem.save(outp / "memory.npz")
+    write_json_atomic(outp / "regions.json", {"regions": gen.region_snapshot(), "splits": gen.tree.splits,
+                                              "reports": gen.reports, "goals": len(gen.goals)})
+    curve = []
+    if evaluate and len(mem):
+        errors = evaluate_frozen(learner, spec, lp, test_goals)
+        curve.append({"micro_actions": len(mem), "mean_error": float(errors.mean()),
+                      "median_error": float(np.median(errors))})
+    summary = {
+        "format": "sagg.relearn/1", "bags": [str(p) for p in paths], "strategy": lp["strategy"], "seed": lp["seed"],
+        "memory": {"samples": len(mem), "digest": mem.digest(), "bytes": int(mem.nbytes)},
+        "reports": gen.reports, "goals": len(gen.goals), "regions": len(gen.tree.leaves()),
+        "splits": len(gen.tree.splits), "duplicates_dropped": dup,
+        "goals_match": not mismatches and len(gen.goals) == len(goals), "goal_mismatches": mismatches[:100],
+        "regions_match": regions_match, "regions_snapshots_checked": len(checked),
+        "regions_snapshots_differing": differ[:100],
+        "last_regions_snapshot_reports": max(snapshots) if snapshots else None,
+        "curve": curve, "final_mean_error": curve[-1]["mean_error"] if curve else None,
+        "final_median_error": curve[-1]["median_error"] if curve else None,
+        "test_goals": test_goals.tolist(), "seconds": time.perf_counter() - t0,
+    }
+    write_json_atomic(outp / "summary.json", summary)
+    out(f"relearned {len(mem):,} samples (digest {mem.digest()[:16]}), {gen.reports:,} reports, "
+        f"{len(gen.goals)} goals (match recorded: {summary['goals_match']}), {len(gen.tree.leaves())} regions "
+        f"(equal to all {len(checked)} recorded /sagg/regions snapshots: {regions_match})"
+        + (f"; mean test error {curve[-1]['mean_error']:.3f} (median {curve[-1]['median_error']:.3f})" if curve else "")
+        + f" -> {outp}")
+    return summary
