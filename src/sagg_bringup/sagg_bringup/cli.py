@@ -138,6 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also measure graph vs in-process vs bare rclpy ping-pong (sagg bench graph)")
     s.add_argument("--graph-config", default="config/arm8.yaml")
     s.add_argument("--graph-micro-actions", type=positive_int, default=2000)
+    s.add_argument("--repeats", type=positive_int, default=1,
+                   help="timed windows per row on fresh runs, sizes interleaved; the best is kept")
     s.add_argument("--profile", type=int, default=0, metavar="N",
                    help="print the N functions with the most own time in the last timed window")
     g = bsub.add_parser("graph", help="graph vs in-process micro-actions/s vs a bare rclpy ping-pong")
@@ -273,7 +275,8 @@ def main(argv: list[str] | None = None) -> int:
             from .bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,
                         graph=args.graph, graph_micro_actions=args.graph_micro_actions,
-                        profile=args.profile, graph_config=args.graph_config)
+                        profile=args.profile, graph_config=args.graph_config,
+                        repeats=args.repeats)
             return 0
     except ConfigError as exc:
         print(f"sagg: error: {exc}", file=sys.stderr)
