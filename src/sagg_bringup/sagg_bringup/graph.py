@@ -559,6 +559,13 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         return run_synergy_graph(config_path, micro_actions, out_dir, seed=seed, strategy=strategy,
                                  timing=timing, eval_every=eval_every, overrides=overrides, progress=progress,
                                  domain_id=domain_id, stall_timeout=stall_timeout, report=report)
+    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
+    from .synergy_experiment import config_setup
+    if config_setup(config_path) is not None:
+        from .synergy_graph import run_synergy_graph
+        return run_synergy_graph(config_path, micro_actions, out_dir, seed=seed, strategy=strategy,
+                                 timing=timing, eval_every=eval_every, overrides=overrides, progress=progress,
+                                 domain_id=domain_id, stall_timeout=stall_timeout, report=report)
     from .experiment import goal_share_stats, write_json_atomic
     from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES
     from sagg_sim_bridge.arm import reachable_area

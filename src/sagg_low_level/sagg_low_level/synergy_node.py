@@ -125,7 +125,11 @@ class SynergyLearnerNode(Node):
 
     # ------------------------------------------------------------------ driving
     def _ready(self) -> bool:
-        if self.traj_pub.get_subscription_count() < 1:
+        # the driver must be there: it publishes the outcome topic and listens to the trajectories
+        # (a recorder subscribing to the trajectories alone does not count)
+        if self.count_publishers(self.params["task_topic"]) < 1:
+            return False
+        if self.traj_pub.get_subscription_count() < max(1, self.count_subscribers(self.traj_topic)):
             return False
         if self.uses_goals:
             if not self.goal_client.service_is_ready():
@@ -143,6 +147,16 @@ class SynergyLearnerNode(Node):
                 self.get_logger().info("graph ready: starting")
                 self.dispatch(self.pending)
             return
+        if (self.waiting_stamp is not None and type(self.pending) is Observe
+                and time.monotonic() - self.sent_time > 1.0):
+            # the rest-outcome query is harmless to repeat (it runs nothing): resend it once a second
+            # in case the driver's subscription was not matched yet
+            self.sent_time = time.monotonic()
+            stamp = self.waiting_stamp
+            msg = JointTrajectory()
+            msg.header.stamp = Time(sec=0, nanosec=stamp)
+            msg.joint_names = list(self.synergy.joint_names)
+            self.traj_pub.publish(msg)
         if self.waiting_stamp is not None and time.monotonic() - self.sent_time > self.params["response_timeout"]:
             self.get_logger().error(f"no outcome on {self.params['task_topic']} {self.params['response_timeout']} s "
                                     f"after a trajectory on {self.traj_topic}: is the driver running?")
