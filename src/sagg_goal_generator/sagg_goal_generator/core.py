@@ -83,6 +83,7 @@ class GoalGenerator:
         self.goals: list[GoalRecord] = []
         self.reports = 0  # number of reports processed (== seq of the last one)
         self.ignored_outside = 0
+        self.skipped_reports = 0  # rejected or lost reports (skip_report)
 
     @property
     def dim(self) -> int:
@@ -103,6 +104,13 @@ class GoalGenerator:
             return
         if self.tree.add(target, competence, stamp=len(self.goals)) is None:
             self.ignored_outside += 1
+
+    def skip_report(self) -> None:
+        """Count a report that was rejected as bad input (NaN, wrong dimension, unknown kind) or
+        lost in transport, without using it: the report numbering (``after_report`` of goal
+        requests) stays aligned with the learner's. Not in the paper (robustness)."""
+        self.reports += 1
+        self.skipped_reports += 1
 
     # ------------------------------------------------------------------ goals
     def next_goal(self) -> GoalRecord:

@@ -25,13 +25,16 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.service import Service
 
+from diagnostic_msgs.msg import DiagnosticArray
+
 from sagg_common.cdr import decode_report, encode_region_tree
+from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import declare_schema, reliable, run_node
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
 
-from .core import SCHEMA as CORE_SCHEMA, GoalGenerator
+from .core import KIND_NAMES, SCHEMA as CORE_SCHEMA, GoalGenerator
 
 NODE_NAME = "sagg_goal_generator"
 NODE_SCHEMA: Schema = (
@@ -92,6 +95,9 @@ class GoalGeneratorNode(Node):
             raise ConfigError(str(exc)) from exc
         self.active = core["strategy"] in ACTIVE_STRATEGIES
         self.exit_code = 0
+        self.guard = InputGuard(self.get_logger().error)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
+        self.create_timer(1.0, self.publish_diagnostics)
         self.goal_pub = self.create_publisher(Goal, "/sagg/goal", reliable(100))
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
@@ -118,18 +124,29 @@ class GoalGeneratorNode(Node):
         gen = self.gen
         try:
             msg = decode_report(raw)
-        except (ValueError, IndexError, struct.error) as exc:
-            self.get_logger().error(f"/sagg/competence: undecodable message ({exc})")
+        except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
+            self.guard.reject("report.undecodable", f"/sagg/competence: undecodable message ({exc})")
             return
         if msg.seq <= gen.reports:
-            return  # already processed (re-sent from the learner's history or republished after a resume)
+            # already processed: re-sent from the learner's history after a restart, or a duplicate
+            self.guard.reject("report.duplicate", f"competence report {msg.seq}: already have reports "
+                                                  f"1..{gen.reports}; dropped")
+            return
         if msg.seq != gen.reports + 1:
-            self.get_logger().error(
-                f"competence report {msg.seq} received after report {gen.reports}: reports were lost "
-                "or reordered; goals no longer match an in-process run")
+            lost = msg.seq - gen.reports - 1
+            self.guard.reject("report.lost", f"competence report {msg.seq} follows report {gen.reports}: "
+                                             f"{lost} report(s) lost or reordered, counted as skipped (goals "
+                                             "no longer match an in-process run)")
+            for _ in range(lost):
+                gen.skip_report()
         # Reached points / exploration samples carry the reached point (target may be empty).
-        target = msg.target if len(msg.target) else msg.reached
-        gen.report(msg.kind, target, msg.competence)
+        target = np.asarray(msg.target if len(msg.target) else msg.reached, dtype=float)
+        problem = self._report_problem(msg, target)
+        if problem:
+            self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; skipped")
+            gen.skip_report()
+        else:
+            gen.report(msg.kind, target, msg.competence)
         if self.checkpointer is not None:
             self._after_report_checkpoint()
         self.regions_dirty = True
@@ -137,6 +154,24 @@ class GoalGeneratorNode(Node):
             self.publish_regions()
         if self.waiting:
             self._release()
+
+    def _report_problem(self, msg, target: np.ndarray) -> str:
+        """What is wrong with a report's content ('' if nothing)."""
+        if msg.kind not in KIND_NAMES:
+            return f"kind {msg.kind}; allowed: {sorted(KIND_NAMES)}"
+        if target.shape != (self.gen.dim,):
+            return f"{target.size} target/reached coordinates; allowed: {self.gen.dim} (the task space)"
+        if not np.all(np.isfinite(target)):
+            return f"NaN/inf position {target.tolist()}; allowed: finite values"
+        if not math.isfinite(msg.competence) or msg.competence > 0.0:
+            return f"competence {msg.competence}; allowed: a finite value <= 0"
+        return ""
+
+    def publish_diagnostics(self) -> None:
+        gen = self.gen
+        state = {"reports": str(gen.reports), "skipped_reports": str(gen.skipped_reports),
+                 "goals": str(len(gen.goals)), "regions": str(len(gen.tree.leaves()))}
+        self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def _release(self) -> None:
         done = self.gen.reports

@@ -31,9 +31,12 @@ from rclpy.node import Node
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool
+from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64_array, encode_report,
                              encode_sample)
+from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
@@ -97,6 +100,11 @@ NODE_SCHEMA: Schema = (
     Param("journal_fsync", "bool", False,
           "fsync the journal after every record: survives a power cut, not only a killed process "
           "(one disk flush per micro-action)."),
+    Param("joint_state_timeout", "float", 2.0,
+          "Safety: pause (and say so in /sagg/status and /diagnostics) when no valid joint_states or "
+          "task point arrived for this long, or when /joint_states has no publisher; resume when they "
+          "return. Above the driver's publish period (the lockstep bridge re-publishes every 0.5 s "
+          "when idle).", low=0.0, high=3600.0, low_open=True),
     Param("goal_retry", "float", 5.0,
           "Seconds without an answer after which a goal request is sent again (e.g. the goal "
           "generator was restarted and lost it). The generator answers a repeated request "
@@ -125,6 +133,7 @@ def robot_from_params(p: dict) -> Robot:
 class LearnerNode(Node):
     # coroutine states
     STARTING, RUNNING_COMMAND, RUNNING_GOAL, STOPPED = "starting", "command", "goal", "stopped"
+    PAUSED = "paused"  # a command is due but a hold (pause service, stale driver) is active
 
     def __init__(self):
         super().__init__(NODE_NAME)
@@ -148,6 +157,12 @@ class LearnerNode(Node):
         self.done = False
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
 
+        # --- bad input and safety holds
+        self.guard = InputGuard(self.get_logger().error)
+        self.holds: dict[str, str] = {}  # reason key -> text; no command goes out while any is set
+        self.js_rx = self.tip_rx = time.monotonic()  # last valid joint state / task point received
+        self.js_limit_tol = 1e-9
+
         # --- topics
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
         self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
@@ -161,6 +176,8 @@ class LearnerNode(Node):
         self.create_subscription(PointStamped, p["task_topic"], self.on_task_point, reliable(10), raw=True)
         self.js_decoder = JointStateDecoder()
         self.goal_client = self.create_client(NextGoal, "/sagg/next_goal")
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
+        self.create_service(SetBool, "/sagg/pause", self.on_pause)
 
         # --- observation state
         self._names: tuple | None = None     # joint-name order of the last JointState seen (cached)
@@ -195,6 +212,7 @@ class LearnerNode(Node):
         self.t_started = time.monotonic()
         self.rate_window: list[tuple[float, int]] = [(time.monotonic(), 0)]
         self.create_timer(0.5, self.publish_status)
+        self.create_timer(1.0, self.publish_diagnostics)
         self.poll_timer = self.create_timer(0.05, self.on_poll)
         self.get_logger().info(
             f"strategy {core['strategy']}, {self.robot.n} joints, commands on {self.cmd_topic}, "
@@ -206,20 +224,34 @@ class LearnerNode(Node):
         try:
             st, names, pos, vel = self.js_decoder.decode(data)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
-            self.get_logger().error(f"joint_states: undecodable message ({exc})", throttle_duration_sec=5.0)
+            self.guard.reject("joint_states.undecodable", f"/joint_states: undecodable message ({exc})")
+            return
+        if len(pos) != len(names) or (len(vel) and len(vel) != len(names)):
+            self.guard.reject("joint_states.length",
+                              f"/joint_states: {len(names)} names but {len(pos)} positions and {len(vel)} "
+                              "velocities; allowed: one position per name, and no or one velocity per name")
             return
         if names is not self._names and not self._map_names(names):
             return
-        if len(pos) != len(names):
-            self.get_logger().error("joint_states: position length differs from name length",
-                                    throttle_duration_sec=5.0)
-            return
         if st < self.js_stamp:
-            return  # older than what we have (out of order): keep the newest
+            self.guard.reject("joint_states.out_of_order",
+                              f"/joint_states: stamp {st} ns is older than the newest one ({self.js_stamp} ns); "
+                              "kept the newest")
+            return
         idx = self._idx
         alpha = pos[idx]
-        settled = len(vel) != len(names) or bool(np.abs(vel[idx]).max() < self.settle_velocity)
+        v = vel[idx] if len(vel) else None
+        if not np.all(np.isfinite(alpha)) or (v is not None and not np.all(np.isfinite(v))):
+            bad = [self.robot.joint_names[i] for i in range(len(idx))
+                   if not np.isfinite(alpha[i]) or (v is not None and not np.isfinite(v[i]))]
+            self.guard.reject("joint_states.non_finite",
+                              f"/joint_states: NaN/inf position or velocity of {', '.join(bad)}; allowed: finite values")
+            return
+        settled = v is None or bool(np.abs(v).max() < self.settle_velocity)
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
+        self.js_rx = time.monotonic()
+        if self.holds:
+            self._check_driver()
         if self.state is self.RUNNING_COMMAND and st > self.js_min:
             self.js_fresh = True
             self._try_answer_command(False)
@@ -227,9 +259,11 @@ class LearnerNode(Node):
     def _map_names(self, names: tuple) -> bool:
         where = {n: i for i, n in enumerate(names)}
         missing = [j for j in self.robot.joint_names if j not in where]
-        if missing:
-            self.get_logger().error(f"joint_states lacks joint(s) {', '.join(missing)}; ignored",
-                                    throttle_duration_sec=5.0)
+        if missing or len(where) != len(names):
+            why = (f"lacks joint(s) {', '.join(missing)}" if missing else "names a joint twice")
+            self.guard.reject("joint_states.names",
+                              f"/joint_states {why}; allowed: every joint of the 'joints' parameter "
+                              f"({', '.join(self.robot.joint_names)}) once, other joints are ignored")
             return False
         self._names = names
         self._idx = np.array([where[j] for j in self.robot.joint_names], dtype=np.intp)
@@ -239,12 +273,23 @@ class LearnerNode(Node):
         try:
             st, xyz = decode_point_stamped(data)
         except (ValueError, IndexError, struct.error) as exc:
-            self.get_logger().error(f"task point: undecodable message ({exc})", throttle_duration_sec=5.0)
+            self.guard.reject("task_point.undecodable", f"{self.params['task_topic']}: undecodable message ({exc})")
             return
         if st < self.tip_stamp:
+            self.guard.reject("task_point.out_of_order",
+                              f"{self.params['task_topic']}: stamp {st} ns is older than the newest one "
+                              f"({self.tip_stamp} ns); kept the newest")
             return
-        self.tip = np.array(xyz[:self.m])
+        tip = np.array(xyz[:self.m])
+        if not np.all(np.isfinite(tip)):
+            self.guard.reject("task_point.non_finite",
+                              f"{self.params['task_topic']}: NaN/inf coordinate {tip.tolist()}; allowed: finite values")
+            return
+        self.tip = tip
         self.tip_stamp = st
+        self.tip_rx = time.monotonic()
+        if self.holds:
+            self._check_driver()
         if self.state is self.RUNNING_COMMAND and st > self.tip_min:
             self.tip_fresh = True
             self._try_answer_command(False)
@@ -279,9 +324,57 @@ class LearnerNode(Node):
                     self.get_logger().warning(
                         f"no fresh joint_states/task point {time.monotonic() - self.cmd_time:.1f} s after "
                         f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
+        if self.state not in (self.STARTING, self.STOPPED):
+            self._check_driver()
         if (self.outbox and self.state is not self.STARTING
                 and time.monotonic() - self.last_flush >= self.publish_period):
             self.flush()
+
+    # ------------------------------------------------------------------ safety holds
+    def _check_driver(self) -> None:
+        """Hold (no new command) while joint states or task points are stale or /joint_states has
+        no publisher; release when they are back. The command in flight, if any, completes when
+        fresh settled observations arrive: its sample holds measured values only."""
+        now = time.monotonic()
+        limit = self.params["joint_state_timeout"]
+        stale = [name for name, t in (("joint_states", self.js_rx), ("task point", self.tip_rx)) if now - t > limit]
+        if stale:
+            self._set_hold("driver", f"no valid {' or '.join(stale)} for more than {limit} s "
+                                     "(driver stopped or disconnected?)")
+        elif self.count_publishers("/joint_states") == 0:
+            self._set_hold("driver", "/joint_states has no publisher (driver gone)")
+        elif self.holds.get("driver"):
+            self._set_hold("driver", None)
+
+    def _set_hold(self, key: str, reason: str | None) -> None:
+        if reason is not None:
+            if self.holds.get(key) != reason:
+                self.get_logger().warning(f"pausing: {reason}")
+            self.holds[key] = reason
+            return
+        if self.holds.pop(key, None) is not None:
+            self.get_logger().info(f"{key} hold released" + (": resuming" if not self.holds else ""))
+        if not self.holds and self.state is self.PAUSED:
+            self.state = None
+            self.dispatch(self.pending)
+
+    def on_pause(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        """``/sagg/pause`` (std_srvs/SetBool): true = pause (the micro-action in flight completes and
+        is stored; no further command goes out), false = resume."""
+        if request.data:
+            self._set_hold("service", "paused by the /sagg/pause service")
+        else:
+            self._set_hold("service", None)
+        response.success = True
+        response.message = "paused" if self.holds else "running"
+        return response
+
+    def publish_diagnostics(self) -> None:
+        learner = self.learner
+        state = {"state": self.state or "running", "micro_actions": str(learner.micro_actions),
+                 "samples": str(len(learner.memory)), "holds": "; ".join(self.holds.values())}
+        fault = "; ".join(v for k, v in self.holds.items() if k != "service")
+        self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state, fault))
 
     def _ready(self) -> bool:
         if self.js_alpha is None or self.tip is None:
@@ -320,7 +413,18 @@ class LearnerNode(Node):
                 self.publish_status()
                 return
             if type(req) is Command:
-                data = encode_f64_array(req.target)
+                if self.holds:
+                    self.pending = req
+                    self.state = self.PAUSED
+                    if self.outbox:
+                        self.flush()
+                    return
+                target = self._safe_command(req)
+                if target is None:
+                    self._set_hold("fault", "the learner produced an invalid command (see /diagnostics)")
+                    self.pending, self.state = req, self.PAUSED
+                    return
+                data = encode_f64_array(target)
                 self.js_min = self.js_stamp + self.delay_ns
                 self.tip_min = self.tip_stamp + self.delay_ns
                 self.js_fresh = self.tip_fresh = False
@@ -345,6 +449,26 @@ class LearnerNode(Node):
                 continue
             raise TypeError(f"unknown learner request {req!r}")
 
+    def _safe_command(self, req: Command) -> np.ndarray:
+        """Last check before a command leaves: within the joint limits and, for a micro-action,
+        at most ``max_joint_step`` from the posture it starts from. The learner core already
+        guarantees both (``safe_target``); anything else is a bug, clipped and counted."""
+        target = np.asarray(req.target, dtype=float)
+        robot = self.robot
+        if not np.all(np.isfinite(target)) or target.shape != robot.lower.shape:
+            self.guard.reject("command.invalid", f"the learner produced the command {target.tolist()}; "
+                                                 f"allowed: {robot.n} finite values")
+            return None
+        lo, hi = robot.lower, robot.upper
+        if req.kind != "reset":  # (1e-9 rad: the core's own rounding of alpha + step)
+            step = self.learner.p["max_joint_step"] + 1e-9
+            lo, hi = np.maximum(lo, self.learner.alpha - step), np.minimum(hi, self.learner.alpha + step)
+        if np.any(target < lo) or np.any(target > hi):
+            self.guard.reject("command.clipped", f"command {target.tolist()} outside the joint limits or "
+                                                 "max_joint_step from the current posture: clipped")
+            return np.minimum(np.maximum(target, lo), hi)
+        return target
+
     def on_goal(self, fut) -> None:
         if fut is not self.goal_future:
             return  # an answer to a request sent again since (goal_retry)
@@ -355,8 +479,17 @@ class LearnerNode(Node):
             self.done = True
             return
         g = resp.goal
+        pos = np.array(g.position, dtype=np.float64)
+        lo, hi = self.learner.task_lower, self.learner.task_upper
+        if pos.shape != lo.shape or not np.all(np.isfinite(pos)) or np.any(pos < lo) or np.any(pos > hi):
+            self.guard.reject("goal.invalid", f"goal {g.seq} at {pos.tolist()}: allowed: {len(lo)} finite "
+                                              f"values within task_space [{lo.tolist()}, {hi.tolist()}]; "
+                                              f"asking again in {self.params['goal_retry']} s")
+            self.goal_future = None  # _retry_goal_request asks again
+            self.goal_time = time.monotonic()
+            return
         self.goals_received += 1
-        self.advance((int(g.seq), np.array(g.position, dtype=np.float64)))
+        self.advance((int(g.seq), pos))
 
     # ------------------------------------------------------------------ outputs
     def flush(self) -> None:
@@ -412,13 +545,14 @@ class LearnerNode(Node):
 
     def _retry_goal_request(self) -> None:
         fut = self.goal_future
-        if fut is None or fut.done() or time.monotonic() - self.goal_time < self.params["goal_retry"]:
+        if (fut is not None and fut.done()) or time.monotonic() - self.goal_time < self.params["goal_retry"]:
             return
         if not self.goal_client.service_is_ready():
             return
         self.get_logger().warning(f"no answer to the goal request after {self.params['goal_retry']} s: "
                                   "sending it again", throttle_duration_sec=5.0)
-        self.goal_client.remove_pending_request(fut)
+        if fut is not None:
+            self.goal_client.remove_pending_request(fut)
         new = self.goal_client.call_async(NextGoal.Request(after_report=self.learner.reports_sent))
         self.goal_future, self.goal_time = new, time.monotonic()
         new.add_done_callback(self.on_goal)
@@ -462,8 +596,9 @@ class LearnerNode(Node):
         msg.samples = len(learner.memory)
         msg.last_competence = float(learner.last_competence)
         msg.micro_actions_per_second = (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
-        msg.paused = self.state in (self.STARTING, self.STOPPED)
-        msg.pause_reason = self.pause_reason if msg.paused else ""
+        msg.paused = self.state in (self.STARTING, self.STOPPED, self.PAUSED) or bool(self.holds)
+        reason = self.pause_reason if self.state in (self.STARTING, self.STOPPED) else ""
+        msg.pause_reason = "; ".join([r for r in [reason, *self.holds.values()] if r]) if msg.paused else ""
         self.status_pub.publish(msg)
 
 

@@ -37,8 +37,10 @@ from geometry_msgs.msg import PointStamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
+from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import Param, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.rng import substream_seed
@@ -83,6 +85,9 @@ class BridgeNode(Node):
         self.exit_code = 0
 
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
+        self.guard = InputGuard(self.get_logger().error)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
+        self.create_timer(1.0, self.publish_diagnostics)
         self.js_pub = self.create_publisher(JointState, "/joint_states", reliable(HW_DEPTH))
         self.tip_pub = self.create_publisher(PointStamped, p["task_topic"], reliable(HW_DEPTH))
         # hot path: raw CDR in and out (sagg_common.cdr), no message objects
@@ -120,15 +125,15 @@ class BridgeNode(Node):
         try:
             target = decode_f64_array(raw)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
-            self.get_logger().error(f"{self.cmd_topic}: undecodable message ({exc})", throttle_duration_sec=5.0)
+            self.guard.reject("command.undecodable", f"{self.cmd_topic}: undecodable message ({exc})")
             return
         if len(target) != self.n:
-            self.get_logger().error(
-                f"{self.cmd_topic}: got {len(target)} values; allowed: {self.n} (joint_0..joint_{self.n - 1})",
-                throttle_duration_sec=5.0)
+            self.guard.reject("command.length", f"{self.cmd_topic}: got {len(target)} values; allowed: "
+                                                f"{self.n} (joint_0..joint_{self.n - 1})")
             return
         if not np.all(np.isfinite(target)):
-            self.get_logger().error(f"{self.cmd_topic}: non-finite command ignored", throttle_duration_sec=5.0)
+            self.guard.reject("command.non_finite", f"{self.cmd_topic}: NaN/inf in {target.tolist()}; "
+                                                    "allowed: finite values")
             return
         self.commands += 1
         if self.lockstep:
@@ -167,6 +172,10 @@ class BridgeNode(Node):
         self.clock_pub.publish(Clock(clock=to_time(self.sim_ns())))
 
     # ------------------------------------------------------------------ output
+    def publish_diagnostics(self) -> None:
+        state = {"commands": str(self.commands), "timing": self.params["timing"]}
+        self.diag_pub.publish(diagnostic_array(to_time(time.time_ns()), NODE_NAME, self.guard, state))
+
     def publish_state(self) -> None:
         ns = self.sim_ns()
         sim = self.sim
