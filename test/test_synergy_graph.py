@@ -1,0 +1,52 @@
+"""The synergy graph (goal_generator + synergy_learner + synergy_bridge as processes, private
+ROS_DOMAIN_ID, SIGKILL fallback in stop_processes) equals the in-process run, and its bag holds the
+trajectories and outcomes."""
+from __future__ import annotations
+
+import numpy as np
+
+from sagg_bringup.experiment import run_experiment
+from sagg_bringup.graph import run_graph
+from sagg_bringup.recorder import make_typestore
+from sagg_bringup.synergy_experiment import load_synergy_config
+from sagg_low_level.fixed_context import synergy_from_params
+
+OVERRIDES = {"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0}
+
+
+def test_quadruped_graph_equals_in_process_and_records_trajectories(tmp_path):
+    n = 16
+    graph = run_graph("config/quadruped.yaml", n, tmp_path / "graph", eval_every=8, overrides=OVERRIDES,
+                      progress=False, stall_timeout=120.0)
+    inproc = run_experiment("config/quadruped.yaml", None, None, n, 8, tmp_path / "inproc", progress=False,
+                            overrides=OVERRIDES)
+    # bit-identical samples (θ and outcomes), goals and test errors
+    assert graph["memory"]["samples"] == inproc["memory"]["samples"] == n
+    assert graph["memory"]["digest"] == inproc["memory"]["digest"]
+    assert graph["curve"] == inproc["curve"]
+    assert [g["position"] for g in graph["goals"]] == [g["position"] for g in inproc["goals"]]
+
+    topics = graph["bag"]["topics"]
+    traj_topic = "/joint_trajectory_controller/joint_trajectory"
+    assert topics[traj_topic]["type"] == "trajectory_msgs/msg/JointTrajectory"
+    assert topics[traj_topic]["count"] == n + 1          # + the empty rest-outcome query
+    assert topics["/body_pose"]["type"] == "geometry_msgs/msg/PoseStamped"
+    assert topics["/body_pose"]["count"] == n + 1
+    assert topics["/sagg/sample"]["count"] == n
+
+    # the first recorded synergy is the trajectory of the first stored θ
+    from rosbags.highlevel import AnyReader
+    store = make_typestore()
+    cfg = load_synergy_config("config/quadruped.yaml", OVERRIDES)
+    syn = synergy_from_params(cfg["sagg_learner"])
+    with AnyReader([tmp_path / "graph" / "bag"], default_typestore=store) as reader:
+        conns = {c.topic: c for c in reader.connections}
+        trajs = [reader.deserialize(raw, c.msgtype)
+                 for c, _, raw in reader.messages(connections=[conns[traj_topic]])]
+        samples = [reader.deserialize(raw, c.msgtype)
+                   for c, _, raw in reader.messages(connections=[conns["/sagg/sample"]])]
+    assert len(trajs[0].points) == 0
+    expected = syn.trajectory(np.array(samples[0].alpha))
+    got = np.array([p.positions for p in trajs[1].points])
+    np.testing.assert_array_equal(got, expected.positions)
+    assert list(trajs[1].joint_names) == syn.joint_names
