@@ -84,9 +84,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="run the ROS 2 graph (three node processes), record a bag, "
                                    "evaluate, report")
-    r.add_argument("config", help="experiment YAML (ROS 2 parameter-file form)")
-    r.add_argument("--micro-actions", type=positive_int, default=10_000,
-                   help="learning budget (the learner stops there)")
+    r.add_argument("config", nargs="?", help="experiment YAML (ROS 2 parameter-file form)")
+    r.add_argument("--resume", metavar="DIR", help="continue the stopped run in DIR (its params.yaml and "
+                   "checkpoints; recorded into DIR/bag2, bag3, ...); no CONFIG then")
+    r.add_argument("--micro-actions", type=positive_int, default=None,
+                   help="learning budget (the learner stops there; default 10000, with --resume the run's own)")
     r.add_argument("--seed", type=int, help="overrides the config's seed")
     r.add_argument("--strategy", choices=STRATEGIES, help="overrides the config's strategy")
     r.add_argument("--out", help="output directory (default runs/<config>-<strategy>-seed<S>-<time>)")
@@ -188,6 +190,12 @@ def _run(args) -> int:
     import time
 
     from .graph import GraphError, run_graph
+    if args.resume:
+        return _resume(args)
+    if args.config is None:
+        raise ConfigError("sagg run: CONFIG is required (or --resume DIR)")
+    if args.micro_actions is None:
+        args.micro_actions = 10_000
     out = args.out
     if out is None:
         seed = "" if args.seed is None else f"-seed{args.seed}"
@@ -201,7 +209,8 @@ def _run(args) -> int:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
-        print(f"\nsagg: interrupted; bag closed, partial results in {out}", file=sys.stderr)
+        print(f"\nsagg: interrupted; bag closed, partial results in {out} (sagg run --resume {out} "
+              "continues)", file=sys.stderr)
         return 130
     print(f"{s['strategy']} seed {s['seed']} (graph, {s['timing']}): final mean test error "
           f"{s['final_mean_error']:.3f} (median {s['final_median_error']:.3f}) after {s['micro_actions']} "
@@ -209,6 +218,43 @@ def _run(args) -> int:
           f"{len(s['goals'])} goals, {len(s['regions'])} regions, "
           f"{sum(t['count'] for t in s['bag']['topics'].values()):,} messages recorded\n"
           f"-> {Path(out) / 'summary.json'}, {Path(out) / 'report.md'}, {s['bag']['path']}")
+    return 0
+
+
+def _resume(args) -> int:
+    """``sagg run --resume DIR``: the same run, continued (timing and budget from DIR unless given)."""
+    import json
+
+    from .graph import GraphError, run_graph
+    out = Path(args.resume)
+    params_file = out / "params.yaml"
+    if args.config is not None or args.seed is not None or args.strategy is not None or args.set:
+        raise ConfigError("--resume DIR: no CONFIG, --seed, --strategy or --set (the run's own params.yaml is used)")
+    if not params_file.is_file():
+        raise ConfigError(f"--resume: '{params_file}' not found; allowed: the directory of a `sagg run`")
+    doc = yaml.safe_load(params_file.read_text()) or {}
+    learner = doc.get("sagg_learner", {}).get("ros__parameters", {})
+    bridge = doc.get("sagg_sim_bridge", {}).get("ros__parameters", {})
+    old = {}
+    if (out / "summary.json").is_file():
+        old = json.loads((out / "summary.json").read_text())
+    micro = args.micro_actions or int(learner.get("max_micro_actions") or 10_000)
+    eval_every = old.get("eval_every", args.eval_every)
+    timing = bridge.get("timing", args.timing)
+    try:
+        s = run_graph(params_file, micro, out, timing=timing, eval_every=eval_every,
+                      progress=not args.quiet, domain_id=args.domain_id, resume=True)
+    except GraphError as exc:
+        print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
+        return exc.code
+    except KeyboardInterrupt:
+        print(f"\nsagg: interrupted; bag closed, partial results in {out} (sagg run --resume {out} continues)",
+              file=sys.stderr)
+        return 130
+    print(f"{s['strategy']} seed {s['seed']} (graph, {s['timing']}, resumed): final mean test error "
+          f"{s['final_mean_error']:.3f} (median {s['final_median_error']:.3f}) after {s['micro_actions']} "
+          f"micro-actions; {len(s['goals'])} goals, {len(s['regions'])} regions; bags "
+          f"{', '.join(s['bag']['paths'])}\n-> {out / 'summary.json'}, {out / 'report.md'}")
     return 0
 
 

@@ -173,6 +173,16 @@ def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str) -> 
     return params
 
 
+def run_bags(out: Path) -> list[Path]:
+    """The bags of a run directory in recording order: ``bag``, ``bag2``, ``bag3``, ..."""
+    found = []
+    k = 1
+    while (out / ("bag" if k == 1 else f"bag{k}") / "metadata.yaml").is_file():
+        found.append(out / ("bag" if k == 1 else f"bag{k}"))
+        k += 1
+    return found
+
+
 def set_checkpoint_dirs(params: dict[str, dict], out: Path) -> None:
     """Learner and generator checkpoint (with their journals) into ``DIR/checkpoint`` unless the
     config names a directory: what ``sagg run --resume DIR`` continues from. (ACTUATOR-RIAC's
@@ -550,15 +560,15 @@ def _status_dict(m) -> dict:
 def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
               seed: int | None = None, strategy: str | None = None, timing: str = "lockstep",
               eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
-              domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True) -> dict:
-    """Run the graph for ``micro_actions`` micro-actions; returns the summary (also in DIR)."""
-    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
-    from .synergy_experiment import config_setup
-    if config_setup(config_path) is not None:
-        from .synergy_graph import run_synergy_graph
-        return run_synergy_graph(config_path, micro_actions, out_dir, seed=seed, strategy=strategy,
-                                 timing=timing, eval_every=eval_every, overrides=overrides, progress=progress,
-                                 domain_id=domain_id, stall_timeout=stall_timeout, report=report)
+              domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True,
+              resume: bool = False) -> dict:
+    """Run the graph for ``micro_actions`` micro-actions; returns the summary (also in DIR).
+
+    ``resume``: continue the stopped run in ``out_dir`` (``sagg run --resume DIR``; config_path is
+    then DIR/params.yaml): the nodes resume from DIR/checkpoint, this segment is recorded into a new
+    bag (``bag2``, ``bag3``, ...; logs ``logs/<node>.<k>.log``), and the earlier bags are read first,
+    so the evaluation, the summary and the report cover the whole run (samples, reports and goals
+    republished by the resumed nodes are dropped by index / sequence number)."""
     # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
     from .synergy_experiment import config_setup
     if config_setup(config_path) is not None:
@@ -586,12 +596,20 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         ov["seed"] = seed
     full = load_graph_config(config_path, ov)
     out = Path(out_dir)
-    if (out / "bag").exists():
-        raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
+    prior_bags = run_bags(out) if resume else []
+    if resume and not prior_bags:
+        raise ConfigError(f"--resume: '{out}' holds no bag; allowed: the directory of a `sagg run`")
+    if not resume and (out / "bag").exists():
+        raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory "
+                          "(or --resume DIR to continue that run)")
+    segment = len(prior_bags) + 1
+    while (out / ("bag" if segment == 1 else f"bag{segment}")).exists():
+        segment += 1  # (an unreadable bag: `sagg run` itself was killed; kept, not read)
+    bag_path = out / ("bag" if segment == 1 else f"bag{segment}")
     procs = []
     for name, (module, script) in NODES.items():
         exe = find_node_executable(module.split(".")[0], script)
-        procs.append(NodeProcess(name, exe, out / "logs" / f"{script}.log"))
+        procs.append(NodeProcess(name, exe, out / "logs" / (f"{script}.log" if segment == 1 else f"{script}.{segment}.log")))
     (out / "logs").mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
 
@@ -622,7 +640,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
     topics = graph_topics(params["sagg_learner"], timing)
-    bag = BagWriter(out / "bag", topics)
+    bag = BagWriter(bag_path, topics)
     st = RunState()
     eval_pub = node.create_publisher(Evaluation, "/sagg/evaluation", 100)
 
@@ -637,9 +655,28 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         eval_pub.publish(msg)
         st.last_error = msg.mean_error
 
-    evaluator = Evaluator(lp, bp, checkpoints)  # computes the area and test goals meanwhile
+    # a resumed run: the earlier segments' messages, and their evaluations (not repeated)
+    prior = []
+    done_evals: dict[int, np.ndarray] = {}
+    if prior_bags:
+        from rclpy.serialization import deserialize_message
+        from .bags import bag_messages
+        prior = list(bag_messages(prior_bags, {"/sagg/sample", "/sagg/goal", "/sagg/competence",
+                                               "/sagg/regions", "/sagg/evaluation"}))
+        for topic, _, _, raw in prior:
+            if topic == "/sagg/evaluation":
+                em = deserialize_message(bytes(raw), Evaluation)
+                done_evals[int(em.micro_actions)] = np.array(em.errors)
+    evaluator = Evaluator(lp, bp, [c for c in checkpoints if c not in done_evals])  # computes the area and test goals meanwhile
+    evaluator.checkpoints = sorted(set(checkpoints))
+    for at, errors in sorted(done_evals.items()):
+        evaluator.errors[at] = errors
+        evaluator.curve.append({"micro_actions": at, "mean_error": float(errors.mean()),
+                                "median_error": float(np.median(errors))})
 
     def on_sample(m) -> None:
+        if int(m.index) < st.samples:
+            return  # republished by a resumed learner (same values)
         now = time.perf_counter()
         if st.sample_t0 is None:
             st.sample_t0 = now
@@ -650,6 +687,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
 
     def on_goal(m) -> None:
+        if int(m.seq) in st.goals:
+            return  # published again (a repeated goal request after a generator restart)
         if int(m.seq) != len(st.goals) + 1:
             st.gaps["/sagg/goal"] += 1
         st.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
@@ -657,6 +696,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                                 "after_report": int(m.after_report)}
 
     def on_report(m) -> None:
+        if int(m.seq) <= st.reports:
+            return  # republished by a resumed learner
         if int(m.seq) != st.reports + 1:
             st.gaps["/sagg/competence"] += 1
         st.reports += 1
@@ -673,6 +714,16 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
 
     def on_status(m) -> None:
         st.status = _status_dict(m)
+
+    if prior:
+        from .recorder import _msg_class
+        handlers = {"/sagg/sample": on_sample, "/sagg/goal": on_goal, "/sagg/competence": on_report,
+                    "/sagg/regions": on_regions}
+        for topic, msgtype, _, raw in prior:
+            if topic in handlers:
+                handlers[topic](deserialize_message(bytes(raw), _msg_class(msgtype)))
+        st.sample_t0 = st.sample_t1 = None  # rates: this segment only
+    prior_samples = st.samples
 
     recorder = TopicRecorder(node, bag, topics, {
         "/sagg/sample": on_sample, "/sagg/goal": on_goal, "/sagg/competence": on_report,
@@ -773,7 +824,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     wall = time.perf_counter() - t_start
 
     # ---- summary
-    learn_seconds = (st.sample_t1 - st.sample_t0) if st.samples > 1 else 0.0
+    learn_seconds = (st.sample_t1 - st.sample_t0) if st.samples - prior_samples > 1 else 0.0
     goals = []
     for seq in sorted(st.goals):
         g = dict(st.goals[seq])
@@ -804,7 +855,9 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         "domain_id": domain,
         "micro_actions": int(done),
         "micro_actions_requested": int(micro_actions),
-        "micro_actions_per_second": (st.samples - 1) / learn_seconds if learn_seconds > 0 else float("nan"),
+        "micro_actions_per_second": (st.samples - prior_samples - 1) / learn_seconds if learn_seconds > 0 else float("nan"),
+        "eval_every": eval_every,
+        "resumed_segments": segment - 1,
         "learn_seconds": learn_seconds,
         "startup_seconds": (t_first - t_nodes) if t_first is not None else float("nan"),
         "eval_seconds": evaluator.eval_seconds,
@@ -820,7 +873,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         "test_goals": evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
         "regions": regions,
         "splits": tracker.splits,
-        "bag": {"path": str(out / "bag"), "storage": "mcap", "topics": bag_topics,
+        "bag": {"path": str(bag_path), "paths": [str(b) for b in prior_bags + [bag_path]], "storage": "mcap",
+                "topics": bag_topics,
                 "sequence_gaps": st.gaps},
         "rates": {t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0},
         "nodes": {p.name: {"pid": p.popen.pid if p.popen else None, "exit_code": p.exit_code,
