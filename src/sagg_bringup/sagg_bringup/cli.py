@@ -40,7 +40,10 @@ def node_schemas() -> dict:
     from sagg_goal_generator.node import SCHEMA as GEN
     from sagg_low_level.node import SCHEMA as LEARNER
     from sagg_sim_bridge.node import SCHEMA as BRIDGE
-    return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER, "sagg_sim_bridge": BRIDGE}
+    from sagg_bringup.synergy_experiment import LEARNER_SCHEMA as SYN_LEARNER, SYN_BRIDGE_SCHEMA as SYN_BRIDGE
+    return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER, "sagg_sim_bridge": BRIDGE,
+            # synergy setups (config `setup: quadruped|fishing`): same node names, other executables
+            "sagg_learner (synergy_learner)": SYN_LEARNER, "sagg_sim_bridge (synergy_bridge)": SYN_BRIDGE}
 
 
 def params_markdown(node: str | None = None) -> str:
