@@ -183,14 +183,19 @@ def run_bags(out: Path) -> list[Path]:
     return found
 
 
-def set_checkpoint_dirs(params: dict[str, dict], out: Path) -> None:
+def set_checkpoint_dirs(params: dict[str, dict], out: Path, resume: bool = False) -> None:
     """Learner and generator checkpoint (with their journals) into ``DIR/checkpoint`` unless the
-    config names a directory: what ``sagg run --resume DIR`` continues from. (ACTUATOR-RIAC's
-    learner cannot checkpoint: its region tree is not saved.)"""
-    for name in ("sagg_learner", "sagg_goal_generator"):
+    config names a directory: what ``sagg run --resume DIR`` continues from. When resuming, a
+    node whose checkpoint is in ``DIR/checkpoint`` resumes from there even if params.yaml names
+    another path (the run directory was moved or copied). (ACTUATOR-RIAC's learner cannot
+    checkpoint: its region tree is not saved.)"""
+    own = out / "checkpoint"
+    for name, meta in (("sagg_learner", "learner.json"), ("sagg_goal_generator", "generator.json")):
         p = params[name]
-        if "checkpoint_dir" in p and not p["checkpoint_dir"] and p.get("strategy") != "actuator-riac":
-            p["checkpoint_dir"] = str((out / "checkpoint").resolve())
+        if "checkpoint_dir" not in p or p.get("strategy") == "actuator-riac":
+            continue
+        if not p["checkpoint_dir"] or (resume and (own / meta).is_file()):
+            p["checkpoint_dir"] = str(own.resolve())
 
 
 def write_params_file(path: Path, params: dict[str, dict]) -> None:
@@ -614,7 +619,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     t_start = time.perf_counter()
 
     params = graph_params(full, micro_actions, timing)
-    set_checkpoint_dirs(params, out)
+    set_checkpoint_dirs(params, out, resume)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
     config = core_config(full)

@@ -1,0 +1,183 @@
+"""Bags of `sagg run`: relearning offline gives the run's final memory and region tree; replay
+republishes the exact recorded CDR (counts and bytes), and stops cleanly on SIGINT."""
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sagg_bringup.bags import bag_messages, relearn
+from sagg_low_level.memory import SampleMemory
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+STEPS = 600
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """A small `sagg run` (7-DOF kinematic arm, mostly reachable Y)."""
+    out = tmp_path_factory.mktemp("run") / "r"
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    p = subprocess.run([str(BIN / "sagg"), "run", str(ROOT / "config/arm15_y50.yaml"), "--set", "arm.dof=7",
+                        "--set", "arm.mode=kinematic", "--micro-actions", str(STEPS), "--eval-every", "300",
+                        "--out", str(out), "--quiet"], env=env, capture_output=True, text=True, timeout=400)
+    assert p.returncode == 0, p.stdout + p.stderr
+    return out
+
+
+def test_relearn_gives_the_runs_memory_and_tree(run_dir, tmp_path):
+    summary = json.loads((run_dir / "summary.json").read_text())
+    s = relearn([run_dir / "bag"], tmp_path / "re", out=lambda _: None)
+    # the memory rebuilt offline is the run's final memory (recorded samples, and the learner's own
+    # final checkpoint, written at shutdown)
+    ck = json.loads((run_dir / "checkpoint" / "learner.json").read_text())
+    assert s["memory"]["samples"] == STEPS == ck["memory_samples"]
+    assert s["memory"]["digest"] == summary["memory"]["digest"] == ck["memory_digest"]
+    mem = SampleMemory.load(tmp_path / "re" / "memory.npz")
+    assert mem.digest() == ck["memory_digest"]
+    # the region tree: the core generator, fed the recorded reports and choosing the goals as the
+    # node did, chose every recorded goal and equals every recorded /sagg/regions snapshot,
+    # the last one included
+    assert s["goals_match"] and s["goals"] == len(summary["goals"]) >= 2
+    assert s["regions_match"] and s["regions_snapshots_checked"] >= 2 and s["splits"] >= 1
+    assert s["last_regions_snapshot_reports"] == s["reports"] == summary["reports"]
+    regions = json.loads((tmp_path / "re" / "regions.json").read_text())
+    assert [(r["id"], r["lower"], r["upper"], r["count"]) for r in regions["regions"]] == \
+           [(r["id"], r["lower"], r["upper"], r["count"]) for r in summary["regions"]]
+    # same evaluation code and test goals as the run: the same final test error
+    assert s["test_goals"] == summary["test_goals"]
+    assert s["final_mean_error"] == summary["final_mean_error"]
+
+
+def test_relearn_detects_a_tampered_recording(run_dir, tmp_path):
+    """A sample missing from the recording is an error naming it, not a silently different memory."""
+    from sagg_bringup.recorder import BagWriter, TopicSpec
+    msgs = list(bag_messages([run_dir / "bag"]))
+    types = {t: ty for t, ty, _, _ in msgs}
+    bag = BagWriter(tmp_path / "bag", [TopicSpec(t, ty) for t, ty in types.items()])
+    dropped = False
+    for topic, _, ts, raw in msgs:
+        if topic == "/sagg/sample" and not dropped and ts > msgs[len(msgs) // 2][2]:
+            dropped = True
+            continue
+        bag.write(topic, ts, raw)
+    bag.close()
+    from sagg_common.params import ConfigError
+    with pytest.raises(ConfigError, match="samples are missing"):
+        relearn([tmp_path / "bag"], tmp_path / "re", params_file=run_dir / "params.yaml", out=lambda _: None)
+
+
+def _subscriber(domain: int, topics: dict[str, str]):
+    """A test-side node receiving the raw bytes of ``topics`` (name -> type)."""
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sagg_bringup.recorder import _msg_class
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node("sagg_test_replay_sub", context=ctx)
+    got: dict[str, list[bytes]] = {t: [] for t in topics}
+    for t, ty in topics.items():
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if t == "/sagg/regions" else DurabilityPolicy.VOLATILE)
+        node.create_subscription(_msg_class(ty), t, lambda data, t=t: got[t].append(bytes(data)), qos, raw=True)
+    ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    return ctx, ex, got
+
+
+def test_replay_republishes_the_exact_bytes(run_dir):
+    bag = run_dir / "bag"
+    recorded: dict[str, list[bytes]] = {}
+    types = {}
+    for topic, ty, _, raw in bag_messages([bag]):
+        recorded.setdefault(topic, []).append(bytes(raw))
+        types[topic] = ty
+    topics = {t: types[t] for t in ("/sagg/sample", "/sagg/goal", "/sagg/competence", "/sagg/regions",
+                                    "/joint_states")}
+    domain = random.randint(1, 200)
+    ctx, ex, got = _subscriber(domain, topics)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(bag), "--rate", "0", "--topics", *topics,
+                             "--wait-subscribers", "1"], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        end = time.monotonic() + 120
+        while time.monotonic() < end and (proc.poll() is None or
+                                          any(len(got[t]) < len(recorded[t]) for t in topics)):
+            ex.spin_once(timeout_sec=0.05)
+            if proc.poll() is not None and proc.returncode != 0:
+                break
+        text = proc.communicate(timeout=30)[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        ctx.try_shutdown()
+    assert proc.returncode == 0, text
+    for t in topics:
+        assert len(got[t]) == len(recorded[t]) > 0, t
+        assert got[t] == recorded[t], t  # same bytes, same order
+    assert f"replayed {sum(len(recorded[t]) for t in topics):,} messages" in text
+
+
+def test_replay_stops_cleanly_on_sigint(run_dir):
+    domain = random.randint(1, 200)
+    ctx, ex, got = _subscriber(domain, {"/sagg/sample": "sagg_msgs/msg/Sample"})
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(run_dir / "bag"), "--rate", "1", "--loop",
+                             "--topics", "/sagg/sample", "--wait-subscribers", "1"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        end = time.monotonic() + 60
+        while time.monotonic() < end and len(got["/sagg/sample"]) < 5:
+            ex.spin_once(timeout_sec=0.05)
+        assert len(got["/sagg/sample"]) >= 5
+        proc.send_signal(signal.SIGINT)
+        text = proc.communicate(timeout=30)[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        ctx.try_shutdown()
+    assert proc.returncode == 130, text
+    assert "(interrupted)" in text and "Traceback" not in text
+    # what arrived is the recording's start, in order (rate 1: the bag's own pace)
+    recorded = [bytes(raw) for _, _, _, raw in bag_messages([run_dir / "bag"], {"/sagg/sample"})]
+    n = len(got["/sagg/sample"])
+    assert got["/sagg/sample"] == (recorded * (n // len(recorded) + 1))[:n]
+    assert np.all(np.isfinite([len(b) for b in got["/sagg/sample"]]))
+
+
+def test_run_resume_continues_the_run(run_dir, tmp_path):
+    """`sagg run --resume DIR` on a finished run with a larger budget: the nodes resume from the
+    checkpoints, the new segment goes to bag2, and the summary, the relearned memory and the
+    learner's own final checkpoint agree on the whole run (the first segment's samples unchanged)."""
+    import shutil
+    run = tmp_path / "r"
+    shutil.copytree(run_dir, run)
+    first = json.loads((run / "summary.json").read_text())
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    p = subprocess.run([str(BIN / "sagg"), "run", "--resume", str(run), "--micro-actions", str(STEPS + 300),
+                        "--quiet"], env=env, capture_output=True, text=True, timeout=400)
+    assert p.returncode == 0, p.stdout + p.stderr
+    s = json.loads((run / "summary.json").read_text())
+    assert s["micro_actions"] == s["memory"]["samples"] == STEPS + 300
+    assert s["bag"]["paths"] == [str(run / "bag"), str(run / "bag2")] and s["resumed_segments"] == 1
+    assert [c["micro_actions"] for c in s["curve"]] == [0, 300, 600, 900]
+    assert s["curve"][:3] == first["curve"]  # the first segment's evaluations are kept, not redone
+    assert all(v == 0 for v in s["bag"]["sequence_gaps"].values())
+    assert "resumed from" in (run / "logs" / "learner.2.log").read_text()
+    ck = json.loads((run / "checkpoint" / "learner.json").read_text())
+    r = relearn([run / "bag", run / "bag2"], tmp_path / "re", out=lambda _: None)
+    assert r["memory"]["digest"] == s["memory"]["digest"] == ck["memory_digest"]
+    assert r["goals_match"] and r["regions_match"] and r["reports"] == s["reports"]
+    old = SampleMemory.load(run_dir / "checkpoint" / json.loads((run_dir / "checkpoint" / "learner.json").read_text())["memory_file"])
+    new = SampleMemory.load(tmp_path / "re" / "memory.npz")
+    assert new.alpha[:STEPS].tobytes() == old.alpha.tobytes() and new.delta_y[:STEPS].tobytes() == old.delta_y.tobytes()
