@@ -184,8 +184,9 @@ def _params_from(bag: Path, params_file: str | Path | None) -> dict[str, dict]:
 
 
 def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path | None = None,
-            evaluate: bool = True, out: Callable[[str], None] = print) -> dict:
-    """Rebuild memory and region tree from ``bags``; write DIR/memory.npz, regions.json, summary.json."""
+            evaluate: bool = True, report: bool = True, out: Callable[[str], None] = print) -> dict:
+    """Rebuild memory and region tree from ``bags``; write DIR/memory.npz, regions.json, summary.json
+    (and, with ``report``, report.md + figures of the relearned run via :mod:`.report`)."""
     from sagg_common.cdr import decode_report, decode_sample
     from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
     from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
@@ -248,6 +249,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     for seq, (mode, after, pos) in sorted(goals.items()):
         by_after.setdefault(after, []).append((seq, mode, pos))
     mismatches = []
+    report_ma: dict[int, int] = {}
     from rclpy.serialization import deserialize_message
     from sagg_msgs.msg import RegionTree
     checked: list[int] = []
@@ -279,6 +281,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     for seq in seqs:
         choose_due()
         r = reports[seq]
+        report_ma[seq] = int(r.micro_actions)
         gen.report(r.kind, r.target if len(r.target) else r.reached, r.competence)
         check_snapshot()
     choose_due()
@@ -309,6 +312,21 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         "final_median_error": curve[-1]["median_error"] if curve else None,
         "test_goals": test_goals.tolist(), "seconds": time.perf_counter() - t0,
     }
+    if report and curve:
+        from .experiment import goal_share_stats
+        from .report import write_report
+        goals_out = [{"seq": g.seq, "position": g.position.tolist(), "mode": g.mode, "competence": g.competence,
+                      "micro_actions": report_ma.get(g.after_report, 0)} for g in gen.goals]
+        pos = np.array([g["position"] for g in goals_out], float).reshape(-1, gen.dim)
+        gma = np.array([g["micro_actions"] for g in goals_out], float)
+        summary.update({
+            "config": {"sagg_goal_generator": gp, "sagg_learner": lp, "sagg_sim_bridge": bp},
+            "micro_actions": len(mem), "goals": goals_out, "regions": gen.region_snapshot(),
+            "splits": gen.tree.splits, "goal_stats": goal_share_stats(pos, gma, area, len(mem))})
+        write_report(summary, outp, area=area)
+        summary["goals"] = len(gen.goals)  # summary.json keeps counts; regions.json has the tree
+        summary["regions"] = len(gen.tree.leaves())
+        summary["splits"] = len(gen.tree.splits)
     write_json_atomic(outp / "summary.json", summary)
     out(f"relearned {len(mem):,} samples (digest {mem.digest()[:16]}), {gen.reports:,} reports, "
         f"{len(gen.goals)} goals (match recorded: {summary['goals_match']}), {len(gen.tree.leaves())} regions "

@@ -120,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--out", required=True, help="output directory (memory.npz, regions.json, summary.json)")
     rl.add_argument("--params", help="the run's parameter file (default: params.yaml next to the first bag)")
     rl.add_argument("--no-eval", action="store_true", help="skip the evaluation on the test goals")
+    rl.add_argument("--no-report", action="store_true", help="no report.md / figures")
 
     pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
                                        "description) as Markdown tables")
@@ -287,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
             return 130 if res["interrupted"] else 0
         if args.command == "relearn":
             from .bags import relearn
-            s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval)
+            s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "params":
             if args.update_readme:
