@@ -451,8 +451,11 @@ class LearnerNode(Node):
 
     def _safe_command(self, req: Command) -> np.ndarray:
         """Last check before a command leaves: within the joint limits and, for a micro-action,
-        at most ``max_joint_step`` from the posture it starts from. The learner core already
-        guarantees both (``safe_target``); anything else is a bug, clipped and counted."""
+        at most ``max_joint_step`` from the newest MEASURED posture. The core guarantees both
+        relative to the posture it believes (``safe_target``); they differ only if its belief came
+        from a stale observation (e.g. ``observation_delay`` too short for a real-time driver), and
+        then the measured posture wins: the arm never moves more than a step. Clipped commands are
+        counted on /diagnostics. A return to rest is not a micro-action: limits only."""
         target = np.asarray(req.target, dtype=float)
         robot = self.robot
         if not np.all(np.isfinite(target)) or target.shape != robot.lower.shape:
@@ -462,7 +465,7 @@ class LearnerNode(Node):
         lo, hi = robot.lower, robot.upper
         if req.kind != "reset":  # (1e-9 rad: the core's own rounding of alpha + step)
             step = self.learner.p["max_joint_step"] + 1e-9
-            lo, hi = np.maximum(lo, self.learner.alpha - step), np.minimum(hi, self.learner.alpha + step)
+            lo, hi = np.maximum(lo, self.js_alpha - step), np.minimum(hi, self.js_alpha + step)
         if np.any(target < lo) or np.any(target > hi):
             self.guard.reject("command.clipped", f"command {target.tolist()} outside the joint limits or "
                                                  "max_joint_step from the current posture: clipped")

@@ -1,0 +1,232 @@
+"""Fuzz tests: every subscription callback of the three nodes, and the config loader.
+
+The nodes are built in this process (their own rclpy context, a parameter file) and their
+callbacks are called directly with random bytes and with well-formed messages carrying bad values
+(NaN/inf, wrong lengths, unknown or missing joint names, positions outside Y, duplicated or
+out-of-order reports). A callback must never raise; a bad input must be counted by the node's
+InputGuard (what /diagnostics publishes) and must leave the node's state as it was.
+"""
+from __future__ import annotations
+
+import math
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+import yaml
+from hypothesis import HealthCheck, given, settings, strategies as st
+from rclpy.serialization import serialize_message
+
+from geometry_msgs.msg import PointStamped
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from sagg_common.params import ConfigError, node_params, read_config
+from sagg_goal_generator.node import GoalGeneratorNode, SCHEMA as GEN_SCHEMA
+from sagg_low_level.node import LearnerNode, SCHEMA as LEARNER_SCHEMA
+from sagg_msgs.msg import CompetenceReport
+from sagg_sim_bridge.node import BridgeNode, SCHEMA as BRIDGE_SCHEMA
+
+ROOT = Path(__file__).resolve().parents[1]
+JOINTS = ["j0", "j1", "j2"]
+FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+@pytest.fixture(scope="module")
+def nodes(tmp_path_factory):
+    """The three nodes on a private domain, built from one parameter file (not spun)."""
+    tmp = tmp_path_factory.mktemp("fuzz")
+    params = {
+        "/**": {"ros__parameters": {"seed": 0, "strategy": "sagg-riac",
+                                    "task_space": {"lower": [-10.0, -10.0], "upper": [10.0, 10.0]}}},
+        "sagg_learner": {"ros__parameters": {"joints": JOINTS, "joint_limits": {"lower": [-1.0] * 3, "upper": [1.0] * 3},
+                                             "rest_posture": [0.1, 0.2, 0.3]}},
+        "sagg_sim_bridge": {"ros__parameters": {"arm": {"dof": 3, "mode": "kinematic"}}},
+    }
+    path = tmp / "params.yaml"
+    path.write_text(yaml.safe_dump(params))
+    domain = random.randint(201, 230)
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=domain)
+    try:
+        built = {"learner": LearnerNode(), "generator": GoalGeneratorNode(), "bridge": BridgeNode()}
+        yield built
+        for n in built.values():
+            n.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+
+
+def js_bytes(names, pos, vel, sec=1) -> bytes:
+    m = JointState()
+    m.header.stamp.sec = sec
+    m.name, m.position, m.velocity = list(names), list(pos), list(vel)
+    return serialize_message(m)
+
+
+def tip_bytes(x, y, sec=1) -> bytes:
+    m = PointStamped()
+    m.header.stamp.sec = sec
+    m.point.x, m.point.y = x, y
+    return serialize_message(m)
+
+
+def learner_state(n: LearnerNode):
+    return (None if n.js_alpha is None else n.js_alpha.tobytes(), n.js_stamp,
+            None if n.tip is None else n.tip.tobytes(), n.tip_stamp, len(n.learner.memory), n.state)
+
+
+floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+@FUZZ
+@given(data=st.binary(max_size=300))
+def test_random_bytes_never_crash_any_callback(nodes, data):
+    learner, gen, bridge = nodes["learner"], nodes["generator"], nodes["bridge"]
+    before = (learner_state(learner), gen.gen.reports, bridge.commands)
+    totals = (learner.guard.total, gen.guard.total, bridge.guard.total)
+    learner.on_joint_state(data)
+    learner.on_task_point(data)
+    gen.on_report(data)
+    bridge.on_command(data)
+    after = (learner_state(learner), gen.gen.reports, bridge.commands)
+    # random bytes are either rejected (counted) or happen to decode into a valid message
+    if before == after:
+        assert (learner.guard.total, gen.guard.total, bridge.guard.total) != totals or not data
+
+
+@FUZZ
+@given(names=st.lists(st.sampled_from(JOINTS + ["other", ""]), max_size=5),
+       pos=st.lists(floats, max_size=5), vel=st.lists(floats, max_size=5))
+def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos, vel):
+    n = nodes["learner"]
+    n.js_stamp = 0  # this test's messages are all stamped 1 s: never "out of order"
+    before, total = learner_state(n), n.guard.total
+    n.on_joint_state(js_bytes(names, pos, vel))
+    where = {nm: i for i, nm in enumerate(names)}
+    valid = (len(pos) == len(names) and len(vel) in (0, len(names)) and len(where) == len(names)
+             and all(j in where for j in JOINTS)
+             and all(math.isfinite(pos[where[j]]) for j in JOINTS)
+             and (not vel or all(math.isfinite(vel[where[j]]) for j in JOINTS)))
+    if valid:
+        assert np.array_equal(n.js_alpha, [pos[where[j]] for j in JOINTS]) and n.guard.total == total
+    else:
+        assert n.guard.total == total + 1 and learner_state(n)[0] == before[0]
+
+
+@FUZZ
+@given(x=floats, y=floats)
+def test_task_points_with_nan_or_inf_are_rejected(nodes, x, y):
+    n = nodes["learner"]
+    n.tip_stamp = 0
+    before, total = n.tip, n.guard.total
+    n.on_task_point(tip_bytes(x, y))
+    if math.isfinite(x) and math.isfinite(y):
+        assert np.array_equal(n.tip, [x, y])
+    else:
+        assert n.guard.total == total + 1 and (n.tip is before)
+
+
+def test_out_of_order_observations_keep_the_newest(nodes):
+    n = nodes["learner"]
+    n.js_stamp = n.tip_stamp = 0
+    n.on_joint_state(js_bytes(JOINTS, [0.1, 0.2, 0.3], [], sec=5))
+    n.on_task_point(tip_bytes(1.0, 2.0, sec=5))
+    total = n.guard.total
+    n.on_joint_state(js_bytes(JOINTS, [0.9, 0.9, 0.9], [], sec=4))
+    n.on_task_point(tip_bytes(9.0, 9.0, sec=4))
+    assert n.guard.total == total + 2
+    assert np.array_equal(n.js_alpha, [0.1, 0.2, 0.3]) and np.array_equal(n.tip, [1.0, 2.0])
+    assert n.guard.counts["joint_states.out_of_order"] >= 1 and n.guard.counts["task_point.out_of_order"] >= 1
+
+
+def report_bytes(seq, kind=3, target=(), reached=(1.0, 1.0), competence=0.0) -> bytes:
+    m = CompetenceReport()
+    m.seq, m.kind, m.competence = seq, kind, competence
+    m.target, m.reached, m.start = list(target), list(reached), [0.0, 0.0]
+    return serialize_message(m)
+
+
+@FUZZ
+@given(kind=st.integers(0, 255), coords=st.lists(floats, min_size=0, max_size=4), competence=floats)
+def test_reports_with_bad_content_are_skipped_without_corrupting_the_tree(nodes, kind, coords, competence):
+    g = nodes["generator"]
+    gen = g.gen
+    seq = gen.reports + 1
+    leaves, total, skipped = len(gen.tree.leaves()), g.guard.total, gen.skipped_reports
+    g.on_report(report_bytes(seq, kind=kind, target=coords, reached=coords, competence=competence))
+    valid = (kind in (0, 1, 2, 3) and len(coords) == 2 and all(math.isfinite(c) for c in coords)
+             and math.isfinite(competence) and competence <= 0.0)
+    assert gen.reports == seq  # numbering stays aligned either way
+    if valid:
+        assert g.guard.total == total and gen.skipped_reports == skipped
+    else:
+        assert g.guard.total == total + 1 and gen.skipped_reports == skipped + 1
+        assert len(gen.tree.leaves()) == leaves
+
+
+def test_duplicated_and_lost_reports(nodes):
+    g = nodes["generator"]
+    gen = g.gen
+    seq = gen.reports + 1
+    g.on_report(report_bytes(seq))
+    g.on_report(report_bytes(seq))  # duplicate: dropped
+    assert gen.reports == seq and g.guard.counts["report.duplicate"] >= 1
+    g.on_report(report_bytes(seq + 3))  # two lost: skipped, then this one is used
+    assert gen.reports == seq + 3 and g.guard.counts["report.lost"] >= 1
+    assert gen.skipped_reports >= 2
+
+
+@FUZZ
+@given(values=st.lists(floats, max_size=6))
+def test_bridge_commands_with_bad_values_are_rejected(nodes, values):
+    b = nodes["bridge"]
+    m = Float64MultiArray()
+    m.data = values
+    before_cmds, total = b.commands, b.guard.total
+    qpos = b.sim.data.qpos.copy()
+    b.on_command(serialize_message(m))
+    if len(values) == 3 and all(math.isfinite(v) for v in values):
+        assert b.commands == before_cmds + 1
+    else:
+        assert b.commands == before_cmds and b.guard.total == total + 1
+        assert np.array_equal(b.sim.data.qpos, qpos)
+
+
+# ---------------------------------------------------------------------------- config loader
+yaml_scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12), floats, st.text(max_size=8))
+yaml_values = st.recursive(yaml_scalars, lambda ch: st.one_of(st.lists(ch, max_size=3),
+                                                             st.dictionaries(st.text(max_size=6), ch, max_size=3)),
+                           max_leaves=8)
+PARAM_NAMES = sorted({p.name for s in (LEARNER_SCHEMA, GEN_SCHEMA, BRIDGE_SCHEMA) for p in s})
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(section=st.sampled_from(["/**", "sagg_learner", "sagg_goal_generator", "sagg_sim_bridge", "bogus"]),
+       name=st.sampled_from(PARAM_NAMES + ["typo_param"]), value=yaml_values)
+def test_config_loader_fuzz_only_raises_config_error(tmp_path, section, name, value):
+    """Any value for any parameter in any section: loading gives valid parameters or a
+    ConfigError naming the problem, never another exception."""
+    data = yaml.safe_load((ROOT / "config" / "arm8.yaml").read_text())
+    data.setdefault(section, {"ros__parameters": {}})["ros__parameters"][name] = value
+    path = tmp_path / "fuzz.yaml"
+    path.write_text(yaml.safe_dump(data))
+    try:
+        sections = read_config(path)
+        for node, schema in (("sagg_learner", LEARNER_SCHEMA), ("sagg_goal_generator", GEN_SCHEMA),
+                             ("sagg_sim_bridge", BRIDGE_SCHEMA)):
+            node_params(sections, node, schema)
+    except ConfigError as exc:
+        assert str(exc)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=st.text(max_size=200))
+def test_config_loader_fuzz_on_arbitrary_text(tmp_path, text):
+    path = tmp_path / "text.yaml"
+    path.write_text(text)
+    try:
+        read_config(path)
+    except ConfigError as exc:
+        assert "text.yaml" in str(exc)
