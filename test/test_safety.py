@@ -9,7 +9,6 @@
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,6 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
 
-from sagg_common.params import SHARED_SCHEMA
 from sagg_low_level.learner import SCHEMA, Command, EvolvingContextLearner, GoalRequest, Robot, safe_target
 from sagg_sim_bridge.arm import forward_kinematics
 
