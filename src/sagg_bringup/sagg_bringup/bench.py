@@ -193,8 +193,14 @@ def bench_graph(config: str | Path, micro_actions: int = 3000, repeats: int = 2,
     """Graph vs in-process micro-actions/s vs a bare rclpy topic ping-pong between two processes,
     measured interleaved in this one command; the best of ``repeats`` of each (least disturbed by
     other load). Criterion (issue): 1/graph − 1/in-process ≤ 1.5 × the bare round-trip time."""
+    import os
+
     from .pingpong import measure
 
+    load, cores = os.getloadavg()[0], os.cpu_count() or 1
+    out(f"load average {load:.2f} on {cores} cores" + (
+        ": the machine is busy, expect the graph (three processes) to suffer more than the "
+        "in-process run; best of each over the repeats is kept" if load > 0.5 * cores else ""))
     g, ip, rtt = [], [], []
     for r in range(repeats):
         rtt.append(measure(count=pingpong_count)["rtt_ms"] / 1e3)
