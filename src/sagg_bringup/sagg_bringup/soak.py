@@ -59,7 +59,7 @@ def shm_entries() -> set[str]:
         return set()
 
 
-def mapped_shm(pid: int) -> set[str]:
+def mapped_shm(pid: int | str) -> set[str]:
     """Names of the /dev/shm files a process has mapped."""
     out = set()
     try:
@@ -116,6 +116,7 @@ def soak_inprocess(config: str | Path, micro_actions: int, every: int,
         rows.append(row)
         out(f"{row['micro_actions']:>13,} {row['samples']:>9,} {_mb(row['rss'])} {_mb(row['memory_bytes']):>10} "
             f"{row['memory_bytes'] / max(1, row['samples']):>9.1f} {row['fds']:>4} {row['rate']:>15,.0f}")
+    mapped = mapped_shm(os.getpid())  # (no ROS in-process: expected none)
     del run, mem
     shm1 = shm_entries()
     res = {
@@ -125,12 +126,13 @@ def soak_inprocess(config: str | Path, micro_actions: int, every: int,
         "rss_growth_per_sample": growth_per_sample(rows, "rss"),
         "fds_start": fd0, "fds_end": open_fds(),
         "shm_before": len(shm0), "shm_after": len(shm1),
-        "shm_new": sorted(shm1 - shm0),
+        "shm_new": sorted(shm1 - shm0), "shm_mapped_by_this_process": sorted(mapped),
     }
     out(f"bytes per stored sample: memory {res['memory_bytes_per_sample']:.1f} (raw payload {raw}); "
         f"RSS growth {res['rss_growth_per_sample']:.1f} B/sample (second half); "
         f"fds {fd0} -> {res['fds_end']}; /dev/shm entries {len(shm0)} -> {len(shm1)} "
-        f"(new: {len(res['shm_new'])}); {res['seconds']:.0f} s")
+        f"(new: {len(res['shm_new'])}, machine-wide; mapped by this process: {len(mapped)}); "
+        f"{res['seconds']:.0f} s")
     return res
 
 
