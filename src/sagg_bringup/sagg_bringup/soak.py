@@ -10,6 +10,7 @@ memory, open fds) every ``--every`` micro-actions and a verdict block:
   lockstep), N micro-actions; progress read from ``/sagg/status`` by a small node in this process;
   RSS / fds of every node process from ``/proc/<pid>``. No recorder and no evaluator (``sagg run``'s
   own bookkeeping is not what is soaked here): the learner does not wait for sample subscribers.
+  Checkpoints and journals are on, as in ``sagg run`` (``OUT/graph/checkpoint``).
 
 Reported numbers:
 
@@ -141,7 +142,8 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
                out: Callable[[str], None] = print) -> dict:
     """Graph soak: the three nodes for ``micro_actions`` micro-actions (lockstep)."""
     from .graph import (NODES, GraphError, NodeProcess, find_node_executable, graph_params,
-                        load_graph_config, pick_domain_id, stop_processes, write_params_file)
+                        load_graph_config, pick_domain_id, set_checkpoint_dirs, stop_processes,
+                        write_params_file)
 
     full = load_graph_config(config, overrides or {})
     params = graph_params(full, micro_actions, "lockstep")
@@ -150,6 +152,8 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
     params["sagg_goal_generator"]["min_goal_subscribers"] = 0
     outp = Path(out_dir)
     (outp / "logs").mkdir(parents=True, exist_ok=True)
+    # checkpoints and write-ahead journals on, as in `sagg run` (into OUT/checkpoint)
+    set_checkpoint_dirs(params, outp)
     params_file = outp / "params.yaml"
     write_params_file(params_file, params)
     procs = [NodeProcess(name, find_node_executable(mod.split(".")[0], script), outp / "logs" / f"{script}.log")
