@@ -3,11 +3,11 @@
 Files in the checkpoint directory (``g`` = generation):
 
 - ``generator.json``: generation, reports processed, the two random states
-  (``bit_generator.state`` of the goal stream and of the split stream), the split history, the
+  (``bit_generator.state`` of the goal stream and of the split stream), the number of splits, the
   state file's name and the seed / strategy / task space it belongs to;
 - ``generator_state_<g>.npz``: the region tree (every region: box, split, children, the points and
-  competences of the leaves, the order of the leaves) and every goal (seq, position, mode,
-  after_report, competence);
+  competences of the leaves, the order of the leaves), the split history and every goal (seq,
+  position, mode, after_report, competence);
 - ``generator_journal_<k>.bin``: write-ahead journal of the goals chosen after checkpoint ``k``
   (one record per goal, written before the goal is answered or published).
 
@@ -64,6 +64,40 @@ def tree_arrays(tree) -> dict[str, np.ndarray]:
         "leaf_order": np.array([r.id for r in tree.leaves()], np.int64),
         "tree_ints": np.array([tree._next_id, tree.n_added], np.int64),
     }
+
+
+_SPLIT_INTS = ("stamp", "region", "dim", "left", "right")
+_SPLIT_BOXES = ("left_lower", "left_upper", "right_lower", "right_upper")
+
+
+def splits_arrays(splits: list[dict], d: int) -> dict[str, np.ndarray]:
+    """The split history as arrays (JSON would grow by ~1 kB per split and be rewritten at every
+    checkpoint). A missing stamp (None) is stored as -1 with ``split_has_stamp`` false."""
+    k = len(splits)
+    out = {f"split_{n}": np.array([-1 if s[n] is None else s[n] for s in splits], np.int64).reshape(k)
+           for n in _SPLIT_INTS}
+    out["split_has_stamp"] = np.array([s["stamp"] is not None for s in splits], bool).reshape(k)
+    out["split_value"] = np.array([s["value"] for s in splits], float).reshape(k)
+    out["split_quality"] = np.array([s["quality"] for s in splits], float).reshape(k)
+    for n in _SPLIT_BOXES:
+        out[f"split_{n}"] = np.array([s[n] for s in splits], float).reshape(k, d)
+    return out
+
+
+def splits_from_arrays(z) -> list[dict]:
+    """Inverse of :func:`splits_arrays` (the dicts of ``RegionTree.splits``, same keys and order)."""
+    out = []
+    for i in range(len(z["split_value"])):
+        s = {n: int(z[f"split_{n}"][i]) for n in _SPLIT_INTS}
+        if not z["split_has_stamp"][i]:
+            s["stamp"] = None
+        s["value"] = float(z["split_value"][i])
+        s["quality"] = float(z["split_quality"][i])
+        for n in _SPLIT_BOXES:
+            s[n] = z[f"split_{n}"][i].tolist()
+        out.append({k: s[k] for k in ("stamp", "region", "dim", "value", "quality", "left", "right",
+                                      *_SPLIT_BOXES)})
+    return out
 
 
 def restore_tree(tree, z) -> None:
@@ -140,7 +174,7 @@ class GeneratorCheckpointer:
         goals = gen.goals
         state = self._path("state", g)
         save_npz_atomic(
-            state, **tree_arrays(gen.tree),
+            state, **tree_arrays(gen.tree), **splits_arrays(gen.tree.splits, gen.dim),
             goal_seq=np.array([r.seq for r in goals], np.int64),
             goal_position=np.array([r.position for r in goals], float).reshape(-1, gen.dim),
             goal_mode=np.array([r.mode for r in goals], np.int64),
@@ -149,7 +183,7 @@ class GeneratorCheckpointer:
         write_json_atomic(self.dir / "generator.json", {
             "format": FORMAT, "generation": g, **self._identity(), "reports": gen.reports,
             "ignored_outside": gen.ignored_outside, "goals": len(goals), "rng": rng_state(gen.rng),
-            "split_rng": rng_state(gen.tree.rng), "splits": gen.tree.splits, "state_file": state.name})
+            "split_rng": rng_state(gen.tree.rng), "splits": len(gen.tree.splits), "state_file": state.name})
         self.generation = g
         self.saved_at = gen.reports
         for k in self._generations("journal"):
@@ -188,10 +222,10 @@ class GeneratorCheckpointer:
         gen = self.gen
         with np.load(self.dir / meta["state_file"], allow_pickle=False) as z:
             restore_tree(gen.tree, z)
+            gen.tree.splits = splits_from_arrays(z)
             gen.goals = [GoalRecord(int(s), p.copy(), int(m), int(a), None if np.isnan(c) else float(c))
                          for s, p, m, a, c in zip(z["goal_seq"], z["goal_position"], z["goal_mode"],
                                                   z["goal_after"], z["goal_competence"])]
-        gen.tree.splits = meta["splits"]
         gen.reports = int(meta["reports"])
         gen.ignored_outside = int(meta["ignored_outside"])
         restore_rng(gen.rng, meta["rng"])
