@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from sagg_bringup.bags import bag_messages, relearn
+from sagg_low_level.checkpoint import checkpoint_memory
 from sagg_low_level.memory import SampleMemory
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,7 +44,7 @@ def test_relearn_gives_the_runs_memory_and_tree(run_dir, tmp_path):
     assert s["memory"]["samples"] == STEPS == ck["memory_samples"]
     assert s["memory"]["digest"] == summary["memory"]["digest"] == ck["memory_digest"]
     mem = SampleMemory.load(tmp_path / "re" / "memory.npz")
-    assert mem.digest() == ck["memory_digest"]
+    assert mem.digest() == ck["memory_digest"] == checkpoint_memory(run_dir / "checkpoint").digest()
     # the region tree: the core generator, fed the recorded reports and choosing the goals as the
     # node did, chose every recorded goal and equals every recorded /sagg/regions snapshot,
     # the last one included
@@ -178,6 +179,6 @@ def test_run_resume_continues_the_run(run_dir, tmp_path):
     r = relearn([run / "bag", run / "bag2"], tmp_path / "re", out=lambda _: None)
     assert r["memory"]["digest"] == s["memory"]["digest"] == ck["memory_digest"]
     assert r["goals_match"] and r["regions_match"] and r["reports"] == s["reports"]
-    old = SampleMemory.load(run_dir / "checkpoint" / json.loads((run_dir / "checkpoint" / "learner.json").read_text())["memory_file"])
+    old = checkpoint_memory(run_dir / "checkpoint")
     new = SampleMemory.load(tmp_path / "re" / "memory.npz")
     assert new.alpha[:STEPS].tobytes() == old.alpha.tobytes() and new.delta_y[:STEPS].tobytes() == old.delta_y.tobytes()

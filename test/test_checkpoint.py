@@ -13,7 +13,7 @@ from sagg_bringup.experiment import InProcessRun, load_experiment_config
 from sagg_common.journal import Journal, read_journal
 from sagg_goal_generator.checkpoint import GeneratorCheckpointer
 from sagg_goal_generator.core import GoalGenerator
-from sagg_low_level.checkpoint import LearnerCheckpointer
+from sagg_low_level.checkpoint import LearnerCheckpointer, checkpoint_memory
 from sagg_low_level.memory import SampleMemory
 
 import test_nodes_graph
@@ -165,8 +165,9 @@ def _samples_by_index(col) -> dict[int, bytes]:
 
 def _final_memory(ck_dir: Path) -> SampleMemory:
     meta = json.loads((ck_dir / "learner.json").read_text())
-    mem = SampleMemory.load(ck_dir / meta["memory_file"])
-    assert mem.digest() == meta["memory_digest"]
+    mem = checkpoint_memory(ck_dir)
+    assert mem.digest() == meta["memory_digest"]  # (stored at shutdown)
+    assert len(meta["segments"]) >= 2  # append-only segments, one per checkpoint with new samples
     return mem
 
 

@@ -9,7 +9,9 @@ Files in the checkpoint directory (``g`` = generation):
   competences of the leaves, the order of the leaves), the split history and every goal (seq,
   position, mode, after_report, competence);
 - ``generator_journal_<k>.bin``: write-ahead journal of the goals chosen after checkpoint ``k``
-  (one record per goal, written before the goal is answered or published).
+  (one record per goal, written before the goal is answered or published). Generation ``g``
+  keeps journal ``g - 1`` too: a resumed node publishes the goals of both again on /sagg/goal
+  (a kill can cut a publication short; receivers key goals by seq).
 
 Why goals are journaled but reports are not: the generator's state is a deterministic function of
 its seed and of the interleaving of reports and goal choices. Reports it misses while it is down
@@ -146,6 +148,7 @@ class GeneratorCheckpointer:
         self.journal: Journal | None = None
         self.torn_bytes = 0
         self.resumed_from: dict | None = None
+        self.republish: list[GoalRecord] = []  # goals of the last journals already in the state
 
     def on_goal(self, rec: GoalRecord) -> None:
         """Journal a goal just chosen (call before answering or publishing it)."""
@@ -187,7 +190,7 @@ class GeneratorCheckpointer:
         self.generation = g
         self.saved_at = gen.reports
         for k in self._generations("journal"):
-            if k < g:
+            if k < g - 1:  # journal g - 1 is kept: its goals are published again at a resume
                 self._path("journal", k).unlink(missing_ok=True)
         for k in self._generations("state"):
             if k < g:
@@ -232,14 +235,20 @@ class GeneratorCheckpointer:
         restore_rng(gen.tree.rng, meta["split_rng"])
         g = int(meta["generation"])
         pending: list[GoalRecord] = []
+        self.republish = []
         for k in self._generations("journal"):
-            if k < g:
+            if k < g - 1:
                 continue
             records, torn = read_journal(self._path("journal", k))
             self.torn_bytes += torn
             for kind, v in records:
-                if kind == REC_GOAL and int(v[0]) == len(gen.goals) + len(pending) + 1:
-                    pending.append(GoalRecord(int(v[0]), v[3:].copy(), int(v[2]), int(v[1])))
+                if kind != REC_GOAL:
+                    continue
+                seq = int(v[0])
+                if seq <= len(gen.goals):
+                    self.republish.append(gen.goals[seq - 1])
+                elif seq == len(gen.goals) + len(pending) + 1:
+                    pending.append(GoalRecord(seq, v[3:].copy(), int(v[2]), int(v[1])))
         self.generation = max([g] + self._generations("journal"))
         # keep appending to the newest journal: goals replayed from it are in it already
         self.journal = Journal(self._path("journal", self.generation), self.fsync)

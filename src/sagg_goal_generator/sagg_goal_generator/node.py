@@ -109,6 +109,7 @@ class GoalGeneratorNode(Node):
         self.waiting: list[Deferred] = []   # requests waiting for their reports
         self.checkpointer = None
         self.replay_goals: list = []  # journaled goals to choose again after a resume
+        self.goals_to_publish: list = []  # journaled goals to publish again after a resume
         self.goal_by_after: dict = {}  # after_report -> GoalRecord: a repeated request gets the same goal
         self._setup_checkpoint()
         self.splits_published = -1
@@ -216,7 +217,12 @@ class GoalGeneratorNode(Node):
             if self.checkpointer is not None:
                 self.checkpointer.on_goal(rec)  # journaled before it is answered or published
             self.goal_by_after = {rec.after_report: rec}  # only the newest goal can be asked again
-        g = response.goal
+        self._publish_goal(rec, response.goal)
+        return response
+
+    def _publish_goal(self, rec, g=None) -> None:
+        """Fill ``g`` (a Goal, new if None) from ``rec`` and publish it on /sagg/goal."""
+        g = Goal() if g is None else g
         g.header.stamp = self.get_clock().now().to_msg()
         g.header.frame_id = "task_space"
         g.seq = rec.seq
@@ -224,7 +230,6 @@ class GoalGeneratorNode(Node):
         g.mode = rec.mode
         g.position = array.array("d", rec.position.tobytes())
         self.goal_pub.publish(g)
-        return response
 
     # ------------------------------------------------------------ checkpoint / resume
     def _setup_checkpoint(self) -> None:
@@ -238,6 +243,9 @@ class GoalGeneratorNode(Node):
         except (ValueError, OSError) as exc:
             raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc
         self.checkpointer = ck
+        # goals of the last journals: published again (a kill may have cut their publication short;
+        # receivers key goals by seq), once /sagg/goal has its subscribers (on_regions_timer)
+        self.goals_to_publish = list(ck.republish)
         self.goal_by_after = {r.after_report: r for r in self.gen.goals[-1:]}
         if ck.resumed_from is not None:
             info = ck.resumed_from
@@ -259,6 +267,7 @@ class GoalGeneratorNode(Node):
                     f"resumed goal {rec.seq} differs from the journaled goal {want.seq}: using the journaled one")
                 gen.goals[-1] = rec = want
             self.goal_by_after = {rec.after_report: rec}
+            self.goals_to_publish.append(rec)
         if self.replay_goals and self.replay_goals[0].after_report < gen.reports:
             self.get_logger().error(f"journaled goal {self.replay_goals[0].seq} followed report "
                                     f"{self.replay_goals[0].after_report}, already passed: dropping the replay")
@@ -282,6 +291,10 @@ class GoalGeneratorNode(Node):
 
     # ------------------------------------------------------------ regions
     def on_regions_timer(self) -> None:
+        if self.goals_to_publish and self._goal_subscribers_ok():
+            for rec in self.goals_to_publish:
+                self._publish_goal(rec)
+            self.goals_to_publish = []
         if self.waiting and self._goal_subscribers_ok():
             self._release()
         if self.regions_dirty:

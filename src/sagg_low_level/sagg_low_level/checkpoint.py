@@ -4,9 +4,12 @@ Files in the checkpoint directory (``g`` = generation):
 
 - ``learner.json``: what generation ``g`` holds: counters (micro-actions, reports sent, attempts,
   goals done, exploration phases, last competence), the learner's random state
-  (``bit_generator.state``), the memory file's name, length and digest, and the seed / strategy /
-  dimensions it belongs to (a checkpoint of another run is refused);
-- ``learner_memory_<g>.npz``: the sample memory (:meth:`SampleMemory.save`, atomic);
+  (``bit_generator.state``), the memory's segment files (name, first index, count, sha256), length
+  (and, after a shutdown, digest), and the seed / strategy / dimensions it belongs to (a checkpoint
+  of another run is refused);
+- ``learner_samples_<g>.npz``: the samples stored since the previous generation (append-only
+  segments: a checkpoint writes only the new samples, so the total cost stays linear in the run's
+  length; a full memory file at every checkpoint would write O(N^2) bytes over a long run);
 - ``learner_journal_<k>.bin``: the write-ahead journal (:class:`~sagg_common.journal.Journal`) of
   everything after checkpoint ``k``: one record per stored sample and per report, written *before*
   the sample or report is published. Generation ``g`` keeps journal ``g - 1`` as well.
@@ -38,14 +41,47 @@ from pathlib import Path
 
 import numpy as np
 
-from sagg_common.journal import Journal, read_journal, restore_rng, rng_state, write_json_atomic
+from sagg_common.journal import Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
 
 from .learner import EvolvingContextLearner, Report
 from .memory import SampleMemory
 
 REC_SAMPLE, REC_REPORT = 1, 2
 _COUNTERS = ("micro_actions", "reports_sent", "attempts", "goals_done", "exploration_phases")
-FORMAT = "sagg.learner_checkpoint/1"
+FORMAT = "sagg.learner_checkpoint/2"
+
+
+def _sha(*arrays) -> str:
+    import hashlib
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a, dtype="<f8").data)
+    return h.hexdigest()
+
+
+def load_segments(directory: str | Path, meta: dict, memory: SampleMemory) -> SampleMemory:
+    """Add the samples of ``meta['segments']`` (files in ``directory``) to the empty ``memory``,
+    checking each segment's first index and sha256."""
+    directory = Path(directory)
+    for seg in meta["segments"]:
+        with np.load(directory / seg["file"], allow_pickle=False) as z:
+            a, da, dy = z["alpha"], z["delta_alpha"], z["delta_y"]
+        if seg["start"] != len(memory) or len(a) != seg["count"] or _sha(a, da, dy) != seg["sha256"]:
+            raise ValueError(f"checkpoint_dir: segment {seg['file']} does not match learner.json")
+        for i in range(len(a)):
+            memory.add(a[i], da[i], dy[i])
+    if len(memory) != meta["memory_samples"]:
+        raise ValueError(f"checkpoint_dir: {len(memory)} samples in the segments, learner.json says "
+                         f"{meta['memory_samples']}")
+    return memory
+
+
+def checkpoint_memory(directory: str | Path) -> SampleMemory:
+    """The sample memory of the learner checkpoint in ``directory`` (exact search; the digest does
+    not depend on the search mode)."""
+    meta = json.loads((Path(directory) / "learner.json").read_text())
+    n, m = int(meta["joints"]), int(meta["task_dim"])
+    return load_segments(directory, meta, SampleMemory(n, n, m))
 
 
 class LearnerCheckpointer:
@@ -65,6 +101,7 @@ class LearnerCheckpointer:
         self.fsync = fsync
         self.generation = 0
         self.saved_at = 0
+        self.segments: list[dict] = []
         self.journal: Journal | None = None
         self.torn_bytes = 0
         self.resumed_from: dict | None = None
@@ -90,7 +127,7 @@ class LearnerCheckpointer:
 
     # ------------------------------------------------------------------ files
     def _path(self, kind: str, g: int) -> Path:
-        return self.dir / f"learner_{kind}_{g}.{'npz' if kind == 'memory' else 'bin'}"
+        return self.dir / f"learner_{kind}_{g}.{'npz' if kind == 'samples' else 'bin'}"
 
     def _generations(self, kind: str) -> list[int]:
         pat = re.compile(rf"learner_{kind}_(\d+)\.(npz|bin)$")
@@ -100,30 +137,34 @@ class LearnerCheckpointer:
         lr = self.learner
         return {"seed": lr.p["seed"], "strategy": lr.strategy, "joints": lr.robot.n, "task_dim": lr.m}
 
-    def save(self) -> None:
-        """New generation: switch the journal, save the memory, then the JSON pointing at it; then
-        delete what the new generation no longer needs (journals < g - 1, older memories)."""
+    def save(self, digest: bool = False) -> None:
+        """New generation: switch the journal, write the samples stored since the last segment,
+        then the JSON pointing at the segments; then delete journals < g - 1. ``digest``: also
+        store the memory's digest (O(N): at shutdown)."""
         lr = self.learner
+        mem = lr.memory
         g = self.generation + 1
         old = self.journal
         self.journal = Journal(self._path("journal", g), self.fsync)
         if old is not None:
             old.close()
-        mem_path = self._path("memory", g)
-        lr.memory.save(mem_path)
+        start = self.segments[-1]["start"] + self.segments[-1]["count"] if self.segments else 0
+        if len(mem) > start:
+            a, da, dy = mem.alpha[start:], mem.delta_alpha[start:], mem.delta_y[start:]
+            path = self._path("samples", g)
+            save_npz_atomic(path, alpha=a, delta_alpha=da, delta_y=dy)
+            self.segments.append({"file": path.name, "start": start, "count": len(a), "sha256": _sha(a, da, dy)})
         write_json_atomic(self.dir / "learner.json", {
             "format": FORMAT, "generation": g, **self._identity(),
             **{c: int(getattr(lr, c)) for c in _COUNTERS},
             "last_competence": float(lr.last_competence), "rng": rng_state(lr.rng),
-            "memory_file": mem_path.name, "memory_samples": len(lr.memory), "memory_digest": lr.memory.digest()})
+            "segments": self.segments, "memory_samples": len(mem),
+            "memory_digest": mem.digest() if digest else None})
         self.generation = g
         self.saved_at = lr.micro_actions
         for k in self._generations("journal"):
             if k < g - 1:
                 self._path("journal", k).unlink(missing_ok=True)
-        for k in self._generations("memory"):
-            if k < g:
-                self._path("memory", k).unlink(missing_ok=True)
 
     def maybe_save(self) -> bool:
         if self.learner.micro_actions - self.saved_at >= self.every:
@@ -132,8 +173,8 @@ class LearnerCheckpointer:
         return False
 
     def close(self) -> None:
-        """Final checkpoint (shutdown) and close the journal."""
-        self.save()
+        """Final checkpoint (shutdown, with the memory digest) and close the journal."""
+        self.save(digest=True)
         self.journal.close()
 
     # ------------------------------------------------------------------ resume
@@ -155,10 +196,12 @@ class LearnerCheckpointer:
                 raise ValueError(f"checkpoint_dir: {meta_path} belongs to a run with {k} = {meta.get(k)!r}, "
                                  f"this learner has {v!r}; allowed: a checkpoint of the same run or an empty directory")
         lr = self.learner
-        mem = SampleMemory.load(self.dir / meta["memory_file"])
-        if len(mem) != meta["memory_samples"] or mem.digest() != meta["memory_digest"]:
-            raise ValueError(f"checkpoint_dir: {meta['memory_file']} does not match {meta_path}")
-        lr.memory = mem
+        if len(lr.memory):
+            raise ValueError("resume: the learner's memory must be empty")
+        mem = load_segments(self.dir, meta, lr.memory)
+        if meta.get("memory_digest") is not None and mem.digest() != meta["memory_digest"]:
+            raise ValueError(f"checkpoint_dir: the restored memory does not match the digest in {meta_path}")
+        self.segments = list(meta["segments"])
         for c in _COUNTERS:
             setattr(lr, c, int(meta[c]))
         lr.last_competence = float(meta["last_competence"])
