@@ -250,3 +250,16 @@ def test_bench_speed_rows_and_bytes_per_sample():
     assert rows[0]["cost_ratio"] == 1.0 and rows[2]["cost_ratio"] == 1.0
     assert res["worst_cost_ratio"] == max(r["cost_ratio"] for r in rows)
     assert any("criterion <= 2" in line for line in lines)
+
+
+def test_competence_over_time_figure(tmp_path):
+    from sagg_bringup.compare import plot_competence_over_time
+    cfg = {"sagg_learner": {"task_space.lower": [0.0, -150.0], "task_space.upper": [150.0, 150.0]},
+           "sagg_sim_bridge": {"arm.total_length": 50.0}}
+    goals = [{"position": [10.0 * i, 5.0], "competence": -i / 10, "micro_actions": 100 * i}
+             for i in range(10)]
+    res = {"strategy": "sagg-riac", "seed": 0, "micro_actions": 1000, "config": cfg, "goals": goals}
+    plot_competence_over_time(res, tmp_path / "c.png", windows=4)
+    assert (tmp_path / "c.png").stat().st_size > 1000
+    with pytest.raises(ValueError, match="no goals"):
+        plot_competence_over_time(dict(res, goals=[]), tmp_path / "d.png")
