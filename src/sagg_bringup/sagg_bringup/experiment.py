@@ -26,6 +26,9 @@ from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
 def load_experiment_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
     """Resolve the three nodes' parameters from a config file (+ overrides applied to every node)."""
+    from .synergy_experiment import config_setup, load_synergy_config
+    if config_setup(path) is not None:  # quadruped / fishing: the synergy nodes' schemas
+        return load_synergy_config(path, overrides)
     sections = read_config(path)
     schemas = (GEN_SCHEMA, LEARNER_SCHEMA, BRIDGE_SCHEMA)
     check_wildcard(sections, schemas)
