@@ -162,9 +162,9 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{d}: 1st-99th percentile widths " + ", ".join(f"{s} {v:.1f}" for s, v in w.items())
                       + (f"; sagg-riac / max(actuator-*) = {w['sagg-riac'] / base:.2f}" if "sagg-riac" in w
                          and np.isfinite(base) else "") + "\n")
-            plot_quadruped(groups, figs / "quadruped.png")
+            plot_quadruped(groups, figs / "results_quadruped.png")
         else:
-            plot_fishing(groups, figs / "fishing.png")
+            plot_fishing(groups, figs / "results_fishing.png")
         print(curves_table(groups) + "\n")
         t = tests_table(groups)
         if t:
