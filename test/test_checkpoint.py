@@ -251,7 +251,13 @@ def test_generator_sigkill_then_resume_leaves_the_run_unchanged(ros_env, tmp_pat
     for i in range(steps):
         v = np.frombuffer(got[i])
         mem.add(v[:7], v[7:14], v[14:])
-    assert mem.digest() == run.learner.memory.digest()
+    if mem.digest() != run.learner.memory.digest():
+        ref = run.learner.memory
+        first = next(i for i in range(steps) if np.frombuffer(got[i]).tobytes() != np.concatenate(
+            [ref.alpha[i], ref.delta_alpha[i], ref.delta_y[i]]).tobytes())
+        pytest.fail(f"samples differ from the in-process run from index {first} (killed at >= {kill_at})\n"
+                    f"graph goals {[(g.seq, g.after_report) for g in col.goals]}\nin-process goals "
+                    f"{[(g.seq, g.after_report) for g in run.generator.goals]}\n{logs(tmp_path)}")
     goals = {}
     for g in col.goals:  # a goal asked again after the restart is published again: same values
         key = (g.mode, g.after_report, np.array(g.position).tobytes())
