@@ -107,9 +107,9 @@ def pairwise_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def summary_markdown(results: list[dict]) -> str:
+def summary_markdown(results: list[dict], tests: bool = True) -> str:
     """Final test error per strategy (mean ± std over seeds, per seed), goal shares, and
-    pairwise tests, as Markdown."""
+    (``tests``) pairwise tests, as Markdown."""
     groups = by_strategy(results)
     lines = ["| strategy | seeds | final mean error (mean ± std) | median of seeds | per seed | "
              "goals in reachable area, 2nd half | reachable share of Y |",
@@ -125,6 +125,8 @@ def summary_markdown(results: list[dict]) -> str:
             f"| {name} | {len(rs)} | {f.mean():.3f} ± {f.std(ddof=1) if len(f) > 1 else 0:.3f} | "
             f"{np.median(f):.3f} | {', '.join(f'{x:.2f}' for x in f)} | {share_txt} | "
             f"{rs[0]['goal_stats']['reachable_share_of_Y']:.1%} |")
+    if not tests:
+        return "\n".join(lines)
     lines += ["", "| A | B | Mann-Whitney U p | Welch t p |", "|---|---|---|---|"]
     for a, b in itertools.combinations(groups, 2):
         t = pairwise_tests(finals[a], finals[b])

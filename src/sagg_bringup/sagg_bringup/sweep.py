@@ -324,8 +324,8 @@ def write_summary(out: Path, fp: dict, failures: dict[str, str], out_fn=print) -
         md += ["**Failed runs** (left out below): " + "; ".join(f"{k}: {v}" for k, v in failures.items()), ""]
     if results:
         md += ["## Test error (mean ± std over seeds) at each evaluation point", "",
-               curve_table(summ), "", "## Final test error", "", summary_markdown(results), "",
-               "## Final test error: every pair (two-sided)", "", pairwise_table(summ), ""]
+               curve_table(summ), "", "## Final test error", "", summary_markdown(results, tests=False), "",
+               "## Tests on the final test error, every pair", "", pairwise_table(summ), ""]
         plot_curves(results, out / "curves.png", title)
         md += ["![curves](curves.png)", ""]
     (out / "summary.md").write_text("\n".join(md))
