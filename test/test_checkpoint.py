@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -271,3 +272,52 @@ def test_generator_sigkill_then_resume_leaves_the_run_unchanged(ros_env, tmp_pat
     for r, s in zip(tree.regions, snap):
         assert same_bits(r.lower, s["lower"]) and same_bits(r.upper, s["upper"]) and r.count == s["count"]
         assert same_bits([r.interest], [s["interest"]])
+
+
+def test_a_request_answered_meanwhile_gets_the_same_goal(ros_env, tmp_path):
+    """A deferred goal request whose goal was meanwhile given to a repeated request (goal_retry) is
+    answered with that goal when released, never with a new one (found when a killed generator's
+    restart met the learner's retries: one goal too many, the run no longer equal in-process)."""
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sagg_msgs.msg import CompetenceReport, Goal
+    from sagg_msgs.srv import NextGoal
+    params = graph_params(ROOT / "config" / "arm15_y50.yaml", tmp_path / "params.yaml", {"dof": 7, "mode": "kinematic"},
+                          generator={"min_goal_subscribers": 1, "regions_period": 3600.0})
+    gen = start(ros_env, "goal_generator", params, tmp_path)
+    node = rclpy.create_node("sagg_test_learner", context=ros_env["ctx"])
+    ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
+    ex.add_node(node)
+    pub = node.create_publisher(CompetenceReport, "/sagg/competence", QoSProfile(
+        depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    client = node.create_client(NextGoal, "/sagg/next_goal")
+
+    def spin_until(cond, timeout=STARTUP_TIMEOUT):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end and not cond():
+            assert gen.poll() is None, logs(tmp_path)
+            ex.spin_once(timeout_sec=0.05)
+        return cond()
+
+    def report(seq):
+        pub.publish(CompetenceReport(seq=seq, goal_seq=0, kind=2, target=[], reached=[10.0 + seq, 0.0],
+                                     start=[10.0, 0.0], competence=0.0, micro_actions=seq))
+
+    assert spin_until(lambda: client.service_is_ready() and pub.get_subscription_count() >= 1), logs(tmp_path)
+    first = client.call_async(NextGoal.Request(after_report=3))  # deferred: reports 1..3 not in yet
+    for s in (1, 2, 3):
+        report(s)
+    ex.spin_once(timeout_sec=0.5)
+    assert not first.done()  # still deferred: nobody subscribes to /sagg/goal yet
+    goals = []
+    node.create_subscription(Goal, "/sagg/goal", goals.append, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    time.sleep(2.0)  # let the generator match the subscriber (its release timer is off: regions_period)
+    again = client.call_async(NextGoal.Request(after_report=3))  # the repeated request: answered now
+    assert spin_until(again.done, 30.0), logs(tmp_path)
+    report(4)  # the learner moved on; this releases the first request
+    assert spin_until(first.done, 30.0), logs(tmp_path)
+    spin_until(lambda: len(goals) >= 2, 5.0)
+    a, b = again.result().goal, first.result().goal
+    assert (a.seq, a.after_report) == (b.seq, b.after_report) == (1, 3)
+    assert np.array(a.position).tobytes() == np.array(b.position).tobytes()
+    assert {(g.seq, g.after_report) for g in goals} == {(1, 3)}

@@ -110,7 +110,6 @@ class GoalGeneratorNode(Node):
         self.checkpointer = None
         self.replay_goals: list = []  # journaled goals to choose again after a resume
         self.goals_to_publish: list = []  # journaled goals to publish again after a resume
-        self.goal_by_after: dict = {}  # after_report -> GoalRecord: a repeated request gets the same goal
         self._setup_checkpoint()
         self.splits_published = -1
         self.regions_dirty = True
@@ -179,7 +178,9 @@ class GoalGeneratorNode(Node):
         keep = []
         for d in self.waiting:
             if d.after_report <= done and d.service is not None and self._goal_subscribers_ok():
-                d.service.send_response(self._fill(d.response), d.header)
+                # a request whose goal was already chosen (answered meanwhile through a repeated
+                # request, goal_retry) gets that goal, not a new one
+                d.service.send_response(self._fill(d.response, self._goal_for(d.after_report)), d.header)
             else:
                 keep.append(d)
         self.waiting = keep
@@ -197,8 +198,9 @@ class GoalGeneratorNode(Node):
             response.goal.after_report = request.after_report
             return response
         after = request.after_report
-        if after in self.goal_by_after:  # a repeated request (learner's goal_retry): the same goal
-            return self._fill(response, self.goal_by_after[after])
+        rec = self._goal_for(after)
+        if rec is not None:  # a repeated request (learner's goal_retry): the same goal
+            return self._fill(response, rec)
         if after < self.gen.reports:
             self.get_logger().error(
                 f"goal requested after report {after} but {self.gen.reports} reports were already "
@@ -211,14 +213,24 @@ class GoalGeneratorNode(Node):
 
     def _fill(self, response: NextGoal.Response, rec=None) -> NextGoal.Response:
         if rec is None:
-            rec = self.goal_by_after.get(self.gen.reports)
+            rec = self._goal_for(self.gen.reports)
         if rec is None:  # (else: a repeated request, answered with the same goal)
             rec = self.gen.next_goal()
             if self.checkpointer is not None:
                 self.checkpointer.on_goal(rec)  # journaled before it is answered or published
-            self.goal_by_after = {rec.after_report: rec}  # only the newest goal can be asked again
         self._publish_goal(rec, response.goal)
         return response
+
+    def _goal_for(self, after_report: int):
+        """The goal already chosen after report ``after_report`` (a repeated or late request gets it
+        again), or None. Goals are in increasing after_report order; a repeated request is never
+        far behind, so only the last 16 are searched."""
+        for rec in reversed(self.gen.goals[-16:]):
+            if rec.after_report == after_report:
+                return rec
+            if rec.after_report < after_report:
+                break
+        return None
 
     def _publish_goal(self, rec, g=None) -> None:
         """Fill ``g`` (a Goal, new if None) from ``rec`` and publish it on /sagg/goal."""
@@ -246,7 +258,6 @@ class GoalGeneratorNode(Node):
         # goals of the last journals: published again (a kill may have cut their publication short;
         # receivers key goals by seq), once /sagg/goal has its subscribers (on_regions_timer)
         self.goals_to_publish = list(ck.republish)
-        self.goal_by_after = {r.after_report: r for r in self.gen.goals[-1:]}
         if ck.resumed_from is not None:
             info = ck.resumed_from
             self.get_logger().info(
@@ -266,7 +277,6 @@ class GoalGeneratorNode(Node):
                 self.get_logger().error(
                     f"resumed goal {rec.seq} differs from the journaled goal {want.seq}: using the journaled one")
                 gen.goals[-1] = rec = want
-            self.goal_by_after = {rec.after_report: rec}
             self.goals_to_publish.append(rec)
         if self.replay_goals and self.replay_goals[0].after_report < gen.reports:
             self.get_logger().error(f"journaled goal {self.replay_goals[0].seq} followed report "
