@@ -730,9 +730,13 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         st.sample_t0 = st.sample_t1 = None  # rates: this segment only
     prior_samples = st.samples
 
+    # /sagg/sample is subscribed once the hardware topics are matched: the learner waits for that
+    # subscriber before its first command, so the bag misses no command, joint state or tip
+    hw = tuple(t.name for t in topics if not t.name.startswith("/sagg/") and t.name != "/clock")
     recorder = TopicRecorder(node, bag, topics, {
         "/sagg/sample": on_sample, "/sagg/goal": on_goal, "/sagg/competence": on_report,
-        "/sagg/regions": on_regions, "/sagg/status": on_status})
+        "/sagg/regions": on_regions, "/sagg/status": on_status},
+        gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
     bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
     interrupted = False
     error: GraphError | None = None
@@ -755,6 +759,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         waiting_note = False
         while True:
             executor.spin_once(timeout_sec=0.02)
+            recorder.poll_gate()
             # drain what is already queued before the bookkeeping below (one callback per loop
             # made this process fall far behind the learner and show a stale rate)
             for _ in range(2000):

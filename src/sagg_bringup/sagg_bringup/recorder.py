@@ -130,37 +130,73 @@ class TopicRecorder:
     """Raw subscriptions on ``node`` writing every message of ``topics`` into ``bag``.
 
     ``handlers[topic](msg)`` is called (in the executor's thread) with the deserialized message
-    after it has been written, for the topics that have one."""
+    after it has been written, for the topics that have one.
+
+    ``gate``: topics subscribed only once every topic of ``wait_for`` has had a matched publisher
+    for ``settle`` seconds (:meth:`poll_gate`; the publisher side of the match, which decides
+    delivery, completes a little after ours). The learner starts acting only when ``/sagg/sample`` has a subscriber
+    (``min_sample_subscribers``), so gating that subscription on the hardware topics means no
+    command, joint state or outcome is published before the recorder can receive it."""
 
     def __init__(self, node, bag: BagWriter, topics: list[TopicSpec],
-                 handlers: dict[str, Callable] | None = None):
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-        from rclpy.serialization import deserialize_message
-
+                 handlers: dict[str, Callable] | None = None, gate: tuple[str, ...] = (),
+                 wait_for: tuple[str, ...] = (), settle: float = 0.5):
         self.node = node
+        self.settle = settle
+        self._matched_since: float | None = None
         self.bag = bag
         self.handlers = handlers or {}
         self.first_ns: dict[str, int] = {}
         self.last_ns: dict[str, int] = {}
         self._subs = []
-        for t in topics:
-            cls = _msg_class(t.msgtype)
-            qos = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=t.depth,
-                reliability=ReliabilityPolicy.RELIABLE,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local else DurabilityPolicy.VOLATILE)
-            handler = self.handlers.get(t.name)
+        self._gated = [t for t in topics if t.name in gate]
+        self._wait_for = set(wait_for)
+        self._waiting_subs = []
+        for t in [t for t in topics if t.name not in gate]:
+            sub = self._subscribe(t)
+            if t.name in self._wait_for:
+                self._waiting_subs.append(sub)
+        self.poll_gate()
 
-            def callback(data, topic=t.name, cls=cls, handler=handler):
-                now = time.time_ns()
-                if not self.bag.closed:
-                    self.bag.write(topic, now, data)
-                self.first_ns.setdefault(topic, now)
-                self.last_ns[topic] = now
-                if handler is not None:
-                    handler(deserialize_message(data, cls))
+    def poll_gate(self) -> bool:
+        """Subscribe the gated topics once every awaited topic has a publisher; True when open."""
+        if not self._gated:
+            return True
+        if not all(s.get_publisher_count() > 0 for s in self._waiting_subs):
+            self._matched_since = None
+            return False
+        now = time.monotonic()
+        if self._matched_since is None:
+            self._matched_since = now
+        if now - self._matched_since >= self.settle:
+            for t in self._gated:
+                self._subscribe(t)
+            self._gated = []
+        return not self._gated
 
-            self._subs.append(node.create_subscription(cls, t.name, callback, qos, raw=True))
+    def _subscribe(self, t: TopicSpec):
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.serialization import deserialize_message
+
+        cls = _msg_class(t.msgtype)
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=t.depth,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local else DurabilityPolicy.VOLATILE)
+        handler = self.handlers.get(t.name)
+
+        def callback(data, topic=t.name, cls=cls, handler=handler):
+            now = time.time_ns()
+            if not self.bag.closed:
+                self.bag.write(topic, now, data)
+            self.first_ns.setdefault(topic, now)
+            self.last_ns[topic] = now
+            if handler is not None:
+                handler(deserialize_message(data, cls))
+
+        sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True)
+        self._subs.append(sub)
+        return sub
 
     def destroy(self) -> None:
         for s in self._subs:

@@ -173,9 +173,13 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
     def on_regions(m) -> None:
         state["regions"] = m
 
+    # /sagg/sample (which the learner waits for) is subscribed once the trajectory and outcome topics
+    # are matched, so no trajectory or outcome is published before the recorder can receive it
+    hw = tuple(t.name for t in topics if not t.name.startswith("/sagg/"))
     recorder = TopicRecorder(node, bag, topics, {"/sagg/sample": on_sample, "/sagg/goal": on_goal,
                                                  "/sagg/competence": on_report, "/sagg/status": on_status,
-                                                 "/sagg/regions": on_regions})
+                                                 "/sagg/regions": on_regions},
+                             gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
     bar = Progress(micro_actions, f"{full['sagg_sim_bridge']['setup']} {lp['strategy']} seed {lp['seed']} (graph)",
                    enabled=progress)
     stop_signal: list[int] = []
@@ -193,6 +197,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
         done_at = None
         while True:
             executor.spin_once(timeout_sec=0.02)
+            recorder.poll_gate()
             for _ in range(500):
                 before = bag.written
                 executor.spin_once(timeout_sec=0)

@@ -31,7 +31,10 @@ from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import PointStamped, PoseStamped
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from diagnostic_msgs.msg import DiagnosticArray
+
 from sagg_common.cdr import encode_report, encode_sample
+from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import ConfigError, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.synergy import quaternion_yaw
@@ -105,6 +108,10 @@ class SynergyLearnerNode(Node):
         out_type = PoseStamped if self.m == 3 else PointStamped
         self.create_subscription(out_type, p["task_topic"], self.on_outcome, reliable(HW_DEPTH))
         self.goal_client = self.create_client(NextGoal, "/sagg/next_goal")
+        self.guard = InputGuard(self.get_logger().error)
+        self.goal_retry_at: float | None = None
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
+        self.create_timer(1.0, self.publish_diagnostics)
 
         self.learner.on_report = self.publish_report
         self.learner.on_sample = self.publish_sample
@@ -140,6 +147,9 @@ class SynergyLearnerNode(Node):
         return self.sample_pub.get_subscription_count() >= self.params["min_sample_subscribers"]
 
     def on_poll(self) -> None:
+        if self.goal_retry_at is not None and time.monotonic() >= self.goal_retry_at:
+            self.goal_retry_at = None
+            self.dispatch(self.pending)  # the GoalRequest whose answer was rejected
         if not self.started:
             if self._ready():
                 self.started = True
@@ -218,8 +228,16 @@ class SynergyLearnerNode(Node):
             self.done = True
             return
         g = resp.goal
+        pos = np.array(g.position, dtype=np.float64)
+        lo, hi = self.learner.task_lower, self.learner.task_upper
+        if pos.shape != lo.shape or not np.all(np.isfinite(pos)) or np.any(pos < lo) or np.any(pos > hi):
+            self.guard.reject("goal.invalid", f"goal {g.seq} at {pos.tolist()}: allowed: {len(lo)} finite values "
+                                              f"within task_space [{lo.tolist()}, {hi.tolist()}]; asking "
+                                              "again in 1 s")
+            self.goal_retry_at = time.monotonic() + 1.0
+            return
         self.goals_received += 1
-        self.dispatch(self.coro.send((int(g.seq), np.array(g.position, dtype=np.float64))))
+        self.dispatch(self.coro.send((int(g.seq), pos)))
 
     # ------------------------------------------------------------------ outputs
     def _now_ns(self) -> int:
@@ -232,6 +250,11 @@ class SynergyLearnerNode(Node):
     def publish_sample(self, idx: int) -> None:
         lr = self.learner
         self.sample_pub.publish(encode_sample(self._now_ns(), idx, lr.thetas[idx], np.zeros(0), lr.outcomes[idx]))
+
+    def publish_diagnostics(self) -> None:
+        lr = self.learner
+        state = {"experiments": str(lr.experiments), "discarded": str(lr.discarded)}
+        self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def publish_status(self) -> None:
         lr = self.learner

@@ -29,7 +29,9 @@ from rclpy.node import Node
 
 from geometry_msgs.msg import PointStamped, PoseStamped
 from trajectory_msgs.msg import JointTrajectory
+from diagnostic_msgs.msg import DiagnosticArray
 
+from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.synergy import Trajectory, duration_seconds, yaw_quaternion
 
@@ -65,6 +67,14 @@ class SynergyBridgeNode(Node):
         self.create_subscription(JointTrajectory, topic, self.on_trajectory, reliable(HW_DEPTH))
         self.experiments = 0
         self.busy_seconds = 0.0
+        self.guard = InputGuard(self.get_logger().error)
+        # outcomes wait (at most match_wait s) until every subscriber the graph knows of is matched,
+        # so that a recorder that joined just before the first trajectory misses none
+        self.outbox: list = []
+        self.match_deadline: float | None = None
+        self.create_timer(0.01, self._drain)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
+        self.create_timer(1.0, self.publish_diagnostics)
         self.get_logger().info(f"{self.setup}: trajectories from {topic}, outcomes on {p['task_topic']} "
                                f"({'PoseStamped' if self.pose else 'PointStamped'})")
 
@@ -72,15 +82,20 @@ class SynergyBridgeNode(Node):
         t0 = time.perf_counter()
         traj = None
         try:
-            traj = trajectory_from_msg(msg)
+            traj = trajectory_from_msg(msg)  # Trajectory checks shapes, order and finiteness
             y = self.sim.rest_outcome if traj is None else self.sim.execute(traj)
-        except ValueError as exc:
-            self.get_logger().error(f"trajectory rejected: {exc}")
-            y = None
+        except (ValueError, IndexError, KeyError, TypeError) as exc:
+            # answered with the "no outcome" value, so the learner does not wait for it
+            self.guard.reject("trajectory.invalid", f"trajectory rejected: {exc}")
+            traj, y = None, None
         if traj is not None:
             self.experiments += 1
         self.busy_seconds += time.perf_counter() - t0
         self.publish_outcome(msg.header.stamp, y)
+
+    def publish_diagnostics(self) -> None:
+        state = {"experiments": str(self.experiments), "setup": self.setup}
+        self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def publish_outcome(self, stamp, y) -> None:
         if self.pose:
@@ -102,7 +117,21 @@ class SynergyBridgeNode(Node):
                 out.point.x = out.point.y = math.nan
             else:
                 out.point.x, out.point.y = float(y[0]), float(y[1])
-        self.out_pub.publish(out)
+        self.outbox.append(out)
+        self._drain()
+
+    def _drain(self, match_wait: float = 2.0) -> None:
+        if not self.outbox:
+            return
+        if self.out_pub.get_subscription_count() < self.count_subscribers(self.params["task_topic"]):
+            now = time.monotonic()
+            if self.match_deadline is None:
+                self.match_deadline = now + match_wait
+            if now < self.match_deadline:
+                return
+        for out in self.outbox:
+            self.out_pub.publish(out)
+        self.outbox.clear()
 
 
 def main(args: list[str] | None = None) -> int:
