@@ -147,11 +147,30 @@ def test_checkpoint_of_another_run_is_refused(tmp_path):
         LearnerCheckpointer(tmp_path, other.learner, 100).resume()
     with pytest.raises(ValueError, match="seed"):
         GeneratorCheckpointer(tmp_path, other.generator, 100).resume()
-    riac = InProcessRun(load_experiment_config(ROOT / "config/arm15_y50.yaml", {**SMALL, "strategy": "actuator-riac"}))
-    with pytest.raises(ValueError, match="actuator-riac"):
-        LearnerCheckpointer(tmp_path / "r", riac.learner, 100)
     with pytest.raises(ValueError, match="checkpoint_every"):
         LearnerCheckpointer(tmp_path / "r", other.learner, 0)
+
+
+def test_actuator_riac_tree_resumes_from_its_checkpoint(tmp_path):
+    """ACTUATOR-RIAC: the (α, Δα) region tree and its split stream come back as checkpointed."""
+    cfg = load_experiment_config(ROOT / "config/arm15_y50.yaml", {**SMALL, "strategy": "actuator-riac"})
+    run = InProcessRun(cfg)
+    ck = LearnerCheckpointer(tmp_path, run.learner, 10**9)
+    assert ck.resume() == []
+    run.learner.on_sample = ck.on_sample
+    run.step_until(1500)
+    tree = run.learner.riac_tree
+    assert len(tree.splits) >= 2  # a tree worth restoring
+    ck.save()
+    snap = [(r.id, r.count, r.lower.tobytes(), r.upper.tobytes(), r.interest) for r in tree.leaves()]
+    again = InProcessRun(cfg)
+    LearnerCheckpointer(tmp_path, again.learner, 10**9).resume()
+    t2 = again.learner.riac_tree
+    assert [(r.id, r.count, r.lower.tobytes(), r.upper.tobytes(), r.interest) for r in t2.leaves()] == snap
+    assert t2.splits == tree.splits and t2.rng.bit_generator.state == tree.rng.bit_generator.state
+    assert again.learner.memory.digest() == run.learner.memory.digest()
+    again.step_until(again.learner.micro_actions + 200)  # and it goes on learning with that tree
+    assert again.learner.riac_tree is t2 and t2.n_added > tree.n_added
 
 
 # ------------------------------------------------------------------------------- graph

@@ -26,8 +26,10 @@ current reaching attempt (or actuator babbling cycle). The resumed learner obser
 starts a new attempt (a return to rest when due, then a goal request after the reports it has
 sent); the interrupted attempt is abandoned (its goal gets no final report). Its random stream is
 the checkpoint's state, jumped ahead (``bit_generator.jumped()``) when the journal had records past
-the checkpoint, so numbers already drawn are not drawn again. ACTUATOR-RIAC's region tree is not
-saved: checkpointing is refused for that strategy.
+the checkpoint, so numbers already drawn are not drawn again. ACTUATOR-RIAC's region tree over
+(α, Δα) is saved whole at each checkpoint (``learner_riac_<g>.npz``, with its split stream's
+state) and restored as it was then: the prediction errors of the samples journaled after the
+checkpoint are not in it (they were measured against the model of that moment).
 
 Republishing: the resumed node republishes the journaled samples and reports of the journals it
 found (the last two checkpoint intervals); receivers drop indices / sequence numbers they have.
@@ -42,6 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from sagg_common.journal import Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
+
+from sagg_goal_generator.checkpoint import restore_tree, splits_arrays, splits_from_arrays, tree_arrays
 
 from .learner import EvolvingContextLearner, Report
 from .memory import SampleMemory
@@ -89,9 +93,6 @@ class LearnerCheckpointer:
 
     def __init__(self, directory: str | Path, learner: EvolvingContextLearner, every: int,
                  fsync: bool = False):
-        if learner.strategy == "actuator-riac":
-            raise ValueError("checkpoint_dir: checkpoints are not supported for strategy actuator-riac "
-                             "(its region tree is not saved); allowed: an empty checkpoint_dir")
         if int(every) < 1:
             raise ValueError(f"checkpoint_every: got {every}; allowed: an integer >= 1")
         self.dir = Path(directory)
@@ -127,7 +128,7 @@ class LearnerCheckpointer:
 
     # ------------------------------------------------------------------ files
     def _path(self, kind: str, g: int) -> Path:
-        return self.dir / f"learner_{kind}_{g}.{'npz' if kind == 'samples' else 'bin'}"
+        return self.dir / f"learner_{kind}_{g}.{'npz' if kind in ('samples', 'riac') else 'bin'}"
 
     def _generations(self, kind: str) -> list[int]:
         pat = re.compile(rf"learner_{kind}_(\d+)\.(npz|bin)$")
@@ -154,17 +155,26 @@ class LearnerCheckpointer:
             path = self._path("samples", g)
             save_npz_atomic(path, alpha=a, delta_alpha=da, delta_y=dy)
             self.segments.append({"file": path.name, "start": start, "count": len(a), "sha256": _sha(a, da, dy)})
+        riac = None
+        tree = lr.riac_tree
+        if tree is not None:
+            path = self._path("riac", g)
+            save_npz_atomic(path, **tree_arrays(tree), **splits_arrays(tree.splits, tree.dim))
+            riac = {"file": path.name, "split_rng": rng_state(tree.rng)}
         write_json_atomic(self.dir / "learner.json", {
             "format": FORMAT, "generation": g, **self._identity(),
             **{c: int(getattr(lr, c)) for c in _COUNTERS},
             "last_competence": float(lr.last_competence), "rng": rng_state(lr.rng),
             "segments": self.segments, "memory_samples": len(mem),
-            "memory_digest": mem.digest() if digest else None})
+            "memory_digest": mem.digest() if digest else None, "riac": riac})
         self.generation = g
         self.saved_at = lr.micro_actions
         for k in self._generations("journal"):
             if k < g - 1:
                 self._path("journal", k).unlink(missing_ok=True)
+        for k in self._generations("riac"):
+            if k < g:
+                self._path("riac", k).unlink(missing_ok=True)
 
     def maybe_save(self) -> bool:
         if self.learner.micro_actions - self.saved_at >= self.every:
@@ -206,6 +216,13 @@ class LearnerCheckpointer:
             setattr(lr, c, int(meta[c]))
         lr.last_competence = float(meta["last_competence"])
         restore_rng(lr.rng, meta["rng"])
+        if meta.get("riac"):
+            tree = lr.make_riac_tree()
+            with np.load(self.dir / meta["riac"]["file"], allow_pickle=False) as z:
+                restore_tree(tree, z)
+                tree.splits = splits_from_arrays(z)
+            restore_rng(tree.rng, meta["riac"]["split_rng"])
+            lr.riac_tree = tree
         g = int(meta["generation"])
         n, m = lr.robot.n, lr.m
         replay: list = []

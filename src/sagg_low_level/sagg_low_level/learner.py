@@ -377,14 +377,8 @@ class EvolvingContextLearner:
         yield from self._reset()
         self.rest_y = self.y.copy()
         period = self.actuator_reset_period()
-        if riac:
-            a = self.p["explore_amplitude"]
-            n = self.robot.n
-            self.riac_tree = RegionTree(
-                np.concatenate([self.robot.lower, np.full(n, -a)]),
-                np.concatenate([self.robot.upper, np.full(n, a)]),
-                self.p["riac.g_max"], self.p["riac.zeta"], self.p["riac.split_candidates"],
-                stream(self.p["seed"], "actuator_riac_splits"))
+        if riac and self.riac_tree is None:  # (a resumed learner has its checkpoint's tree)
+            self.riac_tree = self.make_riac_tree()
         since_reset = 0
         while True:
             if since_reset >= period:
@@ -404,6 +398,15 @@ class EvolvingContextLearner:
                                                                   self.p["explore_amplitude"])]), -err)
                 self.last_competence = -err
             self._report(KIND_EXPLORATION, 0, self.y, self.y, 0.0)
+
+    def make_riac_tree(self) -> RegionTree:
+        """ACTUATOR-RIAC's empty region tree over (α, Δα) (Sec. 3.8), with its own split stream."""
+        a = self.p["explore_amplitude"]
+        n = self.robot.n
+        return RegionTree(np.concatenate([self.robot.lower, np.full(n, -a)]),
+                          np.concatenate([self.robot.upper, np.full(n, a)]),
+                          self.p["riac.g_max"], self.p["riac.zeta"], self.p["riac.split_candidates"],
+                          stream(self.p["seed"], "actuator_riac_splits"))
 
     def _riac_choice(self) -> np.ndarray:
         """ACTUATOR-RIAC action choice: among leaves whose α-part contains the current α, pick one
