@@ -187,12 +187,11 @@ def set_checkpoint_dirs(params: dict[str, dict], out: Path, resume: bool = False
     """Learner and generator checkpoint (with their journals) into ``DIR/checkpoint`` unless the
     config names a directory: what ``sagg run --resume DIR`` continues from. When resuming, a
     node whose checkpoint is in ``DIR/checkpoint`` resumes from there even if params.yaml names
-    another path (the run directory was moved or copied). (ACTUATOR-RIAC's learner cannot
-    checkpoint: its region tree is not saved.)"""
+    another path (the run directory was moved or copied)."""
     own = out / "checkpoint"
     for name, meta in (("sagg_learner", "learner.json"), ("sagg_goal_generator", "generator.json")):
         p = params[name]
-        if "checkpoint_dir" not in p or p.get("strategy") == "actuator-riac":
+        if "checkpoint_dir" not in p:
             continue
         if not p["checkpoint_dir"] or (resume and (own / meta).is_file()):
             p["checkpoint_dir"] = str(own.resolve())
