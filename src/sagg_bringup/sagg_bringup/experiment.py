@@ -5,14 +5,13 @@ exactly the order the ROS graph does in lockstep mode.
 """
 from __future__ import annotations
 
-import json
-import os
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, check_wildcard, node_params, read_config
 from sagg_common.progress import Progress
 from sagg_common.rng import substream_seed
@@ -195,11 +194,3 @@ def build_result(run: InProcessRun, curve: list[dict], area, total: int, eval_se
     }
 
 
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON to ``path`` atomically (temporary file, then rename)."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as fh:
-        json.dump(data, fh, indent=1, allow_nan=True)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)

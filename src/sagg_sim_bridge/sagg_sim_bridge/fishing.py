@@ -15,15 +15,16 @@ off: only the float's height is watched); the rod is rigid and the line carries 
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.params import Schema
 from sagg_common.synergy import Trajectory
+
+from .model_spec import spec_from_params as _spec_from_params, spec_schema, validate_fields
 
 JOINT_NAMES = ["base_yaw", "shoulder", "elbow", "wrist"]
 # rest: facing +x turned by 0.3 rad (an asymmetric rest, like the paper's), upper arm up, forearm and
@@ -63,35 +64,15 @@ class FishingSpec:
     position_scale: float = 0.75   # task units per metre
 
     def validate(self) -> None:
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if f.name in ("line_segments", "check_every"):
-                if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 1000:
-                    raise ValueError(f"fishing.{f.name}: got {v!r}; allowed: an integer in [1, 1000]")
-                continue
-            lo = 0.0 if f.name in ("line_damping", "settle_time") else None
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or \
-                    (v < lo if lo is not None else v <= 0):
-                allowed = "a finite number >= 0" if lo is not None else "a finite number > 0"
-                raise ValueError(f"fishing.{f.name}: got {v!r}; allowed: {allowed}")
-        if self.timestep > 0.01:
-            raise ValueError(f"fishing.timestep: got {self.timestep}; allowed: (0, 0.01]")
+        validate_fields(self, "fishing", ("line_segments", "check_every"), ("line_damping", "settle_time"), 0.01)
 
 
-SCHEMA: Schema = tuple(
-    Param(f"fishing.{f.name}", "int" if f.name in ("line_segments", "check_every") else "float", f.default,
-          f"Fishing-rod model: {f.name.replace('_', ' ')} (see sagg_sim_bridge/fishing.py; our choice).")
-    for f in dataclasses.fields(FishingSpec))
+SCHEMA: Schema = spec_schema("fishing", FishingSpec, ("line_segments", "check_every"), "Fishing-rod model",
+                             "sagg_sim_bridge/fishing.py")
 
 
 def spec_from_params(params: dict) -> FishingSpec:
-    fields = {k[len("fishing."):]: v for k, v in params.items() if k.startswith("fishing.")}
-    spec = FishingSpec(**fields)
-    try:
-        spec.validate()
-    except ValueError as exc:
-        raise ConfigError(f"parameter {exc}") from exc
-    return spec
+    return _spec_from_params(params, "fishing", FishingSpec)
 
 
 def fishing_mjcf(spec: FishingSpec) -> str:

@@ -12,15 +12,16 @@ reachable set asymmetric in v; ours has one too (``head_offset``).
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.params import Schema
 from sagg_common.synergy import Trajectory
+
+from .model_spec import spec_from_params as _spec_from_params, spec_schema, validate_fields
 
 LEGS = ("fl", "fr", "hl", "hr")  # front/hind, left/right
 JOINTS_PER_LEG = ("hip_abd", "hip_flex", "knee")
@@ -63,35 +64,16 @@ class QuadrupedSpec:
     position_scale: float = 10.0   # task units per metre for u and v
 
     def validate(self) -> None:
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if f.name == "control_every":
-                if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 1000:
-                    raise ValueError(f"quadruped.{f.name}: got {v!r}; allowed: an integer in [1, 1000]")
-                continue
-            lo = 0.0 if f.name in ("head_offset", "joint_damping", "head_mass", "settle_time") else None
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or \
-                    (v < lo if lo is not None else v <= 0):
-                allowed = "a finite number >= 0" if lo is not None else "a finite number > 0"
-                raise ValueError(f"quadruped.{f.name}: got {v!r}; allowed: {allowed}")
-        if self.timestep > 0.02:
-            raise ValueError(f"quadruped.timestep: got {self.timestep}; allowed: (0, 0.02]")
+        validate_fields(self, "quadruped", ("control_every",),
+                        ("head_offset", "joint_damping", "head_mass", "settle_time"), 0.02)
 
 
-SCHEMA: Schema = tuple(
-    Param(f"quadruped.{f.name}", "int" if f.name == "control_every" else "float", f.default,
-          f"Quadruped model: {f.name.replace('_', ' ')} (see sagg_sim_bridge/quadruped.py; our choice).")
-    for f in dataclasses.fields(QuadrupedSpec))
+SCHEMA: Schema = spec_schema("quadruped", QuadrupedSpec, ("control_every",), "Quadruped model",
+                             "sagg_sim_bridge/quadruped.py")
 
 
 def spec_from_params(params: dict) -> QuadrupedSpec:
-    fields = {k[len("quadruped."):]: v for k, v in params.items() if k.startswith("quadruped.")}
-    spec = QuadrupedSpec(**fields)
-    try:
-        spec.validate()
-    except ValueError as exc:
-        raise ConfigError(f"parameter {exc}") from exc
-    return spec
+    return _spec_from_params(params, "quadruped", QuadrupedSpec)
 
 
 def quadruped_mjcf(spec: QuadrupedSpec) -> str:
