@@ -24,7 +24,7 @@ import numpy as np
 from sagg_common.params import Schema
 from sagg_common.synergy import Trajectory
 
-from .model_spec import spec_from_params as _spec_from_params, spec_schema, validate_fields
+from .model_spec import RestStateSim, spec_from_params as _spec_from_params, spec_schema, validate_fields
 
 JOINT_NAMES = ["base_yaw", "shoulder", "elbow", "wrist"]
 # rest: facing +x turned by 0.3 rad (an asymmetric rest, like the paper's), upper arm up, forearm and
@@ -149,7 +149,7 @@ def first_crossing(z0: float, z1: float, p0, p1, level: float) -> np.ndarray | N
     return np.asarray(p0, dtype=float) + s * (np.asarray(p1, dtype=float) - np.asarray(p0, dtype=float))
 
 
-class FishingSim:
+class FishingSim(RestStateSim):
     """The simulated fishing rod: a joint-velocity trajectory in, the float's landing (x, y) out."""
 
     task_dim = 2
@@ -158,25 +158,11 @@ class FishingSim:
     def __init__(self, spec: FishingSpec | None = None):
         self.spec = spec or FishingSpec()
         self.spec.validate()
-        self.model = mujoco.MjModel.from_xml_string(fishing_mjcf(self.spec))
-        self.data = mujoco.MjData(self.model)
-        self.rest = np.array(REST_POSTURE)
-        self.n_joints = len(JOINT_NAMES)
-        jid = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in JOINT_NAMES]
-        self._qadr = np.array([self.model.jnt_qposadr[j] for j in jid])
-        self._dadr = np.array([self.model.jnt_dofadr[j] for j in jid])
+        self._build(fishing_mjcf(self.spec), JOINT_NAMES, REST_POSTURE, self.spec.settle_time,
+                    self.spec.timestep)
         self._float = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "float")
         self.lower = np.full(4, -self.spec.joint_range)
         self.upper = np.full(4, self.spec.joint_range)
-        mujoco.mj_resetData(self.model, self.data)
-        self.data.qpos[self._qadr] = self.rest
-        self.data.ctrl[:] = self.rest
-        steps = int(round(self.spec.settle_time / self.spec.timestep))
-        if steps:
-            mujoco.mj_step(self.model, self.data, nstep=steps)
-        self.data.time = 0.0
-        self._rest_qpos = self.data.qpos.copy()
-        self._rest_qvel = self.data.qvel.copy()
         self.experiments = 0
         self.no_contact = 0
         self.reset()
@@ -189,20 +175,6 @@ class FishingSim:
     def rest_outcome(self) -> np.ndarray:
         """The float's (x, y) at rest (task units): y_start of the competence (Sec. 3.5)."""
         return self.rest_float[:2] * self.spec.position_scale
-
-    def reset(self) -> None:
-        """Restore the rest state (Alg. 4: 'Reset the current context')."""
-        mujoco.mj_resetData(self.model, self.data)
-        self.data.qpos[:] = self._rest_qpos
-        self.data.qvel[:] = self._rest_qvel
-        self.data.ctrl[:] = self.rest
-        mujoco.mj_forward(self.model, self.data)
-
-    def joint_positions(self) -> np.ndarray:
-        return self.data.qpos[self._qadr].copy()
-
-    def joint_velocities(self) -> np.ndarray:
-        return self.data.qvel[self._dadr].copy()
 
     def float_position(self) -> np.ndarray:
         return self.data.xpos[self._float].copy()

@@ -1,9 +1,13 @@
-"""Shared plumbing of the generated MuJoCo models' specs (quadruped, fishing rod): field checks,
-the parameter schema (``<prefix>.<field>``) and building a spec from resolved parameters."""
+"""Shared plumbing of the generated MuJoCo models (quadruped, fishing rod): spec field checks, the
+parameter schema (``<prefix>.<field>``), a spec from resolved parameters, and the rest-state
+simulator base."""
 from __future__ import annotations
 
 import dataclasses
 import math
+
+import mujoco
+import numpy as np
 
 from sagg_common.params import ConfigError, Param, Schema
 
@@ -43,3 +47,41 @@ def spec_from_params(params: dict, prefix: str, cls):
     except ValueError as exc:
         raise ConfigError(f"parameter {exc}") from exc
     return spec
+
+
+class RestStateSim:
+    """What the synergy simulators share: the generated model, their joints' addresses, the fixed
+    rest state (the rest posture commanded and settled for ``settle_time`` at build time) and the
+    reset to it before every experiment (Alg. 4: 'Reset the current context: s_t = s_rest')."""
+
+    def _build(self, xml: str, joint_names, rest_posture, settle_time: float, timestep: float) -> None:
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.data = mujoco.MjData(self.model)
+        self.rest = np.array(rest_posture)
+        self.n_joints = len(joint_names)
+        jid = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in joint_names]
+        self._qadr = np.array([self.model.jnt_qposadr[j] for j in jid])
+        self._dadr = np.array([self.model.jnt_dofadr[j] for j in jid])
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self._qadr] = self.rest
+        self.data.ctrl[:] = self.rest
+        steps = int(round(settle_time / timestep))
+        if steps:
+            mujoco.mj_step(self.model, self.data, nstep=steps)
+        self.data.time = 0.0
+        self._rest_qpos = self.data.qpos.copy()
+        self._rest_qvel = self.data.qvel.copy()
+
+    def reset(self) -> None:
+        """Restore the fixed rest state."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = self._rest_qpos
+        self.data.qvel[:] = self._rest_qvel
+        self.data.ctrl[:] = self.rest
+        mujoco.mj_forward(self.model, self.data)
+
+    def joint_positions(self) -> np.ndarray:
+        return self.data.qpos[self._qadr].copy()
+
+    def joint_velocities(self) -> np.ndarray:
+        return self.data.qvel[self._dadr].copy()

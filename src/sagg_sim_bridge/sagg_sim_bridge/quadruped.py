@@ -21,7 +21,7 @@ import numpy as np
 from sagg_common.params import Schema
 from sagg_common.synergy import Trajectory
 
-from .model_spec import spec_from_params as _spec_from_params, spec_schema, validate_fields
+from .model_spec import RestStateSim, spec_from_params as _spec_from_params, spec_schema, validate_fields
 
 LEGS = ("fl", "fr", "hl", "hr")  # front/hind, left/right
 JOINTS_PER_LEG = ("hip_abd", "hip_flex", "knee")
@@ -154,7 +154,7 @@ def start_frame_outcome(p0, yaw0: float, p1, yaw_change: float, scale: float) ->
     return np.array([scale * (c * dx + s * dy), scale * (-s * dx + c * dy), float(yaw_change)])
 
 
-class QuadrupedSim:
+class QuadrupedSim(RestStateSim):
     """The simulated quadruped: a joint trajectory in, the outcome (u, v, φ) out."""
 
     task_dim = 3
@@ -163,26 +163,11 @@ class QuadrupedSim:
     def __init__(self, spec: QuadrupedSpec | None = None):
         self.spec = spec or QuadrupedSpec()
         self.spec.validate()
-        self.model = mujoco.MjModel.from_xml_string(quadruped_mjcf(self.spec))
-        self.data = mujoco.MjData(self.model)
-        self.rest = np.array(REST_POSTURE)
-        self.n_joints = len(JOINT_NAMES)
-        self._qadr = np.array([self.model.jnt_qposadr[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n)]
-                               for n in JOINT_NAMES])
-        self._dadr = np.array([self.model.jnt_dofadr[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n)]
-                               for n in JOINT_NAMES])
+        # the fixed rest state: start in the rest posture above the floor, settle under the rest command
+        self._build(quadruped_mjcf(self.spec), JOINT_NAMES, REST_POSTURE, self.spec.settle_time,
+                    self.spec.timestep)
         self._torso = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "torso")
         self.dt_control = self.spec.timestep * self.spec.control_every
-        # the fixed rest state: start in the rest posture above the floor, settle under the rest command
-        mujoco.mj_resetData(self.model, self.data)
-        self.data.qpos[self._qadr] = self.rest
-        self.data.ctrl[:] = self.rest
-        steps = int(round(self.spec.settle_time / self.spec.timestep))
-        if steps:
-            mujoco.mj_step(self.model, self.data, nstep=steps)
-        self.data.time = 0.0
-        self._rest_qpos = self.data.qpos.copy()
-        self._rest_qvel = self.data.qvel.copy()
         self.experiments = 0
         self.reset()
 
@@ -200,20 +185,6 @@ class QuadrupedSim:
                              f"{self._rest_qvel.shape}")
         self._rest_qpos, self._rest_qvel = qpos.copy(), qvel.copy()
         self.reset()
-
-    def reset(self) -> None:
-        """Restore the fixed rest state (Alg. 4: 'Reset the current context: s_t = s_rest')."""
-        mujoco.mj_resetData(self.model, self.data)
-        self.data.qpos[:] = self._rest_qpos
-        self.data.qvel[:] = self._rest_qvel
-        self.data.ctrl[:] = self.rest
-        mujoco.mj_forward(self.model, self.data)
-
-    def joint_positions(self) -> np.ndarray:
-        return self.data.qpos[self._qadr].copy()
-
-    def joint_velocities(self) -> np.ndarray:
-        return self.data.qvel[self._dadr].copy()
 
     def body_pose(self) -> tuple[np.ndarray, float]:
         return self.data.xpos[self._torso].copy(), yaw_of(self.data.xquat[self._torso])
