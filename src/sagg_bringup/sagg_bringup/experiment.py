@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from sagg_common.journal import write_json_atomic
-from sagg_common.params import ConfigError, check_wildcard, node_params, read_config
+from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import substream_seed
 from sagg_goal_generator.core import MODE_NAMES, SCHEMA as GEN_SCHEMA, GoalGenerator
@@ -28,24 +28,8 @@ def load_experiment_config(path: str | Path, overrides: dict[str, Any] | None = 
     from .synergy_experiment import config_setup, load_synergy_config
     if config_setup(path) is not None:  # quadruped / fishing: the synergy nodes' schemas
         return load_synergy_config(path, overrides)
-    sections = read_config(path)
-    schemas = (GEN_SCHEMA, LEARNER_SCHEMA, BRIDGE_SCHEMA)
-    check_wildcard(sections, schemas)
-    known = {p.name for s in schemas for p in s}
-    unknown = sorted(set(overrides or {}) - known)
-    if unknown:
-        raise ConfigError(f"unknown parameter(s) {', '.join(unknown)} in overrides (--set); "
-                          "see `sagg params` for every parameter")
-    out = {
-        "sagg_goal_generator": node_params(sections, "sagg_goal_generator", GEN_SCHEMA, overrides),
-        "sagg_learner": node_params(sections, "sagg_learner", LEARNER_SCHEMA, overrides),
-        "sagg_sim_bridge": node_params(sections, "sagg_sim_bridge", BRIDGE_SCHEMA, overrides),
-    }
-    g, l = out["sagg_goal_generator"], out["sagg_learner"]
-    for key in ("seed", "strategy", "task_space.lower", "task_space.upper"):
-        if g[key] != l[key]:
-            raise ConfigError(f"parameter '{key}' differs between sagg_goal_generator ({g[key]!r}) and "
-                              f"sagg_learner ({l[key]!r}); set it once under '/**'")
+    out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": LEARNER_SCHEMA,
+                               "sagg_sim_bridge": BRIDGE_SCHEMA}, overrides)
     arm_spec_from_params(out["sagg_sim_bridge"])  # validates the arm, naming the bad parameter
     return out
 

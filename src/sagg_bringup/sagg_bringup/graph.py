@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sagg_common.params import ConfigError, check_wildcard, node_params, read_config
+from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
 
 from .recorder import BagWriter, TopicRecorder, TopicSpec
@@ -105,19 +105,7 @@ def load_graph_config(path: str | Path, overrides: dict[str, Any] | None = None)
     """Resolved parameters of the three nodes (full schemas): defaults < ``/**`` < node section <
     overrides. Same checks as the in-process loader; an override no node declares is an error."""
     schemas = node_schemas()
-    sections = read_config(path)
-    check_wildcard(sections, schemas.values())
-    ov = dict(overrides or {})
-    known = {p.name for s in schemas.values() for p in s}
-    unknown = sorted(set(ov) - known)
-    if unknown:
-        raise ConfigError(f"--set: unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
-    out = {name: node_params(sections, name, schemas[name], ov) for name in NODES}
-    g, l = out["sagg_goal_generator"], out["sagg_learner"]
-    for key in ("seed", "strategy", "task_space.lower", "task_space.upper"):
-        if g[key] != l[key]:
-            raise ConfigError(f"parameter '{key}' differs between sagg_goal_generator ({g[key]!r}) and "
-                              f"sagg_learner ({l[key]!r}); set it once under '/**'")
+    out = resolve_nodes(path, {name: schemas[name] for name in NODES}, overrides)
     from sagg_sim_bridge.params import arm_spec_from_params
     arm_spec_from_params(out["sagg_sim_bridge"])
     return out

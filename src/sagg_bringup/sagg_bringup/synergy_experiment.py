@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.params import ConfigError, check_wildcard, node_params, read_config
+from sagg_common.params import ConfigError, read_config, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import stream
 from sagg_common.synergy import transported_outcome
@@ -39,25 +39,9 @@ def config_setup(path: str | Path) -> str | None:
 def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None = None,
                         learner_schema=LEARNER_SCHEMA, bridge_schema=SYN_BRIDGE_SCHEMA) -> dict[str, dict]:
     """Resolve the three nodes' parameters of a synergy config (+ overrides applied to every node)."""
-    sections = read_config(path)
-    schemas = (GEN_SCHEMA, learner_schema, bridge_schema)
-    check_wildcard(sections, schemas)
-    known = {p.name for s in schemas for p in s}
-    unknown = sorted(set(overrides or {}) - known)
-    if unknown:
-        raise ConfigError(f"unknown parameter(s) {', '.join(unknown)} in overrides (--set); "
-                          "see `sagg params` for every parameter")
-    out = {
-        "sagg_goal_generator": node_params(sections, "sagg_goal_generator", GEN_SCHEMA, overrides),
-        "sagg_learner": node_params(sections, "sagg_learner", learner_schema, overrides),
-        "sagg_sim_bridge": node_params(sections, "sagg_sim_bridge", bridge_schema, overrides),
-    }
-    g, l = out["sagg_goal_generator"], out["sagg_learner"]
-    for key in ("seed", "strategy", "task_space.lower", "task_space.upper"):
-        if g[key] != l[key]:
-            raise ConfigError(f"parameter '{key}' differs between sagg_goal_generator ({g[key]!r}) and "
-                              f"sagg_learner ({l[key]!r}); set it once under '/**'")
-    synergy_from_params(l)  # validates the synergy, naming the bad parameter
+    out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": learner_schema,
+                               "sagg_sim_bridge": bridge_schema}, overrides)
+    synergy_from_params(out["sagg_learner"])  # validates the synergy, naming the bad parameter
     return out
 
 

@@ -237,6 +237,31 @@ def check_wildcard(sections: Mapping[str, Mapping[str, Any]], schemas: Iterable[
         raise ConfigError(f"unknown parameter(s) {', '.join(unknown)} in section '{WILDCARD}'")
 
 
+SHARED_BETWEEN_LEVELS = ("seed", "strategy", "task_space.lower", "task_space.upper")
+
+
+def resolve_nodes(path: str | Path, schemas: Mapping[str, Schema],
+                  overrides: Mapping[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+    """Every node's parameters from one config file: schema defaults < ``/**`` < node section <
+    ``overrides`` (applied to each node that declares them). ConfigError for a ``/**`` or
+    override parameter no node declares, and for a shared parameter (seed, strategy, task space)
+    that differs between the goal generator and the learner."""
+    sections = read_config(path)
+    check_wildcard(sections, schemas.values())
+    known = {p.name for s in schemas.values() for p in s}
+    unknown = sorted(set(overrides or {}) - known)
+    if unknown:
+        raise ConfigError(f"unknown parameter(s) {', '.join(unknown)} in overrides (--set); "
+                          "see `sagg params` for every parameter")
+    out = {name: node_params(sections, name, schema, overrides) for name, schema in schemas.items()}
+    g, l = out["sagg_goal_generator"], out["sagg_learner"]
+    for key in SHARED_BETWEEN_LEVELS:
+        if g[key] != l[key]:
+            raise ConfigError(f"parameter '{key}' differs between sagg_goal_generator ({g[key]!r}) and "
+                              f"sagg_learner ({l[key]!r}); set it once under '/**'")
+    return out
+
+
 def schema_markdown(schema: Schema) -> str:
     """A Markdown table documenting a schema (used for the README's parameter tables)."""
     rows = ["| parameter | type | default | allowed | description |", "|---|---|---|---|---|"]
