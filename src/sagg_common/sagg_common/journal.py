@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import struct
 import zlib
 from pathlib import Path
@@ -82,6 +83,29 @@ def read_journal(path: str | Path) -> tuple[list[tuple[int, np.ndarray]], int]:
         out.append((kind, np.frombuffer(body, dtype="<f8").astype(np.float64)))
         pos = end + _CRC.size
     return out, len(data) - pos
+
+
+class GenerationFiles:
+    """The numbered files of a checkpoint directory: ``<prefix>_<kind>_<g>.npz`` for the kinds in
+    ``npz_kinds``, ``.bin`` (journals) for the others. Subclasses set ``dir``, ``prefix`` and
+    ``npz_kinds``."""
+
+    dir: Path
+    prefix: str
+    npz_kinds: tuple[str, ...] = ()
+
+    def _path(self, kind: str, g: int) -> Path:
+        return self.dir / f"{self.prefix}_{kind}_{g}.{'npz' if kind in self.npz_kinds else 'bin'}"
+
+    def _generations(self, kind: str) -> list[int]:
+        pat = re.compile(rf"{self.prefix}_{kind}_(\d+)\.(npz|bin)$")
+        return sorted(int(m.group(1)) for p in self.dir.iterdir() if (m := pat.match(p.name)))
+
+    def _prune(self, kind: str, below: int) -> None:
+        """Delete the files of ``kind`` older than generation ``below``."""
+        for k in self._generations(kind):
+            if k < below:
+                self._path(kind, k).unlink(missing_ok=True)
 
 
 def write_json_atomic(path: str | Path, data: Any) -> None:

@@ -25,12 +25,11 @@ continues exactly where the killed one was (a lockstep run is unchanged by the k
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import numpy as np
 
-from sagg_common.journal import Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
+from sagg_common.journal import GenerationFiles, Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
 
 from .core import GoalGenerator, GoalRecord
 from .regions import Region
@@ -132,8 +131,10 @@ def restore_tree(tree, z) -> None:
     tree._next_id, tree.n_added = (int(v) for v in z["tree_ints"])
 
 
-class GeneratorCheckpointer:
+class GeneratorCheckpointer(GenerationFiles):
     """Checkpoints and goal journal of one :class:`GoalGenerator` in ``directory``."""
+
+    prefix, npz_kinds = "generator", ("state",)
 
     def __init__(self, directory: str | Path, gen: GoalGenerator, every: int, fsync: bool = False):
         if int(every) < 1:
@@ -154,13 +155,6 @@ class GeneratorCheckpointer:
         """Journal a goal just chosen (call before answering or publishing it)."""
         self.journal.append(REC_GOAL, np.concatenate((
             [float(rec.seq), float(rec.after_report), float(rec.mode)], rec.position)))
-
-    def _path(self, kind: str, g: int) -> Path:
-        return self.dir / f"generator_{kind}_{g}.{'npz' if kind == 'state' else 'bin'}"
-
-    def _generations(self, kind: str) -> list[int]:
-        pat = re.compile(rf"generator_{kind}_(\d+)\.(npz|bin)$")
-        return sorted(int(m.group(1)) for p in self.dir.iterdir() if (m := pat.match(p.name)))
 
     def _identity(self) -> dict:
         g = self.gen
@@ -189,12 +183,8 @@ class GeneratorCheckpointer:
             "split_rng": rng_state(gen.tree.rng), "splits": len(gen.tree.splits), "state_file": state.name})
         self.generation = g
         self.saved_at = gen.reports
-        for k in self._generations("journal"):
-            if k < g - 1:  # journal g - 1 is kept: its goals are published again at a resume
-                self._path("journal", k).unlink(missing_ok=True)
-        for k in self._generations("state"):
-            if k < g:
-                self._path("state", k).unlink(missing_ok=True)
+        self._prune("journal", g - 1)  # journal g - 1 is kept: its goals are published again at a resume
+        self._prune("state", g)
 
     def maybe_save(self) -> bool:
         if self.gen.reports - self.saved_at >= self.every:

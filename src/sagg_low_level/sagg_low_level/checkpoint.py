@@ -38,12 +38,11 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
 
-from sagg_common.journal import Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
+from sagg_common.journal import GenerationFiles, Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
 
 from sagg_goal_generator.checkpoint import restore_tree, splits_arrays, splits_from_arrays, tree_arrays
 
@@ -88,8 +87,10 @@ def checkpoint_memory(directory: str | Path) -> SampleMemory:
     return load_segments(directory, meta, SampleMemory(n, n, m))
 
 
-class LearnerCheckpointer:
+class LearnerCheckpointer(GenerationFiles):
     """Checkpoints and journal of one :class:`EvolvingContextLearner` in ``directory``."""
+
+    prefix, npz_kinds = "learner", ("samples", "riac")
 
     def __init__(self, directory: str | Path, learner: EvolvingContextLearner, every: int,
                  fsync: bool = False):
@@ -127,13 +128,6 @@ class LearnerCheckpointer:
             np.asarray(r.start, float).ravel())))
 
     # ------------------------------------------------------------------ files
-    def _path(self, kind: str, g: int) -> Path:
-        return self.dir / f"learner_{kind}_{g}.{'npz' if kind in ('samples', 'riac') else 'bin'}"
-
-    def _generations(self, kind: str) -> list[int]:
-        pat = re.compile(rf"learner_{kind}_(\d+)\.(npz|bin)$")
-        return sorted(int(m.group(1)) for p in self.dir.iterdir() if (m := pat.match(p.name)))
-
     def _identity(self) -> dict:
         lr = self.learner
         return {"seed": lr.p["seed"], "strategy": lr.strategy, "joints": lr.robot.n, "task_dim": lr.m}
@@ -169,12 +163,8 @@ class LearnerCheckpointer:
             "memory_digest": mem.digest() if digest else None, "riac": riac})
         self.generation = g
         self.saved_at = lr.micro_actions
-        for k in self._generations("journal"):
-            if k < g - 1:
-                self._path("journal", k).unlink(missing_ok=True)
-        for k in self._generations("riac"):
-            if k < g:
-                self._path("riac", k).unlink(missing_ok=True)
+        self._prune("journal", g - 1)
+        self._prune("riac", g)
 
     def maybe_save(self) -> bool:
         if self.learner.micro_actions - self.saved_at >= self.every:
