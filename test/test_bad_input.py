@@ -230,3 +230,17 @@ def test_config_loader_fuzz_on_arbitrary_text(tmp_path, text):
         read_config(path)
     except ConfigError as exc:
         assert "text.yaml" in str(exc)
+
+
+@settings(max_examples=200, deadline=None)
+@given(coords=st.lists(floats, max_size=3))
+def test_goal_check_names_the_problem(coords):
+    """Goals reaching a learner (both learner nodes use this check before acting on a goal)."""
+    from sagg_common.diagnostics import goal_problem
+    pos, problem = goal_problem(coords, [-10.0, -10.0], [10.0, 10.0])
+    valid = len(coords) == 2 and all(math.isfinite(c) and -10.0 <= c <= 10.0 for c in coords)
+    assert (problem == "") == valid
+    if not valid:
+        assert "allowed: 2 finite values within task_space" in problem
+    else:
+        assert pos.tolist() == coords

@@ -13,6 +13,8 @@ from __future__ import annotations
 import time
 from typing import Callable
 
+import numpy as np
+
 # DiagnosticStatus levels (diagnostic_msgs/DiagnosticStatus: OK=0, WARN=1, ERROR=2, STALE=3)
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
@@ -52,6 +54,17 @@ class InputGuard:
         n = self.total - self._total_at_last_status
         self._total_at_last_status = self.total
         return n
+
+
+def goal_problem(position, lower, upper) -> tuple[np.ndarray, str]:
+    """A goal received by a learner as a float array, and what is wrong with it ('' if nothing):
+    it must have one finite value per task-space dimension, within [lower, upper]."""
+    pos = np.array(position, dtype=np.float64)
+    lo, hi = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    if pos.shape != lo.shape or not np.all(np.isfinite(pos)) or np.any(pos < lo) or np.any(pos > hi):
+        return pos, (f"at {pos.tolist()}: allowed: {len(lo)} finite values within task_space "
+                     f"[{lo.tolist()}, {hi.tolist()}]")
+    return pos, ""
 
 
 def diagnostic_array(stamp, node_name: str, guard: InputGuard, state: dict[str, str] | None = None,

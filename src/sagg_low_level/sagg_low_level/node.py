@@ -36,7 +36,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64_array, encode_report,
                              encode_sample)
-from sagg_common.diagnostics import InputGuard, diagnostic_array
+from sagg_common.diagnostics import InputGuard, diagnostic_array, goal_problem
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
@@ -482,12 +482,10 @@ class LearnerNode(Node):
             self.done = True
             return
         g = resp.goal
-        pos = np.array(g.position, dtype=np.float64)
-        lo, hi = self.learner.task_lower, self.learner.task_upper
-        if pos.shape != lo.shape or not np.all(np.isfinite(pos)) or np.any(pos < lo) or np.any(pos > hi):
-            self.guard.reject("goal.invalid", f"goal {g.seq} at {pos.tolist()}: allowed: {len(lo)} finite "
-                                              f"values within task_space [{lo.tolist()}, {hi.tolist()}]; "
-                                              f"asking again in {self.params['goal_retry']} s")
+        pos, problem = goal_problem(g.position, self.learner.task_lower, self.learner.task_upper)
+        if problem:
+            self.guard.reject("goal.invalid", f"goal {g.seq} {problem}; asking again in "
+                                              f"{self.params['goal_retry']} s")
             self.goal_future = None  # _retry_goal_request asks again
             self.goal_time = time.monotonic()
             return

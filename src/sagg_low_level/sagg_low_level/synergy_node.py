@@ -34,7 +34,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import encode_report, encode_sample
-from sagg_common.diagnostics import InputGuard, diagnostic_array
+from sagg_common.diagnostics import InputGuard, diagnostic_array, goal_problem
 from sagg_common.params import ConfigError, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.synergy import quaternion_yaw
@@ -228,12 +228,9 @@ class SynergyLearnerNode(Node):
             self.done = True
             return
         g = resp.goal
-        pos = np.array(g.position, dtype=np.float64)
-        lo, hi = self.learner.task_lower, self.learner.task_upper
-        if pos.shape != lo.shape or not np.all(np.isfinite(pos)) or np.any(pos < lo) or np.any(pos > hi):
-            self.guard.reject("goal.invalid", f"goal {g.seq} at {pos.tolist()}: allowed: {len(lo)} finite values "
-                                              f"within task_space [{lo.tolist()}, {hi.tolist()}]; asking "
-                                              "again in 1 s")
+        pos, problem = goal_problem(g.position, self.learner.task_lower, self.learner.task_upper)
+        if problem:
+            self.guard.reject("goal.invalid", f"goal {g.seq} {problem}; asking again in 1 s")
             self.goal_retry_at = time.monotonic() + 1.0
             return
         self.goals_received += 1
