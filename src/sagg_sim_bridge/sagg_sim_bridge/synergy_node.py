@@ -68,11 +68,6 @@ class SynergyBridgeNode(Node):
         self.experiments = 0
         self.busy_seconds = 0.0
         self.guard = InputGuard(self.get_logger().error)
-        # outcomes wait (at most match_wait s) until every subscriber the graph knows of is matched,
-        # so that a recorder that joined just before the first trajectory misses none
-        self.outbox: list = []
-        self.match_deadline: float | None = None
-        self.create_timer(0.01, self._drain)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
         self.create_timer(1.0, self.publish_diagnostics)
         self.get_logger().info(f"{self.setup}: trajectories from {topic}, outcomes on {p['task_topic']} "
@@ -117,21 +112,7 @@ class SynergyBridgeNode(Node):
                 out.point.x = out.point.y = math.nan
             else:
                 out.point.x, out.point.y = float(y[0]), float(y[1])
-        self.outbox.append(out)
-        self._drain()
-
-    def _drain(self, match_wait: float = 2.0) -> None:
-        if not self.outbox:
-            return
-        if self.out_pub.get_subscription_count() < self.count_subscribers(self.params["task_topic"]):
-            now = time.monotonic()
-            if self.match_deadline is None:
-                self.match_deadline = now + match_wait
-            if now < self.match_deadline:
-                return
-        for out in self.outbox:
-            self.out_pub.publish(out)
-        self.outbox.clear()
+        self.out_pub.publish(out)
 
 
 def main(args: list[str] | None = None) -> int:
