@@ -6,33 +6,74 @@ process (both ``python -m sagg_bringup.pingpong``) on a private ``ROS_DOMAIN_ID`
 ping side's result. The message is the learner's command type (std_msgs/Float64MultiArray with
 ``size`` doubles), echoed back on a second topic; reliable QoS, depth 10, as in the graph.
 
+``--pattern lockstep`` is the hardware contract's exchange with no work on either side: the ping
+side publishes a command (Float64MultiArray, ``size`` doubles) and waits for both answers, a
+sensor_msgs/JointState (``size`` named joints, positions and velocities) and a
+geometry_msgs/PointStamped, which the echo side publishes, prebuilt, on every command. It is the
+floor of any lockstep graph that speaks the contract: three messages per micro-action where a
+round trip has two.
+
     python -m sagg_bringup.pingpong --count 3000 --executor events
+    python -m sagg_bringup.pingpong --count 3000 --pattern lockstep --raw
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
 import time
 
 PING, PONG = "/sagg_pingpong/ping", "/sagg_pingpong/pong"
+JS, TIP = "/sagg_pingpong/joint_states", "/sagg_pingpong/tip"
+PATTERNS = ("pingpong", "lockstep")
 
 
-def _echo(executor_kind: str, raw: bool = False) -> None:
+def _answers(size: int, raw: bool):
+    """The lockstep pattern's prebuilt answers: a JointState of ``size`` joints and a PointStamped
+    (serialized when ``raw``)."""
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import JointState
+
+    js = JointState()
+    js.name = [f"joint_{i}" for i in range(size)]
+    js.position = [0.1] * size
+    js.velocity = [0.0] * size
+    tip = PointStamped()
+    tip.point.x = 1.0
+    if raw:
+        from rclpy.serialization import serialize_message
+
+        return serialize_message(js), serialize_message(tip)
+    return js, tip
+
+
+def _echo(executor_kind: str, raw: bool = False, pattern: str = "pingpong", size: int = 8) -> None:
     import rclpy
+    from geometry_msgs.msg import PointStamped
     from rclpy.node import Node
+    from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
 
     from sagg_common.ros_params import make_executor
 
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = Node("sagg_pingpong_echo")
-    pub = node.create_publisher(Float64MultiArray, PONG, 10)
-    node.create_subscription(Float64MultiArray, PING, pub.publish, 10, raw=raw)
+    if pattern == "lockstep":
+        js_pub = node.create_publisher(JointState, JS, 10)
+        tip_pub = node.create_publisher(PointStamped, TIP, 10)
+        js, tip = _answers(size, raw)
+
+        def on_command(_):
+            js_pub.publish(js)
+            tip_pub.publish(tip)
+
+        node.create_subscription(Float64MultiArray, PING, on_command, 10, raw=raw)
+    else:
+        pub = node.create_publisher(Float64MultiArray, PONG, 10)
+        node.create_subscription(Float64MultiArray, PING, pub.publish, 10, raw=raw)
     stop = []
     signal.signal(signal.SIGINT, lambda *a: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
@@ -44,9 +85,12 @@ def _echo(executor_kind: str, raw: bool = False) -> None:
     rclpy.shutdown()
 
 
-def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float, raw: bool = False) -> dict:
+def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float, raw: bool = False,
+          pattern: str = "pingpong") -> dict:
     import rclpy
+    from geometry_msgs.msg import PointStamped
     from rclpy.node import Node
+    from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
 
     from sagg_common.ros_params import make_executor
@@ -66,12 +110,29 @@ def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float
         state["received"] += 1
         pub.publish(msg)
 
-    node.create_subscription(Float64MultiArray, PONG, on_pong, 10, raw=raw)
+    if pattern == "lockstep":  # the next command once both answers to the last one are in
+        got = {"js": False, "tip": False}
+
+        def answer(key):
+            def on_answer(_):
+                got[key] = True
+                if got["js"] and got["tip"]:
+                    got["js"] = got["tip"] = False
+                    on_pong(None)
+            return on_answer
+
+        node.create_subscription(JointState, JS, answer("js"), 10, raw=raw)
+        node.create_subscription(PointStamped, TIP, answer("tip"), 10, raw=raw)
+        answer_topics = (JS, TIP)
+    else:
+        node.create_subscription(Float64MultiArray, PONG, on_pong, 10, raw=raw)
+        answer_topics = (PONG,)
     ex = make_executor(executor_kind)
     ex.add_node(node)
     deadline = time.monotonic() + timeout
-    # wait until the echo's subscription and publisher are matched both ways
-    while (pub.get_subscription_count() < 1 or node.count_publishers(PONG) < 1) and time.monotonic() < deadline:
+    # wait until the echo's subscription and publishers are matched both ways
+    while ((pub.get_subscription_count() < 1 or any(node.count_publishers(t) < 1 for t in answer_topics))
+           and time.monotonic() < deadline):
         ex.spin_once(timeout_sec=0.05)
     time.sleep(0.3)  # let the echo side match our subscription too
     t0 = None
@@ -86,22 +147,32 @@ def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float
     node.destroy_node()
     rclpy.shutdown()
     ok = t0 is not None and done >= count
-    return {"executor": executor_kind, "raw": raw, "round_trips": done, "seconds": elapsed,
+    return {"executor": executor_kind, "raw": raw, "pattern": pattern, "round_trips": done, "seconds": elapsed,
             "rate": done / elapsed if ok else float("nan"),
             "rtt_ms": 1000.0 * elapsed / done if ok and done else float("nan"), "complete": ok}
 
 
 def measure(count: int = 3000, warmup: int = 300, executor: str = "events", size: int = 8,
-            timeout: float = 120.0, domain_id: int | None = None, raw: bool = False) -> dict:
+            timeout: float = 120.0, domain_id: int | None = None, raw: bool = False,
+            pattern: str = "pingpong") -> dict:
     """Round trips per second between two fresh processes. Returns ``{"rate", "rtt_ms", ...}``.
-    ``raw``: both sides exchange serialized bytes (no message conversion in Python)."""
+    ``raw``: both sides exchange serialized bytes (no message conversion in Python).
+    ``pattern``: ``pingpong`` (one message each way) or ``lockstep`` (a command out, a joint
+    state and a task point back: the hardware contract's exchange with no work)."""
+    if pattern not in PATTERNS:
+        raise ValueError(f"pattern: got {pattern!r}; allowed: {', '.join(PATTERNS)}")
     env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(100, 200))
+    if domain_id is None:
+        from .graph import pick_domain_id
+
+        domain_id = pick_domain_id()
+    env["ROS_DOMAIN_ID"] = str(domain_id)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    cmd = [sys.executable, "-m", "sagg_bringup.pingpong", "--executor", executor] + (["--raw"] if raw else [])
+    cmd = ([sys.executable, "-m", "sagg_bringup.pingpong", "--executor", executor, "--pattern", pattern,
+            "--size", str(size)] + (["--raw"] if raw else []))
     echo = subprocess.Popen(cmd + ["--echo"], env=env)
     try:
-        out = subprocess.run(cmd + ["--ping", "--count", str(count), "--warmup", str(warmup), "--size", str(size),
+        out = subprocess.run(cmd + ["--ping", "--count", str(count), "--warmup", str(warmup),
                                     "--timeout", str(timeout)],
                              env=env, capture_output=True, text=True, timeout=timeout + 30)
     finally:
@@ -134,14 +205,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=120.0)
     ap.add_argument("--ping", action="store_true", help="run the ping side only (internal)")
     ap.add_argument("--raw", action="store_true", help="exchange serialized bytes (raw subscriptions)")
+    ap.add_argument("--pattern", choices=PATTERNS, default="pingpong",
+                    help="pingpong: one message each way; lockstep: a command out, a joint state and a "
+                         "task point back (the hardware contract with no work)")
     a = ap.parse_args(argv)
     if a.echo:
-        _echo(a.executor, a.raw)
+        _echo(a.executor, a.raw, a.pattern, a.size)
         return 0
     if a.ping:
-        print(json.dumps(_ping(a.executor, a.count, a.warmup, a.size, a.timeout, a.raw)))
+        print(json.dumps(_ping(a.executor, a.count, a.warmup, a.size, a.timeout, a.raw, a.pattern)))
         return 0
-    res = measure(a.count, a.warmup, a.executor, a.size, a.timeout, raw=a.raw)
+    res = measure(a.count, a.warmup, a.executor, a.size, a.timeout, raw=a.raw, pattern=a.pattern)
     print(json.dumps(res))
     return 0
 
