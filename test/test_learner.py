@@ -132,6 +132,50 @@ def test_distance_timeout_bounds_micro_actions_per_goal():
     assert all(r.competence == -1.0 or r.competence < 0 for r in goal_reports)
 
 
+def test_default_timeout_cuts_exploration_phase_at_the_budget():
+    # Sec. 3.6.2: the counter runs through both phases and the budget is a maximum ("up to 1.5
+    # times", "including explorative movements"): with the defaults a q = 20 exploration phase
+    # must stop when the goal's budget is spent (before 2026-11-22 it ran its 20 micro-actions).
+    learner = make_learner(q=20, subgoals=1, v=0.1, timeout_factor=1.5, eps_c=0.0)
+    assert learner.p["exploration_respects_timeout"] is True
+    robot = StuckRobot([1, 1, 1], np.full(3, 0.3))
+    reports = []
+    goal = robot.fk(robot.rest) + np.array([0.5, 0.0])  # D = 0.5, v = 0.1 -> budget ceil(7.5) = 8
+    drive(learner, robot, [goal], 8 * 6, reports)
+    ends = [r.micro_actions for r in reports if r.kind == KIND_GOAL]
+    assert len(ends) >= 5
+    assert np.all(np.diff([0] + ends[:5]) == 8)
+    # every micro-action of a goal is counted: 1 reach + 7 exploratory (the first goal: 8
+    # exploratory, the memory being empty)
+    kinds = [r.kind for r in reports if r.micro_actions <= ends[1]]
+    assert kinds.count(KIND_REACHED) == 1 and kinds.count(KIND_EXPLORATION) == 15
+
+
+@pytest.mark.parametrize("scope, per_goal", [("subgoal", 3 + 5 + 7 + 9 + 11), ("goal", 11)])
+def test_timeout_scope_subgoal_or_whole_goal(scope, per_goal):
+    # stuck robot, goal at D = 0.9, v = 0.125, 5 points on the path. 'subgoal': each point gets its
+    # own budget from where the effector is (it never moves: distances 0.18 ... 0.9 -> ceil of
+    # 2.16, 4.32, 6.48, 8.64, 10.8). 'goal': one budget ceil(1.5 × 0.9 / 0.125) = 11 for the whole
+    # attempt; the points after it is spent are reported unreached without a micro-action.
+    learner = make_learner(q=2, subgoals=5, v=0.125, timeout_factor=1.5, eps_c=0.0,
+                           timeout_scope=scope)
+    robot = StuckRobot([1, 1, 1], np.full(3, 0.3))
+    reports = []
+    goal = robot.fk(robot.rest) + np.array([0.9, 0.0])
+    drive(learner, robot, [goal], per_goal * 3 + 1, reports)
+    ends = [r.micro_actions for r in reports if r.kind == KIND_GOAL]
+    assert len(ends) >= 3
+    assert np.all(np.diff([0] + ends[:3]) == per_goal)
+    firsts = [r for r in reports if r.kind in (KIND_SUBGOAL, KIND_GOAL) and r.micro_actions <= ends[0]]
+    assert [r.kind for r in firsts] == [KIND_SUBGOAL] * 4 + [KIND_GOAL]
+    assert all(r.competence == -1.0 for r in firsts)
+
+
+def test_timeout_scope_rejects_unknown_value():
+    with pytest.raises(ValueError, match="timeout_scope"):
+        make_learner(timeout_scope="attempt")
+
+
 def test_blocking_timeout_stops_after_w_exploration_phases():
     # stuck robot: every reaching step misses -> an exploration phase each time
     learner = make_learner(q=5, blocking_w=3, subgoals=1, timeout_factor=1000.0, eps_c=0.0, v=0.5,

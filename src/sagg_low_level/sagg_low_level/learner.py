@@ -41,13 +41,27 @@ SCHEMA: Schema = SHARED_SCHEMA + (
     Param("timeout_factor", "float", 1.5,
           "Distance timeout (Sec. 3.6.2): a (sub)goal may use ceil(factor × D(y_start, y_g) / v) "
           "micro-actions, reaching and exploratory ones alike.", low=0.0, high=1e6, low_open=True),
+    Param("timeout_scope", "str", "subgoal",
+          "What one distance-timeout counter covers (Sec. 3.6.2: 'a counter is incremented for each "
+          "micro-action and reset for each new goal'; vague on whether a subgoal is a new goal). "
+          "'subgoal' (our choice): each subgoal and the goal get their own counter and budget "
+          "ceil(timeout_factor × D(y_start, y_j) / v) from the effector's actual position when they "
+          "start. 'goal': one counter per self-generated goal, budget "
+          "ceil(timeout_factor × D(y_start, y_g) / v) from the attempt's start, shared by its "
+          "subgoals; once spent, the remaining subgoals are reported unreached without moving.",
+          choices=("subgoal", "goal")),
     Param("blocking_w", "int", 0,
           "Blocking timeout (Sec. 3.7.6): stop a (sub)goal after w consecutive exploration phases "
           "(no progress). 0 disables it; the paper uses w = 3 (with q = 5) for large Y.",
           low=0, high=1_000_000),
-    Param("exploration_respects_timeout", "bool", False,
-          "If true the distance timeout can cut an exploration phase short; if false (our default) "
-          "a started exploration phase always runs its q micro-actions, then the timeout applies."),
+    Param("exploration_respects_timeout", "bool", True,
+          "If true (paper) the distance timeout also counts exploratory micro-actions one by one and "
+          "cuts an exploration phase short when the budget is spent: Sec. 3.6.2 'during both phases, "
+          "a counter is incremented for each micro-action ... a maximal quantity of micro-actions is "
+          "fixed for each goal ... allowed to perform up to 1.5 times the distance', Sec. 3.7.6 "
+          "'(including explorative movements)'. If false, a started exploration phase always runs "
+          "its q micro-actions and the timeout is checked after it (Alg. 1 read literally: the "
+          "timeout is tested once per loop iteration); the default before 2026-11-22."),
     Param("neighbours", "int", 0,
           "k: nearest stored samples (in α) used for the local Jacobian (Sec. 3.3). 0 = 2 × joints. "
           "Not given in the paper.", low=0, high=100_000),
@@ -311,8 +325,9 @@ class EvolvingContextLearner:
             yield from self._actuator_babbling(riac=self.strategy == "actuator-riac")
 
     def _explore(self, goal_seq: int, budget_left: int | None) -> Generator:
-        """Exploration phase (Alg. 3): q random Δα around the current α, each stored and reported;
-        the context evolves with each. Returns the number of micro-actions done."""
+        """Exploration phase (Alg. 3, Sec. 3.6.2): q random Δα around the current α, each stored and
+        reported; the context evolves with each. At most ``budget_left`` micro-actions when given
+        (the distance timeout's counter, Sec. 3.6.2). Returns the number of micro-actions done."""
         self.exploration_phases += 1
         n = self.p["q"] if budget_left is None else max(0, min(self.p["q"], budget_left))
         for _ in range(n):
@@ -328,12 +343,18 @@ class EvolvingContextLearner:
         goal_seq, goal = yield GoalRequest(self.reports_sent)
         goal = np.asarray(goal, dtype=float)
         points = subgoal_points(self.y.copy(), goal, self.p["subgoals"])
+        per_goal = self.p["timeout_scope"] == "goal"
+        if per_goal:  # one counter for the whole attempt (see Param timeout_scope)
+            budget = timeout_budget(float(np.linalg.norm(goal - self.y)), self.v,
+                                    self.p["timeout_factor"])
+            used = 0
         for j, target in enumerate(points):
             kind = KIND_GOAL if j == len(points) - 1 else KIND_SUBGOAL
             start = self.y.copy()
-            budget = timeout_budget(float(np.linalg.norm(target - start)), self.v,
-                                    self.p["timeout_factor"])
-            used = 0
+            if not per_goal:
+                budget = timeout_budget(float(np.linalg.norm(target - start)), self.v,
+                                        self.p["timeout_factor"])
+                used = 0
             consecutive = 0
             while True:
                 c = self.competence_of(target, self.y, start)
@@ -353,9 +374,13 @@ class EvolvingContextLearner:
                     self._report(KIND_REACHED, goal_seq, self.y, self.y, 0.0)
                     need_explore = float(np.linalg.norm(dy - dy_next)) > self.eps_max
                 if need_explore:
+                    # the timeout counter runs through both phases (Sec. 3.6.2); with
+                    # exploration_respects_timeout it may cut the phase short, and a phase that
+                    # would get no micro-action is not started (the timeout ends the goal next)
                     left = budget - used if self.p["exploration_respects_timeout"] else None
-                    used += yield from self._explore(goal_seq, left)
-                    consecutive += 1
+                    if left is None or left > 0:
+                        used += yield from self._explore(goal_seq, left)
+                        consecutive += 1
                 else:
                     consecutive = 0
             c = self.competence_of(target, self.y, start)
