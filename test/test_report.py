@@ -72,3 +72,16 @@ def test_split_replay_gives_the_generators_leaves_at_every_goal():
         assert rebuilt == boxes
     final = sorted((tuple(r["lower"]), tuple(r["upper"])) for r in gen.region_snapshot())
     assert sorted((tuple(lo), tuple(hi)) for lo, hi in leaves_after(gen.tree.splits, lower, upper, np.inf)) == final
+
+
+def test_report_describes_the_simulated_robot(result, tmp_path):
+    data = json.loads((result / "result.json").read_text())
+    text = write_report(data, tmp_path / "arm").read_text()
+    assert "| arm | 7 DOF, equal links" in text
+    # a synergy run's bridge has a set-up, no arm.* parameters: named, never "None DOF"
+    data["config"]["sagg_sim_bridge"] = {"seed": 3, "setup": "quadruped", "controller": "joint_trajectory_controller",
+                                         "task_topic": "/body_pose"}
+    text = write_report(data, tmp_path / "quadruped").read_text()
+    assert "| set-up | quadruped (synergies, fixed context; trajectories on joint_trajectory_controller, " \
+           "outcome on /body_pose) |" in text
+    assert "DOF" not in text

@@ -275,6 +275,20 @@ def _curve_rows(curve: list[dict], max_rows: int = 12) -> list[dict]:
     return [curve[i] for i in idx]
 
 
+def _setup_rows(bp: dict) -> list[tuple[str, str]]:
+    """The simulated robot of a run, from its bridge parameters: the arm (``arm.*``) or a synergy
+    set-up (``setup`` = quadruped / fishing, with its controller and outcome topic)."""
+    if not bp:
+        return []
+    setup = bp.get("setup")
+    if setup:
+        return [("set-up", f"{setup} (synergies, fixed context; trajectories on "
+                           f"{bp.get('controller')}, outcome on {bp.get('task_topic')})")]
+    arm = {k[4:]: v for k, v in bp.items() if k.startswith("arm.")}
+    return [("arm", f"{arm.get('dof')} DOF, {arm.get('link_profile')} links, length "
+                    f"{arm.get('total_length')}, {arm.get('mode')}, motor noise {arm.get('motor_noise')}")]
+
+
 def write_report(result: dict | str | Path, out_dir: str | Path, area=None) -> Path:
     """Write ``report.md`` and its PNG figures into ``out_dir`` and return the report's path.
 
@@ -329,10 +343,7 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None) -> P
     task = f"[{', '.join(_fmt(float(v)) for v in lp['task_space.lower'])}] – " \
            f"[{', '.join(_fmt(float(v)) for v in lp['task_space.upper'])}]"
     rows.append(("task space Y (lower – upper)", task))
-    if bp:
-        arm = {k[4:]: v for k, v in bp.items() if k.startswith("arm.")}
-        rows.append(("arm", f"{arm.get('dof')} DOF, {arm.get('link_profile')} links, length "
-                            f"{arm.get('total_length')}, {arm.get('mode')}, motor noise {arm.get('motor_noise')}"))
+    rows += _setup_rows(bp)
     lines += ["| | |", "|---|---|"] + [f"| {k} | {_fmt(v)} |" for k, v in rows] + [""]
 
     lines += ["## Learning curve", "",
