@@ -24,12 +24,12 @@ continues exactly where the killed one was (a lockstep run is unchanged by the k
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-from sagg_common.journal import GenerationFiles, Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
+from sagg_common.checkpointer import Checkpointer
+from sagg_common.journal import Journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
 
 from .core import GoalGenerator, GoalRecord
 from .regions import Region
@@ -131,24 +131,16 @@ def restore_tree(tree, z) -> None:
     tree._next_id, tree.n_added = (int(v) for v in z["tree_ints"])
 
 
-class GeneratorCheckpointer(GenerationFiles):
-    """Checkpoints and goal journal of one :class:`GoalGenerator` in ``directory``."""
+class GeneratorCheckpointer(Checkpointer):
+    """Checkpoints and goal journal of one :class:`GoalGenerator` in ``directory`` (every ``every``
+    reports processed)."""
 
     prefix, npz_kinds = "generator", ("state",)
+    meta_name, meta_format, owner = "generator.json", FORMAT, "generator"
 
     def __init__(self, directory: str | Path, gen: GoalGenerator, every: int, fsync: bool = False):
-        if int(every) < 1:
-            raise ValueError(f"checkpoint_every: got {every}; allowed: an integer >= 1")
-        self.dir = Path(directory)
-        self.dir.mkdir(parents=True, exist_ok=True)
+        super().__init__(directory, every, fsync)
         self.gen = gen
-        self.every = int(every)
-        self.fsync = fsync
-        self.generation = 0
-        self.saved_at = 0
-        self.journal: Journal | None = None
-        self.torn_bytes = 0
-        self.resumed_from: dict | None = None
         self.republish: list[GoalRecord] = []  # goals of the last journals already in the state
 
     def on_goal(self, rec: GoalRecord) -> None:
@@ -161,13 +153,12 @@ class GeneratorCheckpointer(GenerationFiles):
         return {"seed": g.params["seed"], "strategy": g.strategy, "task_space.lower": g.lower.tolist(),
                 "task_space.upper": g.upper.tolist()}
 
+    def _progress(self) -> int:
+        return self.gen.reports
+
     def save(self) -> None:
         gen = self.gen
-        g = self.generation + 1
-        old = self.journal
-        self.journal = Journal(self._path("journal", g), self.fsync)
-        if old is not None:
-            old.close()
+        g = self._next_journal()
         goals = gen.goals
         state = self._path("state", g)
         save_npz_atomic(
@@ -181,37 +172,16 @@ class GeneratorCheckpointer(GenerationFiles):
             "format": FORMAT, "generation": g, **self._identity(), "reports": gen.reports,
             "ignored_outside": gen.ignored_outside, "goals": len(goals), "rng": rng_state(gen.rng),
             "split_rng": rng_state(gen.tree.rng), "splits": len(gen.tree.splits), "state_file": state.name})
-        self.generation = g
-        self.saved_at = gen.reports
-        self._prune("journal", g - 1)  # journal g - 1 is kept: its goals are published again at a resume
-        self._prune("state", g)
-
-    def maybe_save(self) -> bool:
-        if self.gen.reports - self.saved_at >= self.every:
-            self.save()
-            return True
-        return False
-
-    def close(self) -> None:
-        self.save()
-        self.journal.close()
+        self._saved(g, "state")  # journal g - 1 is kept: its goals are published again at a resume
 
     def resume(self) -> list[GoalRecord]:
         """Restore the generator (if the directory holds a checkpoint). Returns the journaled goals
         chosen after the checkpoint, oldest first: the caller chooses them again (``next_goal``)
         when ``gen.reports`` reaches their ``after_report`` and compares. The journal stays open
         (appending) until those goals are replayed; then call :meth:`save`."""
-        meta_path = self.dir / "generator.json"
-        if not meta_path.exists():
-            self.save()
+        meta = self._load_meta()
+        if meta is None:
             return []
-        meta = json.loads(meta_path.read_text())
-        if meta.get("format") != FORMAT:
-            raise ValueError(f"checkpoint_dir: {meta_path} has format {meta.get('format')!r}; allowed: {FORMAT!r}")
-        for k, v in self._identity().items():
-            if meta.get(k) != v:
-                raise ValueError(f"checkpoint_dir: {meta_path} belongs to a run with {k} = {meta.get(k)!r}, "
-                                 f"this generator has {v!r}; allowed: a checkpoint of the same run or an empty directory")
         gen = self.gen
         with np.load(self.dir / meta["state_file"], allow_pickle=False) as z:
             restore_tree(gen.tree, z)
@@ -226,19 +196,14 @@ class GeneratorCheckpointer(GenerationFiles):
         g = int(meta["generation"])
         pending: list[GoalRecord] = []
         self.republish = []
-        for k in self._generations("journal"):
-            if k < g - 1:
+        for _, kind, v in self._journal_records(g):
+            if kind != REC_GOAL:
                 continue
-            records, torn = read_journal(self._path("journal", k))
-            self.torn_bytes += torn
-            for kind, v in records:
-                if kind != REC_GOAL:
-                    continue
-                seq = int(v[0])
-                if seq <= len(gen.goals):
-                    self.republish.append(gen.goals[seq - 1])
-                elif seq == len(gen.goals) + len(pending) + 1:
-                    pending.append(GoalRecord(seq, v[3:].copy(), int(v[2]), int(v[1])))
+            seq = int(v[0])
+            if seq <= len(gen.goals):
+                self.republish.append(gen.goals[seq - 1])
+            elif seq == len(gen.goals) + len(pending) + 1:
+                pending.append(GoalRecord(seq, v[3:].copy(), int(v[2]), int(v[1])))
         self.generation = max([g] + self._generations("journal"))
         # keep appending to the newest journal: goals replayed from it are in it already
         self.journal = Journal(self._path("journal", self.generation), self.fsync)

@@ -42,7 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sagg_common.journal import GenerationFiles, Journal, read_journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
+from sagg_common.checkpointer import Checkpointer
+from sagg_common.journal import restore_rng, rng_state, save_npz_atomic, write_json_atomic
 
 from sagg_goal_generator.checkpoint import restore_tree, splits_arrays, splits_from_arrays, tree_arrays
 
@@ -87,26 +88,18 @@ def checkpoint_memory(directory: str | Path) -> SampleMemory:
     return load_segments(directory, meta, SampleMemory(n, n, m))
 
 
-class LearnerCheckpointer(GenerationFiles):
-    """Checkpoints and journal of one :class:`EvolvingContextLearner` in ``directory``."""
+class LearnerCheckpointer(Checkpointer):
+    """Checkpoints and journal of one :class:`EvolvingContextLearner` in ``directory`` (every
+    ``every`` micro-actions)."""
 
     prefix, npz_kinds = "learner", ("samples", "riac")
+    meta_name, meta_format, owner = "learner.json", FORMAT, "learner"
 
     def __init__(self, directory: str | Path, learner: EvolvingContextLearner, every: int,
                  fsync: bool = False):
-        if int(every) < 1:
-            raise ValueError(f"checkpoint_every: got {every}; allowed: an integer >= 1")
-        self.dir = Path(directory)
-        self.dir.mkdir(parents=True, exist_ok=True)
+        super().__init__(directory, every, fsync)
         self.learner = learner
-        self.every = int(every)
-        self.fsync = fsync
-        self.generation = 0
-        self.saved_at = 0
         self.segments: list[dict] = []
-        self.journal: Journal | None = None
-        self.torn_bytes = 0
-        self.resumed_from: dict | None = None
 
     # ------------------------------------------------------------------ journal records
     def _counters(self) -> list[float]:
@@ -132,17 +125,16 @@ class LearnerCheckpointer(GenerationFiles):
         lr = self.learner
         return {"seed": lr.p["seed"], "strategy": lr.strategy, "joints": lr.robot.n, "task_dim": lr.m}
 
+    def _progress(self) -> int:
+        return self.learner.micro_actions
+
     def save(self, digest: bool = False) -> None:
         """New generation: switch the journal, write the samples stored since the last segment,
         then the JSON pointing at the segments; then delete journals < g - 1. ``digest``: also
         store the memory's digest (O(N): at shutdown)."""
         lr = self.learner
         mem = lr.memory
-        g = self.generation + 1
-        old = self.journal
-        self.journal = Journal(self._path("journal", g), self.fsync)
-        if old is not None:
-            old.close()
+        g = self._next_journal()
         start = self.segments[-1]["start"] + self.segments[-1]["count"] if self.segments else 0
         if len(mem) > start:
             a, da, dy = mem.alpha[start:], mem.delta_alpha[start:], mem.delta_y[start:]
@@ -161,21 +153,10 @@ class LearnerCheckpointer(GenerationFiles):
             "last_competence": float(lr.last_competence), "rng": rng_state(lr.rng),
             "segments": self.segments, "memory_samples": len(mem),
             "memory_digest": mem.digest() if digest else None, "riac": riac})
-        self.generation = g
-        self.saved_at = lr.micro_actions
-        self._prune("journal", g - 1)
-        self._prune("riac", g)
+        self._saved(g, "riac")
 
-    def maybe_save(self) -> bool:
-        if self.learner.micro_actions - self.saved_at >= self.every:
-            self.save()
-            return True
-        return False
-
-    def close(self) -> None:
-        """Final checkpoint (shutdown, with the memory digest) and close the journal."""
-        self.save(digest=True)
-        self.journal.close()
+    def _save_final(self) -> None:
+        self.save(digest=True)  # shutdown: with the memory digest
 
     # ------------------------------------------------------------------ resume
     def resume(self) -> list:
@@ -183,24 +164,15 @@ class LearnerCheckpointer(GenerationFiles):
         generation. Returns what to republish, in order: sample indices (int) and
         :class:`Report` objects from the journals found. Without a checkpoint: starts generation 1
         from the learner as it is and returns []."""
-        meta_path = self.dir / "learner.json"
-        if not meta_path.exists():
-            self.save()
+        meta = self._load_meta()
+        if meta is None:
             return []
-        meta = json.loads(meta_path.read_text())
-        if meta.get("format") != FORMAT:
-            raise ValueError(f"checkpoint_dir: {meta_path} has format {meta.get('format')!r}; allowed: {FORMAT!r}")
-        ident = self._identity()
-        for k, v in ident.items():
-            if meta.get(k) != v:
-                raise ValueError(f"checkpoint_dir: {meta_path} belongs to a run with {k} = {meta.get(k)!r}, "
-                                 f"this learner has {v!r}; allowed: a checkpoint of the same run or an empty directory")
         lr = self.learner
         if len(lr.memory):
             raise ValueError("resume: the learner's memory must be empty")
         mem = load_segments(self.dir, meta, lr.memory)
         if meta.get("memory_digest") is not None and mem.digest() != meta["memory_digest"]:
-            raise ValueError(f"checkpoint_dir: the restored memory does not match the digest in {meta_path}")
+            raise ValueError(f"checkpoint_dir: the restored memory does not match the digest in {self.dir / self.meta_name}")
         self.segments = list(meta["segments"])
         for c in _COUNTERS:
             setattr(lr, c, int(meta[c]))
@@ -217,36 +189,31 @@ class LearnerCheckpointer(GenerationFiles):
         n, m = lr.robot.n, lr.m
         replay: list = []
         applied = 0
-        for k in self._generations("journal"):
-            if k < g - 1:
+        for k, kind, v in self._journal_records(g):
+            counters = v[1:7] if kind == REC_SAMPLE else v[6:12]
+            if kind == REC_SAMPLE:
+                idx = int(v[0])
+                a, da, dy = v[7:7 + n], v[7 + n:7 + 2 * n], v[7 + 2 * n:7 + 2 * n + m]
+                if idx == len(mem):
+                    mem.add(a, da, dy)
+                elif idx > len(mem):
+                    raise ValueError(f"checkpoint_dir: journal {k} jumps to sample {idx} with "
+                                     f"{len(mem)} samples restored (a journal file is missing)")
+                replay.append(idx)
+            elif kind == REC_REPORT:
+                tlen = int(v[5])
+                rest = v[12:]
+                replay.append(Report(int(v[0]), int(v[1]), int(v[2]), rest[:tlen].copy(),
+                                     rest[tlen:tlen + m].copy(), rest[tlen + m:tlen + 2 * m].copy(),
+                                     float(v[4]), int(v[3])))
+            else:
                 continue
-            records, torn = read_journal(self._path("journal", k))
-            self.torn_bytes += torn
-            for kind, v in records:
-                counters = v[1:7] if kind == REC_SAMPLE else v[6:12]
-                if kind == REC_SAMPLE:
-                    idx = int(v[0])
-                    a, da, dy = v[7:7 + n], v[7 + n:7 + 2 * n], v[7 + 2 * n:7 + 2 * n + m]
-                    if idx == len(mem):
-                        mem.add(a, da, dy)
-                    elif idx > len(mem):
-                        raise ValueError(f"checkpoint_dir: journal {k} jumps to sample {idx} with "
-                                         f"{len(mem)} samples restored (a journal file is missing)")
-                    replay.append(idx)
-                elif kind == REC_REPORT:
-                    tlen = int(v[5])
-                    rest = v[12:]
-                    replay.append(Report(int(v[0]), int(v[1]), int(v[2]), rest[:tlen].copy(),
-                                         rest[tlen:tlen + m].copy(), rest[tlen + m:tlen + 2 * m].copy(),
-                                         float(v[4]), int(v[3])))
-                else:
-                    continue
-                if k >= g and counters[0] >= lr.micro_actions and counters[1] >= lr.reports_sent:
-                    for c, val in zip(_COUNTERS, counters[:5]):
-                        setattr(lr, c, int(val))
-                    if not math.isnan(counters[5]):
-                        lr.last_competence = float(counters[5])
-                    applied += 1
+            if k >= g and counters[0] >= lr.micro_actions and counters[1] >= lr.reports_sent:
+                for c, val in zip(_COUNTERS, counters[:5]):
+                    setattr(lr, c, int(val))
+                if not math.isnan(counters[5]):
+                    lr.last_competence = float(counters[5])
+                applied += 1
         if lr.micro_actions != len(mem):
             raise ValueError(f"checkpoint_dir: {lr.micro_actions} micro-actions but {len(mem)} samples restored")
         if applied:
