@@ -26,27 +26,24 @@ import sys
 import time
 
 import numpy as np
-from rclpy.node import Node
 
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
-from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64_array, encode_report,
                              encode_sample)
-from sagg_common.diagnostics import InputGuard, diagnostic_array, goal_problem
+from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
-from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
 from sagg_goal_generator.core import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .learner import (SCHEMA as CORE_SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe, Report,
                       Robot)
+from .node_base import GOAL_STRATEGIES, NODE_NAME, LearnerNodeBase
 
-NODE_NAME = "sagg_learner"
 HALF_PI = math.pi / 2
 # Defaults = the default simulated arm (sagg_sim_bridge ArmSpec(): 8 DOF, limits ±π/2, rest bent by
 # π/3 with the tip on +x); test_nodes_params checks they agree. A real arm sets its own.
@@ -112,7 +109,6 @@ NODE_SCHEMA: Schema = (
           low=0.0, high=3600.0, low_open=True),
 )
 SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
-GOAL_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
 
@@ -130,7 +126,7 @@ def robot_from_params(p: dict) -> Robot:
         raise ConfigError(f"parameters 'joint_limits.*'/'rest_posture': {exc}") from exc
 
 
-class LearnerNode(Node):
+class LearnerNode(LearnerNodeBase):
     # coroutine states
     STARTING, RUNNING_COMMAND, RUNNING_GOAL, STOPPED = "starting", "command", "goal", "stopped"
     PAUSED = "paused"  # a command is due but a hold (pause service, stale driver) is active
@@ -139,11 +135,7 @@ class LearnerNode(Node):
         super().__init__(NODE_NAME)
         p = self.params = declare_schema(self, SCHEMA)
         self.robot = robot_from_params(p)
-        core = {q.name: p[q.name] for q in CORE_SCHEMA}
-        self.m = len(core["task_space.lower"])
-        if self.m not in (2, 3):
-            raise ConfigError(f"parameter 'task_space.lower': {self.m} dimensions; allowed: 2 or 3 "
-                              "(the task point is a geometry_msgs/PointStamped)")
+        core = self._core_params(CORE_SCHEMA, "2 or 3 (the task point is a geometry_msgs/PointStamped)")
         try:
             self.learner = EvolvingContextLearner(core, self.robot, self.m)
         except ValueError as exc:
@@ -166,17 +158,11 @@ class LearnerNode(Node):
         # --- topics
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
         self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
-        # transient_local: a restarted goal generator gets the reports it missed (it drops those it has)
-        self.report_pub = self.create_publisher(CompetenceReport, "/sagg/competence",
-                                                reliable(10000, transient_local=True))
-        self.sample_pub = self.create_publisher(Sample, "/sagg/sample", reliable(10000))
-        self.status_pub = self.create_publisher(LearnerStatus, "/sagg/status", reliable(10))
+        self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         # hot path: raw CDR in and out (sagg_common.cdr), no message objects
         self.create_subscription(JointState, "/joint_states", self.on_joint_state, reliable(10), raw=True)
         self.create_subscription(PointStamped, p["task_topic"], self.on_task_point, reliable(10), raw=True)
         self.js_decoder = JointStateDecoder()
-        self.goal_client = self.create_client(NextGoal, "/sagg/next_goal")
-        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
         self.create_service(SetBool, "/sagg/pause", self.on_pause)
 
         # --- observation state
@@ -204,7 +190,6 @@ class LearnerNode(Node):
         self.learner.on_report = self.outbox.append
         self.learner.on_sample = self.outbox.append
         self.checkpointer = None
-        self.goal_future = None
         self._setup_checkpoint(p)  # may restore the learner, journals samples/reports, queues republishing
         self.coro = self.learner.run()
         self.pending = next(self.coro)  # the first request (Observe)
@@ -379,19 +364,7 @@ class LearnerNode(Node):
     def _ready(self) -> bool:
         if self.js_alpha is None or self.tip is None:
             return False
-        # the controller must be listening, or the first command is lost
-        if self.cmd_pub.get_subscription_count() < max(1, self.count_subscribers(self.cmd_topic)):
-            return False
-        if self.uses_goals:
-            if not self.goal_client.service_is_ready():
-                return False
-            infos = self.get_subscriptions_info_by_topic("/sagg/competence")
-            if not any(i.node_name == "sagg_goal_generator" for i in infos):
-                return False
-            if self.report_pub.get_subscription_count() < len(infos):
-                return False
-        need = self.params["min_sample_subscribers"]
-        return self.sample_pub.get_subscription_count() >= need
+        return self._peers_ready(self.cmd_pub, self.cmd_topic, match_reports=True)
 
     def advance(self, answer) -> None:
         """Send ``answer`` to the pending request and dispatch the next request."""
@@ -472,25 +445,12 @@ class LearnerNode(Node):
             return np.minimum(np.maximum(target, lo), hi)
         return target
 
-    def on_goal(self, fut) -> None:
-        if fut is not self.goal_future:
-            return  # an answer to a request sent again since (goal_retry)
-        resp = fut.result()
-        if resp is None:
-            self.get_logger().error("/sagg/next_goal call failed")
-            self.exit_code = 1
-            self.done = True
-            return
-        g = resp.goal
-        pos, problem = goal_problem(g.position, self.learner.task_lower, self.learner.task_upper)
-        if problem:
-            self.guard.reject("goal.invalid", f"goal {g.seq} {problem}; asking again in "
-                                              f"{self.params['goal_retry']} s")
-            self.goal_future = None  # _retry_goal_request asks again
-            self.goal_time = time.monotonic()
-            return
-        self.goals_received += 1
-        self.advance((int(g.seq), pos))
+    def _goal_retry_seconds(self) -> float:
+        return self.params["goal_retry"]
+
+    def _retry_goal_later(self) -> None:
+        self.goal_future = None  # _retry_goal_request asks again
+        self.goal_time = time.monotonic()
 
     # ------------------------------------------------------------------ outputs
     def flush(self) -> None:
@@ -589,18 +549,11 @@ class LearnerNode(Node):
         while len(self.rate_window) > 2 and now - self.rate_window[0][0] > 5.0:
             self.rate_window.pop(0)
         (t0, n0), (t1, n1) = self.rate_window[0], self.rate_window[-1]
-        msg = LearnerStatus()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.strategy = learner.strategy.upper()
-        msg.micro_actions = learner.micro_actions
-        msg.goals = self.goals_received
-        msg.samples = len(learner.memory)
-        msg.last_competence = float(learner.last_competence)
-        msg.micro_actions_per_second = (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
-        msg.paused = self.state in (self.STARTING, self.STOPPED, self.PAUSED) or bool(self.holds)
+        paused = self.state in (self.STARTING, self.STOPPED, self.PAUSED) or bool(self.holds)
         reason = self.pause_reason if self.state in (self.STARTING, self.STOPPED) else ""
-        msg.pause_reason = "; ".join([r for r in [reason, *self.holds.values()] if r]) if msg.paused else ""
-        self.status_pub.publish(msg)
+        self._publish_status(learner.strategy.upper(), learner.micro_actions, len(learner.memory),
+                             (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0, paused,
+                             "; ".join([r for r in [reason, *self.holds.values()] if r]) if paused else "")
 
 
 def main(args: list[str] | None = None) -> int:

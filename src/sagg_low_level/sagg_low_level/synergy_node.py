@@ -25,29 +25,24 @@ import sys
 import time
 
 import numpy as np
-from rclpy.node import Node
 
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import PointStamped, PoseStamped
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from diagnostic_msgs.msg import DiagnosticArray
-
 from sagg_common.cdr import encode_report, encode_sample
-from sagg_common.diagnostics import InputGuard, diagnostic_array, goal_problem
+from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import ConfigError, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.synergy import quaternion_yaw
-from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
 from sagg_msgs.srv import NextGoal
 
 from .fixed_context import (SCHEMA as CORE_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Execute,
                             FixedContextLearner, ThetaSpace, synergy_from_params)
 from .learner import GoalRequest, Observe, Report
+from .node_base import GOAL_STRATEGIES, NODE_NAME, LearnerNodeBase
 
-NODE_NAME = "sagg_learner"
 SCHEMA: Schema = CORE_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
-GOAL_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
 def trajectory_msg(traj, stamp_ns: int) -> JointTrajectory:
@@ -80,16 +75,12 @@ def outcome_of(msg) -> np.ndarray | None:
     return y if np.all(np.isfinite(y)) else None
 
 
-class SynergyLearnerNode(Node):
+class SynergyLearnerNode(LearnerNodeBase):
     def __init__(self):
         super().__init__(NODE_NAME)
         p = self.params = declare_schema(self, SCHEMA)
         self.synergy = synergy_from_params(p)
-        core = {q.name: p[q.name] for q in CORE_SCHEMA}
-        self.m = len(core["task_space.lower"])
-        if self.m not in (2, 3):
-            raise ConfigError(f"parameter 'task_space.lower': {self.m} dimensions; allowed: 2 (PointStamped "
-                              "outcome) or 3 (PoseStamped: u, v, yaw)")
+        core = self._core_params(CORE_SCHEMA, "2 (PointStamped outcome) or 3 (PoseStamped: u, v, yaw)")
         try:
             self.learner = FixedContextLearner(core, ThetaSpace(self.synergy.lower, self.synergy.upper), self.m)
         except ValueError as exc:
@@ -101,16 +92,11 @@ class SynergyLearnerNode(Node):
 
         self.traj_topic = f"/{p['controller'].strip('/')}/joint_trajectory"
         self.traj_pub = self.create_publisher(JointTrajectory, self.traj_topic, reliable(HW_DEPTH))
-        self.report_pub = self.create_publisher(CompetenceReport, "/sagg/competence",
-                                                reliable(10000, transient_local=True))
-        self.sample_pub = self.create_publisher(Sample, "/sagg/sample", reliable(10000))
-        self.status_pub = self.create_publisher(LearnerStatus, "/sagg/status", reliable(10))
+        self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         out_type = PoseStamped if self.m == 3 else PointStamped
         self.create_subscription(out_type, p["task_topic"], self.on_outcome, reliable(HW_DEPTH))
-        self.goal_client = self.create_client(NextGoal, "/sagg/next_goal")
         self.guard = InputGuard(self.get_logger().error)
         self.goal_retry_at: float | None = None
-        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
         self.create_timer(1.0, self.publish_diagnostics)
 
         self.learner.on_report = self.publish_report
@@ -136,15 +122,8 @@ class SynergyLearnerNode(Node):
         # (a recorder subscribing to the trajectories alone does not count)
         if self.count_publishers(self.params["task_topic"]) < 1:
             return False
-        if self.traj_pub.get_subscription_count() < max(1, self.count_subscribers(self.traj_topic)):
-            return False
-        if self.uses_goals:
-            if not self.goal_client.service_is_ready():
-                return False
-            infos = self.get_subscriptions_info_by_topic("/sagg/competence")
-            if not any(i.node_name == "sagg_goal_generator" for i in infos):
-                return False
-        return self.sample_pub.get_subscription_count() >= self.params["min_sample_subscribers"]
+        # reports are published as they come (no queue): the goal generator's reader is enough
+        return self._peers_ready(self.traj_pub, self.traj_topic, match_reports=False)
 
     def on_poll(self) -> None:
         if self.goal_retry_at is not None and time.monotonic() >= self.goal_retry_at:
@@ -201,7 +180,7 @@ class SynergyLearnerNode(Node):
             traj = self.synergy.trajectory(req.theta)
             self._send(lambda stamp: trajectory_msg(traj, stamp))
         elif type(req) is GoalRequest:
-            fut = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
+            fut = self.goal_future = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
             fut.add_done_callback(self.on_goal)
         else:
             raise TypeError(f"unknown learner request {req!r}")
@@ -218,23 +197,17 @@ class SynergyLearnerNode(Node):
                 self.exit_code = 1
                 self.done = True
                 return
-        self.dispatch(self.coro.send(y))
+        self.advance(y)
 
-    def on_goal(self, fut) -> None:
-        resp = fut.result()
-        if resp is None:
-            self.get_logger().error("/sagg/next_goal call failed")
-            self.exit_code = 1
-            self.done = True
-            return
-        g = resp.goal
-        pos, problem = goal_problem(g.position, self.learner.task_lower, self.learner.task_upper)
-        if problem:
-            self.guard.reject("goal.invalid", f"goal {g.seq} {problem}; asking again in 1 s")
-            self.goal_retry_at = time.monotonic() + 1.0
-            return
-        self.goals_received += 1
-        self.dispatch(self.coro.send((int(g.seq), pos)))
+    def advance(self, answer) -> None:
+        """Send ``answer`` to the pending request and dispatch the next request."""
+        self.dispatch(self.coro.send(answer))
+
+    def _goal_retry_seconds(self) -> int:
+        return 1
+
+    def _retry_goal_later(self) -> None:
+        self.goal_retry_at = time.monotonic() + 1.0  # on_poll dispatches the GoalRequest again
 
     # ------------------------------------------------------------------ outputs
     def _now_ns(self) -> int:
@@ -255,20 +228,12 @@ class SynergyLearnerNode(Node):
 
     def publish_status(self) -> None:
         lr = self.learner
-        msg = LearnerStatus()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.strategy = self.params["strategy"]
-        msg.micro_actions = lr.experiments
-        msg.goals = self.goals_received
-        msg.samples = len(lr)
-        msg.last_competence = float(lr.last_competence)
         secs = time.monotonic() - self.t_started
-        msg.micro_actions_per_second = lr.experiments / secs if self.started and secs > 0 else 0.0
         stopped = bool(self.max_experiments and lr.experiments >= self.max_experiments)
-        msg.paused = stopped or not self.started
-        msg.pause_reason = ("max_experiments reached" if stopped else
-                            "" if self.started else "waiting for the trajectory controller and goal generator")
-        self.status_pub.publish(msg)
+        self._publish_status(self.params["strategy"], lr.experiments, len(lr),
+                             lr.experiments / secs if self.started and secs > 0 else 0.0, stopped or not self.started,
+                             "max_experiments reached" if stopped else
+                             "" if self.started else "waiting for the trajectory controller and goal generator")
 
 
 def main(args: list[str] | None = None) -> int:
