@@ -92,6 +92,29 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     if config_setup(config_path) is not None:
         return run_synergy_experiment(config_path, strategy, seed, micro_actions, eval_every, out_dir,
                                       progress=progress, overrides=overrides)
+    ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
+    config = load_experiment_config(config_path, ov)
+    run = InProcessRun(config)
+    lp = config["sagg_learner"]
+    lower = np.asarray(lp["task_space.lower"])
+    upper = np.asarray(lp["task_space.upper"])
+    area = reachable_area(run.spec, lower, upper, seed=lp["eval.seed"])
+    goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
+
+    bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']}", enabled=progress)
+    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar)
+
+    result = build_result(run, curve, area, micro_actions, eval_seconds)
+    result["test_goals"] = goals.tolist()
+    result["final_errors"] = errors.tolist()
+    write_result(out_dir, result)
+    return result
+
+
+def run_overrides(micro_actions: int, eval_every: int, strategy: str | None, seed: int | None,
+                  overrides: dict[str, Any] | None) -> dict[str, Any]:
+    """The run-length options checked (ConfigError naming the option), and the parameter overrides
+    with ``--strategy`` / ``--seed`` (when given) added: what every run command starts with."""
     if micro_actions < 1:
         raise ConfigError(f"--micro-actions: got {micro_actions}; allowed: an integer >= 1")
     if eval_every < 1:
@@ -101,19 +124,18 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
         ov["strategy"] = strategy
     if seed is not None:
         ov["seed"] = seed
-    config = load_experiment_config(config_path, ov)
-    run = InProcessRun(config)
-    lp = config["sagg_learner"]
-    lower = np.asarray(lp["task_space.lower"])
-    upper = np.asarray(lp["task_space.upper"])
-    area = reachable_area(run.spec, lower, upper, seed=lp["eval.seed"])
-    goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
+    return ov
 
+
+def learning_curve(run, goals: np.ndarray, micro_actions: int, eval_every: int,
+                   bar: Progress) -> tuple[list[dict], float, np.ndarray]:
+    """Step an in-process run (:class:`InProcessRun` or a synergy run) to every multiple of
+    ``eval_every`` and to ``micro_actions``, evaluating the frozen model on ``goals`` at each
+    (never counted as learning). Returns the curve, the evaluation seconds and the final errors;
+    ``bar`` is closed."""
     curve = []
     eval_seconds = 0.0
-    bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']}", enabled=progress)
-    checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
-    for target in checkpoints:
+    for target in list(range(0, micro_actions, eval_every)) + [micro_actions]:
         run.step_until(target)
         t0 = time.perf_counter()
         errors = run.evaluate(goals)
@@ -123,15 +145,15 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
         bar.update(target, goals=len(run.generator.goals), regions=len(run.generator.tree.leaves()),
                    competence=run.learner.last_competence, error=float(errors.mean()))
     bar.close()
+    return curve, eval_seconds, errors
 
-    result = build_result(run, curve, area, micro_actions, eval_seconds)
-    result["test_goals"] = goals.tolist()
-    result["final_errors"] = errors.tolist()
+
+def write_result(out_dir: str | Path | None, result: dict) -> None:
+    """``out_dir/result.json`` (the directory is created; nothing when ``out_dir`` is None)."""
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         write_json_atomic(out / "result.json", result)
-    return result
 
 
 def goal_share_stats(goal_positions: np.ndarray, goal_ma: np.ndarray, area, total: int) -> dict:
@@ -149,6 +171,16 @@ def goal_share_stats(goal_positions: np.ndarray, goal_ma: np.ndarray, area, tota
 
 
 def build_result(run: InProcessRun, curve: list[dict], area, total: int, eval_seconds: float) -> dict:
+    learner = run.learner
+    return result_dict(run, curve, area, total, eval_seconds, learner.micro_actions,
+                       {"samples": len(learner.memory), "digest": learner.memory.digest(),
+                        "bytes": int(learner.memory.nbytes)})
+
+
+def result_dict(run, curve: list[dict], area, total: int, eval_seconds: float, done: int,
+                memory: dict) -> dict:
+    """The ``result.json`` keys every in-process run writes (arm and synergy runs): ``done`` =
+    micro-actions (experiments) learned, ``memory`` = the memory's size and digest."""
     gen, learner = run.generator, run.learner
     goals = [{"seq": g.seq, "position": g.position.tolist(), "mode": g.mode,
               "mode_name": MODE_NAMES[g.mode], "competence": g.competence,
@@ -160,15 +192,14 @@ def build_result(run: InProcessRun, curve: list[dict], area, total: int, eval_se
         "strategy": run.config["sagg_learner"]["strategy"],
         "seed": run.seed,
         "config": run.config,
-        "micro_actions": learner.micro_actions,
-        "micro_actions_per_second": learner.micro_actions / max(run.learn_seconds, 1e-9),
+        "micro_actions": done,
+        "micro_actions_per_second": done / max(run.learn_seconds, 1e-9),
         "learn_seconds": run.learn_seconds,
         "eval_seconds": eval_seconds,
         "curve": curve,
         "final_mean_error": curve[-1]["mean_error"],
         "final_median_error": curve[-1]["median_error"],
-        "memory": {"samples": len(learner.memory), "digest": learner.memory.digest(),
-                   "bytes": int(learner.memory.nbytes)},
+        "memory": memory,
         "exploration_phases": learner.exploration_phases,
         "reports": learner.reports_sent,
         "goals": goals,

@@ -16,7 +16,7 @@ from sagg_common.params import ConfigError, read_config, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import stream
 from sagg_common.synergy import transported_outcome
-from sagg_goal_generator.core import MODE_NAMES, SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Driver, FixedContextLearner,
                                           ThetaSpace, evaluate_fixed, spread_goals, synergy_from_params)
 from sagg_sim_bridge.synergy_params import NODE_SCHEMA as BRIDGE_NODE_SCHEMA, SCHEMA as SIM_SCHEMA, SETUPS, make_sim
@@ -145,17 +145,9 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
                            progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
     """Run one (strategy, seed) synergy experiment in-process and write ``out_dir/result.json``.
     ``micro_actions`` is the number of experiments (synergy executions with an outcome)."""
-    from .experiment import goal_share_stats, write_json_atomic
+    from .experiment import learning_curve, result_dict, run_overrides, write_result
 
-    if micro_actions < 1:
-        raise ConfigError(f"--micro-actions: got {micro_actions}; allowed: an integer >= 1")
-    if eval_every < 1:
-        raise ConfigError(f"--eval-every: got {eval_every}; allowed: an integer >= 1")
-    ov = dict(overrides or {})
-    if strategy is not None:
-        ov["strategy"] = strategy
-    if seed is not None:
-        ov["seed"] = seed
+    ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     config = load_synergy_config(config_path, ov)
     run = SynergyRun(config)
     lp = config["sagg_learner"]
@@ -165,47 +157,15 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
     pool_seconds = time.perf_counter() - t0
     area = BoxArea(pool, lp["task_space.lower"], lp["task_space.upper"])
 
-    curve = []
-    eval_seconds = 0.0
     bar = Progress(micro_actions, f"{bp_setup(config)} {lp['strategy']} seed {lp['seed']}", enabled=progress)
-    for target in list(range(0, micro_actions, eval_every)) + [micro_actions]:
-        run.step_until(target)
-        t1 = time.perf_counter()
-        errors = run.evaluate(goals)
-        eval_seconds += time.perf_counter() - t1
-        curve.append({"micro_actions": target, "mean_error": float(errors.mean()),
-                      "median_error": float(np.median(errors))})
-        bar.update(target, goals=len(run.generator.goals), regions=len(run.generator.tree.leaves()),
-                   competence=run.learner.last_competence, error=float(errors.mean()))
-    bar.close()
+    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar)
 
-    gen, learner = run.generator, run.learner
-    goal_list = [{"seq": g.seq, "position": g.position.tolist(), "mode": g.mode,
-                  "mode_name": MODE_NAMES[g.mode], "competence": g.competence,
-                  "micro_actions": run.goal_micro_actions.get(g.seq, 0)} for g in gen.goals]
-    pos = np.array([g["position"] for g in goal_list]).reshape(-1, len(gen.lower))
-    gma = np.array([g["micro_actions"] for g in goal_list])
+    learner = run.learner
     outcomes = learner.outcomes.copy()
-    result = {
-        "format": "sagg.result/1",
-        "strategy": lp["strategy"],
-        "seed": run.seed,
-        "config": config,
-        "micro_actions": learner.experiments,
-        "micro_actions_per_second": learner.experiments / max(run.learn_seconds, 1e-9),
-        "learn_seconds": run.learn_seconds,
-        "eval_seconds": eval_seconds,
-        "curve": curve,
-        "final_mean_error": curve[-1]["mean_error"],
-        "final_median_error": curve[-1]["median_error"],
-        "memory": {"samples": len(learner), "digest": learner.by_theta.digest(),
-                   "bytes": int(learner.by_theta.nbytes + learner.by_y.nbytes)},
-        "exploration_phases": learner.exploration_phases,
-        "reports": learner.reports_sent,
-        "goals": goal_list,
-        "goal_stats": goal_share_stats(pos, gma, area, micro_actions),
-        "regions": gen.region_snapshot(),
-        "splits": gen.tree.splits,
+    result = result_dict(run, curve, area, micro_actions, eval_seconds, learner.experiments,
+                         {"samples": len(learner), "digest": learner.by_theta.digest(),
+                          "bytes": int(learner.by_theta.nbytes + learner.by_y.nbytes)})
+    result.update({
         "test_goals": goals.tolist(),
         "final_errors": errors.tolist(),
         "synergy": {
@@ -220,11 +180,8 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
             "outcome_extents": outcome_extents(outcomes),
             "outcomes": outcomes.tolist(),
         },
-    }
-    if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(out / "result.json", result)
+    })
+    write_result(out_dir, result)
     return result
 
 
