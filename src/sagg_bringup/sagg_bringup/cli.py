@@ -148,10 +148,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="timed windows per row on fresh runs, sizes interleaved; the best is kept")
     s.add_argument("--profile", type=int, default=0, metavar="N",
                    help="print the N functions with the most own time in the last timed window")
-    g = bsub.add_parser("graph", help="graph vs in-process micro-actions/s vs a bare rclpy ping-pong")
+    g = bsub.add_parser("graph", help="graph vs in-process micro-actions/s vs a bare rclpy ping-pong, "
+                                      "and the contract floor (the lockstep exchange with no work)")
     g.add_argument("--config", default="config/arm8.yaml")
-    g.add_argument("--micro-actions", type=positive_int, default=3000)
-    g.add_argument("--repeats", type=positive_int, default=2)
+    g.add_argument("--micro-actions", type=positive_int, default=3000,
+                   help="lockstep micro-actions per graph and in-process run")
+    g.add_argument("--repeats", type=positive_int, default=2,
+                   help="interleaved repeats of all four measurements; the best of each is kept")
     g.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
     sk = bsub.add_parser("soak", help="long run: RSS growth per stored sample, fds, /dev/shm "
                                       "(in-process and/or through the graph)")
