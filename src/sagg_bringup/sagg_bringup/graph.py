@@ -34,13 +34,15 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import yaml
 
+from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
+from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES
 
 from .recorder import BagWriter, TopicRecorder, TopicSpec
 
@@ -192,11 +194,8 @@ def write_params_file(path: Path, params: dict[str, dict]) -> None:
     path.write_text(header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120))
 
 
-def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSpec]:
-    controller = learner_params.get("controller", "forward_position_controller")
-    task_topic = learner_params.get("task_topic", "/tip_position")
-    if not task_topic.startswith("/"):
-        task_topic = "/" + task_topic
+def sagg_topics() -> list[TopicSpec]:
+    """The /sagg topics every graph run records (the hardware topics depend on the set-up)."""
     return [
         TopicSpec("/sagg/goal", "sagg_msgs/msg/Goal"),
         TopicSpec("/sagg/competence", "sagg_msgs/msg/CompetenceReport"),
@@ -204,6 +203,15 @@ def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSp
         TopicSpec("/sagg/sample", "sagg_msgs/msg/Sample"),
         TopicSpec("/sagg/status", "sagg_msgs/msg/LearnerStatus", depth=100),
         TopicSpec("/sagg/evaluation", "sagg_msgs/msg/Evaluation", depth=100),
+    ]
+
+
+def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSpec]:
+    controller = learner_params.get("controller", "forward_position_controller")
+    task_topic = learner_params.get("task_topic", "/tip_position")
+    if not task_topic.startswith("/"):
+        task_topic = "/" + task_topic
+    return sagg_topics() + [
         TopicSpec("/joint_states", "sensor_msgs/msg/JointState"),
         TopicSpec(f"/{controller}/commands", "std_msgs/msg/Float64MultiArray"),
         TopicSpec(task_topic, "geometry_msgs/msg/PointStamped"),
@@ -267,6 +275,23 @@ def stop_processes(procs: list[NodeProcess], timeout: float = STOP_TIMEOUT) -> N
             p.popen.kill()
             p.popen.wait()
         p.poll()
+
+
+def node_processes(nodes: dict[str, tuple[str, str]], logs: Path, segment: int = 1) -> list[NodeProcess]:
+    """The (not yet started) processes of ``nodes`` (node section -> (package or node module,
+    console script)), logging to ``logs/<script>.log``, or ``<script>.<segment>.log`` for the later
+    segments of a resumed run; ``logs`` is created."""
+    procs = []
+    for name, (module, script) in nodes.items():
+        exe = find_node_executable(module.split(".")[0], script)
+        procs.append(NodeProcess(name, exe, logs / (f"{script}.log" if segment == 1 else f"{script}.{segment}.log")))
+    logs.mkdir(parents=True, exist_ok=True)
+    return procs
+
+
+def check_domain_id(domain_id: int | None) -> None:
+    if domain_id is not None and not 0 <= domain_id <= 232:
+        raise ConfigError(f"--domain-id: got {domain_id}; allowed: an integer in [0, 232]")
 
 
 def pick_domain_id() -> int:
@@ -540,13 +565,285 @@ class RunState:
     # messages missing from sequences the recorder can check (seq/index not consecutive)
     gaps: dict[str, int] = field(default_factory=lambda: {"/sagg/sample": 0, "/sagg/competence": 0,
                                                           "/sagg/goal": 0})
+    status_rate: bool = True  # keep /sagg/status's micro_actions_per_second in `status`
+
+    def on_goal(self, m) -> None:
+        """/sagg/goal (keyed by seq)."""
+        if int(m.seq) in self.goals:
+            return  # published again (a repeated goal request after a generator restart)
+        if int(m.seq) != len(self.goals) + 1:
+            self.gaps["/sagg/goal"] += 1
+        self.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
+                                  "mode_name": MODE_NAMES.get(int(m.mode), str(m.mode)),
+                                  "after_report": int(m.after_report)}
+
+    def on_report(self, m) -> None:
+        """/sagg/competence: the micro-actions at each report, the competence of each goal."""
+        if int(m.seq) <= self.reports:
+            return  # republished by a resumed learner
+        if int(m.seq) != self.reports + 1:
+            self.gaps["/sagg/competence"] += 1
+        self.reports += 1
+        self.report_ma[int(m.seq)] = int(m.micro_actions)
+        if m.kind == KIND_GOAL:
+            self.goal_competence[int(m.goal_seq)] = float(m.competence)
+            self.last_competence = float(m.competence)
+
+    def on_regions(self, m) -> None:
+        self.last_regions = m
+
+    def on_status(self, m) -> None:
+        self.status = _status_dict(m, self.status_rate)
+
+    def progress(self) -> dict:
+        """The progress bar's fields."""
+        return {"goals": len(self.goals),
+                "regions": len(self.last_regions.regions) if self.last_regions is not None else 1,
+                "competence": self.last_competence, "error": self.last_error}
+
+    def goal_list(self) -> list[dict]:
+        """The goals in seq order, with their final competence and the micro-actions done when
+        they were chosen (the summary's ``goals``)."""
+        goals = []
+        for seq in sorted(self.goals):
+            g = dict(self.goals[seq])
+            g["competence"] = self.goal_competence.get(seq)
+            g["micro_actions"] = self.report_ma.get(g["after_report"], 0)
+            goals.append(g)
+        return goals
+
+    def region_list(self) -> list[dict]:
+        """The leaves of the last /sagg/regions (the summary's ``regions``)."""
+        if self.last_regions is None:
+            return []
+        return [{"id": int(r.id), "lower": list(r.lower), "upper": list(r.upper),
+                 "interest": float(r.interest), "count": int(r.count),
+                 "mean_competence": float(r.mean_competence)} for r in self.last_regions.regions]
 
 
-def _status_dict(m) -> dict:
-    return {"strategy": m.strategy, "micro_actions": int(m.micro_actions), "goals": int(m.goals),
-            "samples": int(m.samples), "last_competence": float(m.last_competence),
-            "micro_actions_per_second": float(m.micro_actions_per_second), "paused": bool(m.paused),
-            "pause_reason": m.pause_reason}
+def _status_dict(m, rate: bool = True) -> dict:
+    out = {"strategy": m.strategy, "micro_actions": int(m.micro_actions), "goals": int(m.goals),
+           "samples": int(m.samples), "last_competence": float(m.last_competence)}
+    if rate:
+        out["micro_actions_per_second"] = float(m.micro_actions_per_second)
+    out.update(paused=bool(m.paused), pause_reason=m.pause_reason)
+    return out
+
+
+# the keys of summary.json, in order (a run writes those it has)
+SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_file", "timing", "domain_id",
+                "micro_actions", "micro_actions_requested", "micro_actions_per_second", "eval_every",
+                "resumed_segments", "learn_seconds", "startup_seconds", "eval_seconds", "wall_seconds", "curve",
+                "final_mean_error", "final_median_error", "memory", "learner_status", "reports", "goals",
+                "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
+                "interrupted", "error")
+
+
+class GraphSession:
+    """The orchestration one ``sagg run`` graph run needs, for the arm (:func:`run_graph`) and the
+    synergy set-ups (:func:`~sagg_bringup.synergy_graph.run_synergy_graph`): the node processes on
+    a private ``ROS_DOMAIN_ID`` (``domain_id``, or a random one) with localhost discovery; this
+    process's rclpy node, executor and ``/sagg/evaluation`` publisher; the mcap bag of ``topics``
+    and its recorder (feeding :attr:`st`, a :class:`RunState`); Ctrl-C / SIGTERM as a flag; the wait
+    for the learner to finish (a node exiting or a stall is a :class:`GraphError`); the cleanup in
+    every case; the summary's common keys. ``drain``: at most this many queued callbacks are taken
+    per loop before the bookkeeping."""
+
+    def __init__(self, procs: list[NodeProcess], domain_id: int | None, topics: list[TopicSpec],
+                 bag_path: Path, out: Path, drain: int, status_rate: bool = True):
+        self.procs, self.topics, self.out, self.drain = procs, topics, out, drain
+        self.domain = pick_domain_id() if domain_id is None else domain_id
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                        PYTHONUNBUFFERED="1")
+        # this process joins the same private domain (the rmw reads the discovery range at init)
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from sagg_msgs.msg import Evaluation
+
+        self._rclpy, self._evaluation = rclpy, Evaluation
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=self.domain, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("sagg_run", context=self.ctx)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.bag = BagWriter(bag_path, topics)
+        self.st = RunState(status_rate=status_rate)
+        self.eval_pub = self.node.create_publisher(Evaluation, "/sagg/evaluation", 100)
+        self.recorder: TopicRecorder | None = None
+        self.stop_signal: list[int] = []
+        self.interrupted = False
+        self.error: GraphError | None = None
+        self.t_nodes: float | None = None  # when the nodes were started
+        self.t_end: float | None = None    # when everything was stopped
+
+    def record(self, handlers: dict[str, Callable]) -> None:
+        """Record every topic (``handlers``: topic -> callback of the deserialized message).
+        /sagg/sample is subscribed once the hardware topics (and /sagg/competence) are matched: the
+        learner waits for that subscriber before its first command, so the bag misses no command
+        or answer of the driver."""
+        hw = tuple(t.name for t in self.topics if not t.name.startswith("/sagg/") and t.name != "/clock")
+        self.recorder = TopicRecorder(self.node, self.bag, self.topics, handlers,
+                                      gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+
+    def publish_evaluation(self, at: int, errors: np.ndarray) -> None:
+        """/sagg/evaluation (published from here, the executor's thread; recorded like the rest)."""
+        msg = self._evaluation()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.micro_actions = int(at)
+        msg.mean_error = float(errors.mean())
+        msg.median_error = float(np.median(errors))
+        msg.errors = errors.tolist()
+        self.eval_pub.publish(msg)
+        self.st.last_error = msg.mean_error
+
+    def start_nodes(self, params_file: Path) -> None:
+        for p in self.procs:
+            p.start(params_file, self.env)
+        self.t_nodes = time.perf_counter()
+
+    def spin(self) -> None:
+        """One loop's callbacks: wait up to 20 ms for one, then drain what is already queued (one
+        callback per loop made this process fall far behind the learner and show a stale rate).
+        KeyboardInterrupt after Ctrl-C / SIGTERM."""
+        self.executor.spin_once(timeout_sec=0.02)
+        self.recorder.poll_gate()
+        bag = self.bag
+        for _ in range(self.drain):
+            before = bag.written
+            self.executor.spin_once(timeout_sec=0)
+            if bag.written == before:
+                break
+        if self.stop_signal:
+            raise KeyboardInterrupt
+
+    def wait_for_learner(self, micro_actions: int, stall_timeout: float, unit: str,
+                         tick: Callable[[float], None], may_end: Callable[[float], bool]) -> None:
+        """Spin until the learner reports ``micro_actions`` done (/sagg/status), every sample it
+        stored is in, and ``may_end(seconds since then)`` is true. ``tick(now)`` runs after every
+        spin. GraphError when a node exits before (a node that exits 0 once the learner is done is
+        fine) or no new sample came for ``stall_timeout`` s (``unit``: what a sample counts)."""
+        st = self.st
+        last_progress = (0, time.perf_counter())
+        done_at = None
+        while True:
+            self.spin()
+            now = time.perf_counter()
+            tick(now)
+            learner_done = st.status is not None and st.status["micro_actions"] >= micro_actions
+            for p in self.procs:
+                code = p.poll()
+                if code is not None and not (learner_done and code == 0):
+                    raise GraphError(f"node {p.name} exited with code {code} (log {p.log_path}):\n"
+                                     f"{p.log_tail()}", code=2 if code == 2 else 1)
+            if st.samples != last_progress[0]:
+                last_progress = (st.samples, now)
+            elif not learner_done and now - last_progress[1] > stall_timeout:
+                raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} {unit}); "
+                                 f"node logs in {self.out / 'logs'}")
+            if learner_done and st.samples >= st.status["samples"]:
+                if done_at is None:
+                    done_at = now
+                if may_end(now - done_at):
+                    return
+
+    def final_drain(self, seconds: float = 0.3) -> None:
+        """Spin a little longer: the recorder takes the final Evaluation message."""
+        t_end = time.perf_counter() + seconds
+        while time.perf_counter() < t_end:
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def run(self, body: Callable[[], None], bar: Progress, between: Callable[[], None] | None = None) -> None:
+        """``body()`` (start the nodes, wait, evaluate) with Ctrl-C / SIGTERM turned into a flag
+        checked between spins (a KeyboardInterrupt raised inside a callback, e.g. in rclpy's C++
+        deserializer, would surface as an unrelated error); an interruption sets
+        :attr:`interrupted`, a GraphError :attr:`error`. Then, whatever happened: the bar closed,
+        the nodes stopped (SIGINT, SIGKILL after a timeout), ``between()``, the recorder, bag
+        (closed in every case), executor and rclpy context shut down."""
+        def on_signal(signum, frame):  # noqa: ARG001
+            self.stop_signal.append(signum)
+
+        old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            body()
+        except KeyboardInterrupt:
+            self.interrupted = True
+        except GraphError as exc:
+            self.error = exc
+        finally:
+            bar.close()
+            stop_processes(self.procs)
+            for sig, handler in old_handlers.items():
+                signal.signal(sig, handler)
+            if between is not None:
+                between()
+            if self.recorder is not None:
+                self.recorder.destroy()
+            self.bag.close()
+            self.executor.shutdown()
+            self.node.destroy_node()
+            self._rclpy.shutdown(context=self.ctx)
+        self.t_end = time.perf_counter()
+
+    def summary(self, learner_params: dict, config: dict, params: dict, params_file: Path, timing: str,
+                micro_actions: int, curve: list[dict], area, t_start: float, prior_samples: int = 0,
+                **specific) -> dict:
+        """summary.json: the keys every graph run has, from what was recorded, plus ``specific``
+        (in :data:`SUMMARY_KEYS` order). ``area`` (with ``contains`` / ``share``) gives the goal
+        statistics ({} when None); ``prior_samples``: samples of earlier segments (not in the rate)."""
+        from .experiment import goal_share_stats
+        st, lp = self.st, learner_params
+        learn_seconds = (st.sample_t1 - st.sample_t0) if st.samples - prior_samples > 1 else 0.0
+        goals = st.goal_list()
+        pos = np.array([g["position"] for g in goals], float).reshape(-1, len(lp["task_space.lower"]))
+        gma = np.array([g["micro_actions"] for g in goals], float)
+        out = dict(specific)
+        out.update({
+            "format": "sagg.summary/1",
+            "strategy": lp["strategy"],
+            "seed": lp["seed"],
+            "config": config,
+            "node_params": params,
+            "params_file": str(params_file),
+            "timing": timing,
+            "domain_id": self.domain,
+            "micro_actions": int(st.status["micro_actions"] if st.status else st.samples),
+            "micro_actions_requested": int(micro_actions),
+            "micro_actions_per_second": ((st.samples - prior_samples - 1) / learn_seconds if learn_seconds > 0
+                                         else float("nan")),
+            "learn_seconds": learn_seconds,
+            "wall_seconds": self.t_end - t_start,
+            "curve": curve,
+            "final_mean_error": curve[-1]["mean_error"] if curve else float("nan"),
+            "final_median_error": curve[-1]["median_error"] if curve else float("nan"),
+            "learner_status": st.status,
+            "reports": st.reports,
+            "goals": goals,
+            "goal_stats": goal_share_stats(pos, gma, area, micro_actions) if area is not None else {},
+            "regions": st.region_list(),
+            "nodes": {p.name: {"pid": p.popen.pid if p.popen else None, "exit_code": p.exit_code,
+                               "log": str(p.log_path)} for p in self.procs},
+            "interrupted": self.interrupted,
+            "error": str(self.error) if self.error else None,
+        })
+        unknown = set(out) - set(SUMMARY_KEYS)
+        if unknown:
+            raise ValueError(f"summary keys {sorted(unknown)}; allowed: {', '.join(SUMMARY_KEYS)}")
+        return {k: out[k] for k in SUMMARY_KEYS if k in out}
+
+    def finish(self, summary: dict, write_report: Callable[[], Any] | None) -> dict:
+        """Write DIR/summary.json, then the report (``write_report``, when given); raise the
+        graph's error or the interruption, else return the summary."""
+        write_json_atomic(self.out / "summary.json", summary)
+        if write_report is not None:
+            write_report()
+        if self.error is not None:
+            raise self.error
+        if self.interrupted:
+            raise KeyboardInterrupt
+        return summary
 
 
 def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
@@ -568,24 +865,14 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         return run_synergy_graph(config_path, micro_actions, out_dir, seed=seed, strategy=strategy,
                                  timing=timing, eval_every=eval_every, overrides=overrides, progress=progress,
                                  domain_id=domain_id, stall_timeout=stall_timeout, report=report)
-    from .experiment import goal_share_stats, write_json_atomic
-    from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES
+    from .experiment import run_overrides
     from sagg_sim_bridge.arm import reachable_area
     from sagg_sim_bridge.params import arm_spec_from_params
 
-    if micro_actions < 1:
-        raise ConfigError(f"--micro-actions: got {micro_actions}; allowed: an integer >= 1")
-    if eval_every < 1:
-        raise ConfigError(f"--eval-every: got {eval_every}; allowed: an integer >= 1")
+    ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     if timing not in TIMINGS:
         raise ConfigError(f"--timing: got {timing!r}; allowed: one of {', '.join(TIMINGS)}")
-    if domain_id is not None and not 0 <= domain_id <= 232:
-        raise ConfigError(f"--domain-id: got {domain_id}; allowed: an integer in [0, 232]")
-    ov = dict(overrides or {})
-    if strategy is not None:
-        ov["strategy"] = strategy
-    if seed is not None:
-        ov["seed"] = seed
+    check_domain_id(domain_id)
     full = load_graph_config(config_path, ov)
     out = Path(out_dir)
     prior_bags = run_bags(out) if resume else []
@@ -598,11 +885,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     while (out / ("bag" if segment == 1 else f"bag{segment}")).exists():
         segment += 1  # (an unreadable bag: `sagg run` itself was killed; kept, not read)
     bag_path = out / ("bag" if segment == 1 else f"bag{segment}")
-    procs = []
-    for name, (module, script) in NODES.items():
-        exe = find_node_executable(module.split(".")[0], script)
-        procs.append(NodeProcess(name, exe, out / "logs" / (f"{script}.log" if segment == 1 else f"{script}.{segment}.log")))
-    (out / "logs").mkdir(parents=True, exist_ok=True)
+    procs = node_processes(NODES, out / "logs", segment)
     t_start = time.perf_counter()
 
     params = graph_params(full, micro_actions, timing)
@@ -615,43 +898,16 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     t_lower, t_upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
     checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
 
-    domain = pick_domain_id() if domain_id is None else domain_id
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
-    # this process joins the same private domain (the rmw reads the discovery range at init)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
-    from sagg_msgs.msg import Evaluation
-
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node("sagg_run", context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
-    topics = graph_topics(params["sagg_learner"], timing)
-    bag = BagWriter(bag_path, topics)
-    st = RunState()
-    eval_pub = node.create_publisher(Evaluation, "/sagg/evaluation", 100)
-
-    def publish_eval(at: int, errors: np.ndarray) -> None:
-        """/sagg/evaluation (published from here, the executor's thread; recorded like the rest)."""
-        msg = Evaluation()
-        msg.header.stamp = node.get_clock().now().to_msg()
-        msg.micro_actions = int(at)
-        msg.mean_error = float(errors.mean())
-        msg.median_error = float(np.median(errors))
-        msg.errors = errors.tolist()
-        eval_pub.publish(msg)
-        st.last_error = msg.mean_error
+    session = GraphSession(procs, domain_id, graph_topics(params["sagg_learner"], timing), bag_path, out,
+                           drain=2000)
+    st = session.st
 
     # a resumed run: the earlier segments' messages, and their evaluations (not repeated)
     prior = []
     done_evals: dict[int, np.ndarray] = {}
     if prior_bags:
         from rclpy.serialization import deserialize_message
+        from sagg_msgs.msg import Evaluation
         from .bags import bag_messages
         prior = list(bag_messages(prior_bags, {"/sagg/sample", "/sagg/goal", "/sagg/competence",
                                                "/sagg/regions", "/sagg/evaluation"}))
@@ -678,38 +934,15 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         st.samples += 1
         evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
 
-    def on_goal(m) -> None:
-        if int(m.seq) in st.goals:
-            return  # published again (a repeated goal request after a generator restart)
-        if int(m.seq) != len(st.goals) + 1:
-            st.gaps["/sagg/goal"] += 1
-        st.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
-                                "mode_name": MODE_NAMES.get(int(m.mode), str(m.mode)),
-                                "after_report": int(m.after_report)}
-
-    def on_report(m) -> None:
-        if int(m.seq) <= st.reports:
-            return  # republished by a resumed learner
-        if int(m.seq) != st.reports + 1:
-            st.gaps["/sagg/competence"] += 1
-        st.reports += 1
-        st.report_ma[int(m.seq)] = int(m.micro_actions)
-        if m.kind == KIND_GOAL:
-            st.goal_competence[int(m.goal_seq)] = float(m.competence)
-            st.last_competence = float(m.competence)
-
     tracker = SplitTracker(t_lower, t_upper)
 
     def on_regions(m) -> None:
         st.last_regions = m
         tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
 
-    def on_status(m) -> None:
-        st.status = _status_dict(m)
-
     if prior:
         from .recorder import _msg_class
-        handlers = {"/sagg/sample": on_sample, "/sagg/goal": on_goal, "/sagg/competence": on_report,
+        handlers = {"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                     "/sagg/regions": on_regions}
         for topic, msgtype, _, raw in prior:
             if topic in handlers:
@@ -717,174 +950,73 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         st.sample_t0 = st.sample_t1 = None  # rates: this segment only
     prior_samples = st.samples
 
-    # /sagg/sample is subscribed once the hardware topics are matched: the learner waits for that
-    # subscriber before its first command, so the bag misses no command, joint state or tip
-    hw = tuple(t.name for t in topics if not t.name.startswith("/sagg/") and t.name != "/clock")
-    recorder = TopicRecorder(node, bag, topics, {
-        "/sagg/sample": on_sample, "/sagg/goal": on_goal, "/sagg/competence": on_report,
-        "/sagg/regions": on_regions, "/sagg/status": on_status},
-        gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+    session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
+                    "/sagg/regions": on_regions, "/sagg/status": st.on_status})
     bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
-    interrupted = False
-    error: GraphError | None = None
     t_first = None
-    # Ctrl-C / SIGTERM set a flag checked between spins: a KeyboardInterrupt raised inside a
-    # callback (e.g. in rclpy's C++ deserializer) would surface as an unrelated error.
-    stop_signal: list[int] = []
+    waiting_note = False
 
-    def on_signal(signum, frame):  # noqa: ARG001
-        stop_signal.append(signum)
+    def tick(now: float) -> None:
+        nonlocal t_first
+        if st.samples and t_first is None:
+            t_first = now
+        if st.samples < micro_actions:  # (the bar always prints a full one: once, below)
+            bar.update(st.samples, **st.progress())
+        evaluator.flush()
+        for at, errors in evaluator.poll():
+            session.publish_evaluation(at, errors)
+        if evaluator.error:
+            raise GraphError(f"evaluation failed: {evaluator.error}")
 
-    old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    def may_end(waited: float) -> bool:
+        nonlocal waiting_note
+        # a short drain so reports/goals published just before the end are recorded too
+        if waited > 0.5 and evaluator.finished(st.samples):
+            return True
+        # evaluation is niced and may lag behind learning on a busy machine: wait for it as
+        # long as its process lives (it reports its own errors), telling the user once
+        if not evaluator.proc.is_alive():
+            raise GraphError("the evaluation process stopped before the final evaluation")
+        if not waiting_note and waited > 2.0:
+            waiting_note = True
+            pending = sum(1 for c in evaluator.checkpoints
+                          if c <= st.samples and c not in evaluator.errors)
+            if progress:
+                print(f"\nlearning done; waiting for {pending} pending evaluation(s)",
+                      file=sys.stderr, flush=True)
+        return False
+
+    def body() -> None:
         evaluator.start()
-        for p in procs:
-            p.start(params_file, env)
-        t_nodes = time.perf_counter()
-        last_progress = (0, time.perf_counter())
-        done_at = None
-        waiting_note = False
-        while True:
-            executor.spin_once(timeout_sec=0.02)
-            recorder.poll_gate()
-            # drain what is already queued before the bookkeeping below (one callback per loop
-            # made this process fall far behind the learner and show a stale rate)
-            for _ in range(2000):
-                before = bag.written
-                executor.spin_once(timeout_sec=0)
-                if bag.written == before:
-                    break
-            if stop_signal:
-                raise KeyboardInterrupt
-            now = time.perf_counter()
-            if st.samples and t_first is None:
-                t_first = now
-            if st.samples < micro_actions:  # (the bar always prints a full one: once, below)
-                bar.update(st.samples, goals=len(st.goals),
-                           regions=len(st.last_regions.regions) if st.last_regions is not None else 1,
-                           competence=st.last_competence, error=st.last_error)
-            evaluator.flush()
-            for at, errors in evaluator.poll():
-                publish_eval(at, errors)
-            if evaluator.error:
-                raise GraphError(f"evaluation failed: {evaluator.error}")
-            learner_done = st.status is not None and st.status["micro_actions"] >= micro_actions
-            for p in procs:
-                code = p.poll()
-                if code is not None and not (learner_done and code == 0):
-                    raise GraphError(f"node {p.name} exited with code {code} (log {p.log_path}):\n"
-                                     f"{p.log_tail()}", code=2 if code == 2 else 1)
-            if st.samples != last_progress[0]:
-                last_progress = (st.samples, now)
-            elif not learner_done and now - last_progress[1] > stall_timeout:
-                raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} micro-actions); "
-                                 f"node logs in {out / 'logs'}")
-            if learner_done and st.samples >= st.status["samples"]:
-                if done_at is None:
-                    done_at = now
-                # a short drain so reports/goals published just before the end are recorded too
-                if now - done_at > 0.5 and evaluator.finished(st.samples):
-                    break
-                # evaluation is niced and may lag behind learning on a busy machine: wait for it as
-                # long as its process lives (it reports its own errors), telling the user once
-                if not evaluator.proc.is_alive():
-                    raise GraphError("the evaluation process stopped before the final evaluation")
-                if not waiting_note and now - done_at > 2.0:
-                    waiting_note = True
-                    pending = sum(1 for c in evaluator.checkpoints
-                                  if c <= st.samples and c not in evaluator.errors)
-                    if progress:
-                        print(f"\nlearning done; waiting for {pending} pending evaluation(s)",
-                              file=sys.stderr, flush=True)
-        bar.update(st.samples, force=True, goals=len(st.goals),
-                   regions=len(st.last_regions.regions) if st.last_regions is not None else 1,
-                   competence=st.last_competence, error=st.last_error)
-        # let the recorder take the final Evaluation message
-        t_end = time.perf_counter() + 0.3
-        while time.perf_counter() < t_end:
-            executor.spin_once(timeout_sec=0.02)
-    except KeyboardInterrupt:
-        interrupted = True
-    except GraphError as exc:
-        error = exc
-    finally:
-        bar.close()
-        stop_processes(procs)
-        for sig, handler in old_handlers.items():
-            signal.signal(sig, handler)
-        evaluator.stop()
-        recorder.destroy()
-        bag.close()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
-    wall = time.perf_counter() - t_start
+        session.start_nodes(params_file)
+        session.wait_for_learner(micro_actions, stall_timeout, "micro-actions", tick, may_end)
+        bar.update(st.samples, force=True, **st.progress())
+        session.final_drain()
+
+    session.run(body, bar, between=evaluator.stop)
 
     # ---- summary
-    learn_seconds = (st.sample_t1 - st.sample_t0) if st.samples - prior_samples > 1 else 0.0
-    goals = []
-    for seq in sorted(st.goals):
-        g = dict(st.goals[seq])
-        g["competence"] = st.goal_competence.get(seq)
-        g["micro_actions"] = st.report_ma.get(g["after_report"], 0)
-        goals.append(g)
-    pos = np.array([g["position"] for g in goals], float).reshape(-1, len(t_lower))
-    gma = np.array([g["micro_actions"] for g in goals], float)
-    done = st.status["micro_actions"] if st.status else st.samples
-    regions = []
-    if st.last_regions is not None:
-        regions = [{"id": int(r.id), "lower": list(r.lower), "upper": list(r.upper),
-                    "interest": float(r.interest), "count": int(r.count),
-                    "mean_competence": float(r.mean_competence)} for r in st.last_regions.regions]
     curve = sorted(evaluator.curve, key=lambda c: c["micro_actions"])
     area = evaluator.area or reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
     memory = evaluator.memory()
-    bag_topics = bag.topics()
+    bag_topics = session.bag.topics()
+    recorder = session.recorder
     span = {t: (recorder.last_ns[t] - recorder.first_ns[t]) / 1e9 for t in recorder.first_ns}
-    summary = {
-        "format": "sagg.summary/1",
-        "strategy": lp["strategy"],
-        "seed": lp["seed"],
-        "config": config,
-        "node_params": params,
-        "params_file": str(params_file),
-        "timing": timing,
-        "domain_id": domain,
-        "micro_actions": int(done),
-        "micro_actions_requested": int(micro_actions),
-        "micro_actions_per_second": (st.samples - prior_samples - 1) / learn_seconds if learn_seconds > 0 else float("nan"),
-        "eval_every": eval_every,
-        "resumed_segments": segment - 1,
-        "learn_seconds": learn_seconds,
-        "startup_seconds": (t_first - t_nodes) if t_first is not None else float("nan"),
-        "eval_seconds": evaluator.eval_seconds,
-        "wall_seconds": wall,
-        "curve": curve,
-        "final_mean_error": curve[-1]["mean_error"] if curve else float("nan"),
-        "final_median_error": curve[-1]["median_error"] if curve else float("nan"),
-        "memory": {"samples": len(memory), "digest": memory.digest(), "bytes": int(memory.nbytes)},
-        "learner_status": st.status,
-        "reports": st.reports,
-        "goals": goals,
-        "goal_stats": goal_share_stats(pos, gma, area, micro_actions),
-        "test_goals": evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
-        "regions": regions,
-        "splits": tracker.splits,
-        "bag": {"path": str(bag_path), "paths": [str(b) for b in prior_bags + [bag_path]], "storage": "mcap",
-                "topics": bag_topics,
-                "sequence_gaps": st.gaps},
-        "rates": {t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0},
-        "nodes": {p.name: {"pid": p.popen.pid if p.popen else None, "exit_code": p.exit_code,
-                           "log": str(p.log_path)} for p in procs},
-        "interrupted": interrupted,
-        "error": str(error) if error else None,
-    }
-    write_json_atomic(out / "summary.json", summary)
-    if report and curve:
+    summary = session.summary(
+        lp, config, params, params_file, timing, micro_actions, curve, area, t_start, prior_samples,
+        eval_every=eval_every,
+        resumed_segments=segment - 1,
+        startup_seconds=(t_first - session.t_nodes) if t_first is not None else float("nan"),
+        eval_seconds=evaluator.eval_seconds,
+        memory={"samples": len(memory), "digest": memory.digest(), "bytes": int(memory.nbytes)},
+        test_goals=evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
+        splits=tracker.splits,
+        bag={"path": str(bag_path), "paths": [str(b) for b in prior_bags + [bag_path]], "storage": "mcap",
+             "topics": bag_topics, "sequence_gaps": st.gaps},
+        rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
+
+    def write_report() -> None:
         from .report import write_report
         write_report(summary, out, area=area)
-    if error is not None:
-        raise error
-    if interrupted:
-        raise KeyboardInterrupt
-    return summary
+
+    return session.finish(summary, write_report if report and curve else None)
