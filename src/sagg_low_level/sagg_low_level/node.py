@@ -36,13 +36,13 @@ from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64
                              encode_sample)
 from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
-from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
+from sagg_common.ros_params import HW_DEPTH, reliable, run_node
 from sagg_goal_generator.core import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .learner import (SCHEMA as CORE_SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe, Report,
                       Robot)
-from .node_base import GOAL_STRATEGIES, NODE_NAME, LearnerNodeBase
+from .node_base import NODE_NAME, LearnerNodeBase
 
 HALF_PI = math.pi / 2
 # Defaults = the default simulated arm (sagg_sim_bridge ArmSpec(): 8 DOF, limits ±π/2, rest bent by
@@ -132,15 +132,11 @@ class LearnerNode(LearnerNodeBase):
     PAUSED = "paused"  # a command is due but a hold (pause service, stale driver) is active
 
     def __init__(self):
-        super().__init__(NODE_NAME)
-        p = self.params = declare_schema(self, SCHEMA)
+        super().__init__(SCHEMA)
+        p = self.params
         self.robot = robot_from_params(p)
-        core = self._core_params(CORE_SCHEMA, "2 or 3 (the task point is a geometry_msgs/PointStamped)")
-        try:
-            self.learner = EvolvingContextLearner(core, self.robot, self.m)
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from exc
-        self.uses_goals = core["strategy"] in GOAL_STRATEGIES
+        core = self._build_learner(CORE_SCHEMA, "2 or 3 (the task point is a geometry_msgs/PointStamped)",
+                                   lambda core, m: EvolvingContextLearner(core, self.robot, m))
         self.max_micro_actions = p["max_micro_actions"]
         self.settle_velocity = p["settle_velocity"]
         self.settle_timeout = p["settle_timeout"]

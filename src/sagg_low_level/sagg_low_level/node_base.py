@@ -12,8 +12,8 @@ from rclpy.node import Node
 from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.diagnostics import goal_problem
-from sagg_common.params import ConfigError
-from sagg_common.ros_params import reliable
+from sagg_common.params import ConfigError, Schema
+from sagg_common.ros_params import declare_schema, reliable
 from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
 from sagg_msgs.srv import NextGoal
 
@@ -23,19 +23,30 @@ GOAL_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
 class LearnerNodeBase(Node):
-    """A learner node. Subclasses set ``params``, ``learner`` (``task_lower`` / ``task_upper`` /
+    """A learner node (``params``: the declared ``schema``). Subclasses set ``learner`` (``task_lower`` / ``task_upper`` /
     ``last_competence``), ``uses_goals``, ``guard``, ``goals_received``, ``exit_code`` / ``done``,
     and define ``advance(answer)`` (answer the pending request and go on) and
     :meth:`_goal_retry_seconds` / :meth:`_retry_goal_later`."""
 
-    def _core_params(self, core_schema, dims: str) -> dict:
-        """The learner core's parameters (from ``self.params``); sets ``self.m``, the task-space
-        dimensions: 2 or 3, else ConfigError (``dims`` says what each means for this node)."""
+    def __init__(self, schema: Schema):
+        super().__init__(NODE_NAME)
+        self.params = declare_schema(self, schema)
+
+    def _build_learner(self, core_schema: Schema, dims: str, make) -> dict:
+        """The learner core from its parameters (``core_schema``, values from ``self.params``):
+        ``self.m`` = the task-space dimensions, 2 or 3, else ConfigError (``dims`` says what each
+        means for this node); ``self.learner = make(core, m)`` (a ValueError of the core becomes a
+        ConfigError); ``self.uses_goals``. Returns the core's parameters."""
         p = self.params
         core = {q.name: p[q.name] for q in core_schema}
         self.m = len(core["task_space.lower"])
         if self.m not in (2, 3):
             raise ConfigError(f"parameter 'task_space.lower': {self.m} dimensions; allowed: {dims}")
+        try:
+            self.learner = make(core, self.m)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
+        self.uses_goals = core["strategy"] in GOAL_STRATEGIES
         return core
 
     def _create_sagg_endpoints(self) -> None:

@@ -32,15 +32,15 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from sagg_common.cdr import encode_report, encode_sample
 from sagg_common.diagnostics import InputGuard, diagnostic_array
-from sagg_common.params import ConfigError, Schema
-from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
+from sagg_common.params import Schema
+from sagg_common.ros_params import HW_DEPTH, reliable, run_node
 from sagg_common.synergy import quaternion_yaw
 from sagg_msgs.srv import NextGoal
 
 from .fixed_context import (SCHEMA as CORE_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Execute,
                             FixedContextLearner, ThetaSpace, synergy_from_params)
 from .learner import GoalRequest, Observe, Report
-from .node_base import GOAL_STRATEGIES, NODE_NAME, LearnerNodeBase
+from .node_base import NODE_NAME, LearnerNodeBase
 
 SCHEMA: Schema = CORE_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
 
@@ -77,15 +77,12 @@ def outcome_of(msg) -> np.ndarray | None:
 
 class SynergyLearnerNode(LearnerNodeBase):
     def __init__(self):
-        super().__init__(NODE_NAME)
-        p = self.params = declare_schema(self, SCHEMA)
+        super().__init__(SCHEMA)
+        p = self.params
         self.synergy = synergy_from_params(p)
-        core = self._core_params(CORE_SCHEMA, "2 (PointStamped outcome) or 3 (PoseStamped: u, v, yaw)")
-        try:
-            self.learner = FixedContextLearner(core, ThetaSpace(self.synergy.lower, self.synergy.upper), self.m)
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from exc
-        self.uses_goals = core["strategy"] in GOAL_STRATEGIES
+        core = self._build_learner(
+            CORE_SCHEMA, "2 (PointStamped outcome) or 3 (PoseStamped: u, v, yaw)",
+            lambda core, m: FixedContextLearner(core, ThetaSpace(self.synergy.lower, self.synergy.upper), m))
         self.max_experiments = p["max_experiments"]
         self.exit_code = 0
         self.done = False
