@@ -155,6 +155,13 @@ class LearnerCheckpointer(Checkpointer):
             "memory_digest": mem.digest() if digest else None, "riac": riac})
         self._saved(g, "riac")
 
+    def maybe_save(self) -> bool:
+        # (the base's, without the _progress() call: this runs on every flush of the learner node)
+        if self.learner.micro_actions - self.saved_at >= self.every:
+            self.save()
+            return True
+        return False
+
     def _save_final(self) -> None:
         self.save(digest=True)  # shutdown: with the memory digest
 
