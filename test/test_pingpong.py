@@ -19,3 +19,21 @@ def test_exchange_completes_between_two_processes(pattern, raw):
 def test_unknown_pattern_is_refused_by_name():
     with pytest.raises(ValueError, match=r"pattern: got 'ring'; allowed: pingpong, lockstep"):
         measure(pattern="ring")
+
+
+def test_bench_graph_reports_all_four_measurements_and_their_ratios():
+    from pathlib import Path
+
+    from sagg_bringup.bench import bench_graph
+
+    lines = []
+    res = bench_graph(Path(__file__).resolve().parents[1] / "config/arm8.yaml", micro_actions=300, repeats=1,
+                      pingpong_count=200, out=lines.append)
+    for key in ("graph_rate", "inprocess_rate", "roundtrip_s", "floor_s"):
+        assert math.isfinite(res[key]) and res[key] > 0.0, key
+    assert res["added_s"] == pytest.approx(1 / res["graph_rate"] - 1 / res["inprocess_rate"])
+    assert res["ratio"] == pytest.approx(res["added_s"] / res["roundtrip_s"])
+    assert res["floor_ratio"] == pytest.approx(res["floor_s"] / res["roundtrip_s"])
+    assert res["nodes_s"] == pytest.approx(res["added_s"] - res["floor_s"])
+    assert any(f"{res['ratio']:.2f} x the round trip" in s for s in lines)
+    assert any("contract floor" in s and f"{res['floor_ratio']:.2f} x the round trip" in s for s in lines)
