@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import rclpy
 import yaml
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, example, given, settings, strategies as st
 from rclpy.serialization import serialize_message
 
 from geometry_msgs.msg import PointStamped
@@ -99,6 +99,10 @@ def test_random_bytes_never_crash_any_callback(nodes, data):
 @FUZZ
 @given(names=st.lists(st.sampled_from(JOINTS + ["other", ""]), max_size=5),
        pos=st.lists(floats, max_size=5), vel=st.lists(floats, max_size=5))
+# finite values whose sum overflows (the hot path's quick test): accepted
+@example(names=list(JOINTS), pos=[1.7e308] * len(JOINTS), vel=[-1.7e308] * len(JOINTS))
+# one NaN velocity among finite values: rejected
+@example(names=list(JOINTS), pos=[0.1] * len(JOINTS), vel=[0.0] * (len(JOINTS) - 1) + [math.nan])
 def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos, vel):
     n = nodes["learner"]
     n.js_stamp = 0  # this test's messages are all stamped 1 s: never "out of order"

@@ -222,13 +222,18 @@ class LearnerNode(LearnerNodeBase):
         idx = self._idx
         alpha = pos[idx]
         v = vel[idx] if len(vel) else None
-        if not np.all(np.isfinite(alpha)) or (v is not None and not np.all(np.isfinite(v))):
+        # hot path: one sum per array is finite iff every value is (an overflowing sum of finite
+        # values falls through to the exact check, which then finds nothing and accepts)
+        if not math.isfinite(alpha.sum() + (v.sum() if v is not None else 0.0)):
             bad = [self.robot.joint_names[i] for i in range(len(idx))
-                   if not np.isfinite(alpha[i]) or (v is not None and not np.isfinite(v[i]))]
-            self.guard.reject("joint_states.non_finite",
-                              f"/joint_states: NaN/inf position or velocity of {', '.join(bad)}; allowed: finite values")
-            return
-        settled = v is None or bool(np.abs(v).max() < self.settle_velocity)
+                   if not math.isfinite(alpha[i]) or (v is not None and not math.isfinite(v[i]))]
+            if bad:
+                self.guard.reject("joint_states.non_finite",
+                                  f"/joint_states: NaN/inf position or velocity of {', '.join(bad)}; "
+                                  "allowed: finite values")
+                return
+        sv = self.settle_velocity
+        settled = v is None or bool(-sv < v.min() and v.max() < sv)  # every |velocity| < settle_velocity
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
         self.js_rx = time.monotonic()
         if self.holds:
@@ -261,12 +266,12 @@ class LearnerNode(LearnerNodeBase):
                               f"{self.params['task_topic']}: stamp {st} ns is older than the newest one "
                               f"({self.tip_stamp} ns); kept the newest")
             return
-        tip = np.array(xyz[:self.m])
-        if not np.all(np.isfinite(tip)):
+        xyz = xyz[:self.m]
+        if not all(map(math.isfinite, xyz)):
             self.guard.reject("task_point.non_finite",
-                              f"{self.params['task_topic']}: NaN/inf coordinate {tip.tolist()}; allowed: finite values")
+                              f"{self.params['task_topic']}: NaN/inf coordinate {list(xyz)}; allowed: finite values")
             return
-        self.tip = tip
+        self.tip = np.array(xyz)
         self.tip_stamp = st
         self.tip_rx = time.monotonic()
         if self.holds:
@@ -427,7 +432,9 @@ class LearnerNode(LearnerNodeBase):
         counted on /diagnostics. A return to rest is not a micro-action: limits only."""
         target = np.asarray(req.target, dtype=float)
         robot = self.robot
-        if not np.all(np.isfinite(target)) or target.shape != robot.lower.shape:
+        # (hot path: a finite sum means finite values; an overflowing one gets the exact check)
+        if target.shape != robot.lower.shape or (not math.isfinite(target.sum())
+                                                 and not np.isfinite(target).all()):
             self.guard.reject("command.invalid", f"the learner produced the command {target.tolist()}; "
                                                  f"allowed: {robot.n} finite values")
             return None
@@ -435,7 +442,7 @@ class LearnerNode(LearnerNodeBase):
         if req.kind != "reset":  # (1e-9 rad: the core's own rounding of alpha + step)
             step = self.learner.p["max_joint_step"] + 1e-9
             lo, hi = np.maximum(lo, self.js_alpha - step), np.minimum(hi, self.js_alpha + step)
-        if np.any(target < lo) or np.any(target > hi):
+        if (target < lo).any() or (target > hi).any():
             self.guard.reject("command.clipped", f"command {target.tolist()} outside the joint limits or "
                                                  "max_joint_step from the current posture: clipped")
             return np.minimum(np.maximum(target, lo), hi)
