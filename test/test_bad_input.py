@@ -184,6 +184,8 @@ def test_duplicated_and_lost_reports(nodes):
 
 @FUZZ
 @given(values=st.lists(floats, max_size=6))
+@example(values=[1.7e308, 1.7e308, -1.7e308])  # finite, the sum overflows: accepted (and clipped)
+@example(values=[0.1, math.inf, -math.inf])    # the sum is NaN: rejected
 def test_bridge_commands_with_bad_values_are_rejected(nodes, values):
     b = nodes["bridge"]
     m = Float64MultiArray()
