@@ -37,3 +37,47 @@ def test_bench_graph_reports_all_four_measurements_and_their_ratios():
     assert res["nodes_s"] == pytest.approx(res["added_s"] - res["floor_s"])
     assert any(f"{res['ratio']:.2f} x the round trip" in s for s in lines)
     assert any("contract floor" in s and f"{res['floor_ratio']:.2f} x the round trip" in s for s in lines)
+
+
+def test_domain_in_use_sees_a_real_participant_and_pick_avoids_busy_domains(monkeypatch):
+    import os
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    from sagg_bringup.graph import domain_in_use, pick_domain_id
+    from sagg_bringup.pingpong import stop_process
+
+    monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
+    # a real DDS participant (an rclpy node in another process) makes its domain busy
+    d = pick_domain_id()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(d), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    proc = subprocess.Popen([sys.executable, "-c", "import rclpy, time; rclpy.init(); "
+                             "n = rclpy.create_node('sagg_domain_probe'); print('up', flush=True); time.sleep(60)"],
+                            env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "up"
+        deadline = time.monotonic() + 10
+        while not domain_in_use(d) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert domain_in_use(d)
+    finally:
+        stop_process(proc)
+    # with every domain but one busy, the pick is that one
+    free = next(x for x in range(1, 201) if x != d and not domain_in_use(x))
+    held = []
+    try:
+        for x in range(1, 201):
+            if x != free:
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                try:
+                    s.bind(("0.0.0.0", 7410 + 250 * x))
+                except OSError:
+                    s.close()  # already busy: fine
+                    continue
+                held.append(s)
+        assert all(pick_domain_id() == free for _ in range(5))
+    finally:
+        for s in held:
+            s.close()
