@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -15,6 +14,7 @@ import numpy as np
 import pytest
 
 from sagg_bringup.bags import bag_messages, relearn
+from sagg_bringup.graph import pick_domain_id
 from sagg_low_level.checkpoint import checkpoint_memory
 from sagg_low_level.memory import SampleMemory
 
@@ -104,7 +104,7 @@ def test_replay_republishes_the_exact_bytes(run_dir):
         types[topic] = ty
     topics = {t: types[t] for t in ("/sagg/sample", "/sagg/goal", "/sagg/competence", "/sagg/regions",
                                     "/joint_states")}
-    domain = random.randint(1, 200)
+    domain = pick_domain_id()
     ctx, ex, got = _subscriber(domain, topics)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(bag), "--rate", "0", "--topics", *topics,
@@ -130,7 +130,7 @@ def test_replay_republishes_the_exact_bytes(run_dir):
 
 
 def test_replay_stops_cleanly_on_sigint(run_dir):
-    domain = random.randint(1, 200)
+    domain = pick_domain_id()
     ctx, ex, got = _subscriber(domain, {"/sagg/sample": "sagg_msgs/msg/Sample"})
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(run_dir / "bag"), "--rate", "1", "--loop",

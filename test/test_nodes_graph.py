@@ -8,7 +8,6 @@ localhost-only discovery, stopped with SIGINT then SIGKILL. The test process its
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -29,6 +28,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from sagg_bringup.experiment import InProcessRun, load_experiment_config
+from sagg_bringup.graph import pick_domain_id
 from sagg_common.params import node_params, read_config
 from sagg_common.rng import substream_seed
 from sagg_low_level.memory import SampleMemory
@@ -50,7 +50,7 @@ def qos(depth: int) -> QoSProfile:
 @pytest.fixture
 def ros_env(monkeypatch):
     """A private ROS domain for this test (also for the test process's own rclpy context)."""
-    domain = random.randint(1, 200)
+    domain = pick_domain_id()
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env = dict(os.environ)

@@ -2,7 +2,6 @@
 one process with a private rclpy context (no graph needed)."""
 from __future__ import annotations
 
-import random
 import sys
 
 import numpy as np
@@ -13,6 +12,7 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from sagg_bringup.graph import pick_domain_id
 from sagg_common.params import ConfigError, Param
 from sagg_common.ros_params import declare_schema, descriptor
 
@@ -30,7 +30,7 @@ SCHEMA = (
 @pytest.fixture
 def ctx():
     c = rclpy.Context()
-    rclpy.init(context=c, domain_id=random.randint(1, 200), signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    rclpy.init(context=c, domain_id=pick_domain_id(), signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     yield c
     c.try_shutdown()
 
