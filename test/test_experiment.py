@@ -79,3 +79,13 @@ def test_bad_config_values_name_the_parameter(tmp_path):
 def test_every_shipped_config_loads(name):
     cfg = load_experiment_config(ROOT / "config" / name)
     assert set(cfg) == {"sagg_goal_generator", "sagg_learner", "sagg_sim_bridge"}
+
+
+def test_resume_of_a_synergy_run_is_refused_by_name(tmp_path, capsys):
+    # a synergy run's directory (its params.yaml names the set-up): no checkpoints to resume from
+    (tmp_path / "params.yaml").write_text(
+        "sagg_sim_bridge:\n  ros__parameters:\n    setup: quadruped\n"
+        "sagg_learner:\n  ros__parameters:\n    max_micro_actions: 50\n")
+    assert cli_main(["run", "--resume", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "is a synergy run (setup 'quadruped')" in err and "start a new run" in err

@@ -216,8 +216,11 @@ def _run(args) -> int:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
-        print(f"\nsagg: interrupted; bag closed, partial results in {out} (sagg run --resume {out} "
-              "continues)", file=sys.stderr)
+        from .synergy_experiment import config_setup
+
+        hint = (f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
+                else " (synergy runs cannot be resumed: start a new run)")
+        print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
     print(f"{s['strategy']} seed {s['seed']} (graph, {s['timing']}): final mean test error "
           f"{s['final_mean_error']:.3f} (median {s['final_median_error']:.3f}) after {s['micro_actions']} "
@@ -242,6 +245,9 @@ def _resume(args) -> int:
     doc = yaml.safe_load(params_file.read_text()) or {}
     learner = doc.get("sagg_learner", {}).get("ros__parameters", {})
     bridge = doc.get("sagg_sim_bridge", {}).get("ros__parameters", {})
+    if bridge.get("setup"):
+        raise ConfigError(f"--resume: '{out}' is a synergy run (setup {bridge['setup']!r}); allowed: the directory "
+                          "of an arm run (the synergy learner keeps no checkpoints: start a new run)")
     old = {}
     if (out / "summary.json").is_file():
         old = json.loads((out / "summary.json").read_text())
