@@ -12,8 +12,8 @@ One run:
    ``ROS_DOMAIN_ID`` with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``; logs in ``DIR/logs``;
 3. records every graph topic into the mcap bag ``DIR/bag`` (:mod:`.recorder`) from a node in this
    process, and shows live progress;
-4. evaluates the frozen model every ``eval_every`` micro-actions and at the end, in a worker
-   thread of this process: the learner memory is rebuilt from ``/sagg/sample`` and an
+4. evaluates the frozen model every ``eval_every`` micro-actions and at the end, in a separate,
+   niced evaluation process (``EVAL_NICE``): the learner memory is rebuilt from ``/sagg/sample`` and an
    :class:`~sagg_low_level.learner.EvolvingContextLearner` built from the same parameters reaches
    the test goals on its own simulator (exactly what ``InProcessRun.evaluate`` does, so in lockstep
    the curve equals the in-process one); results go to ``/sagg/evaluation``. The nodes never wait
@@ -295,16 +295,18 @@ def check_domain_id(domain_id: int | None) -> None:
         raise ConfigError(f"--domain-id: got {domain_id}; allowed: an integer in [0, 232]")
 
 
-def domain_in_use(domain_id: int) -> bool:
-    """True if a DDS participant on this host already uses ``domain_id``: the first participant of
-    a domain binds its unicast discovery port (RTPS: 7400 + 250 * domain + 10), so a free port
-    means nobody here joined that domain yet."""
-    port = 7410 + 250 * domain_id
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        try:
-            sock.bind(("0.0.0.0", port))
-        except OSError:
-            return True
+def domain_in_use(domain_id: int, participants: int = 8) -> bool:
+    """True if a DDS participant on this host already uses ``domain_id``: participant i of a domain
+    binds its unicast discovery port (RTPS: 7400 + 250 * domain + 10 + 2 * i), so if the ports of
+    the first ``participants`` are free, nobody here is in that domain (unless those all left and
+    a later one stayed). It cannot see a run that picked the domain but has not started its first
+    participant yet (about a second for the node processes): a small window, not a guarantee."""
+    for i in range(participants):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            try:
+                sock.bind(("0.0.0.0", 7410 + 250 * domain_id + 2 * i))
+            except OSError:
+                return True
     return False
 
 
