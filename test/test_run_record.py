@@ -178,3 +178,22 @@ def test_split_history_rebuilt_from_region_snapshots(every):
             continue  # leaves_after(stamp) shows the last snapshot with that stamp
         rebuilt = leaves_after(tracker.splits, gen.lower, gen.upper, stamp)
         assert sorted((tuple(lo), tuple(hi)) for lo, hi in rebuilt) == boxes
+
+
+def test_graph_session_closed_before_run_leaves_a_readable_bag_and_no_context(tmp_path):
+    # what run_graph does when its set-up fails or is interrupted before session.run (e.g. a
+    # corrupt earlier bag on --resume): the new bag segment must be closed, or the next --resume
+    # could not read it
+    from rosbags.highlevel import AnyReader
+
+    from sagg_bringup.graph import GraphSession
+
+    params = graph_params(load_graph_config(ROOT / "config/arm8.yaml"), 100, "lockstep")
+    session = GraphSession([], None, graph_topics(params["sagg_learner"], "lockstep"), tmp_path / "bag",
+                           tmp_path, drain=10)
+    assert session.ctx.ok()
+    session.close()
+    session.close()  # once only
+    assert not session.ctx.ok()
+    with AnyReader([tmp_path / "bag"], default_typestore=make_typestore()) as reader:
+        assert reader.message_count == 0

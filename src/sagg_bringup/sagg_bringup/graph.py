@@ -698,6 +698,7 @@ class GraphSession:
         self.error: GraphError | None = None
         self.t_nodes: float | None = None  # when the nodes were started
         self.t_end: float | None = None    # when everything was stopped
+        self._closed = False
 
     def record(self, handlers: dict[str, Callable]) -> None:
         """Record every topic (``handlers``: topic -> callback of the deserialized message).
@@ -799,13 +800,22 @@ class GraphSession:
                 signal.signal(sig, handler)
             if between is not None:
                 between()
-            if self.recorder is not None:
-                self.recorder.destroy()
-            self.bag.close()
-            self.executor.shutdown()
-            self.node.destroy_node()
-            self._rclpy.shutdown(context=self.ctx)
+            self.close()
         self.t_end = time.perf_counter()
+
+    def close(self) -> None:
+        """Recorder, bag (closed: a later ``--resume`` reads it), executor and rclpy context; once.
+        :meth:`run` ends with it; a caller that fails or is interrupted before :meth:`run` calls it
+        itself, so even then the bag is closed and nothing leaks."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.recorder is not None:
+            self.recorder.destroy()
+        self.bag.close()
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.shutdown(context=self.ctx)
 
     def summary(self, learner_params: dict, config: dict, params: dict, params_file: Path, timing: str,
                 micro_actions: int, curve: list[dict], area, t_start: float, prior_samples: int = 0,
@@ -921,97 +931,101 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     session = GraphSession(procs, domain_id, graph_topics(params["sagg_learner"], timing), bag_path, out,
                            drain=2000)
     st = session.st
+    try:  # set-up: a failure or Ctrl-C before session.run still closes the bag and rclpy
 
-    # a resumed run: the earlier segments' messages, and their evaluations (not repeated)
-    prior = []
-    done_evals: dict[int, np.ndarray] = {}
-    if prior_bags:
-        from rclpy.serialization import deserialize_message
-        from sagg_msgs.msg import Evaluation
-        from .bags import bag_messages
-        prior = list(bag_messages(prior_bags, {"/sagg/sample", "/sagg/goal", "/sagg/competence",
-                                               "/sagg/regions", "/sagg/evaluation"}))
-        for topic, _, _, raw in prior:
-            if topic == "/sagg/evaluation":
-                em = deserialize_message(bytes(raw), Evaluation)
-                done_evals[int(em.micro_actions)] = np.array(em.errors)
-    evaluator = Evaluator(lp, bp, [c for c in checkpoints if c not in done_evals])  # computes the area and test goals meanwhile
-    evaluator.checkpoints = sorted(set(checkpoints))
-    for at, errors in sorted(done_evals.items()):
-        evaluator.errors[at] = errors
-        evaluator.curve.append({"micro_actions": at, "mean_error": float(errors.mean()),
-                                "median_error": float(np.median(errors))})
+        # a resumed run: the earlier segments' messages, and their evaluations (not repeated)
+        prior = []
+        done_evals: dict[int, np.ndarray] = {}
+        if prior_bags:
+            from rclpy.serialization import deserialize_message
+            from sagg_msgs.msg import Evaluation
+            from .bags import bag_messages
+            prior = list(bag_messages(prior_bags, {"/sagg/sample", "/sagg/goal", "/sagg/competence",
+                                                   "/sagg/regions", "/sagg/evaluation"}))
+            for topic, _, _, raw in prior:
+                if topic == "/sagg/evaluation":
+                    em = deserialize_message(bytes(raw), Evaluation)
+                    done_evals[int(em.micro_actions)] = np.array(em.errors)
+        evaluator = Evaluator(lp, bp, [c for c in checkpoints if c not in done_evals])  # computes the area and test goals meanwhile
+        evaluator.checkpoints = sorted(set(checkpoints))
+        for at, errors in sorted(done_evals.items()):
+            evaluator.errors[at] = errors
+            evaluator.curve.append({"micro_actions": at, "mean_error": float(errors.mean()),
+                                    "median_error": float(np.median(errors))})
 
-    def on_sample(m) -> None:
-        if int(m.index) < st.samples:
-            return  # republished by a resumed learner (same values)
-        now = time.perf_counter()
-        if st.sample_t0 is None:
-            st.sample_t0 = now
-        st.sample_t1 = now
-        if int(m.index) != st.samples:
-            st.gaps["/sagg/sample"] += 1
-        st.samples += 1
-        evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
+        def on_sample(m) -> None:
+            if int(m.index) < st.samples:
+                return  # republished by a resumed learner (same values)
+            now = time.perf_counter()
+            if st.sample_t0 is None:
+                st.sample_t0 = now
+            st.sample_t1 = now
+            if int(m.index) != st.samples:
+                st.gaps["/sagg/sample"] += 1
+            st.samples += 1
+            evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
 
-    tracker = SplitTracker(t_lower, t_upper)
+        tracker = SplitTracker(t_lower, t_upper)
 
-    def on_regions(m) -> None:
-        st.last_regions = m
-        tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
+        def on_regions(m) -> None:
+            st.last_regions = m
+            tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
 
-    if prior:
-        from .recorder import _msg_class
-        handlers = {"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
-                    "/sagg/regions": on_regions}
-        for topic, msgtype, _, raw in prior:
-            if topic in handlers:
-                handlers[topic](deserialize_message(bytes(raw), _msg_class(msgtype)))
-        st.sample_t0 = st.sample_t1 = None  # rates: this segment only
-    prior_samples = st.samples
+        if prior:
+            from .recorder import _msg_class
+            handlers = {"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
+                        "/sagg/regions": on_regions}
+            for topic, msgtype, _, raw in prior:
+                if topic in handlers:
+                    handlers[topic](deserialize_message(bytes(raw), _msg_class(msgtype)))
+            st.sample_t0 = st.sample_t1 = None  # rates: this segment only
+        prior_samples = st.samples
 
-    session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
-                    "/sagg/regions": on_regions, "/sagg/status": st.on_status})
-    bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
-    t_first = None
-    waiting_note = False
+        session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
+                        "/sagg/regions": on_regions, "/sagg/status": st.on_status})
+        bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
+        t_first = None
+        waiting_note = False
 
-    def tick(now: float) -> None:
-        nonlocal t_first
-        if st.samples and t_first is None:
-            t_first = now
-        if st.samples < micro_actions:  # (the bar always prints a full one: once, below)
-            bar.update(st.samples, **st.progress())
-        evaluator.flush()
-        for at, errors in evaluator.poll():
-            session.publish_evaluation(at, errors)
-        if evaluator.error:
-            raise GraphError(f"evaluation failed: {evaluator.error}")
+        def tick(now: float) -> None:
+            nonlocal t_first
+            if st.samples and t_first is None:
+                t_first = now
+            if st.samples < micro_actions:  # (the bar always prints a full one: once, below)
+                bar.update(st.samples, **st.progress())
+            evaluator.flush()
+            for at, errors in evaluator.poll():
+                session.publish_evaluation(at, errors)
+            if evaluator.error:
+                raise GraphError(f"evaluation failed: {evaluator.error}")
 
-    def may_end(waited: float) -> bool:
-        nonlocal waiting_note
-        # a short drain so reports/goals published just before the end are recorded too
-        if waited > 0.5 and evaluator.finished(st.samples):
-            return True
-        # evaluation is niced and may lag behind learning on a busy machine: wait for it as
-        # long as its process lives (it reports its own errors), telling the user once
-        if not evaluator.proc.is_alive():
-            raise GraphError("the evaluation process stopped before the final evaluation")
-        if not waiting_note and waited > 2.0:
-            waiting_note = True
-            pending = sum(1 for c in evaluator.checkpoints
-                          if c <= st.samples and c not in evaluator.errors)
-            if progress:
-                print(f"\nlearning done; waiting for {pending} pending evaluation(s)",
-                      file=sys.stderr, flush=True)
-        return False
+        def may_end(waited: float) -> bool:
+            nonlocal waiting_note
+            # a short drain so reports/goals published just before the end are recorded too
+            if waited > 0.5 and evaluator.finished(st.samples):
+                return True
+            # evaluation is niced and may lag behind learning on a busy machine: wait for it as
+            # long as its process lives (it reports its own errors), telling the user once
+            if not evaluator.proc.is_alive():
+                raise GraphError("the evaluation process stopped before the final evaluation")
+            if not waiting_note and waited > 2.0:
+                waiting_note = True
+                pending = sum(1 for c in evaluator.checkpoints
+                              if c <= st.samples and c not in evaluator.errors)
+                if progress:
+                    print(f"\nlearning done; waiting for {pending} pending evaluation(s)",
+                          file=sys.stderr, flush=True)
+            return False
 
-    def body() -> None:
-        evaluator.start()
-        session.start_nodes(params_file)
-        session.wait_for_learner(micro_actions, stall_timeout, "micro-actions", tick, may_end)
-        bar.update(st.samples, force=True, **st.progress())
-        session.final_drain()
+        def body() -> None:
+            evaluator.start()
+            session.start_nodes(params_file)
+            session.wait_for_learner(micro_actions, stall_timeout, "micro-actions", tick, may_end)
+            bar.update(st.samples, force=True, **st.progress())
+            session.final_drain()
+    except BaseException:
+        session.close()
+        raise
 
     session.run(body, bar, between=evaluator.stop)
 

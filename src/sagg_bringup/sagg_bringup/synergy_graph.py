@@ -102,53 +102,57 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
     session = GraphSession(procs, domain_id, synergy_topics(params["sagg_learner"]), out / "bag", out,
                            drain=500, status_rate=False)
     st = session.st
-    samples: list[tuple[np.ndarray, np.ndarray]] = []
+    try:  # set-up: a failure or Ctrl-C before session.run still closes the bag and rclpy
+        samples: list[tuple[np.ndarray, np.ndarray]] = []
 
-    def on_sample(m) -> None:
-        now = time.perf_counter()
-        st.sample_t0 = st.sample_t0 or now
-        st.sample_t1 = now
-        if int(m.index) != len(samples):
-            st.gaps["/sagg/sample"] += 1
-        samples.append((np.array(m.alpha), np.array(m.delta_y)))
-        st.samples = len(samples)
+        def on_sample(m) -> None:
+            now = time.perf_counter()
+            st.sample_t0 = st.sample_t0 or now
+            st.sample_t1 = now
+            if int(m.index) != len(samples):
+                st.gaps["/sagg/sample"] += 1
+            samples.append((np.array(m.alpha), np.array(m.delta_y)))
+            st.samples = len(samples)
 
-    session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
-                    "/sagg/status": st.on_status, "/sagg/regions": st.on_regions})
-    bar = Progress(micro_actions, f"{full['sagg_sim_bridge']['setup']} {lp['strategy']} seed {lp['seed']} (graph)",
-                   enabled=progress)
-    curve: list[dict] = []
-    eval_seconds = 0.0
-    run = None
-    goals_test = None
-    area = None
+        session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
+                        "/sagg/status": st.on_status, "/sagg/regions": st.on_regions})
+        bar = Progress(micro_actions, f"{full['sagg_sim_bridge']['setup']} {lp['strategy']} seed {lp['seed']} (graph)",
+                       enabled=progress)
+        curve: list[dict] = []
+        eval_seconds = 0.0
+        run = None
+        goals_test = None
+        area = None
 
-    def body() -> None:
-        nonlocal run, goals_test, area, eval_seconds
-        session.start_nodes(params_file)
-        session.wait_for_learner(micro_actions, stall_timeout, "experiments",
-                                 lambda now: bar.update(st.samples, **st.progress()),
-                                 lambda waited: waited > 0.5)
-        # ---- evaluation from the recorded samples (same test goals and simulator as in-process)
-        run = SynergyRun({"sagg_goal_generator": full["sagg_goal_generator"], "sagg_learner": lp,
-                          "sagg_sim_bridge": full["sagg_sim_bridge"]})
-        pool = run.test_pool()
-        goals_test = run.test_goals(pool)
-        area = BoxArea(pool, lp["task_space.lower"], lp["task_space.upper"])
-        checkpoints = [c for c in list(range(0, micro_actions, eval_every)) + [micro_actions] if c <= len(samples)]
-        fed = 0
-        for at in checkpoints:
-            while fed < at:
-                run.learner.add_sample(*samples[fed])
-                fed += 1
-            t1 = time.perf_counter()
-            errors = run.evaluate(goals_test)
-            eval_seconds += time.perf_counter() - t1
-            curve.append({"micro_actions": int(at), "mean_error": float(errors.mean()),
-                          "median_error": float(np.median(errors))})
-            session.publish_evaluation(at, errors)
-        bar.update(st.samples, force=True, **st.progress())  # (error: the last evaluation's)
-        session.final_drain()
+        def body() -> None:
+            nonlocal run, goals_test, area, eval_seconds
+            session.start_nodes(params_file)
+            session.wait_for_learner(micro_actions, stall_timeout, "experiments",
+                                     lambda now: bar.update(st.samples, **st.progress()),
+                                     lambda waited: waited > 0.5)
+            # ---- evaluation from the recorded samples (same test goals and simulator as in-process)
+            run = SynergyRun({"sagg_goal_generator": full["sagg_goal_generator"], "sagg_learner": lp,
+                              "sagg_sim_bridge": full["sagg_sim_bridge"]})
+            pool = run.test_pool()
+            goals_test = run.test_goals(pool)
+            area = BoxArea(pool, lp["task_space.lower"], lp["task_space.upper"])
+            checkpoints = [c for c in list(range(0, micro_actions, eval_every)) + [micro_actions] if c <= len(samples)]
+            fed = 0
+            for at in checkpoints:
+                while fed < at:
+                    run.learner.add_sample(*samples[fed])
+                    fed += 1
+                t1 = time.perf_counter()
+                errors = run.evaluate(goals_test)
+                eval_seconds += time.perf_counter() - t1
+                curve.append({"micro_actions": int(at), "mean_error": float(errors.mean()),
+                              "median_error": float(np.median(errors))})
+                session.publish_evaluation(at, errors)
+            bar.update(st.samples, force=True, **st.progress())  # (error: the last evaluation's)
+            session.final_drain()
+    except BaseException:
+        session.close()
+        raise
 
     session.run(body, bar)
 
