@@ -35,8 +35,19 @@ def test_bench_graph_reports_all_four_measurements_and_their_ratios():
     assert res["ratio"] == pytest.approx(res["added_s"] / res["roundtrip_s"])
     assert res["floor_ratio"] == pytest.approx(res["floor_s"] / res["roundtrip_s"])
     assert res["nodes_s"] == pytest.approx(res["added_s"] - res["floor_s"])
+    assert math.isfinite(res["ideal_added_s"]) and res["ideal_ratio"] == pytest.approx(
+        res["ideal_added_s"] / res["roundtrip_s"])
     assert any(f"{res['ratio']:.2f} x the round trip" in s for s in lines)
     assert any("contract floor" in s and f"{res['floor_ratio']:.2f} x the round trip" in s for s in lines)
+    assert any("ideal nodes" in s and f"{res['ideal_ratio']:.2f} x the round trip" in s for s in lines)
+
+
+def test_lockstep_work_is_done_before_each_answer():
+    # 2 ms of work per command: an exchange cannot take less
+    res = measure(count=100, warmup=10, pattern="lockstep", raw=True, work=0.002, timeout=60.0)
+    assert res["complete"] and res["rtt_ms"] >= 2.0
+    with pytest.raises(ValueError, match=r"work: got 0.5 s; allowed: 0 to 1 s, with pattern 'lockstep' only"):
+        measure(pattern="pingpong", work=0.5)
 
 
 def test_domain_in_use_sees_a_real_participant_and_pick_avoids_busy_domains(monkeypatch):

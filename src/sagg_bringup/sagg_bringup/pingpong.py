@@ -11,7 +11,8 @@ side publishes a command (Float64MultiArray, ``size`` doubles) and waits for bot
 sensor_msgs/JointState (``size`` named joints, positions and velocities) and a
 geometry_msgs/PointStamped, which the echo side publishes, prebuilt, on every command. It is the
 floor of any lockstep graph that speaks the contract: three messages per micro-action where a
-round trip has two.
+round trip has two. With ``--work-us W`` the echo side also computes for W µs (a busy loop) before
+it answers each command: zero-overhead nodes doing a given amount of work per micro-action.
 
     python -m sagg_bringup.pingpong --count 3000 --executor events
     python -m sagg_bringup.pingpong --count 3000 --pattern lockstep --raw
@@ -50,7 +51,15 @@ def _answers(size: int, raw: bool):
     return js, tip
 
 
-def _echo(executor_kind: str, raw: bool = False, pattern: str = "pingpong", size: int = 8) -> None:
+def _busy(seconds: float) -> None:
+    """Compute (spin on the clock) for ``seconds``: stands for the simulator's and learner's work."""
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+
+
+def _echo(executor_kind: str, raw: bool = False, pattern: str = "pingpong", size: int = 8,
+          work: float = 0.0) -> None:
     import rclpy
     from geometry_msgs.msg import PointStamped
     from rclpy.node import Node
@@ -67,6 +76,8 @@ def _echo(executor_kind: str, raw: bool = False, pattern: str = "pingpong", size
         js, tip = _answers(size, raw)
 
         def on_command(_):
+            if work > 0.0:
+                _busy(work)
             js_pub.publish(js)
             tip_pub.publish(tip)
 
@@ -154,13 +165,16 @@ def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float
 
 def measure(count: int = 3000, warmup: int = 300, executor: str = "events", size: int = 8,
             timeout: float = 120.0, domain_id: int | None = None, raw: bool = False,
-            pattern: str = "pingpong") -> dict:
+            pattern: str = "pingpong", work: float = 0.0) -> dict:
     """Round trips per second between two fresh processes. Returns ``{"rate", "rtt_ms", ...}``.
     ``raw``: both sides exchange serialized bytes (no message conversion in Python).
     ``pattern``: ``pingpong`` (one message each way) or ``lockstep`` (a command out, a joint
-    state and a task point back: the hardware contract's exchange with no work)."""
+    state and a task point back: the hardware contract's exchange with no work).
+    ``work``: seconds the echo side computes before answering each command (lockstep only)."""
     if pattern not in PATTERNS:
         raise ValueError(f"pattern: got {pattern!r}; allowed: {', '.join(PATTERNS)}")
+    if not (0.0 <= work <= 1.0) or (work and pattern != "lockstep"):
+        raise ValueError(f"work: got {work!r} s; allowed: 0 to 1 s, with pattern 'lockstep' only")
     env = dict(os.environ)
     if domain_id is None:
         from .graph import pick_domain_id
@@ -169,7 +183,7 @@ def measure(count: int = 3000, warmup: int = 300, executor: str = "events", size
     env["ROS_DOMAIN_ID"] = str(domain_id)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     cmd = ([sys.executable, "-m", "sagg_bringup.pingpong", "--executor", executor, "--pattern", pattern,
-            "--size", str(size)] + (["--raw"] if raw else []))
+            "--size", str(size), "--work-us", repr(work * 1e6)] + (["--raw"] if raw else []))
     echo = subprocess.Popen(cmd + ["--echo"], env=env)
     try:
         out = subprocess.run(cmd + ["--ping", "--count", str(count), "--warmup", str(warmup),
@@ -208,14 +222,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pattern", choices=PATTERNS, default="pingpong",
                     help="pingpong: one message each way; lockstep: a command out, a joint state and a "
                          "task point back (the hardware contract with no work)")
+    ap.add_argument("--work-us", type=float, default=0.0,
+                    help="lockstep: microseconds the echo side computes before answering each command")
     a = ap.parse_args(argv)
     if a.echo:
-        _echo(a.executor, a.raw, a.pattern, a.size)
+        _echo(a.executor, a.raw, a.pattern, a.size, a.work_us * 1e-6)
         return 0
     if a.ping:
         print(json.dumps(_ping(a.executor, a.count, a.warmup, a.size, a.timeout, a.raw, a.pattern)))
         return 0
-    res = measure(a.count, a.warmup, a.executor, a.size, a.timeout, raw=a.raw, pattern=a.pattern)
+    res = measure(a.count, a.warmup, a.executor, a.size, a.timeout, raw=a.raw, pattern=a.pattern,
+                  work=a.work_us * 1e-6)
     print(json.dumps(res))
     return 0
 
