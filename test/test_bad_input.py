@@ -9,7 +9,6 @@ InputGuard (what /diagnostics publishes) and must leave the node's state as it w
 from __future__ import annotations
 
 import math
-import random
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from sagg_bringup.graph import pick_domain_id
 from sagg_common.params import ConfigError, node_params, read_config
 from sagg_goal_generator.node import GoalGeneratorNode, SCHEMA as GEN_SCHEMA
 from sagg_low_level.node import LearnerNode, SCHEMA as LEARNER_SCHEMA
@@ -47,7 +47,7 @@ def nodes(tmp_path_factory):
     }
     path = tmp / "params.yaml"
     path.write_text(yaml.safe_dump(params))
-    domain = random.randint(201, 230)
+    domain = pick_domain_id()
     rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=domain)
     try:
         built = {"learner": LearnerNode(), "generator": GoalGeneratorNode(), "bridge": BridgeNode()}

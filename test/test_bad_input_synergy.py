@@ -4,7 +4,6 @@ rejected, counted (/diagnostics) and answered with the "no outcome" value, runni
 from __future__ import annotations
 
 import math
-import random
 from pathlib import Path
 
 import pytest
@@ -16,6 +15,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from geometry_msgs.msg import PointStamped
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from sagg_bringup.graph import pick_domain_id
 from sagg_low_level.synergy_node import SynergyLearnerNode
 from sagg_sim_bridge.synergy_node import SynergyBridgeNode
 
@@ -29,7 +29,7 @@ floats = st.floats(allow_nan=True, allow_infinity=True, width=64)
 def nodes():
     path = ROOT / "config" / "fishing.yaml"
     assert yaml.safe_load(path.read_text())["/**"]["ros__parameters"]["setup"] == "fishing"
-    rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=random.randint(231, 232))
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=pick_domain_id())
     try:
         built = {"learner": SynergyLearnerNode(), "bridge": SynergyBridgeNode()}
         yield built
