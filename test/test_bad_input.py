@@ -250,3 +250,15 @@ def test_goal_check_names_the_problem(coords):
         assert "allowed: 2 finite values within task_space" in problem
     else:
         assert pos.tolist() == coords
+
+
+@settings(max_examples=300, deadline=None)
+@given(values=st.lists(floats, max_size=8))
+@example(values=[1.7e308, -1.7e308, 1e200])  # finite, but the quick a·a overflows: the exact check decides
+@example(values=[0.0, math.nan])
+def test_all_finite_is_exact(values):
+    """The quick finiteness test of every command, observation and simulator call."""
+    from sagg_common.diagnostics import all_finite
+
+    a = np.array(values, dtype=np.float64)
+    assert all_finite(a) == bool(np.isfinite(a).all())

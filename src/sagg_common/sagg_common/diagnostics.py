@@ -10,10 +10,18 @@ lazily, so the cores never import ROS).
 """
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable
 
 import numpy as np
+
+
+def all_finite(a: np.ndarray) -> bool:
+    """True iff every entry of the 1-D float array ``a`` is finite, cheaply: ``a·a`` is one
+    reduction and is NaN/inf iff some entry is non-finite (or |a| > ~1e154, where the exact check
+    decides). For the hot paths (every command and observation, every simulator call)."""
+    return bool(a.dot(a) < math.inf) or bool(np.isfinite(a).all())
 
 # DiagnosticStatus levels (diagnostic_msgs/DiagnosticStatus: OK=0, WARN=1, ERROR=2, STALE=3)
 OK, WARN, ERROR, STALE = 0, 1, 2, 3

@@ -72,6 +72,8 @@ import os
 
 import numpy as np
 
+from sagg_common.diagnostics import all_finite
+
 __all__ = ["SampleMemory", "squared_distances"]
 
 _FORMAT_VERSION = 2  # 2: + checks, beam_ratio (version-1 files load as exact memories)
@@ -620,7 +622,7 @@ class SampleMemory:
     # ------------------------------------------------------------------ queries
     def _query_vector(self, query) -> np.ndarray:
         q = self._vector("query", query, self._sd)
-        if not q.dot(q) < np.inf and not np.isfinite(q).all():
+        if not all_finite(q):
             raise ValueError(f"query must be finite (no NaN/inf), got {q}")
         return q
 

@@ -34,7 +34,7 @@ from std_srvs.srv import SetBool
 
 from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64_array, encode_report,
                              encode_sample)
-from sagg_common.diagnostics import InputGuard, diagnostic_array
+from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import HW_DEPTH, reliable, run_node
 from sagg_goal_generator.core import KIND_EXPLORATION
@@ -222,16 +222,13 @@ class LearnerNode(LearnerNodeBase):
         idx = self._idx
         alpha = pos[idx]
         v = vel[idx] if len(vel) else None
-        # hot path: one sum per array is finite iff every value is (an overflowing sum of finite
-        # values falls through to the exact check, which then finds nothing and accepts)
-        if not math.isfinite(alpha.sum() + (v.sum() if v is not None else 0.0)):
+        if not (all_finite(alpha) and (v is None or all_finite(v))):
             bad = [self.robot.joint_names[i] for i in range(len(idx))
                    if not math.isfinite(alpha[i]) or (v is not None and not math.isfinite(v[i]))]
-            if bad:
-                self.guard.reject("joint_states.non_finite",
-                                  f"/joint_states: NaN/inf position or velocity of {', '.join(bad)}; "
-                                  "allowed: finite values")
-                return
+            self.guard.reject("joint_states.non_finite",
+                              f"/joint_states: NaN/inf position or velocity of {', '.join(bad)}; "
+                              "allowed: finite values")
+            return
         sv = self.settle_velocity
         settled = v is None or bool(-sv < v.min() and v.max() < sv)  # every |velocity| < settle_velocity
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
@@ -432,9 +429,7 @@ class LearnerNode(LearnerNodeBase):
         counted on /diagnostics. A return to rest is not a micro-action: limits only."""
         target = np.asarray(req.target, dtype=float)
         robot = self.robot
-        # (hot path: a finite sum means finite values; an overflowing one gets the exact check)
-        if target.shape != robot.lower.shape or (not math.isfinite(target.sum())
-                                                 and not np.isfinite(target).all()):
+        if target.shape != robot.lower.shape or not all_finite(target):
             self.guard.reject("command.invalid", f"the learner produced the command {target.tolist()}; "
                                                  f"allowed: {robot.n} finite values")
             return None

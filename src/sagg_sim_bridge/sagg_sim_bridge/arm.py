@@ -29,6 +29,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from sagg_common.diagnostics import all_finite
+
 GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
 MODES = ("kinematic", "dynamic")
 LINK_PROFILES = ("equal", "golden")
@@ -337,9 +339,7 @@ class ArmSim:
         t = alpha_target if type(alpha_target) is np.ndarray else np.asarray(alpha_target, dtype=float)
         if t.shape != self._shape:
             raise ValueError(f"alpha_target must have shape ({self.n_joints},), got {np.shape(alpha_target)}")
-        # One cheap reduction: t·t is NaN/inf iff some entry is non-finite (or |t| > ~1e154);
-        # only then run the exact check.
-        if not t.dot(t) < math.inf and not np.all(np.isfinite(t)):
+        if not all_finite(t):
             raise ValueError("alpha_target must be finite (no NaN/inf)")
         qpos = self._qpos
         if self._noise > 0.0:

@@ -24,7 +24,6 @@ Timing (parameter ``timing``):
 """
 from __future__ import annotations
 
-import math
 import struct
 import sys
 import time
@@ -41,7 +40,7 @@ from std_msgs.msg import Float64MultiArray
 from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
-from sagg_common.diagnostics import InputGuard, diagnostic_array
+from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
 from sagg_common.params import Param, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.rng import substream_seed
@@ -132,8 +131,7 @@ class BridgeNode(Node):
             self.guard.reject("command.length", f"{self.cmd_topic}: got {len(target)} values; allowed: "
                                                 f"{self.n} (joint_0..joint_{self.n - 1})")
             return
-        # hot path: a finite sum means finite values; an overflowing one gets the exact check
-        if not math.isfinite(target.sum()) and not np.isfinite(target).all():
+        if not all_finite(target):
             self.guard.reject("command.non_finite", f"{self.cmd_topic}: NaN/inf in {target.tolist()}; "
                                                     "allowed: finite values")
             return
