@@ -245,8 +245,10 @@ def _resume(args) -> int:
     doc = yaml.safe_load(params_file.read_text()) or {}
     learner = doc.get("sagg_learner", {}).get("ros__parameters", {})
     bridge = doc.get("sagg_sim_bridge", {}).get("ros__parameters", {})
-    if bridge.get("setup"):
-        raise ConfigError(f"--resume: '{out}' is a synergy run (setup {bridge['setup']!r}); allowed: the directory "
+    from .synergy_experiment import config_setup
+    setup = config_setup(params_file)
+    if setup is not None:
+        raise ConfigError(f"--resume: '{out}' is a synergy run (setup {setup!r}); allowed: the directory "
                           "of an arm run (the synergy learner keeps no checkpoints: start a new run)")
     old = {}
     if (out / "summary.json").is_file():
