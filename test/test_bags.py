@@ -3,6 +3,7 @@ republishes the exact recorded CDR (counts and bytes), and stops cleanly on SIGI
 from __future__ import annotations
 
 import json
+import contextlib
 import os
 import signal
 import subprocess
@@ -95,6 +96,25 @@ def _subscriber(domain: int, topics: dict[str, str]):
     return ctx, ex, got
 
 
+@contextlib.contextmanager
+def _replay(bag, topics: dict[str, str], *args: str):
+    """`sagg replay BAG --topics ... ARGS --wait-subscribers 1` in a subprocess on a private domain,
+    with a test-side subscriber of ``topics`` there: yields (executor, received bytes, process);
+    afterwards the process is killed if still running and the subscriber's context shut down."""
+    domain = pick_domain_id()
+    ctx, ex, got = _subscriber(domain, topics)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(bag), *args, "--topics", *topics,
+                             "--wait-subscribers", "1"], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        yield ex, got, proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        ctx.try_shutdown()
+
+
 def test_replay_republishes_the_exact_bytes(run_dir):
     bag = run_dir / "bag"
     recorded: dict[str, list[bytes]] = {}
@@ -104,13 +124,7 @@ def test_replay_republishes_the_exact_bytes(run_dir):
         types[topic] = ty
     topics = {t: types[t] for t in ("/sagg/sample", "/sagg/goal", "/sagg/competence", "/sagg/regions",
                                     "/joint_states")}
-    domain = pick_domain_id()
-    ctx, ex, got = _subscriber(domain, topics)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(bag), "--rate", "0", "--topics", *topics,
-                             "--wait-subscribers", "1"], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    try:
+    with _replay(bag, topics, "--rate", "0") as (ex, got, proc):
         end = time.monotonic() + 120
         while time.monotonic() < end and (proc.poll() is None or
                                           any(len(got[t]) < len(recorded[t]) for t in topics)):
@@ -118,10 +132,6 @@ def test_replay_republishes_the_exact_bytes(run_dir):
             if proc.poll() is not None and proc.returncode != 0:
                 break
         text = proc.communicate(timeout=30)[0]
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        ctx.try_shutdown()
     assert proc.returncode == 0, text
     for t in topics:
         assert len(got[t]) == len(recorded[t]) > 0, t
@@ -130,23 +140,13 @@ def test_replay_republishes_the_exact_bytes(run_dir):
 
 
 def test_replay_stops_cleanly_on_sigint(run_dir):
-    domain = pick_domain_id()
-    ctx, ex, got = _subscriber(domain, {"/sagg/sample": "sagg_msgs/msg/Sample"})
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(run_dir / "bag"), "--rate", "1", "--loop",
-                             "--topics", "/sagg/sample", "--wait-subscribers", "1"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
+    with _replay(run_dir / "bag", {"/sagg/sample": "sagg_msgs/msg/Sample"}, "--rate", "1", "--loop") as (ex, got, proc):
         end = time.monotonic() + 60
         while time.monotonic() < end and len(got["/sagg/sample"]) < 5:
             ex.spin_once(timeout_sec=0.05)
         assert len(got["/sagg/sample"]) >= 5
         proc.send_signal(signal.SIGINT)
         text = proc.communicate(timeout=30)[0]
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        ctx.try_shutdown()
     assert proc.returncode == 130, text
     assert "(interrupted)" in text and "Traceback" not in text
     # what arrived is the recording's start, in order (rate 1: the bag's own pace)
