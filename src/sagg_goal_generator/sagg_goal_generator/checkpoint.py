@@ -30,9 +30,9 @@ import numpy as np
 
 from sagg_common.checkpointer import Checkpointer
 from sagg_common.journal import Journal, restore_rng, rng_state, save_npz_atomic, write_json_atomic
+from sagg_common.regions import Region
 
 from .core import GoalGenerator, GoalRecord
-from .regions import Region
 
 REC_GOAL = 3
 FORMAT = "sagg.generator_checkpoint/1"

@@ -11,9 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
+from sagg_common.regions import RegionTree
 from sagg_common.rng import stream
-
-from .regions import RegionTree
 
 # Goal modes (same values as sagg_msgs/Goal constants)
 MODE_INITIAL, MODE_REGION, MODE_GLOBAL, MODE_LOW_COMPETENCE, MODE_RANDOM = 0, 1, 2, 3, 4
