@@ -5,8 +5,8 @@ import pytest
 from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import resolve
 from sagg_common.regions import RegionTree, choose_split, interest, split_quality
-from sagg_goal_generator.core import (KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, MODE_GLOBAL,
-                                      MODE_INITIAL, MODE_LOW_COMPETENCE, MODE_RANDOM, MODE_REGION,
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
+from sagg_goal_generator.core import (MODE_GLOBAL, MODE_INITIAL, MODE_LOW_COMPETENCE, MODE_RANDOM, MODE_REGION,
                                       SCHEMA, GoalGenerator)
 
 

@@ -43,7 +43,8 @@ import yaml
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
-from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES
+from sagg_common.report_kinds import KIND_GOAL
+from sagg_goal_generator.core import MODE_NAMES
 
 from .recorder import BagWriter, TopicRecorder, TopicSpec
 

@@ -12,16 +12,13 @@ import numpy as np
 
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.regions import RegionTree
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import stream
 
 # Goal modes (same values as sagg_msgs/Goal constants)
 MODE_INITIAL, MODE_REGION, MODE_GLOBAL, MODE_LOW_COMPETENCE, MODE_RANDOM = 0, 1, 2, 3, 4
 MODE_NAMES = {MODE_INITIAL: "initial", MODE_REGION: "region", MODE_GLOBAL: "global",
               MODE_LOW_COMPETENCE: "low-competence", MODE_RANDOM: "random"}
-# Report kinds (same values as sagg_msgs/CompetenceReport constants)
-KIND_GOAL, KIND_SUBGOAL, KIND_REACHED, KIND_EXPLORATION = 0, 1, 2, 3
-KIND_NAMES = {KIND_GOAL: "goal", KIND_SUBGOAL: "subgoal", KIND_REACHED: "reached",
-              KIND_EXPLORATION: "exploration"}
 
 
 SCHEMA: Schema = SHARED_SCHEMA + (

@@ -31,11 +31,12 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sagg_common.cdr import decode_report, encode_region_tree
 from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.report_kinds import KIND_NAMES
 from sagg_common.ros_params import declare_schema, reliable, run_node, spin
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
 
-from .core import KIND_NAMES, SCHEMA as CORE_SCHEMA, GoalGenerator
+from .core import SCHEMA as CORE_SCHEMA, GoalGenerator
 
 NODE_NAME = "sagg_goal_generator"
 NODE_SCHEMA: Schema = (

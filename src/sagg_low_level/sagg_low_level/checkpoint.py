@@ -44,8 +44,7 @@ import numpy as np
 
 from sagg_common.checkpointer import Checkpointer
 from sagg_common.journal import restore_rng, rng_state, save_npz_atomic, write_json_atomic
-
-from sagg_goal_generator.checkpoint import restore_tree, splits_arrays, splits_from_arrays, tree_arrays
+from sagg_common.region_arrays import restore_tree, splits_arrays, splits_from_arrays, tree_arrays
 
 from .learner import EvolvingContextLearner, Report
 from .memory import SampleMemory

@@ -27,9 +27,9 @@ from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
 from sagg_common.regions import RegionTree
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import stream
 from sagg_common.synergy import SinusoidSynergy, VelocitySynergy
-from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 
 from .learner import GoalRequest, Observe, Report
 from .local_model import local_jacobian, pseudo_inverse_step

@@ -18,8 +18,8 @@ import numpy as np
 from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.regions import RegionTree
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_common.rng import stream
-from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 
 from .local_model import desired_displacement, local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory

@@ -37,7 +37,7 @@ from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64
 from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import HW_DEPTH, reliable, run_node
-from sagg_goal_generator.core import KIND_EXPLORATION
+from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .learner import (SCHEMA as CORE_SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe, Report,
