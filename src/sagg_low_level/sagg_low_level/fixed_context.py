@@ -26,7 +26,7 @@ import numpy as np
 from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
-from sagg_common.regions import RegionTree
+from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import stream
 from sagg_common.synergy import SinusoidSynergy, VelocitySynergy
@@ -479,9 +479,7 @@ class FixedContextLearner:
         leaves = self.riac_tree.leaves()
         if self.rng.random() < self.p["riac.p_random"] or len(leaves) < 2:
             return self._uniform_theta()
-        it = np.array([r.interest for r in leaves])
-        w = it - it.min()
-        probs = np.full(len(leaves), 1.0 / len(leaves)) if w.sum() <= 0 else w / w.sum()
+        probs = interest_probabilities(np.array([r.interest for r in leaves]))
         region = leaves[int(self.rng.choice(len(leaves), p=probs))]
         return self.denorm_theta(self.rng.uniform(region.lower, region.upper))
 

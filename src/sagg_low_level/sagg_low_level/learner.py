@@ -17,7 +17,7 @@ import numpy as np
 
 from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
-from sagg_common.regions import RegionTree
+from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_common.rng import stream
 
@@ -452,8 +452,6 @@ class EvolvingContextLearner:
                 stack.append(r.children[0] if alpha[r.split_dim] < r.split_value else r.children[1])
             else:
                 stack.extend(r.children)
-        it = np.array([r.interest for r in found])
-        w = it - it.min()
-        probs = np.full(len(found), 1.0 / len(found)) if w.sum() <= 0 else w / w.sum()
+        probs = interest_probabilities(np.array([r.interest for r in found]))
         region = found[int(self.rng.choice(len(found), p=probs))]
         return self.rng.uniform(region.lower[n:], region.upper[n:])
