@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.bags import bag_messages, relearn
+from sagg_bringup.bag_reader import bag_messages
+from sagg_bringup.bags import relearn
 from sagg_bringup.graph import pick_domain_id
 from sagg_low_level.checkpoint import checkpoint_memory
 from sagg_low_level.memory import SampleMemory

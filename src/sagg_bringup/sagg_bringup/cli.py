@@ -9,6 +9,8 @@ import yaml
 
 from sagg_common.params import STRATEGIES, ConfigError
 
+# Each command imports its modules when it runs (lazily): rclpy, mujoco and matplotlib take seconds
+# to import, and `sagg params` or `sagg bench table` need none of them.
 
 
 def parse_set(items: list[str] | None) -> dict:
@@ -197,6 +199,8 @@ def _run(args) -> int:
     import time
 
     from .graph import GraphError, run_graph
+    from .synergy_experiment import config_setup
+    from .synergy_graph import run_synergy_graph
     if args.resume:
         return _resume(args)
     if args.config is None:
@@ -208,17 +212,17 @@ def _run(args) -> int:
         seed = "" if args.seed is None else f"-seed{args.seed}"
         strategy = "" if args.strategy is None else f"-{args.strategy}"
         out = Path("runs") / f"{Path(args.config).stem}{strategy}{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
+    run = run_graph if config_setup(args.config) is None else run_synergy_graph
     try:
-        s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
-                      timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
-                      progress=not args.quiet, domain_id=args.domain_id)
+        s = run(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
+                timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
+                progress=not args.quiet, domain_id=args.domain_id)
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
-        from .synergy_experiment import config_setup
-
-        hint = (f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
+        hint = (f" (sagg run --resume {out} continues)" if run is run_graph
                 else " (synergy runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130

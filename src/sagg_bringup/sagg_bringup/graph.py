@@ -46,7 +46,9 @@ from sagg_common.progress import Progress
 from sagg_common.report_kinds import KIND_GOAL
 from sagg_goal_generator.core import MODE_NAMES
 
+from .bag_reader import bag_messages
 from .recorder import BagWriter, TopicRecorder, TopicSpec
+from .results import goal_share_stats, run_overrides
 
 # node section -> (module holding the node's full SCHEMA, console script)
 NODES = {
@@ -824,7 +826,6 @@ class GraphSession:
         """summary.json: the keys every graph run has, from what was recorded, plus ``specific``
         (in :data:`SUMMARY_KEYS` order). ``area`` (with ``contains`` / ``share``) gives the goal
         statistics ({} when None); ``prior_samples``: samples of earlier segments (not in the rate)."""
-        from .experiment import goal_share_stats
         st, lp = self.st, learner_params
         learn_seconds = (st.sample_t1 - st.sample_t0) if st.samples - prior_samples > 1 else 0.0
         goals = st.goal_list()
@@ -889,14 +890,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     bag (``bag2``, ``bag3``, ...; logs ``logs/<node>.<k>.log``), and the earlier bags are read first,
     so the evaluation, the summary and the report cover the whole run (samples, reports and goals
     republished by the resumed nodes are dropped by index / sequence number)."""
-    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
-    from .synergy_experiment import config_setup
-    if config_setup(config_path) is not None:
-        from .synergy_graph import run_synergy_graph
-        return run_synergy_graph(config_path, micro_actions, out_dir, seed=seed, strategy=strategy,
-                                 timing=timing, eval_every=eval_every, overrides=overrides, progress=progress,
-                                 domain_id=domain_id, stall_timeout=stall_timeout, report=report)
-    from .experiment import run_overrides
     from sagg_sim_bridge.arm import reachable_area
     from sagg_sim_bridge.params import arm_spec_from_params
 
@@ -940,7 +933,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         if prior_bags:
             from rclpy.serialization import deserialize_message
             from sagg_msgs.msg import Evaluation
-            from .bags import bag_messages
             prior = list(bag_messages(prior_bags, {"/sagg/sample", "/sagg/goal", "/sagg/competence",
                                                    "/sagg/regions", "/sagg/evaluation"}))
             for topic, _, _, raw in prior:

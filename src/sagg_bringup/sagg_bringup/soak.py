@@ -258,7 +258,7 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
 
 def main_soak(args, overrides: dict) -> int:
     """``sagg bench soak``: runs the modes asked for, writes ``OUT/soak.json``."""
-    from .experiment import write_json_atomic
+    from sagg_common.journal import write_json_atomic
 
     out = Path(args.out or f"runs/soak-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)

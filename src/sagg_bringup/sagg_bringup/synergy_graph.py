@@ -29,6 +29,7 @@ from sagg_common.progress import Progress
 
 from .graph import GraphSession, check_domain_id, node_processes, sagg_topics, write_params_file
 from .recorder import TopicSpec
+from .results import run_overrides
 from .synergy_experiment import BoxArea, SynergyRun, load_synergy_config, outcome_extents
 
 SYNERGY_NODES = {
@@ -74,8 +75,6 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
                       eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
                       domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True) -> dict:
     """Run the synergy graph for ``micro_actions`` experiments; returns the summary (also in DIR)."""
-    from .experiment import run_overrides
-
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     if timing != "lockstep":
         raise ConfigError(f"--timing: got {timing!r}; allowed: 'lockstep' (the synergy bridge answers each "
