@@ -314,11 +314,11 @@ def main(argv: list[str] | None = None) -> int:
                 print(params_markdown(args.node))
             return 0
         if args.command == "bench" and args.bench == "graph":
-            from .bench import bench_graph
+            from .lab.bench import bench_graph
             bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
         if args.command == "bench" and args.bench == "soak":
-            from .soak import main_soak
+            from .lab.soak import main_soak
             return main_soak(args, parse_set(args.set))
         if args.command == "bench" and args.bench == "table":
             from .compare import load_results, summary_markdown
@@ -337,7 +337,7 @@ def main(argv: list[str] | None = None) -> int:
                                overrides=parse_set(args.set), base_seed=args.base_seed)
             return 1 if summ["failed_runs"] else 0
         if args.command == "bench" and args.bench == "speed":
-            from .bench import bench_speed
+            from .lab.bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,
                         graph=args.graph, graph_micro_actions=args.graph_micro_actions,
                         profile=args.profile, graph_config=args.graph_config,
