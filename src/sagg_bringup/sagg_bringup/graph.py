@@ -388,12 +388,6 @@ def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, check
             item = inbox.get()
             if item[0] == "stop":
                 return
-            if item[0] == "checkpoint":
-                at = int(item[1])
-                if at < len(memory):
-                    raise RuntimeError(f"checkpoint {at} is behind the rebuilt memory ({len(memory)})")
-                pending = sorted({c for c in pending if c < at} | {at})
-                continue
             _, start, alpha, dalpha, dy = item
             if start != len(memory):
                 raise RuntimeError(f"sample batch starts at {start} but {len(memory)} samples were rebuilt")
@@ -453,11 +447,6 @@ class Evaluator:
             self.inbox.put(("samples", a, np.array(self.alpha[a:b]), np.array(self.delta_alpha[a:b]),
                             np.array(self.delta_y[a:b])))
             self._sent = b
-
-    def add_checkpoint(self, at: int) -> None:
-        """An extra, final checkpoint (the run stopped before the planned end)."""
-        self.checkpoints = sorted({c for c in self.checkpoints if c < at} | {at})
-        self.inbox.put(("checkpoint", at))
 
     def poll(self) -> list[tuple[int, np.ndarray]]:
         """Evaluations finished since the last call, as ``(micro_actions, errors)``."""
