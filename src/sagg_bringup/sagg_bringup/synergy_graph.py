@@ -24,13 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.params import ConfigError
+from sagg_common.params import ConfigError, node_params, read_config
 from sagg_common.progress import Progress
 
 from .graph import GraphSession, check_domain_id, node_processes, sagg_topics, write_params_file
 from .recorder import TopicSpec
 from .results import run_overrides
-from .synergy_experiment import BoxArea, SynergyRun, load_synergy_config, outcome_extents
+from .synergy_experiment import (LEARNER_SCHEMA, SYN_BRIDGE_SCHEMA, BoxArea, SynergyRun, load_synergy_config,
+                                 outcome_extents)
 
 SYNERGY_NODES = {
     "sagg_goal_generator": ("sagg_goal_generator", "goal_generator"),
@@ -41,7 +42,6 @@ SYNERGY_NODES = {
 
 def synergy_node_schemas() -> dict[str, tuple]:
     from sagg_goal_generator.node import SCHEMA as GEN
-    from .synergy_experiment import LEARNER_SCHEMA, SYN_BRIDGE_SCHEMA
     return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": SYN_BRIDGE_SCHEMA}
 
 
@@ -84,7 +84,6 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
     full = load_synergy_config(config_path, ov, learner_schema=schemas["sagg_learner"],
                                bridge_schema=schemas["sagg_sim_bridge"])
     # the goal generator's node-only parameters (load_synergy_config resolved its core schema)
-    from sagg_common.params import node_params, read_config
     full["sagg_goal_generator"] = node_params(read_config(config_path), "sagg_goal_generator",
                                               schemas["sagg_goal_generator"], ov)
     out = Path(out_dir)

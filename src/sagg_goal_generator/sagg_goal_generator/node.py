@@ -36,6 +36,7 @@ from sagg_common.ros_params import declare_schema, reliable, run_node, spin
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
 
+from .checkpoint import GeneratorCheckpointer
 from .core import SCHEMA as CORE_SCHEMA, GoalGenerator
 
 NODE_NAME = "sagg_goal_generator"
@@ -266,7 +267,6 @@ class GoalGeneratorNode(Node):
         p = self.params
         if not p["checkpoint_dir"]:
             return
-        from .checkpoint import GeneratorCheckpointer
         try:
             ck = GeneratorCheckpointer(p["checkpoint_dir"], self.gen, p["checkpoint_every"], p["journal_fsync"])
             self.replay_goals = ck.resume()

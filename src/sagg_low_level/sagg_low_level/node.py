@@ -40,6 +40,7 @@ from sagg_common.ros_params import HW_DEPTH, reliable, run_node
 from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
+from .checkpoint import LearnerCheckpointer
 from .learner import (SCHEMA as CORE_SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe, Report,
                       Robot)
 from .node_base import NODE_NAME, LearnerNodeBase
@@ -475,7 +476,6 @@ class LearnerNode(LearnerNodeBase):
         reports of the last checkpoint intervals (receivers drop those they have)."""
         if not p["checkpoint_dir"]:
             return
-        from .checkpoint import LearnerCheckpointer
         try:
             ck = LearnerCheckpointer(p["checkpoint_dir"], self.learner, p["checkpoint_every"], p["journal_fsync"])
             replay = ck.resume()
