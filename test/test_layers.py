@@ -125,6 +125,15 @@ def test_no_import_cycles():
     assert cycles(import_graph()) == []
 
 
+def test_lab_tools_only_behind_the_command_line():
+    """Lab tools (sagg_bringup.lab: benchmarks, soaks, figure scripts) are imported by each other and
+    by the ``sagg bench`` commands of the CLI, never by the product modules."""
+    g = import_graph()
+    users = {mod for mod, deps in g.items() for dep in deps
+             if dep.startswith("sagg_bringup.lab") and not mod.startswith("sagg_bringup.lab")}
+    assert users == {"sagg_bringup.cli"}
+
+
 def test_the_checks_see_what_they_must(tmp_path):
     """The graph builder on a small fake tree: an upward import, a sideways one and a cycle hidden
     in a function are all found; relative imports resolve."""
