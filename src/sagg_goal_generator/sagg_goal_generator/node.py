@@ -91,7 +91,8 @@ class GoalServer:
                 raise
 
     def close(self) -> None:
-        """Release a waiting request (unanswered), stop the thread, destroy the server node."""
+        """Stop the thread (a request still waiting gets an empty response, which the learner
+        rejects as it would any goal outside Y), destroy the server node."""
         self.stopping.set()
         self.thread.join(timeout=5.0)
         self.node.destroy_node()
@@ -223,7 +224,7 @@ class GoalGeneratorNode(Node):
             # woken by every report and regions tick (the subscriber count has no event of its own)
             while after > self.gen.reports or not self._goal_subscribers_ok():
                 if self.server.stopping.is_set():
-                    return response  # shutting down: no goal
+                    return response  # shutting down: an empty response, no goal chosen
                 self.cond.wait(timeout=0.1)
             # a request whose goal was already chosen (answered meanwhile through a repeated
             # request, goal_retry) gets that goal, not a new one
