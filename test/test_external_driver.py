@@ -107,6 +107,19 @@ def test_sagg_run_external_driver_learns_and_is_evaluated_on_the_robot(tmp_path)
     report = (out / "report.md").read_text()
     assert "## Evaluation on the robot" in report and "simulated" in report
     assert "on the robot: mean error" in proc.stdout
+    # the live view, recorded: region leaves, recent goals, the robot's test goals, the tip's path
+    from sagg_bringup.markers import marker_arrays_from_bag, render_markers
+    arrays = marker_arrays_from_bag(out / "bag")
+    assert topics["/sagg/markers"]["count"] == len(arrays) >= 1
+    last = arrays[-1]
+    ns = {m.ns for m in last.markers}
+    assert {"regions", "region_edges", "goals", "test_goals", "tip_path"} <= ns
+    assert last.markers[0].action == 3  # DELETEALL first: split leaves disappear
+    assert sum(m.ns == "regions" for m in last.markers) == len(s["regions"])
+    tg = next(m for m in last.markers if m.ns == "test_goals")
+    assert [[p.x, p.y] for p in tg.points] == [g[:2] for g in r["goals"]]
+    png = render_markers(last, tmp_path / "markers.png")
+    assert png.stat().st_size > 10_000
     # params.yaml is reusable without `sagg run`: no waits for its recorder
     lp = yaml.safe_load((out / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]
     assert lp["min_sample_subscribers"] == 0 and lp["joints"] == JOINTS
@@ -126,3 +139,18 @@ def test_missing_driver_is_named(tmp_path):
     assert "/forward_position_controller/commands (std_msgs/msg/Float64MultiArray): no subscriber" in err
     # and nothing was started
     assert not (tmp_path / "run" / "logs" / "learner.log").exists()
+
+
+def test_robot_test_goals_without_a_model_are_spread_over_reached_points():
+    from sagg_bringup.external import spread_points, sim_model_matches
+    pts = np.array([[0.0, 0.0], [0.1, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0], [0.05, 0.02]])
+    chosen = spread_points(pts, 4, seed=0)
+    # farthest-point selection: the four corners, never two of the clustered points near the origin
+    assert len(chosen) == 4 and sum(np.linalg.norm(chosen, axis=1) < 1.0) == 1
+    assert np.array_equal(spread_points(pts, 4, seed=0), chosen)
+    lower, upper = SPEC.limits()
+    lp = {"joints": JOINTS, "joint_limits.lower": lower.tolist(), "joint_limits.upper": upper.tolist(),
+          "rest_posture": SPEC.rest_posture().tolist()}
+    assert sim_model_matches(lp, SPEC)
+    assert not sim_model_matches(dict(lp, rest_posture=[0.0, 0.0, 0.0]), SPEC)
+    assert not sim_model_matches(lp, ArmSpec(dof=4, total_length=45.0))

@@ -156,15 +156,18 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
         msg.data = target.tolist()
         t_cmd = time.time()
         pub.publish(msg)
-        moved = spin_for(10.0, lambda: mon.js_stamp > stamp0 and abs(mon.alpha[j] - start[j]) > abs(target[j] - start[j]) / 2)
+        half = abs(target[j] - start[j]) / 2
+        # wait for any joint to move (a wrong mapping moves another one), then for the arm to settle
+        moved = spin_for(10.0, lambda: mon.js_stamp > stamp0 and np.abs(mon.alpha - start).max() > half)
         if not moved:
-            problems.append(f"joint {joint} did not move within 10 s of a command on {mon.cmd_topic}")
+            problems.append(f"no joint moved within 10 s of a command on {mon.cmd_topic}")
             say(problems[-1])
         else:
             first = next((rx for rx, st, a in probe.js if rx >= t_cmd and a is not None
-                          and abs(a[j] - start[j]) > abs(target[j] - start[j]) / 2), time.time())
+                          and np.abs(a - start).max() > half), time.time())
             res["response_seconds"] = first - t_cmd
-            spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled and abs(mon.alpha[j] - target[j]) < abs(target[j] - start[j]) / 4)
+            spin_for(0.2)
+            spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled)
             res["settle_seconds"] = time.time() - t_cmd
             delta = mon.alpha - start
             res["displacement"] = dict(zip(joints, delta.tolist()))
@@ -184,7 +187,8 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
             # back where it was
             msg.data = start.tolist()
             pub.publish(msg)
-            spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled and abs(mon.alpha[j] - start[j]) < abs(target[j] - start[j]) / 4)
+            spin_for(0.2)
+            spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled)
             period = 1.0 / res["joint_state_rate"]
             res["suggested_observation_delay"] = max(res["joint_state_delay"], res["task_point_delay"], 0.0) + 2 * period
             res["suggested_joint_state_timeout"] = max(2.0, 10 * period)

@@ -256,7 +256,8 @@ def _run(args) -> int:
     except KeyboardInterrupt:
         from .synergy_experiment import config_setup
 
-        hint = (f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
+        hint = (" (external-driver runs cannot be resumed: start a new run)" if args.driver == "external"
+                else f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
                 else " (synergy runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
@@ -296,6 +297,9 @@ def _resume(args) -> int:
     old = {}
     if (out / "summary.json").is_file():
         old = json.loads((out / "summary.json").read_text())
+    if old.get("driver") == "external":
+        raise ConfigError(f"--resume: '{out}' is a --driver external run; allowed: the directory of a run "
+                          "with the simulated bridge (start a new external-driver run)")
     micro = args.micro_actions or int(learner.get("max_micro_actions") or 10_000)
     eval_every = old.get("eval_every", args.eval_every)
     timing = bridge.get("timing", args.timing)

@@ -44,6 +44,9 @@ JS_TYPE = "sensor_msgs/msg/JointState"
 TIP_TYPE = "geometry_msgs/msg/PointStamped"
 CMD_TYPE = "std_msgs/msg/Float64MultiArray"
 EXTERNAL_NODES = {k: v for k, v in NODES.items() if k != "sagg_sim_bridge"}
+# Evaluation on the robot: a command asking a joint to move at least this much (rad) is answered
+# only by a state that shows the motion (ContractRobot.command). Our choice: above reading noise.
+MOTION_FLOOR = 0.01
 # Seconds between two "waiting for the driver" lines.
 WAIT_REPORT_EVERY = 5.0
 
@@ -191,8 +194,10 @@ class ContractRobot:
     """The robot behind the driver as a :class:`~sagg_low_level.evaluate.ReachingRobot`: a command
     is published on ``/<controller>/commands`` (joint order = ``joints``), and answered by a joint
     state and a task point both stamped more than ``observation_delay`` after the newest ones
-    before it, once settled (every |velocity| < ``settle_velocity``) or ``settle_timeout`` s after
-    the command, the learner node's rules. Targets are clipped to the joint limits (and, by
+    before it, once settled (every |velocity| < ``settle_velocity``) and, stricter than the learner
+    node, with a task point sampled no earlier than that joint state and once some joint has moved at least half the largest commanded displacement (when that is
+    at least :data:`MOTION_FLOOR`); or
+    ``settle_timeout`` s after the command (then the latest fresh state). Targets are clipped to the joint limits (and, by
     ``reach_frozen``, to ``max_joint_step`` from the measured posture)."""
 
     def __init__(self, session: GraphSession, monitor: DriverMonitor, learner_params: dict,
@@ -211,32 +216,61 @@ class ContractRobot:
         self._msg = Float64MultiArray
         self.pub = session.node.create_publisher(Float64MultiArray, monitor.cmd_topic, reliable(HW_DEPTH))
         self.commands = 0
+        self.timeouts = 0  # answers taken after settle_timeout (not settled, or no motion seen)
+        self.trace: list[dict] = []  # every command and its answer (DIR/robot_evaluation.json)
+        # a return to rest is a long move: it may take this long before its state is taken unsettled
+        self.reset_timeout = max(10.0, 5.0 * self.settle_timeout)
         self.rest_tip: np.ndarray | None = None  # the task point at the last reset
 
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
         return self.monitor.alpha.copy(), self.monitor.tip[: self.m].copy()
 
-    def command(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def command(self, target: np.ndarray, settle_timeout: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Publish ``target`` and return the answering (posture, task point); ``settle_timeout``:
+        this command's (default the learner's ``settle_timeout``)."""
+        settle_timeout = self.settle_timeout if settle_timeout is None else settle_timeout
         mon = self.monitor
         target = np.minimum(np.maximum(np.asarray(target, float), self.lower), self.upper)
+        # take what is queued first: freshness is judged against the newest state the driver has
+        # sent, not an older one still waiting in our queue
+        self.session.spin()
         js_min, tip_min = mon.js_stamp + self.delay_ns, mon.tip_stamp + self.delay_ns
+        before = mon.alpha.copy()
+        asked = float(np.abs(target - before).max())
         msg = self._msg()
         msg.data = target.tolist()
         self.pub.publish(msg)
         self.commands += 1
         t0 = time.monotonic()
+        settled_at = None  # stamp of the first fresh, settled joint state that shows the motion
         while True:
             self.session.spin()
             fresh = mon.js_stamp > js_min and mon.tip_stamp > tip_min
             waited = time.monotonic() - t0
-            if fresh and (mon.settled or waited > self.settle_timeout):
+            # a state that shows no motion is not the answer to a command that asks for one (under
+            # load the driver may take the command later than observation_delay after our newest
+            # state); position control moves at least half way, even with 20 % motor noise. The
+            # last steps of a reach can be below the reading noise: no test under MOTION_FLOOR
+            moved = asked < MOTION_FLOOR or float(np.abs(mon.alpha - before).max()) >= 0.5 * asked
+            if settled_at is None and mon.js_stamp > js_min and mon.settled and moved:
+                settled_at = mon.js_stamp
+            # the task point must be sampled no earlier than that joint state: a fresh one of the
+            # moving arm may still be queued behind it (measured under load: a reset answered by
+            # the rest posture and the tip of half-way)
+            done = settled_at is not None and mon.tip_stamp >= settled_at
+            if done or (fresh and waited > settle_timeout):
+                if not done:
+                    self.timeouts += 1
+                self.trace.append({"t": time.time(), "target": target.tolist(), "before": before.tolist(),
+                                   "alpha": mon.alpha.tolist(), "tip": mon.tip[: self.m].tolist(),
+                                   "waited": waited, "settled": mon.settled, "moved": moved})
                 return self.observe()
             if waited > self.answer_timeout:
                 raise GraphError(f"no fresh joint state and task point {waited:.0f} s after a command on "
                                  f"{mon.cmd_topic}: the driver stopped answering")
 
     def reset(self) -> tuple[np.ndarray, np.ndarray]:
-        alpha, y = self.command(self.rest)
+        alpha, y = self.command(self.rest, self.reset_timeout)
         self.rest_tip = y
         return alpha, y
 
@@ -318,7 +352,7 @@ class RobotEvaluation:
                 "initial_errors": None if init is None else init.tolist(),
                 "curve": self.curve,
                 "final_mean_error": self.curve[-1]["mean_error"] if self.curve else float("nan"),
-                "commands": self.robot.commands, "seconds": self.seconds}
+                "commands": self.robot.commands, "settle_timeouts": self.robot.timeouts, "seconds": self.seconds}
 
 
 class Pauser:
@@ -537,6 +571,9 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     if simulated:
         summary["test_goals"] = evaluator.test_goals.tolist() if evaluator.test_goals is not None else None
 
+    from sagg_common.journal import write_json_atomic
+    write_json_atomic(out / "robot_evaluation.json", {"summary": robot_summary, "trace": robot.trace})
+
     def write_report() -> None:
         from .report import write_report
         path = write_report(summary, out, area=area)
@@ -568,7 +605,8 @@ def robot_report_section(summary: dict) -> str:
              f"{float(np.median(r['initial_errors'])) if r['initial_errors'] else float('nan'):.3f} |"]
     lines += [f"| {c['micro_actions']:,} | {c['mean_error']:.3f} | {c['median_error']:.3f} |" for c in r["curve"]]
     lines += ["", f"Joint states at {r['joint_state_rate']:.0f}/s, task points at {r['task_point_rate']:.0f}/s; "
-              f"{r['commands']} evaluation commands in {r['seconds']:.1f} s.", ""]
+              f"{r['commands']} evaluation commands in {r['seconds']:.1f} s ({r['settle_timeouts']} answered only "
+              "after settle_timeout).", ""]
     if summary.get("simulated_evaluation"):
         lines += ["The learning curve above is the **simulated** evaluation (offline, the recorded samples "
                   "in the config's simulated model of the same arm, on its test goals).", ""]

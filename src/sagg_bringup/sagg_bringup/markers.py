@@ -7,7 +7,7 @@ What it shows (in the task space, z = 0, frame ``world``):
 - ``goals``: the last :data:`RECENT_GOALS` self-generated goals, spheres coloured by the competence
   of their attempt (red = −1, moved away; green = 0, reached; grey = not yet reported);
 - ``test_goals``: the evaluation's test goals (white), when known;
-- ``tip_path``: the effector's last :data:`PATH_POINTS` task points (a line strip).
+- ``tip_path``: the effector's last :data:`PATH_POINTS` distinct task points (a line strip).
 
 The first marker of every array is a DELETEALL, so leaves that were split disappear. The topic is
 reliable and transient_local (depth 1): a viewer that joins late gets the latest view at once. It is
@@ -20,6 +20,7 @@ message.
 """
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from pathlib import Path
@@ -30,6 +31,7 @@ MARKER_TOPIC = "/sagg/markers"
 FRAME = "world"
 RECENT_GOALS = 50
 PATH_POINTS = 500
+PATH_STEP = 0.002  # (our choice: 0.2 % of the task space's diagonal, ~0.2 units for Y of 100 × 100)
 
 # marker types / actions of visualization_msgs/Marker
 LINE_STRIP, LINE_LIST, SPHERE_LIST, CUBE = 4, 5, 7, 1
@@ -161,7 +163,12 @@ class MarkerView:
             self.dirty = True
 
     def on_tip(self, m) -> None:
-        self.path.append((m.point.x, m.point.y))
+        """Keep a task point when it is at least :data:`PATH_STEP` × the task space's extent from the
+        last kept one (a driver at 250 Hz would otherwise fill the path with one pose)."""
+        p = (m.point.x, m.point.y)
+        if self.path and math.dist(p, self.path[-1]) < PATH_STEP * (self.scale or 100.0):
+            return
+        self.path.append(p)
         self.dirty = True
 
     def set_test_goals(self, goals) -> None:
