@@ -102,6 +102,7 @@ class DriverMonitor:
         self.tip: np.ndarray | None = None
         self.tip_stamp = -1
         self.js_count = self.tip_count = 0
+        self.cmd_rx = 0.0  # receive time (monotonic) of the last message on the commands topic
         self.js_rx: list[float] = []  # receive times (monotonic) of the last joint states
         self.tip_rx: list[float] = []
 
@@ -125,6 +126,9 @@ class DriverMonitor:
             return
         self.alpha, self.js_stamp = pos, st
         self.settled = vel is None or bool(np.all(np.abs(vel) < self.settle_velocity))
+
+    def on_command(self, msg) -> None:  # noqa: ARG002 - only its time matters
+        self.cmd_rx = time.monotonic()
 
     def on_task_point(self, msg) -> None:
         p = np.array([msg.point.x, msg.point.y, msg.point.z])
@@ -357,12 +361,14 @@ class RobotEvaluation:
 
 class Pauser:
     """``/sagg/pause`` (std_srvs/SetBool) from the orchestrator: pause the learner and wait until it
-    has stopped acting (paused in two consecutive /sagg/status messages with the same micro-action
-    count), or resume it."""
+    has stopped acting, or resume it. Stopped: paused in /sagg/status, and neither a new micro-action
+    nor a command on the commands topic for ``quiet`` s (the micro-action in flight when the pause
+    came completes first: its command, if it reached the driver after ours, would move the arm
+    elsewhere; measured under load before this wait)."""
 
-    def __init__(self, session: GraphSession):
+    def __init__(self, session: GraphSession, monitor: DriverMonitor, quiet: float):
         from std_srvs.srv import SetBool
-        self.session, self._req = session, SetBool.Request
+        self.session, self.monitor, self.quiet, self._req = session, monitor, quiet, SetBool.Request
         self.client = session.node.create_client(SetBool, "/sagg/pause")
 
     def set(self, paused: bool, timeout: float = 30.0) -> None:
@@ -374,13 +380,17 @@ class Pauser:
                 raise GraphError("/sagg/pause: no answer from the learner")
         if not paused:
             return
-        st, seen = self.session.st, []
-        while len(seen) < 2 or not (seen[-1] == seen[-2] and seen[-1][0]):
-            status = st.status
+        st, mon = self.session.st, self.monitor
+        last = (st.samples, time.monotonic())
+        while True:
             self.session.spin()
-            if st.status is not status and st.status is not None:
-                seen.append((st.status["paused"], st.status["micro_actions"]))
-            if time.monotonic() - t0 > timeout:
+            now = time.monotonic()
+            if st.samples != last[0]:
+                last = (st.samples, now)
+            paused = st.status is not None and st.status["paused"]
+            if paused and now - last[1] > self.quiet and now - mon.cmd_rx > self.quiet:
+                return
+            if now - t0 > timeout + self.quiet:
                 raise GraphError("the learner did not pause")
 
 
@@ -468,18 +478,22 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
 
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions, "/sagg/status": st.on_status,
-                        "/joint_states": monitor.on_joint_state, task_topic: on_tip})
+                        "/joint_states": monitor.on_joint_state, task_topic: on_tip, cmd_topic: monitor.on_command})
         robot = ContractRobot(session, monitor, lp)
         sim_goals = None
         if simulated:
             area0 = reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
             sim_goals = test_goals(spec, t_lower, t_upper, n=robot_eval_goals, seed=lp["eval.seed"], area=area0)
         robot_eval = RobotEvaluation(lp, robot, robot_eval_goals, robot_eval_every, sim_goals)
-        pauser = Pauser(session)
+        pauser = Pauser(session, monitor, lp["settle_timeout"] + 0.5)
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, external driver)", enabled=progress)
         timing: dict[str, float] = {}
 
         def evaluate_on_robot(at: int, final: bool) -> None:
+            if progress:
+                import sys
+                print(f"\nevaluating on the robot at {at} micro-actions ({robot_eval_goals} goals from rest"
+                      + (", learning paused)" if not final else ")"), file=sys.stderr, flush=True)
             if not final:
                 pauser.set(True)
                 posture = monitor.alpha.copy()
