@@ -528,8 +528,9 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                     if code is not None:
                         raise GraphError(f"node {p.name} exited with code {code} (log {p.log_path}):\n"
                                          f"{p.log_tail()}", code=2 if code == 2 else 1)
-                if robot_eval.next_at is not None and st.samples >= robot_eval.next_at and not done:
-                    evaluate_on_robot(st.samples if st.samples < micro_actions else micro_actions, final=False)
+                if (robot_eval.next_at is not None and robot_eval.next_at < micro_actions
+                        and st.samples >= robot_eval.next_at and not done):  # (the end has its own)
+                    evaluate_on_robot(min(st.samples, micro_actions), final=False)
                     robot_eval.next_at += robot_eval.every
                     last = (st.samples, time.perf_counter())
                     continue
