@@ -154,3 +154,21 @@ def test_robot_test_goals_without_a_model_are_spread_over_reached_points():
     assert sim_model_matches(lp, SPEC)
     assert not sim_model_matches(dict(lp, rest_posture=[0.0, 0.0, 0.0]), SPEC)
     assert not sim_model_matches(lp, ArmSpec(dof=4, total_length=45.0))
+
+
+def test_driver_with_other_joint_names_is_named(tmp_path):
+    domain = pick_domain_id()
+    env = env_for(domain)
+    cfg = config(tmp_path / "arm3.yaml")
+    driver = subprocess.Popen([sys.executable, str(HERE / "fake_driver.py"), "--dof", "3", "--joint-prefix", "j"],
+                              env=env, stdout=open(tmp_path / "driver.log", "w"), stderr=subprocess.STDOUT)
+    try:
+        proc = subprocess.run([SAGG, "run", str(cfg), "--driver", "external", "--micro-actions", "10",
+                               "--out", str(tmp_path / "run"), "--domain-id", str(domain), "--driver-timeout", "6"],
+                              env=env, capture_output=True, text=True, timeout=120)
+    finally:
+        stop(driver)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert ("/joint_states lacks joint(s) axis_0, axis_1, axis_2 (it names j2, j1, j0; "
+            "the learner's 'joints': axis_0, axis_1, axis_2)") in proc.stderr, proc.stderr[-2000:]
+    assert "/tip_position" not in proc.stderr.split("missing:")[-1]  # the task point is there
