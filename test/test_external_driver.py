@@ -24,7 +24,7 @@ RATE, LATENCY = 250.0, 0.008
 # The fake driver's arm = the config's simulated arm: 3 equal links, 45 units, kinematic.
 SPEC = ArmSpec(dof=3, total_length=45.0, mode="kinematic")
 JOINTS = ["axis_0", "axis_1", "axis_2"]
-N = 500
+N = 400
 # Stated factor: after N micro-actions the mean error ON THE ROBOT is below this share of the
 # initial one (the empty model leaves the arm at rest). Measured: ~0.1-0.2 (see the final report).
 ROBOT_FACTOR = 0.5

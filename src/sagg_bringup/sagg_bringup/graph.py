@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import ctypes
 import importlib
+import json
 import os
 import shutil
 import signal
@@ -248,7 +249,7 @@ class NodeProcess:
     def start(self, params_file: Path, env: dict, extra: dict | None = None) -> None:
         """Start the node on ``params_file``; ``extra``: parameters given as ``-p name:=value``."""
         log = open(self.log_path, "wb")
-        args = [a for k, v in (extra or {}).items() for a in ("-p", f"{k}:={yaml.safe_dump(v, default_flow_style=True).strip()}")]
+        args = [a for k, v in (extra or {}).items() for a in ("-p", f"{k}:={json.dumps(v)}")]  # (JSON is YAML)
         try:
             self.popen = subprocess.Popen(
                 [str(self.exe), "--ros-args", "--params-file", str(params_file), *args],
