@@ -172,3 +172,32 @@ def test_driver_with_other_joint_names_is_named(tmp_path):
     assert ("/joint_states lacks joint(s) axis_0, axis_1, axis_2 (it names j2, j1, j0; "
             "the learner's 'joints': axis_0, axis_1, axis_2)") in proc.stderr, proc.stderr[-2000:]
     assert "/tip_position" not in proc.stderr.split("missing:")[-1]  # the task point is there
+
+
+def test_evaluation_on_the_robot_during_learning_pauses_and_resumes(tmp_path):
+    """--robot-eval-every: learning pauses (/sagg/pause), the robot reaches the test goals, the arm
+    goes back where it paused, learning resumes and completes."""
+    domain = pick_domain_id()
+    env = env_for(domain)
+    cfg = config(tmp_path / "arm3.yaml")
+    driver = start_driver(env, tmp_path / "driver.log")
+    out = tmp_path / "run"
+    n = 150
+    try:
+        proc = subprocess.run([SAGG, "run", str(cfg), "--driver", "external", "--micro-actions", str(n),
+                               "--eval-every", str(n), "--robot-eval-goals", "2", "--robot-eval-every", "60",
+                               "--out", str(out), "--quiet", "--domain-id", str(domain)],
+                              env=env, capture_output=True, text=True, timeout=240)
+    finally:
+        stop(driver)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    s = json.loads((out / "summary.json").read_text())
+    r = s["robot_evaluation"]
+    at = [c["micro_actions"] for c in r["curve"]]
+    assert len(at) == 3 and 60 <= at[0] < at[1] < n and at[1] >= 120 and at[2] == n, at
+    assert s["micro_actions"] == n and s["bag"]["topics"]["/sagg/sample"]["count"] == n
+    log = (out / "logs" / "learner.log").read_text()
+    assert log.count("paused by the /sagg/pause service") == 2 and log.count("resuming") == 2
+    # every evaluation command is in the trace, answered by a settled state that shows the motion
+    trace = json.loads((out / "robot_evaluation.json").read_text())["trace"]
+    assert len(trace) == r["commands"] and sum(t["settled"] and t["moved"] for t in trace) >= 0.9 * len(trace)
