@@ -122,6 +122,11 @@ def check_own_sections(node, schema: Schema, args: list[str]) -> None:
                 f"allowed: {', '.join(sorted(known))}")
 
 
+def wildcard_params(args: list[str]) -> set[str]:
+    """The parameter names of the ``/**`` sections of the parameter files of ``args``."""
+    return {n for _, _, params in _file_sections(args, ("/**",)) for n in flatten(params)}
+
+
 def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[str, Any]:
     """Declare every parameter of ``schema`` on ``node`` and return the validated values.
 
@@ -138,7 +143,10 @@ def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[
         value = p.validate(_plain(_override(node, p.name, p.default)))
         node.declare_parameter(p.name, value, descriptor(p), ignore_override=True)
         values[p.name] = value
-    unused = sorted(n for n in file_parameters(node, args) if not node.has_parameter(n))
+    # '/**' parameters are meant for every node that declares them (seed, strategy, task_space.*):
+    # not worth a line in the nodes that do not
+    shared = wildcard_params(args)
+    unused = sorted(n for n in file_parameters(node, args) if not node.has_parameter(n) and n not in shared)
     if unused:
         # They may come from the '/**' section meant for other nodes: not an error (as in ROS).
         node.get_logger().info(f"parameters not used by this node: {', '.join(unused)}")
