@@ -66,9 +66,7 @@ a background thread while queries use the old blocks is the remedy, not done her
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
 
 import numpy as np
 
@@ -76,11 +74,9 @@ from sagg_common.diagnostics import all_finite
 
 from .memory_distance import _sqdist_cols, squared_distances  # noqa: F401
 from .memory_index import LEAF_ORDERS as _LEAF_ORDERS, BlockIndex
+from .memory_io import load_memory, memory_digest, params_array, save_memory
 
 __all__ = ["SampleMemory", "squared_distances"]
-
-_FORMAT_VERSION = 2  # 2: + checks, beam_ratio (version-1 files load as exact memories)
-_DIGEST_TAG = b"sagg.SampleMemory/v1"
 
 
 def _is_pow2(x: int) -> bool:
@@ -607,89 +603,17 @@ class SampleMemory(BlockIndex):
 
     # ------------------------------------------------------------------ persistence
     def digest(self) -> str:
-        """sha256 hex over the dims, the length and the filled arrays (little-endian float64, C order)."""
-        h = hashlib.sha256(_DIGEST_TAG)
-        h.update(np.array([self._sd, self._ad, self._od, self._n], dtype="<i8").tobytes())
-        for arr in (self._alpha, self._dalpha, self._dy):
-            h.update(np.ascontiguousarray(arr[: self._n], dtype="<f8").data)
-        return h.hexdigest()
+        """sha256 hex over the dims, the length and the filled arrays (see memory_io.memory_digest)."""
+        return memory_digest(self)
 
     def _params(self) -> np.ndarray:
-        return np.array(
-            [
-                _FORMAT_VERSION,
-                self._sd,
-                self._ad,
-                self._od,
-                self._buf,
-                self._leaf,
-                self._fan,
-                self._max_roots,
-                self._split_sample,
-                self._refine_nodes,
-                self._refine_leaves,
-                _LEAF_ORDERS.index(self._leaf_order),
-                self._tune_k,
-                self._cache_max,
-                self._checks,
-            ],
-            dtype=np.int64,
-        )
+        return params_array(self)
 
     def save(self, path) -> None:
         """Atomically write an .npz (no pickle): <path>.tmp.npz, then os.replace onto ``path``."""
-        path = os.fspath(path)
-        tmp = path + ".tmp.npz"
-        with open(tmp, "wb") as fh:
-            np.savez(
-                fh,
-                params=self._params(),
-                float_params=np.array([self._cache_expand, self._cache_scan, self._beam_ratio]),
-                alpha=self._alpha[: self._n],
-                delta_alpha=self._dalpha[: self._n],
-                delta_y=self._dy[: self._n],
-                digest=np.array(self.digest()),
-            )
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        save_memory(self, path)
 
     @classmethod
     def load(cls, path) -> "SampleMemory":
         """Read a file written by :meth:`save`; the index is rebuilt exactly as it was."""
-        with np.load(os.fspath(path), allow_pickle=False) as z:
-            missing = {"params", "float_params", "alpha", "delta_alpha", "delta_y", "digest"} - set(z.files)
-            if missing:
-                raise ValueError(f"path is not a SampleMemory file: missing {sorted(missing)}")
-            params = z["params"]
-            fparams = z["float_params"]
-            alpha, dalpha, dy = z["alpha"], z["delta_alpha"], z["delta_y"]
-            digest = str(z["digest"])
-        version = int(params[0]) if params.ndim == 1 and len(params) else -1
-        if version == 1 and params.shape == (14,) and fparams.shape == (2,):
-            params = np.append(params, 0)  # version 1: exact search only
-            fparams = np.append(fparams, 0.5)
-        elif version != _FORMAT_VERSION or params.shape != (15,) or fparams.shape != (3,):
-            raise ValueError(f"path has an unsupported SampleMemory format (params {params.tolist()})")
-        _, sd, ad, od, buf, leaf, fan, roots, split, refine, rleaves, order, tune_k, cmax, checks = (
-            int(v) for v in params)
-        if not 0 <= order < len(_LEAF_ORDERS):
-            raise ValueError(f"path has an unknown leaf_order code {order}")
-        mem = cls(
-            sd, ad, od, capacity=max(1, alpha.shape[0]), buffer_size=buf, leaf_size=leaf, fanout=fan,
-            max_roots=roots, split_sample=split, refine_nodes=refine, refine_leaves=rleaves,
-            leaf_order=_LEAF_ORDERS[order], tune_k=tune_k, cache_expand=float(fparams[0]),
-            cache_scan=float(fparams[1]), cache_max=cmax, checks=checks, beam_ratio=float(fparams[2]),
-        )
-        n = alpha.shape[0]
-        for name, arr, dim in (("alpha", alpha, sd), ("delta_alpha", dalpha, ad), ("delta_y", dy, od)):
-            if arr.dtype != np.float64 or arr.shape != (n, dim):
-                raise ValueError(f"{name} in file must be float64 of shape ({n}, {dim}), got {arr.dtype} {arr.shape}")
-            if not np.isfinite(arr).all():
-                raise ValueError(f"{name} in file must be finite")
-        mem._alpha[:n], mem._dalpha[:n], mem._dy[:n] = alpha, dalpha, dy
-        mem._n = n
-        if mem.digest() != digest:
-            raise ValueError("file digest does not match its content (corrupted file)")
-        mem._rebuild_all()
-        return mem
+        return load_memory(cls, path)
