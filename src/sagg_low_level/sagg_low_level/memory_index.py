@@ -331,3 +331,8 @@ class BlockIndex:
         self._refresh_roots()
         self._buf_t[:, : self._n - self._ns] = self._alpha[self._ns : self._n].T
 
+    def _buffer_add(self, i: int, a: np.ndarray) -> None:
+        """Sample i (alpha ``a``) was just stored: append it to the buffer, flush a full buffer."""
+        self._buf_t[:, i - self._ns] = a
+        if self._n - self._ns == 2 * self._buf:
+            self._index_batch()
