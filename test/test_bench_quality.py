@@ -11,7 +11,7 @@ from sagg_low_level.learner import SCHEMA
 CONFIG = "config/arm7_ratio15.yaml"
 
 
-def test_bench_quality_smoke(tmp_path, capsys):
+def test_bench_quality_smoke(tmp_path, capsys, monkeypatch):
     assert main(["bench", "quality", "--config", CONFIG, "--strategies", "sagg-riac", "sagg-random",
                  "--seeds", "2", "--points", "50", "100", "--contexts", "evolving", "--set", "eval.goals=20",
                  "--out", str(tmp_path)]) == 0
@@ -32,6 +32,15 @@ def test_bench_quality_smoke(tmp_path, capsys):
     # every run's result.json is kept, with where its micro-actions went
     r = json.loads((tmp_path / "evolving/config/sagg-riac/seed-1/result.json").read_text())
     assert r["phases"]["reach"] + r["phases"]["explore"] == 100
+    # rerun into the same directory: every finished run is reused, nothing is recomputed
+    import sagg_bringup.lab.quality as quality
+
+    def no_run(*a, **k):
+        raise AssertionError("a finished run was recomputed")
+    monkeypatch.setattr(quality, "run_experiment", no_run)
+    again = bench_quality(CONFIG, ["sagg-riac", "sagg-random"], 2, [50, 100], contexts=["evolving"],
+                          overrides={"eval.goals": 20}, out_dir=tmp_path, analytic=False, out=lambda *_: None)
+    assert again["cells"] == res["cells"]
 
 
 def test_bench_quality_fixed_context_column():

@@ -179,12 +179,29 @@ def markdown(summary: dict, contexts, spaces: dict, strategies, points, config_n
     return "\n".join(lines)
 
 
+def _finished(d: Path | None, config, strategy: str, seed: int, micro_actions: int, eval_every: int,
+              overrides: dict) -> dict | None:
+    """The result.json already in ``d`` when it is exactly this run (``sagg bench compare``'s
+    validation: same resolved parameters, budget and evaluation points), so an interrupted
+    benchmark continues where it stopped; else None."""
+    from ..sweep import RunSpec, expected_config, validate_result
+
+    if d is None:
+        return None
+    spec = RunSpec(strategy, seed)
+    path = d / "result.json"
+    if validate_result(path, spec, micro_actions, eval_every, expected_config(config, spec, overrides)) is None:
+        return json.loads(path.read_text())
+    return None
+
+
 def bench_quality(config: str | Path, strategies, seeds: int, points, contexts=CONTEXTS,
                   wide=(-2.0, -2.0, 2.0, 2.0), overrides: dict | None = None, base_seed: int = 0,
                   out_dir: str | Path | None = None, analytic: bool = True, out=print) -> dict:
     """Run every (context, task space, strategy, seed) to max(points) micro-actions, evaluating
     at every multiple of gcd(points); print and return the summary (and write ``quality.json``,
-    ``quality.md`` and every result.json under ``out_dir``)."""
+    ``quality.md`` and every result.json under ``out_dir``; a run whose result.json is already
+    there with the same settings is reused, so rerunning an interrupted command continues it)."""
     points = sorted(set(int(p) for p in points))
     if not points or points[0] < 1:
         raise ConfigError(f"--points: got {points}; allowed: integers >= 1")
@@ -218,8 +235,10 @@ def bench_quality(config: str | Path, strategies, seeds: int, points, contexts=C
                     ov = context_overrides(context, overrides)
                     ov["task_space.lower"], ov["task_space.upper"] = lo, hi
                     d = None if out_dir is None else Path(out_dir) / context / space / strategy / f"seed-{seed}"
-                    r = run_experiment(config, strategy, seed, points[-1], eval_every, d, progress=False,
-                                       overrides=ov)
+                    r = _finished(d, config, strategy, seed, points[-1], eval_every, ov)
+                    if r is None:
+                        r = run_experiment(config, strategy, seed, points[-1], eval_every, d,
+                                           progress=False, overrides=ov)
                     rs.append(r)
                     out(f"  {context:8} {space:6} {strategy:15} seed {seed}: " + ", ".join(
                         f"{p}: {_error_at(r, p):.4f}" for p in points)
