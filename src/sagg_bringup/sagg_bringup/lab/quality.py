@@ -30,6 +30,9 @@ CONTEXTS = ("evolving", "fixed")
 ISSUE10_TARGETS = {("config", 5000): 0.0086, ("config", 20000): 0.0042,
                    ("wide", 5000): 0.0137, ("wide", 20000): 0.0068}
 ISSUE10_CONFIG = "arm7_ratio15.yaml"
+# A test goal counts as missed by the analytic-Jacobian reach when its final error exceeds this many
+# evaluation tolerances (eval.tolerance is where reaching stops early): 0.001 on arm7_ratio15.
+MISSED_TOLERANCES = 5.0
 
 
 def context_overrides(context: str, overrides: dict | None) -> dict:
@@ -72,8 +75,9 @@ def analytic_reach(config: str | Path, overrides: dict | None = None,
         goals = test_goals(run.spec, lp["task_space.lower"], lp["task_space.upper"], n=lp["eval.goals"],
                            seed=lp["eval.seed"], area=area)
         e = run.evaluate(goals)
+        miss = MISSED_TOLERANCES * lp["eval.tolerance"]
         out[mode] = {"mean": float(e.mean()), "median": float(np.median(e)), "max": float(e.max()),
-                     "missed": int((e > 1e-3).sum()), "goals": int(len(e))}
+                     "missed": int((e > miss).sum()), "missed_above": miss, "goals": int(len(e))}
     return out
 
 
@@ -126,8 +130,10 @@ def markdown(summary: dict, contexts, spaces: dict, strategies, points, config_n
     targets = config_name == ISSUE10_CONFIG
     lines = []
     if analytic:
+        miss = next(iter(analytic.values()))["missed_above"]
         lines += ["Reaching from rest with the TRUE Jacobian (the evaluation's own reach loop, test "
-                  "goals of the config): mean / median / max error, goals missed by > 0.001",
+                  f"goals of the config): mean / median / max error, goals missed by > {miss:g} "
+                  f"({MISSED_TOLERANCES:g} × eval.tolerance)",
                   "", "| reach_limits | mean | median | max | missed |", "|---|---|---|---|---|"]
         lines += [f"| {m} | {a['mean']:.5f} | {a['median']:.2g} | {a['max']:.3f} | {a['missed']}/{a['goals']} |"
                   for m, a in analytic.items()]
