@@ -25,7 +25,16 @@ from .local_model import desired_displacement, local_jacobian, pseudo_inverse_st
 from .memory import SampleMemory
 from .riac_leaves import RiacLeaves
 
-SCHEMA: Schema = SHARED_SCHEMA + (
+CONTEXT = Param(
+    "context", "str", "evolving",
+    "Which low level drives an arm: 'evolving' (Sec. 3: micro-actions Δα from the current posture, "
+    "the reacher of this module, node 'learner') or 'fixed' (the arm driven like a synergy, Sec. 4.4 / "
+    "Alg. 4: θ = absolute joint targets within the joint limits, each experiment one position command "
+    "from the rest posture, outcome = the settled tip; node 'synergy_learner' with synergy.kind "
+    "'posture'). `sagg experiment` / `sagg run` choose the learner and node from it.",
+    choices=("evolving", "fixed"))
+
+SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("v", "float", 2.0, "Desired effector speed, task units per micro-action (Sec. 3.6.1).",
           low=0.0, high=1e9, low_open=True),
     Param("q", "int", 20, "Number of exploratory micro-actions per exploration phase (Sec. 3.6.2).",
@@ -227,6 +236,9 @@ class EvolvingContextLearner:
                  memory: SampleMemory | None = None):
         self.p = params
         self.robot = robot
+        if params.get("context", "evolving") != "evolving":
+            raise ValueError(f"context: got {params['context']!r}; allowed here: 'evolving' (the fixed "
+                             "context is the FixedContextLearner, node synergy_learner)")
         self.strategy = params["strategy"]
         self.task_lower = np.asarray(params["task_space.lower"], dtype=float)
         self.task_upper = np.asarray(params["task_space.upper"], dtype=float)
