@@ -34,6 +34,7 @@ from sagg_goal_generator.regions import RegionTree
 from .learner import CONTEXT, GoalRequest, Observe, Report
 from .local_model import local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
+from .riac_leaves import RiacLeaves
 
 SCHEMA: Schema = SHARED_SCHEMA + (
     Param("l", "int", 10,
@@ -475,6 +476,7 @@ class FixedContextLearner:
             self.riac_tree = RegionTree(np.zeros(n), np.ones(n), self.p["riac.g_max"], self.p["riac.zeta"],
                                         self.p["riac.split_candidates"],
                                         stream(self.p["seed"], "actuator_riac_splits"))
+            self.riac_leaves = RiacLeaves(self.riac_tree, 0)  # every point goes through it
         while True:
             if riac:
                 theta = self._riac_choice()
@@ -487,7 +489,7 @@ class FixedContextLearner:
             if riac:
                 # RIAC's value: minus the prediction error of y (rescaled units); interest = its progress
                 err = self.distance(y, self.y_rest if predicted is None else predicted)
-                self.riac_tree.add(np.clip(self.norm_theta(theta), 0.0, 1.0), -err)
+                self.riac_leaves.add(np.clip(self.norm_theta(theta), 0.0, 1.0), -err)
                 self.last_competence = -err
             self._report(KIND_EXPLORATION, 0, y, 0.0, y)
 
@@ -497,7 +499,7 @@ class FixedContextLearner:
         leaves = self.riac_tree.leaves()
         if self.rng.random() < self.p["riac.p_random"] or len(leaves) < 2:
             return self._uniform_theta()
-        it = np.array([r.interest for r in leaves])
+        it = self.riac_leaves.interests()  # = [r.interest for r in leaves], kept up to date
         w = it - it.min()
         probs = np.full(len(leaves), 1.0 / len(leaves)) if w.sum() <= 0 else w / w.sum()
         region = leaves[int(self.rng.choice(len(leaves), p=probs))]

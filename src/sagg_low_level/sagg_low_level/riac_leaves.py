@@ -83,6 +83,10 @@ class RiacLeaves:
     def __len__(self) -> int:
         return len(self._interest)
 
+    def interests(self) -> np.ndarray:
+        """The leaves' interests in ``tree.leaves()`` order (a copy)."""
+        return self._interest.copy()
+
     def compatible(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows (into ``tree.leaves()``) of the leaves whose context box holds ``x`` (which must lie in
         the root box's context part), in the tree walk's order (see the module docstring), and
