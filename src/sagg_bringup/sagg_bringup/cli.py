@@ -224,7 +224,7 @@ def _run(args) -> int:
     except KeyboardInterrupt:
         from .synergy_experiment import config_setup
 
-        hint = (f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
+        hint = (f" (sagg run --resume {out} continues)" if config_setup(args.config, parse_set(args.set)) is None
                 else " (synergy runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130

@@ -60,11 +60,11 @@ def fixed_arm_learner_schema(node_schema=LEARNER_SCHEMA):
 
 
 def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None = None,
-                        learner_schema=LEARNER_SCHEMA, bridge_schema=SYN_BRIDGE_SCHEMA) -> dict[str, dict]:
-    """Resolve the three nodes' parameters of a synergy config (+ overrides applied to every node).
+                        learner_schema=LEARNER_SCHEMA, bridge_schema=None) -> dict[str, dict]:
+    """Resolve the three nodes' parameters of a fixed-context config (+ overrides applied to every
+    node); ``bridge_schema`` None = the simulator's core schema (synergy or arm).
 
-    An arm config with ``context: fixed`` resolves the arm bridge's parameters (``bridge_schema``
-    given for synergy set-ups is replaced by the arm's unless it is an arm schema) and the learner's
+    An arm config with ``context: fixed`` resolves the arm bridge's parameters and the learner's
     with :func:`fixed_arm_learner_schema`; the evolving learner's own parameters (v, subgoals, ...)
     are accepted there and dropped (unused in the fixed context); ``joints``, ``joint_limits.*`` and
     ``rest_posture`` come from the simulated arm."""
@@ -74,10 +74,8 @@ def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None = Non
         fixed = fixed_arm_learner_schema(learner_schema)
         names = {p.name for p in fixed}
         tolerated = tuple(p for p in EVOLVING_SCHEMA if p.name not in names)
-        if bridge_schema is SYN_BRIDGE_SCHEMA:
-            bridge_schema = ARM_SCHEMA
         out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": fixed + tolerated,
-                                   "sagg_sim_bridge": bridge_schema}, overrides)
+                                   "sagg_sim_bridge": bridge_schema or ARM_SCHEMA}, overrides)
         lp = out["sagg_learner"] = {k: v for k, v in out["sagg_learner"].items() if k in names}
         spec = arm_spec_from_params(out["sagg_sim_bridge"])
         lower, upper = spec.limits()
@@ -86,7 +84,7 @@ def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None = Non
                    "synergy.kind": "posture"})
     else:
         out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": learner_schema,
-                                   "sagg_sim_bridge": bridge_schema}, overrides)
+                                   "sagg_sim_bridge": bridge_schema or SYN_BRIDGE_SCHEMA}, overrides)
     synergy_from_params(out["sagg_learner"])  # validates the synergy, naming the bad parameter
     return out
 

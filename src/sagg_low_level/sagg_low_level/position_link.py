@@ -65,7 +65,7 @@ class PositionLink:
 
     # ------------------------------------------------------------------ requests
     def ready(self) -> bool:
-        """The driver is there: a joint state and a tip were received, the commands are listened to."""
+        """A joint state and a tip were received (the node checks that the commands are listened to)."""
         return self.alpha is not None and self.tip is not None
 
     def observe(self) -> None:
