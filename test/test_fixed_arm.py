@@ -64,3 +64,12 @@ def test_every_strategy_learns_the_fixed_arm(strategy):
     first, last = r["curve"][0]["mean_error"], r["curve"][-1]["mean_error"]
     assert last < first / 2, (strategy, r["curve"])
     assert (len(r["goals"]) > 0) == strategy.startswith("sagg")
+
+
+def test_the_evolving_learner_refuses_the_fixed_context():
+    from sagg_common.params import resolve
+    from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
+    robot = Robot(["a", "b"], [-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
+    EvolvingContextLearner(resolve(SCHEMA, {}), robot, 2)  # evolving (default): fine
+    with pytest.raises(ValueError, match="context"):
+        EvolvingContextLearner(resolve(SCHEMA, {"context": "fixed"}), robot, 2)
