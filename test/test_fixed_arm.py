@@ -73,3 +73,21 @@ def test_the_evolving_learner_refuses_the_fixed_context():
     EvolvingContextLearner(resolve(SCHEMA, {}), robot, 2)  # evolving (default): fine
     with pytest.raises(ValueError, match="context"):
         EvolvingContextLearner(resolve(SCHEMA, {"context": "fixed"}), robot, 2)
+
+
+def test_launch_plan_of_a_fixed_context_arm_config(tmp_path):
+    """A config file with context: fixed launches the synergy learner (posture) with the MuJoCo arm
+    bridge, as `sagg run` does."""
+    import yaml
+    from sagg_bringup.launch_params import launch_plan
+    doc = yaml.safe_load(open("config/arm8.yaml"))
+    doc["sagg_learner"]["ros__parameters"]["context"] = "fixed"
+    path = tmp_path / "arm8_fixed.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    plan = launch_plan(str(path))
+    assert plan.setup == ARM_FIXED
+    scripts = {name: script for _, script, name in plan.nodes}
+    assert scripts == {"sagg_goal_generator": "goal_generator", "sagg_learner": "synergy_learner",
+                       "sagg_sim_bridge": "mujoco_bridge"}
+    lp = plan.params["sagg_learner"]
+    assert lp["synergy.kind"] == "posture" and lp["controller"] == plan.params["sagg_sim_bridge"]["controller"]
