@@ -178,6 +178,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="timed windows per row on fresh runs, sizes interleaved; the best is kept")
     s.add_argument("--profile", type=int, default=0, metavar="N",
                    help="print the N functions with the most own time in the last timed window")
+    rs = bsub.add_parser("riac", help="ACTUATOR-RIAC micro-actions/s: the leaf table against the tree walk "
+                                      "it replaced, same seeded run, bit-identity checked")
+    rs.add_argument("--config", default="config/arm15.yaml")
+    rs.add_argument("--micro-actions", type=positive_int, default=60_000)
+    rs.add_argument("--window", type=positive_int, default=5_000, help="micro-actions per timed window")
+    rs.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
     g = bsub.add_parser("graph", help="graph vs in-process micro-actions/s vs a bare rclpy ping-pong, "
                                       "and the contract floor (the lockstep exchange with no work)")
     g.add_argument("--config", default="config/arm8.yaml")
@@ -274,7 +280,7 @@ def _run(args) -> int:
         from .synergy_experiment import config_setup
 
         hint = (" (external-driver runs cannot be resumed: start a new run)" if args.driver == "external"
-                else f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
+                else f" (sagg run --resume {out} continues)" if config_setup(args.config, parse_set(args.set)) is None
                 else " (synergy runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
@@ -387,6 +393,10 @@ def main(argv: list[str] | None = None) -> int:
             from .bench import bench_graph
             bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
+        if args.command == "bench" and args.bench == "riac":
+            from .lab.riac_speed import bench_riac
+            res = bench_riac(args.config, args.micro_actions, args.window, overrides=parse_set(args.set))
+            return 0 if all(res["identical"].values()) else 1
         if args.command == "bench" and args.bench == "soak":
             from .soak import main_soak
             return main_soak(args, parse_set(args.set))

@@ -28,7 +28,7 @@ from .phases import PhaseCounter, coverage, phase_breakdown
 def load_experiment_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
     """Resolve the three nodes' parameters from a config file (+ overrides applied to every node)."""
     from .synergy_experiment import config_setup, load_synergy_config
-    if config_setup(path) is not None:  # quadruped / fishing: the synergy nodes' schemas
+    if config_setup(path, overrides) is not None:  # quadruped / fishing / context: fixed arm
         return load_synergy_config(path, overrides)
     out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": LEARNER_SCHEMA,
                                "sagg_sim_bridge": BRIDGE_SCHEMA}, overrides)
@@ -93,8 +93,9 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     """Run one (strategy, seed) experiment in-process and write ``out_dir/result.json``."""
     # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): fixed-context
     # learner and synergy simulators, same result.json keys (micro_actions = experiments)
+    # and the arm with the learner parameter context: fixed (the same fixed-context learner)
     from .synergy_experiment import config_setup, run_synergy_experiment
-    if config_setup(config_path) is not None:
+    if config_setup(config_path, overrides) is not None:
         return run_synergy_experiment(config_path, strategy, seed, micro_actions, eval_every, out_dir,
                                       progress=progress, overrides=overrides)
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)

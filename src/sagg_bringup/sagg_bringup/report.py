@@ -345,6 +345,9 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None) -> P
            f"[{', '.join(_fmt(float(v)) for v in lp['task_space.upper'])}]"
     rows.append(("task space Y (lower – upper)", task))
     rows += _setup_rows(bp)
+    if lp.get("context") == "fixed" and not bp.get("setup"):
+        rows.append(("context", "fixed (θ = joint targets, one position command from rest per experiment; "
+                                "micro-actions = experiments)"))
     lines += ["| | |", "|---|---|"] + [f"| {k} | {_fmt(v)} |" for k, v in rows] + [""]
 
     lines += ["## Learning curve", "",

@@ -23,8 +23,18 @@ from sagg_goal_generator.regions import RegionTree
 
 from .local_model import clamped_step, desired_displacement, local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
+from .riac_leaves import RiacLeaves
 
-SCHEMA: Schema = SHARED_SCHEMA + (
+CONTEXT = Param(
+    "context", "str", "evolving",
+    "Which low level drives an arm: 'evolving' (Sec. 3: micro-actions Δα from the current posture, "
+    "the reacher of this module, node 'learner') or 'fixed' (the arm driven like a synergy, Sec. 4.4 / "
+    "Alg. 4: θ = absolute joint targets within the joint limits, each experiment one position command "
+    "from the rest posture, outcome = the settled tip; node 'synergy_learner' with synergy.kind "
+    "'posture'). `sagg experiment` / `sagg run` choose the learner and node from it.",
+    choices=("evolving", "fixed"))
+
+SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("v", "float", 2.0, "Desired effector speed, task units per micro-action (Sec. 3.6.1).",
           low=0.0, high=1e9, low_open=True),
     Param("q", "int", 20, "Number of exploratory micro-actions per exploration phase (Sec. 3.6.2).",
@@ -243,6 +253,9 @@ class EvolvingContextLearner:
                  memory: SampleMemory | None = None):
         self.p = params
         self.robot = robot
+        if params.get("context", "evolving") != "evolving":
+            raise ValueError(f"context: got {params['context']!r}; allowed here: 'evolving' (the fixed "
+                             "context is the FixedContextLearner, node synergy_learner)")
         self.strategy = params["strategy"]
         self.task_lower = np.asarray(params["task_space.lower"], dtype=float)
         self.task_upper = np.asarray(params["task_space.upper"], dtype=float)
@@ -271,6 +284,7 @@ class EvolvingContextLearner:
         self.on_report: Callable[[Report], None] | None = None
         self.on_sample: Callable[[int], None] | None = None
         self.riac_tree: RegionTree | None = None
+        self._riac_table: RiacLeaves | None = None
 
     # ---------------------------------------------------------------- helpers
     def _report(self, kind, goal_seq, target, start, comp) -> None:
@@ -449,8 +463,8 @@ class EvolvingContextLearner:
                 # RIAC's value: minus the prediction error of Δy; interest = its progress
                 actual_dalpha = self.memory.delta_alpha[len(self.memory) - 1]
                 err = float(np.linalg.norm(dy - predicted))
-                self.riac_tree.add(np.concatenate([alpha0, np.clip(actual_dalpha, -self.p["explore_amplitude"],
-                                                                  self.p["explore_amplitude"])]), -err)
+                self._riac_leaves().add(np.concatenate([alpha0, np.clip(actual_dalpha, -self.p["explore_amplitude"],
+                                                                        self.p["explore_amplitude"])]), -err)
                 self.last_competence = -err
             self._report(KIND_EXPLORATION, 0, self.y, self.y, 0.0)
 
@@ -463,27 +477,26 @@ class EvolvingContextLearner:
                           self.p["riac.g_max"], self.p["riac.zeta"], self.p["riac.split_candidates"],
                           stream(self.p["seed"], "actuator_riac_splits"))
 
+    def _riac_leaves(self) -> RiacLeaves:
+        """The leaf table of the current RIAC tree (rebuilt when the tree was replaced, e.g. by a
+        checkpoint restore); every point goes to the tree through it."""
+        if self._riac_table is None or self._riac_table.tree is not self.riac_tree:
+            self._riac_table = RiacLeaves(self.riac_tree, self.robot.n)
+        return self._riac_table
+
     def _riac_choice(self) -> np.ndarray:
         """ACTUATOR-RIAC action choice: among leaves whose α-part contains the current α, pick one
         with probability ∝ interest − min (as SAGG-RIAC mode 1) and draw Δα uniformly in its Δα-part;
         with probability ``riac.p_random`` draw Δα uniformly. (The context α is not ours to choose,
-        so the choice is restricted to compatible regions: our reading of RIAC for evolving context.)"""
+        so the choice is restricted to compatible regions: our reading of RIAC for evolving context.)
+        The compatible leaves come from the leaf table (:mod:`.riac_leaves`: arrays, the same leaves
+        and order as a walk down the tree, which this did before 2026-11-23)."""
         if self.rng.random() < self.p["riac.p_random"] or len(self.riac_tree.leaves()) < 2:
             return self._random_step()
         n = self.robot.n
         alpha = np.clip(self.alpha, self.robot.lower, self.robot.upper)
-        found = []
-        stack = [self.riac_tree.root]
-        while stack:
-            r = stack.pop()
-            if r.children is None:
-                found.append(r)
-            elif r.split_dim < n:
-                stack.append(r.children[0] if alpha[r.split_dim] < r.split_value else r.children[1])
-            else:
-                stack.extend(r.children)
-        it = np.array([r.interest for r in found])
+        rows, it = self._riac_leaves().compatible(alpha)
         w = it - it.min()
-        probs = np.full(len(found), 1.0 / len(found)) if w.sum() <= 0 else w / w.sum()
-        region = found[int(self.rng.choice(len(found), p=probs))]
+        probs = np.full(len(rows), 1.0 / len(rows)) if w.sum() <= 0 else w / w.sum()
+        region = self.riac_tree.leaves()[int(rows[int(self.rng.choice(len(rows), p=probs))])]
         return self.rng.uniform(region.lower[n:], region.upper[n:])
