@@ -14,6 +14,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from sagg_common import cdr
 from sagg_msgs.msg import CompetenceReport, RegionTree, Sample
 
+from joint_state_bytes import encode_joint_state
+
 floats = st.floats(allow_nan=False, width=64)
 arrays = st.lists(floats, max_size=9).map(lambda v: np.array(v, dtype=np.float64))
 # (no NUL inside strings: ROS strings are NUL-terminated, rclpy cuts them there)
@@ -21,18 +23,6 @@ text = st.text(alphabet=st.characters(blacklist_categories=("Cs",), blacklist_ch
 names = st.lists(text, max_size=6)
 stamps = st.integers(0, 2**31 * 10**9 - 1)
 frames = text
-
-
-def encode_joint_state(stamp_ns: int, frame_id: str, names, position, velocity=(), effort=()) -> bytes:
-    """A sensor_msgs/JointState written with sagg_common.cdr's Writer (test input for the decoder;
-    the nodes never write joint states this way)."""
-    w = cdr.Writer()
-    w.header(stamp_ns, frame_id)
-    w.strings(list(names))
-    w.f64_seq(position)
-    w.f64_seq(velocity)
-    w.f64_seq(effort)
-    return w.tobytes()
 
 
 def same(a, b) -> bool:
