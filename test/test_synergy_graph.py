@@ -67,8 +67,8 @@ def test_fixed_context_arm_graph_equals_in_process_and_speaks_the_position_contr
     and the bag holds one rest command then θ per experiment on the position controller's topic."""
     n = 20
     ov = {"context": "fixed", "eval.goals": 5}
-    graph = run_graph("config/arm8.yaml", n, tmp_path / "graph", eval_every=10, overrides=ov,
-                      progress=False, stall_timeout=120.0)
+    graph = run_synergy_graph("config/arm8.yaml", n, tmp_path / "graph", eval_every=10, overrides=ov,
+                              progress=False, stall_timeout=120.0)
     inproc = run_experiment("config/arm8.yaml", None, None, n, 10, tmp_path / "inproc", progress=False,
                             overrides=ov)
     assert graph["memory"]["samples"] == inproc["memory"]["samples"] == n
