@@ -40,10 +40,11 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
+from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
-from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES
+from sagg_goal_generator.core import KIND_GOAL, KIND_NAMES, MODE_NAMES
 
 from .recorder import BagWriter, TopicRecorder, TopicSpec
 
@@ -198,11 +199,12 @@ def write_params_file(path: Path, params: dict[str, dict]) -> None:
 def sagg_topics() -> list[TopicSpec]:
     """The /sagg topics every graph run records (the hardware topics depend on the set-up)."""
     return [
-        TopicSpec("/sagg/goal", "sagg_msgs/msg/Goal"),
-        TopicSpec("/sagg/competence", "sagg_msgs/msg/CompetenceReport"),
-        TopicSpec("/sagg/regions", "sagg_msgs/msg/RegionTree", depth=1000, transient_local=True),
-        TopicSpec("/sagg/sample", "sagg_msgs/msg/Sample"),
-        TopicSpec("/sagg/status", "sagg_msgs/msg/LearnerStatus", depth=100),
+        TopicSpec("/sagg/goal", "sagg_msgs/msg/Goal", publisher="sagg_goal_generator"),
+        TopicSpec("/sagg/competence", "sagg_msgs/msg/CompetenceReport", publisher="sagg_learner"),
+        TopicSpec("/sagg/regions", "sagg_msgs/msg/RegionTree", depth=1000, transient_local=True,
+                  publisher="sagg_goal_generator"),
+        TopicSpec("/sagg/sample", "sagg_msgs/msg/Sample", publisher="sagg_learner"),
+        TopicSpec("/sagg/status", "sagg_msgs/msg/LearnerStatus", depth=100, publisher="sagg_learner"),
         TopicSpec("/sagg/evaluation", "sagg_msgs/msg/Evaluation", depth=100),
     ]
 
@@ -586,11 +588,26 @@ class RunState:
     gaps: dict[str, int] = field(default_factory=lambda: {"/sagg/sample": 0, "/sagg/competence": 0,
                                                           "/sagg/goal": 0})
     status_rate: bool = True  # keep /sagg/status's micro_actions_per_second in `status`
+    # messages from the expected publisher that were rejected, by "<topic> <problem>" (DESIGN §8)
+    rejected: dict[str, int] = field(default_factory=dict)
+    task_lower: Any = None  # Y, for checking goals (None: not checked)
+    task_upper: Any = None
+    window: int = 10000     # a goal or report seq further than this beyond the last is rejected
+
+    def reject(self, topic: str, kind: str) -> None:
+        key = f"{topic} {kind}"
+        self.rejected[key] = self.rejected.get(key, 0) + 1
 
     def on_goal(self, m) -> None:
         """/sagg/goal (keyed by seq)."""
         if int(m.seq) in self.goals:
             return  # published again (a repeated goal request after a generator restart)
+        if not 0 < int(m.seq) <= len(self.goals) + self.window:
+            self.reject("/sagg/goal", "seq out of window")
+            return
+        if self.task_lower is not None and goal_problem(m.position, self.task_lower, self.task_upper)[1]:
+            self.reject("/sagg/goal", "position not finite or outside Y")
+            return
         if int(m.seq) != len(self.goals) + 1:
             self.gaps["/sagg/goal"] += 1
         self.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
@@ -601,6 +618,14 @@ class RunState:
         """/sagg/competence: the micro-actions at each report, the competence of each goal."""
         if int(m.seq) <= self.reports:
             return  # republished by a resumed learner
+        if int(m.seq) > self.reports + self.window:
+            self.reject("/sagg/competence", "seq out of window")
+            return
+        target = m.target if len(m.target) else m.reached
+        dim = len(self.task_lower) if self.task_lower is not None else len(m.reached)
+        if report_problem(int(m.kind), target, float(m.competence), dim, KIND_NAMES):
+            self.reject("/sagg/competence", "invalid content")
+            return
         if int(m.seq) != self.reports + 1:
             self.gaps["/sagg/competence"] += 1
         self.reports += 1
@@ -719,6 +744,15 @@ class GraphSession:
         msg.errors = errors.tolist()
         self.eval_pub.publish(msg)
         self.st.last_error = msg.mean_error
+
+    def rejected(self) -> dict[str, int]:
+        """Messages of the /sagg topics not used: another publisher on the topic (the recorder) or
+        content/sequence rejected (the handlers); all are in the bag (it records what happened)."""
+        out = dict(self.st.rejected)
+        if self.recorder is not None:
+            for k, v in self.recorder.rejected.items():
+                out[k] = out.get(k, 0) + v
+        return out
 
     def start_nodes(self, params_file: Path) -> None:
         for p in self.procs:
@@ -953,15 +987,21 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
             evaluator.curve.append({"micro_actions": at, "mean_error": float(errors.mean()),
                                     "median_error": float(np.median(errors))})
 
+        j_lo, j_hi = params["sagg_learner"]["joint_limits.lower"], params["sagg_learner"]["joint_limits.upper"]
+        j_tol, t_dim = params["sagg_learner"]["plausibility.joint_tolerance"], len(t_lower)
+
         def on_sample(m) -> None:
             if int(m.index) < st.samples:
                 return  # republished by a resumed learner (same values)
+            # a sample must continue the sequence and be plausible (a forged one is dropped and
+            # counted; it never takes the index of the real one)
+            if sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha, m.delta_y, j_lo, j_hi, t_dim, j_tol):
+                st.reject("/sagg/sample", "index or content rejected")
+                return
             now = time.perf_counter()
             if st.sample_t0 is None:
                 st.sample_t0 = now
             st.sample_t1 = now
-            if int(m.index) != st.samples:
-                st.gaps["/sagg/sample"] += 1
             st.samples += 1
             evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
 
@@ -981,6 +1021,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
             st.sample_t0 = st.sample_t1 = None  # rates: this segment only
         prior_samples = st.samples
 
+        st.task_lower, st.task_upper = t_lower, t_upper
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions, "/sagg/status": st.on_status})
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
@@ -1046,7 +1087,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         test_goals=evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
         splits=tracker.splits,
         bag={"path": str(bag_path), "paths": [str(b) for b in prior_bags + [bag_path]], "storage": "mcap",
-             "topics": bag_topics, "sequence_gaps": st.gaps},
+             "topics": bag_topics, "sequence_gaps": st.gaps, "rejected": session.rejected()},
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
 
     def write_report() -> None:

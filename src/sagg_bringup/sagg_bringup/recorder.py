@@ -26,12 +26,14 @@ SAGG_MSGS = ("Goal", "CompetenceReport", "Region", "RegionTree", "Sample", "Lear
 
 @dataclass(frozen=True)
 class TopicSpec:
-    """One recorded topic: name, ROS type (``pkg/msg/Name``), subscription depth, durability."""
+    """One recorded topic: name, ROS type (``pkg/msg/Name``), subscription depth, durability, and
+    the node expected to publish it (its handler gets no message while another node publishes too)."""
 
     name: str
     msgtype: str
     depth: int = 10000
     transient_local: bool = False
+    publisher: str | None = None  # the node whose messages the handler accepts (None: any single publisher)
 
 
 def find_msg_dir() -> Path:
@@ -149,6 +151,12 @@ class TopicRecorder:
         self.first_ns: dict[str, int] = {}
         self.last_ns: dict[str, int] = {}
         self._subs = []
+        # handlers take messages only from the expected publisher (DESIGN §8): while a topic has
+        # another, its messages are recorded (the bag is what happened) but not handled; counted
+        from sagg_common.publishers import PublisherWatch
+        self.watch = PublisherWatch(node)
+        self.rejected: dict[str, int] = {}   # "<topic> <why>" -> messages not handed to the handler
+        self.problems: dict[str, str] = {}   # topic -> the last publisher problem seen
         self._gated = [t for t in topics if t.name in gate]
         self._wait_for = set(wait_for)
         self._waiting_subs = []
@@ -185,6 +193,8 @@ class TopicRecorder:
             durability=DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local else DurabilityPolicy.VOLATILE)
         handler = self.handlers.get(t.name)
 
+        watched = handler is not None and t.publisher is not None
+
         def callback(data, topic=t.name, cls=cls, handler=handler):
             now = time.time_ns()
             if not self.bag.closed:
@@ -192,11 +202,29 @@ class TopicRecorder:
             self.first_ns.setdefault(topic, now)
             self.last_ns[topic] = now
             if handler is not None:
-                handler(deserialize_message(data, cls))
+                if watched:
+                    problem = self.watch.problem(topic)
+                    if problem:
+                        self._drop(topic, "publishers", problem)
+                        return
+                try:
+                    handler(deserialize_message(data, cls))
+                except Exception as exc:  # noqa: BLE001 - a hostile message never ends the run
+                    self._drop(topic, "undecodable or rejected", f"{type(exc).__name__}: {exc}")
 
         sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True)
+        if watched:
+            self.watch.watch(t.name, sub, t.publisher)
         self._subs.append(sub)
         return sub
+
+    def _drop(self, topic: str, why: str, detail: str) -> None:
+        key = f"{topic} {why}"
+        n = self.rejected.get(key, 0) + 1
+        self.rejected[key] = n
+        if n == 1 or self.problems.get(key) != detail:
+            self.problems[key] = detail
+            self.node.get_logger().error(f"{topic}: message not used ({why}: {detail}); {n} so far")
 
     def destroy(self) -> None:
         for s in self._subs:

@@ -28,8 +28,9 @@ from rclpy.service import Service
 from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import decode_report, encode_region_tree
-from sagg_common.diagnostics import InputGuard, diagnostic_array
+from sagg_common.diagnostics import InputGuard, diagnostic_array, report_problem
 from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.publishers import PublisherWatch
 from sagg_common.ros_params import declare_schema, reliable, run_node
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
@@ -55,6 +56,10 @@ NODE_SCHEMA: Schema = (
           "checkpoint after a crash. Our choice.", low=1, high=10000),
     Param("journal_fsync", "bool", False,
           "fsync the goal journal after every goal (survives a power cut, not only a killed process)."),
+    Param("report_window", "int", 10000,
+          "A competence report whose seq lies more than this beyond the last one processed is rejected "
+          "(its gap is not skipped; DESIGN §8). The learner's /sagg/competence history (10000) bounds a "
+          "real gap. Our choice.", low=1, high=1_000_000),
 )
 SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
@@ -102,8 +107,12 @@ class GoalGeneratorNode(Node):
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
         # transient_local: after a restart, the reports missed come again from the learner's history
-        self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report,
-                                 reliable(10000, transient_local=True), raw=True)
+        sub = self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report,
+                                       reliable(10000, transient_local=True), raw=True)
+        # reports only from the learner (DESIGN §8): while another node publishes on the topic too,
+        # reports are rejected (the learner withholds its own meanwhile)
+        self.watch = PublisherWatch(self)
+        self.watch.watch("/sagg/competence", sub, "sagg_learner")
         srv = self.create_service(NextGoal, "/sagg/next_goal", self.on_next_goal)
         srv.__class__ = DeferrableService
         self.waiting: list[Deferred] = []   # requests waiting for their reports
@@ -122,6 +131,10 @@ class GoalGeneratorNode(Node):
     # ------------------------------------------------------------ reports
     def on_report(self, raw: bytes) -> None:
         gen = self.gen
+        problem = self.watch.problem("/sagg/competence")
+        if problem:
+            self.guard.reject("report.publishers", f"/sagg/competence has {problem}; report dropped")
+            return
         try:
             msg = decode_report(raw)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
@@ -132,6 +145,20 @@ class GoalGeneratorNode(Node):
             self.guard.reject("report.duplicate", f"competence report {msg.seq}: already have reports "
                                                   f"1..{gen.reports}; dropped")
             return
+        window = self.params["report_window"]
+        if msg.seq > gen.reports + window:
+            # (checked before anything else: a forged seq of 10^12 must cost nothing)
+            self.guard.reject("report.out_of_window",
+                              f"competence report seq {msg.seq}: allowed: {gen.reports + 1}..{gen.reports + window} "
+                              "(report_window beyond the last report processed); dropped")
+            return
+        # Reached points / exploration samples carry the reached point (target may be empty).
+        target = np.asarray(msg.target if len(msg.target) else msg.reached, dtype=float)
+        problem = self._report_problem(msg, target)
+        if problem:
+            # rejected before its seq is consumed: the real report with this number is still taken
+            self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; dropped")
+            return
         if msg.seq != gen.reports + 1:
             lost = msg.seq - gen.reports - 1
             self.guard.reject("report.lost", f"competence report {msg.seq} follows report {gen.reports}: "
@@ -139,14 +166,7 @@ class GoalGeneratorNode(Node):
                                              "no longer match an in-process run)")
             for _ in range(lost):
                 gen.skip_report()
-        # Reached points / exploration samples carry the reached point (target may be empty).
-        target = np.asarray(msg.target if len(msg.target) else msg.reached, dtype=float)
-        problem = self._report_problem(msg, target)
-        if problem:
-            self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; skipped")
-            gen.skip_report()
-        else:
-            gen.report(msg.kind, target, msg.competence)
+        gen.report(msg.kind, target, msg.competence)
         if self.checkpointer is not None:
             self._after_report_checkpoint()
         self.regions_dirty = True
@@ -157,20 +177,13 @@ class GoalGeneratorNode(Node):
 
     def _report_problem(self, msg, target: np.ndarray) -> str:
         """What is wrong with a report's content ('' if nothing)."""
-        if msg.kind not in KIND_NAMES:
-            return f"kind {msg.kind}; allowed: {sorted(KIND_NAMES)}"
-        if target.shape != (self.gen.dim,):
-            return f"{target.size} target/reached coordinates; allowed: {self.gen.dim} (the task space)"
-        if not np.all(np.isfinite(target)):
-            return f"NaN/inf position {target.tolist()}; allowed: finite values"
-        if not math.isfinite(msg.competence) or msg.competence > 0.0:
-            return f"competence {msg.competence}; allowed: a finite value <= 0"
-        return ""
+        return report_problem(msg.kind, target, msg.competence, self.gen.dim, KIND_NAMES)
 
     def publish_diagnostics(self) -> None:
         gen = self.gen
         state = {"reports": str(gen.reports), "skipped_reports": str(gen.skipped_reports),
                  "goals": str(len(gen.goals)), "regions": str(len(gen.tree.leaves()))}
+        state.update({f"publishers {t}": p for t, p in self.watch.all_problems().items()})
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def _release(self) -> None:

@@ -1,0 +1,67 @@
+"""One expected publisher per input topic (DESIGN §8), with rclpy's public graph API.
+
+rclpy (Jazzy) gives a subscription callback's message info without the publisher's GID, so a
+message cannot be attributed to its publisher; what can be checked is who publishes on the topic:
+``Node.get_publishers_info_by_topic`` (node name, namespace, endpoint GID, QoS). A
+:class:`PublisherWatch` keeps, per watched topic, the rule "at most one publisher, and (if given)
+from the node named so", re-reads the publishers only when the subscription's publisher count
+changes (``Subscription.get_publisher_count``, one cheap call per message), and names the
+publishers of a topic that breaks the rule (node name and GID) for the log, ``/diagnostics`` and
+the hold reason. While a topic breaks it, its messages are rejected: they may come from either
+publisher.
+"""
+from __future__ import annotations
+
+
+def describe(info) -> str:
+    """``node /ns/name (gid 0123abcd…)`` for a ``TopicEndpointInfo``."""
+    ns = info.node_namespace.rstrip("/")
+    gid = bytes(info.endpoint_gid).hex()
+    return f"node {ns}/{info.node_name} (gid {gid})"
+
+
+def publisher_problem(infos, expected_node: str | None) -> str:
+    """What is wrong with the publishers ``infos`` of one topic ('' if nothing): more than one, or
+    one from another node than ``expected_node`` (None: any node)."""
+    if len(infos) > 1:
+        return f"{len(infos)} publishers ({'; '.join(describe(i) for i in infos)}); allowed: one"
+    if infos and expected_node is not None and infos[0].node_name != expected_node:
+        return f"publisher {describe(infos[0])}; allowed: node {expected_node} only"
+    return ""
+
+
+class PublisherWatch:
+    """The publishers of some topics subscribed by ``node``: :meth:`problem` per message."""
+
+    def __init__(self, node):
+        self.node = node
+        self.rules: dict[str, tuple] = {}      # topic -> (publisher count function, expected node or None)
+        self._count: dict[str, int] = {}       # publisher count when the problem was last computed
+        self.problems: dict[str, str] = {}     # topic -> current problem ('' = fine)
+
+    def watch(self, topic: str, subscription=None, expected_node: str | None = None) -> None:
+        """Watch ``topic``; ``subscription``: this node's subscription to it (its publisher count is
+        the cheapest), else ``Node.count_publishers`` is used (e.g. a topic the node publishes)."""
+        count = (subscription.get_publisher_count if subscription is not None
+                 else (lambda: self.node.count_publishers(topic)))
+        self.rules[topic] = (count, expected_node)
+        self._count[topic] = -1
+        self.problems[topic] = ""
+
+    def problem(self, topic: str) -> str:
+        """The topic's current publisher problem ('' if none); re-read only on a count change."""
+        count, expected = self.rules[topic]
+        n = count()
+        if n != self._count[topic]:
+            self._count[topic] = n
+            self.problems[topic] = publisher_problem(self.node.get_publishers_info_by_topic(topic), expected)
+        return self.problems[topic]
+
+    def refresh(self, topic: str) -> str:
+        """Re-read the topic's publishers now (a publisher may have been replaced at equal count)."""
+        self._count[topic] = -1
+        return self.problem(topic)
+
+    def all_problems(self) -> dict[str, str]:
+        """Every watched topic with a problem, re-read now (for a timer: names may change at equal count)."""
+        return {t: p for t in self.rules if (p := self.refresh(t))}
