@@ -21,6 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+# topics whose publisher keeps only the latest message by design (a reader may skip snapshots):
+# not counted as dropped
+NO_DROP_COUNT = ("/sagg/regions",)
 SAGG_MSGS = ("Goal", "CompetenceReport", "Region", "RegionTree", "Sample", "LearnerStatus", "Evaluation")
 
 
@@ -72,8 +75,35 @@ def _qos(spec: TopicSpec):
                zero, zero, QosLiveliness.AUTOMATIC, zero, False)
 
 
+def publishers_qos(infos) -> list:
+    """The offered QoS of the publishers ``infos`` (``Node.get_publishers_info_by_topic``) as
+    rosbags ``Qos``, as ``ros2 bag record`` writes them (history unknown, depth 0: DDS does not
+    tell the reader; infinite durations as INT64_MAX ns)."""
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
+                                    QosTime)
+
+    def dur(d) -> QosTime:
+        return QosTime(*divmod(int(d.nanoseconds), 1_000_000_000))
+
+    out = []
+    for i in infos:
+        q = i.qos_profile
+        out.append(Qos(QosHistory(int(q.history)), int(q.depth), QosReliability(int(q.reliability)),
+                       QosDurability(int(q.durability)), dur(q.deadline), dur(q.lifespan),
+                       QosLiveliness(int(q.liveliness)), dur(q.liveliness_lease_duration),
+                       bool(q.avoid_ros_namespace_conventions)))
+    return out
+
+
 class BagWriter:
-    """An mcap rosbag2 bag (version 9) being written; one connection per topic."""
+    """An mcap rosbag2 bag (version 9) being written; one connection per topic.
+
+    A topic's connection is created at its first message (or at :meth:`close`), so that the
+    recorder can give it the offered QoS of the topic's publishers (:meth:`offer`), as ``ros2 bag
+    record`` does; without an offer, the spec's QoS is written. metadata.yaml says
+    ``ros_distro: jazzy`` (the distribution whose types and QoS the bag holds)."""
+
+    ROS_DISTRO = "jazzy"
 
     def __init__(self, path: str | Path, topics: list[TopicSpec], typestore=None):
         from rosbags.rosbag2 import StoragePlugin, Writer
@@ -85,14 +115,14 @@ class BagWriter:
         self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._writer.open()
         self._conn = {}
+        self._specs = {t.name: t for t in topics}
+        self._offered: dict[str, list] = {}
         self.counts: dict[str, int] = {}
         self.written = 0  # messages written, all topics
         self.types: dict[str, str] = {}
         try:
             for t in topics:
-                self._conn[t.name] = self._writer.add_connection(
-                    t.name, t.msgtype, typestore=self.typestore, serialization_format="cdr",
-                    offered_qos_profiles=[_qos(t)])
+                self.typestore.hash_rihs01(t.msgtype)  # an unknown type fails here, not mid-run
                 self.counts[t.name] = 0
                 self.types[t.name] = t.msgtype
         except Exception:
@@ -100,8 +130,21 @@ class BagWriter:
             raise
         self.closed = False
 
+    def offer(self, topic: str, qos_profiles: list) -> None:
+        """The offered QoS of ``topic``'s publishers (before its first message is written)."""
+        if topic not in self._conn and qos_profiles:
+            self._offered[topic] = list(qos_profiles)
+
+    def _connect(self, topic: str):
+        t = self._specs[topic]
+        conn = self._conn[topic] = self._writer.add_connection(
+            topic, t.msgtype, typestore=self.typestore, serialization_format="cdr",
+            offered_qos_profiles=self._offered.get(topic) or [_qos(t)])
+        return conn
+
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
-        self._writer.write(self._conn[topic], int(timestamp_ns), data)
+        conn = self._conn.get(topic) or self._connect(topic)
+        self._writer.write(conn, int(timestamp_ns), data)
         self.counts[topic] += 1
         self.written += 1
 
@@ -109,7 +152,19 @@ class BagWriter:
         """Write the mcap footer and metadata.yaml (idempotent)."""
         if not self.closed:
             self.closed = True
+            for topic in self._specs:
+                if topic not in self._conn:
+                    self._connect(topic)
             self._writer.close()
+            self._set_distro()
+
+    def _set_distro(self) -> None:
+        """metadata.yaml's ``ros_distro`` (rosbags writes its own name there)."""
+        import yaml
+        meta = self.path / "metadata.yaml"
+        doc = yaml.safe_load(meta.read_text())
+        doc["rosbag2_bagfile_information"]["ros_distro"] = self.ROS_DISTRO
+        meta.write_text(yaml.safe_dump(doc, sort_keys=False))
 
     def abort(self) -> None:
         self.closed = True
@@ -156,6 +211,9 @@ class TopicRecorder:
         from sagg_common.publishers import PublisherWatch
         self.watch = PublisherWatch(node)
         self.rejected: dict[str, int] = {}   # "<topic> <why>" -> messages not handed to the handler
+        self.dropped: dict[str, int] = {}    # topic -> messages published but never received (missed)
+        self.last_seq: dict[str, int] = {}   # topic -> the last publication sequence number received
+        self._offered: set[str] = set()      # topics whose publishers' QoS went to the bag
         self.problems: dict[str, str] = {}   # topic -> the last publisher problem seen
         self._gated = [t for t in topics if t.name in gate]
         self._wait_for = set(wait_for)
@@ -195,10 +253,26 @@ class TopicRecorder:
 
         watched = handler is not None and t.publisher is not None
 
-        def callback(data, topic=t.name, cls=cls, handler=handler):
+        last_seq = self.last_seq
+        dropped = self.dropped
+        offered = self._offered
+        count_drops = t.name not in NO_DROP_COUNT
+
+        def callback(data, info, topic=t.name, cls=cls, handler=handler):
             now = time.time_ns()
             if not self.bag.closed:
+                if topic not in offered:  # the first message: the connection gets its publishers' QoS
+                    offered.add(topic)
+                    self.bag.offer(topic, publishers_qos(self.node.get_publishers_info_by_topic(topic)))
                 self.bag.write(topic, now, data)
+            # messages the recorder missed: gaps in the publisher's sequence numbers (the rmw's
+            # message info; one publisher per topic: a second one's numbers restart the count)
+            seq = info["publication_sequence_number"]
+            if count_drops and seq is not None:
+                prev = last_seq.get(topic)
+                if prev is not None and seq > prev + 1:
+                    dropped[topic] = dropped.get(topic, 0) + seq - prev - 1
+                last_seq[topic] = seq
             self.first_ns.setdefault(topic, now)
             self.last_ns[topic] = now
             if handler is not None:

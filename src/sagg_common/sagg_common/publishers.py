@@ -13,6 +13,10 @@ publisher.
 from __future__ import annotations
 
 
+# the graph cache's name for an endpoint whose node it has not learnt yet (for a moment after discovery)
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
+
+
 def describe(info) -> str:
     """``node /ns/name (gid 0123abcd…)`` for a ``TopicEndpointInfo``."""
     ns = info.node_namespace.rstrip("/")
@@ -25,7 +29,7 @@ def publisher_problem(infos, expected_node: str | None) -> str:
     one from another node than ``expected_node`` (None: any node)."""
     if len(infos) > 1:
         return f"{len(infos)} publishers ({'; '.join(describe(i) for i in infos)}); allowed: one"
-    if infos and expected_node is not None and infos[0].node_name != expected_node:
+    if infos and expected_node is not None and infos[0].node_name not in (expected_node, UNKNOWN_NODE):
         return f"publisher {describe(infos[0])}; allowed: node {expected_node} only"
     return ""
 
@@ -53,8 +57,10 @@ class PublisherWatch:
         count, expected = self.rules[topic]
         n = count()
         if n != self._count[topic]:
-            self._count[topic] = n
-            self.problems[topic] = publisher_problem(self.node.get_publishers_info_by_topic(topic), expected)
+            infos = self.node.get_publishers_info_by_topic(topic)
+            # a publisher whose node is not known yet: read again at the next message
+            self._count[topic] = -1 if any(i.node_name == UNKNOWN_NODE for i in infos) else n
+            self.problems[topic] = publisher_problem(infos, expected)
         return self.problems[topic]
 
     def refresh(self, topic: str) -> str:

@@ -104,6 +104,7 @@ class GoalGeneratorNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
         self.create_timer(1.0, self.publish_diagnostics)
         self.goal_pub = self.create_publisher(Goal, "/sagg/goal", reliable(100))
+        self.published = {"/sagg/goal": 0}  # (logged at shutdown: what a bag must hold)
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
         # transient_local: after a restart, the reports missed come again from the learner's history
@@ -131,10 +132,6 @@ class GoalGeneratorNode(Node):
     # ------------------------------------------------------------ reports
     def on_report(self, raw: bytes) -> None:
         gen = self.gen
-        problem = self.watch.problem("/sagg/competence")
-        if problem:
-            self.guard.reject("report.publishers", f"/sagg/competence has {problem}; report dropped")
-            return
         try:
             msg = decode_report(raw)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
@@ -158,6 +155,10 @@ class GoalGeneratorNode(Node):
         if problem:
             # rejected before its seq is consumed: the real report with this number is still taken
             self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; dropped")
+            return
+        problem = self.watch.problem("/sagg/competence")  # a well-formed new report: from the learner only
+        if problem:
+            self.guard.reject("report.publishers", f"/sagg/competence has {problem}; report {msg.seq} dropped")
             return
         if msg.seq != gen.reports + 1:
             lost = msg.seq - gen.reports - 1
@@ -255,6 +256,7 @@ class GoalGeneratorNode(Node):
         g.mode = rec.mode
         g.position = array.array("d", rec.position.tobytes())
         self.goal_pub.publish(g)
+        self.published["/sagg/goal"] += 1
 
     # ------------------------------------------------------------ checkpoint / resume
     def _setup_checkpoint(self) -> None:

@@ -198,6 +198,8 @@ class LearnerNode(LearnerNodeBase):
         # --- topics
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
         self.task_topic = p["task_topic"]
+        # messages published per topic (logged at shutdown and on /diagnostics: what a bag must hold)
+        self.published = {self.cmd_topic: 0, "/sagg/sample": 0, "/sagg/competence": 0}
         self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
         self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         # hot path: raw CDR in and out (sagg_common.cdr), no message objects
@@ -509,6 +511,7 @@ class LearnerNode(LearnerNodeBase):
         learner = self.learner
         state = {"state": self.state or "running", "micro_actions": str(learner.micro_actions),
                  "samples": str(len(learner.memory)), "holds": "; ".join(self.holds.values())}
+        state.update({f"published {t}": str(n) for t, n in self.published.items()})
         fault = "; ".join(v for k, v in self.holds.items() if k != "service")
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state, fault))
 
@@ -557,6 +560,7 @@ class LearnerNode(LearnerNodeBase):
                 self.state = self.RUNNING_COMMAND
                 self.cmd_time = time.monotonic()
                 self.cmd_pub.publish(data)
+                self.published[self.cmd_topic] += 1
                 # while the driver works: publish the queued reports/samples in bursts
                 if self.outbox and (len(self.outbox) >= self.publish_batch
                                     or self.cmd_time - self.last_flush >= self.publish_period):
@@ -688,12 +692,14 @@ class LearnerNode(LearnerNodeBase):
     def publish_report(self, r: Report) -> None:
         # exploration reports have no target (the message's convention); the generator uses reached
         target = r.target if r.kind != KIND_EXPLORATION else ()
+        self.published["/sagg/competence"] += 1
         self.report_pub.publish(encode_report(
             self.now_ns(), r.seq, r.goal_seq, r.kind, target, r.reached, r.start, r.competence,
             r.micro_actions))
 
     def publish_sample(self, idx: int) -> None:
         mem = self.learner.memory
+        self.published["/sagg/sample"] += 1
         self.sample_pub.publish(encode_sample(
             self.now_ns(), idx, mem.alpha[idx], mem.delta_alpha[idx], mem.delta_y[idx]))
 
