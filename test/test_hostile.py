@@ -348,21 +348,41 @@ def test_a_second_publisher_on_joint_states_is_named_and_the_learner_holds(nodes
         intruder.destroy_node()
 
 
-def test_a_second_publisher_on_sagg_competence_is_named_and_its_reports_dropped(nodes):
+def test_a_forged_report_never_takes_the_seq_of_the_learners_real_one(nodes):
+    """Reports reach the generator over DDS here: the learner's own publisher and an intruder's.
+    The intruder's well-formed report with the next seq is dropped (its publisher's sequence
+    number does not continue the learner's stream), named, and the learner's real report is taken."""
+    from rclpy.executors import SingleThreadedExecutor
     from sagg_common.ros_params import reliable
-    g = nodes["generator"]
+    g, learner = nodes["generator"], nodes["learner"]
+    ex = SingleThreadedExecutor()
+    ex.add_node(g)
+
+    def spin_until(cond, timeout=10.0) -> bool:
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            ex.spin_once(timeout_sec=0.05)
+            if cond():
+                return True
+        return False
+
     intruder = rclpy.create_node("intruder2")
     try:
+        r, skipped = g.gen.reports, g.gen.skipped_reports
+        assert wait_for(lambda: learner.report_pub.get_subscription_count() >= 1)
+        learner.report_pub.publish(report_bytes(r + 1))  # the learner's stream starts
+        assert spin_until(lambda: g.gen.reports == r + 1)
         # (transient_local like the learner's: a volatile publisher does not even match the generator)
         pub = intruder.create_publisher(CompetenceReport, "/sagg/competence", reliable(10, transient_local=True))
-        assert wait_for(lambda: g.count_publishers("/sagg/competence") >= 2)
-        reports = g.gen.reports
-        g.on_report(report_bytes(reports + 1))
-        assert g.gen.reports == reports
+        assert wait_for(lambda: pub.get_subscription_count() >= 1)
+        before = g.guard.counts.get("report.publishers", 0)
+        pub.publish(report_bytes(r + 2))
+        assert spin_until(lambda: g.guard.counts.get("report.publishers", 0) > before)
+        assert g.gen.reports == r + 1
         assert "node /intruder2" in g.guard.last_message["report.publishers"]
-        intruder.destroy_publisher(pub)
-        assert wait_for(lambda: g.count_publishers("/sagg/competence") == 1)
-        g.on_report(report_bytes(reports + 1))
-        assert g.gen.reports == reports + 1
+        learner.report_pub.publish(report_bytes(r + 2, reached=(2.0, 2.0)))  # the real report r+2
+        assert spin_until(lambda: g.gen.reports == r + 2)
+        assert g.gen.skipped_reports == skipped  # no real report was lost
     finally:
+        ex.remove_node(g)
         intruder.destroy_node()

@@ -67,3 +67,17 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
     counts = bag_counts(out / "bag")
     assert {t: counts.get(t, 0) for t in published} == published
     assert s["bag"]["dropped"] == {} and s["bag"]["rejected"] == {}
+
+
+def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):
+    from sagg_bringup.graph import run_graph
+    n = 12
+    s = run_graph("config/quadruped.yaml", n, tmp_path / "q", eval_every=n, progress=False, stall_timeout=120.0,
+                  overrides={"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0})
+    published = published_counts(tmp_path / "q" / "logs")
+    assert set(published) == {"/joint_trajectory_controller/joint_trajectory", "/body_pose", "/sagg/sample",
+                              "/sagg/competence", "/sagg/goal"}
+    assert published["/sagg/sample"] == n
+    counts = {t: v["count"] for t, v in s["bag"]["topics"].items()}
+    assert {t: counts.get(t, 0) for t in published} == published
+    assert s["bag"]["dropped"] == {} and s["bag"]["rejected"] == {}

@@ -185,6 +185,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "(needs the optional extra: make ray)")
     c.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override any parameter for every run (repeatable)")
+    h = bsub.add_parser("hostile", help="a running graph under a fuzzer publishing every hostile case of "
+                                        "issue 11 on every topic; per-case table and invariants")
+    h.add_argument("--config", default="config/arm8.yaml")
+    h.add_argument("--minutes", type=float, default=10.0, help="total fuzzing time (two phases, half each)")
+    h.add_argument("--quiet", type=float, default=3.0, help="seconds watched after each case")
+    h.add_argument("--out", default=None, help="directory (default runs/hostile-<time>)")
+    h.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
     t = bsub.add_parser("table", help="compare strategies from result.json files (Markdown table "
                                       "and Mann-Whitney / Welch tests)")
     t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
@@ -316,6 +323,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "bench" and args.bench == "soak":
             from .soak import main_soak
             return main_soak(args, parse_set(args.set))
+        if args.command == "bench" and args.bench == "hostile":
+            from .lab.hostile import bench_hostile
+            res = bench_hostile(args.config, args.minutes, args.out, args.set or [], args.quiet)
+            return 0 if res["ok"] else 1
         if args.command == "bench" and args.bench == "table":
             from .compare import load_results, summary_markdown
             results = load_results(args.results)

@@ -613,6 +613,7 @@ class RunState:
         self.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
                                   "mode_name": MODE_NAMES.get(int(m.mode), str(m.mode)),
                                   "after_report": int(m.after_report)}
+        return True
 
     def on_report(self, m) -> None:
         """/sagg/competence: the micro-actions at each report, the competence of each goal."""
@@ -633,6 +634,7 @@ class RunState:
         if m.kind == KIND_GOAL:
             self.goal_competence[int(m.goal_seq)] = float(m.competence)
             self.last_competence = float(m.competence)
+        return True
 
     def on_regions(self, m) -> None:
         self.last_regions = m
@@ -1004,6 +1006,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
             st.sample_t1 = now
             st.samples += 1
             evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
+            return True
 
         tracker = SplitTracker(t_lower, t_upper)
 

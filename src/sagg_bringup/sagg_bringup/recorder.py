@@ -187,7 +187,10 @@ class TopicRecorder:
     """Raw subscriptions on ``node`` writing every message of ``topics`` into ``bag``.
 
     ``handlers[topic](msg)`` is called (in the executor's thread) with the deserialized message
-    after it has been written, for the topics that have one.
+    after it has been written, for the topics that have one; for a topic with an expected
+    publisher, only for messages continuing that publisher's stream
+    (:class:`~sagg_common.publishers.PublisherStream`), which a handler's truthy return (message
+    used) advances.
 
     ``gate``: topics subscribed only once every topic of ``wait_for`` has had a matched publisher
     for ``settle`` seconds (:meth:`poll_gate`; the publisher side of the match, which decides
@@ -210,6 +213,7 @@ class TopicRecorder:
         # another, its messages are recorded (the bag is what happened) but not handled; counted
         from sagg_common.publishers import PublisherWatch
         self.watch = PublisherWatch(node)
+        self.streams: dict = {}              # topic -> PublisherStream (topics with an expected publisher)
         self.rejected: dict[str, int] = {}   # "<topic> <why>" -> messages not handed to the handler
         self.dropped: dict[str, int] = {}    # topic -> messages published but never received (missed)
         self.last_seq: dict[str, int] = {}   # topic -> the last publication sequence number received
@@ -243,6 +247,7 @@ class TopicRecorder:
     def _subscribe(self, t: TopicSpec):
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
+        from sagg_common.publishers import PublisherStream
 
         cls = _msg_class(t.msgtype)
         qos = QoSProfile(
@@ -256,6 +261,7 @@ class TopicRecorder:
         last_seq = self.last_seq
         dropped = self.dropped
         offered = self._offered
+        holder: dict = {}
         count_drops = t.name not in NO_DROP_COUNT
 
         def callback(data, info, topic=t.name, cls=cls, handler=handler):
@@ -266,29 +272,39 @@ class TopicRecorder:
                     self.bag.offer(topic, publishers_qos(self.node.get_publishers_info_by_topic(topic)))
                 self.bag.write(topic, now, data)
             # messages the recorder missed: gaps in the publisher's sequence numbers (the rmw's
-            # message info; one publisher per topic: a second one's numbers restart the count)
+            # message info), counted while the topic has exactly one publisher (numbers are per
+            # publisher; the count starts again whenever the set of publishers changed)
             seq = info["publication_sequence_number"]
             if count_drops and seq is not None:
-                prev = last_seq.get(topic)
-                if prev is not None and seq > prev + 1:
-                    dropped[topic] = dropped.get(topic, 0) + seq - prev - 1
-                last_seq[topic] = seq
+                if holder["sub"].get_publisher_count() == 1:
+                    prev = last_seq.get(topic)
+                    if prev is not None and seq > prev + 1:
+                        dropped[topic] = dropped.get(topic, 0) + seq - prev - 1
+                    last_seq[topic] = seq
+                else:
+                    last_seq.pop(topic, None)
             self.first_ns.setdefault(topic, now)
             self.last_ns[topic] = now
             if handler is not None:
-                if watched:
-                    problem = self.watch.problem(topic)
-                    if problem:
-                        self._drop(topic, "publishers", problem)
+                stream = self.streams.get(topic)
+                if stream is not None:
+                    why = stream.check(seq)
+                    if why:
+                        self._drop(topic, "publishers", why)
                         return
                 try:
-                    handler(deserialize_message(data, cls))
+                    accepted = handler(deserialize_message(data, cls))
                 except Exception as exc:  # noqa: BLE001 - a hostile message never ends the run
                     self._drop(topic, "undecodable or rejected", f"{type(exc).__name__}: {exc}")
+                    return
+                if accepted and stream is not None:
+                    stream.commit(seq)
 
         sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True)
+        holder["sub"] = sub
         if watched:
             self.watch.watch(t.name, sub, t.publisher)
+            self.streams[t.name] = PublisherStream(self.watch, t.name, t.publisher)
         self._subs.append(sub)
         return sub
 

@@ -71,3 +71,58 @@ class PublisherWatch:
     def all_problems(self) -> dict[str, str]:
         """Every watched topic with a problem, re-read now (for a timer: names may change at equal count)."""
         return {t: p for t in self.rules if (p := self.refresh(t))}
+
+
+class PublisherStream:
+    """Messages of a topic accepted only from its expected publisher's stream (DESIGN §8).
+
+    rclpy gives no publisher GID per message, but it gives the publisher's sequence number
+    (``publication_sequence_number`` of the message info; +1 per message of one writer). The
+    stream of the expected publisher is followed by that number: a message continues it when its
+    number is the next one; a gap is accepted only while the expected node is the topic's only
+    publisher (then messages were missed, not forged); a number at or below the last one comes from
+    another writer (dropped, counted) unless the expected node's publisher was replaced (a restart:
+    the stream starts again). A message is *committed* (its number becomes the last one) by the
+    caller once its content is accepted too, so a rejected message never moves the stream.
+    An rmw without sequence numbers (``None``) leaves the content checks alone.
+    """
+
+    def __init__(self, watch: PublisherWatch, topic: str, expected_node: str):
+        self.watch, self.topic, self.expected = watch, topic, expected_node
+        self.last = 0
+        self.gids: tuple | None = None   # the expected node's publisher GIDs when the stream (re)started
+        self.gaps = 0                    # messages missed by this subscriber (numbers skipped)
+        self.restarts = 0
+
+    def _expected_gids(self) -> tuple | None:
+        infos = self.watch.node.get_publishers_info_by_topic(self.topic)
+        if len(infos) != 1 or infos[0].node_name != self.expected:
+            return None
+        return (bytes(infos[0].endpoint_gid),)
+
+    def check(self, seq) -> str:
+        """'' if a message numbered ``seq`` may continue the stream, else why not."""
+        if seq is None or seq == self.last + 1:
+            return ""
+        if seq > self.last:
+            if self.watch.problem(self.topic):
+                return (f"publisher sequence number {seq} after {self.last} while the topic has "
+                        f"{self.watch.problems[self.topic]}")
+            return ""
+        gids = self._expected_gids()
+        if gids is not None and gids != self.gids and self.gids is not None:
+            return ""  # the expected node's publisher was replaced: its stream starts again
+        return (f"publisher sequence number {seq}, not after {self.last}: another publisher's message "
+                f"(topic publishers: {self.watch.refresh(self.topic) or 'as expected'})")
+
+    def commit(self, seq) -> None:
+        if seq is None:
+            return
+        if seq <= self.last:  # a restarted publisher
+            self.restarts += 1
+            self.gids = self._expected_gids()
+        elif seq > self.last + 1 and self.last:
+            self.gaps += seq - self.last - 1
+        if self.gids is None:
+            self.gids = self._expected_gids()
+        self.last = seq

@@ -30,7 +30,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sagg_common.cdr import decode_report, encode_region_tree
 from sagg_common.diagnostics import InputGuard, diagnostic_array, report_problem
 from sagg_common.params import ConfigError, Param, Schema
-from sagg_common.publishers import PublisherWatch
+from sagg_common.publishers import PublisherStream, PublisherWatch
 from sagg_common.ros_params import declare_schema, reliable, run_node
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
@@ -108,12 +108,14 @@ class GoalGeneratorNode(Node):
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
         # transient_local: after a restart, the reports missed come again from the learner's history
-        sub = self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report,
+        sub = self.create_subscription(CompetenceReport, "/sagg/competence",
+                                       lambda raw, info: self.on_report(raw, info["publication_sequence_number"]),
                                        reliable(10000, transient_local=True), raw=True)
-        # reports only from the learner (DESIGN §8): while another node publishes on the topic too,
-        # reports are rejected (the learner withholds its own meanwhile)
+        # reports only from the learner's stream (DESIGN §8; sagg_common.publishers.PublisherStream):
+        # another publisher is named, and its reports never take the seq of a real one
         self.watch = PublisherWatch(self)
         self.watch.watch("/sagg/competence", sub, "sagg_learner")
+        self.stream = PublisherStream(self.watch, "/sagg/competence", "sagg_learner")
         srv = self.create_service(NextGoal, "/sagg/next_goal", self.on_next_goal)
         srv.__class__ = DeferrableService
         self.waiting: list[Deferred] = []   # requests waiting for their reports
@@ -130,7 +132,8 @@ class GoalGeneratorNode(Node):
             + ("serving /sagg/next_goal" if self.active else "idle (actuator strategy: no goals)"))
 
     # ------------------------------------------------------------ reports
-    def on_report(self, raw: bytes) -> None:
+    def on_report(self, raw: bytes, pub_seq: int | None = None) -> None:
+        """One report (``pub_seq``: its publisher's sequence number, from the message info)."""
         gen = self.gen
         try:
             msg = decode_report(raw)
@@ -156,10 +159,11 @@ class GoalGeneratorNode(Node):
             # rejected before its seq is consumed: the real report with this number is still taken
             self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; dropped")
             return
-        problem = self.watch.problem("/sagg/competence")  # a well-formed new report: from the learner only
-        if problem:
-            self.guard.reject("report.publishers", f"/sagg/competence has {problem}; report {msg.seq} dropped")
+        why = self.stream.check(pub_seq)  # a well-formed new report: from the learner's stream only
+        if why:
+            self.guard.reject("report.publishers", f"/sagg/competence report {msg.seq}: {why}; dropped")
             return
+        self.stream.commit(pub_seq)
         if msg.seq != gen.reports + 1:
             lost = msg.seq - gen.reports - 1
             self.guard.reject("report.lost", f"competence report {msg.seq} follows report {gen.reports}: "

@@ -306,7 +306,7 @@ class LearnerNode(LearnerNodeBase):
     def _reject_js(self, kind: str, message: str) -> None:
         """A rejected joint state: counted, logged, and after ``plausibility.hold_after`` in a row a hold."""
         self.guard.reject(kind, message)
-        if self.js_run.reject():
+        if self.js_run.reject() and "joint_states" not in self.holds:  # (named once: no log flood)
             self._set_hold("joint_states", f"{self.js_run.run} rejected joint states in a row, the last: "
                                            f"[{kind}] {message}")
 
@@ -414,7 +414,8 @@ class LearnerNode(LearnerNodeBase):
         """A message on a topic with an unexpected publisher: rejected, and the learner holds."""
         problem = self.watch.problems[topic]
         self.guard.reject(f"{key}.publishers", f"{topic}: {problem}; message dropped")
-        self._set_hold("publishers", f"{topic} has {problem}")
+        if "publishers" not in self.holds:  # (the status timer keeps the full list up to date)
+            self._set_hold("publishers", f"{topic} has {problem}")
 
     def _check_publishers(self) -> None:
         """Hold while a watched topic has an unexpected publisher (named), release when it is gone."""
@@ -428,7 +429,7 @@ class LearnerNode(LearnerNodeBase):
 
     def _reject_tip(self, kind: str, message: str) -> None:
         self.guard.reject(kind, message)
-        if self.tip_run.reject():
+        if self.tip_run.reject() and "task_point" not in self.holds:
             self._set_hold("task_point", f"{self.tip_run.run} rejected task points in a row, the last: "
                                          f"[{kind}] {message}")
 
