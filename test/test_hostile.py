@@ -350,8 +350,9 @@ def test_a_second_publisher_on_joint_states_is_named_and_the_learner_holds(nodes
 
 def test_a_forged_report_never_takes_the_seq_of_the_learners_real_one(nodes):
     """Reports reach the generator over DDS here: the learner's own publisher and an intruder's.
-    The intruder's well-formed report with the next seq is dropped (its publisher's sequence
-    number does not continue the learner's stream), named, and the learner's real report is taken."""
+    While the intruder publishes on /sagg/competence every report is dropped and the intruder named;
+    once it is gone the generator subscribes again and takes the learner's real reports from its
+    transient_local history: the forged report never took the seq of the real one, nothing is lost."""
     from rclpy.executors import SingleThreadedExecutor
     from sagg_common.ros_params import reliable
     g, learner = nodes["generator"], nodes["learner"]
@@ -376,13 +377,17 @@ def test_a_forged_report_never_takes_the_seq_of_the_learners_real_one(nodes):
         pub = intruder.create_publisher(CompetenceReport, "/sagg/competence", reliable(10, transient_local=True))
         assert wait_for(lambda: pub.get_subscription_count() >= 1)
         before = g.guard.counts.get("report.publishers", 0)
-        pub.publish(report_bytes(r + 2))
-        assert spin_until(lambda: g.guard.counts.get("report.publishers", 0) > before)
+        pub.publish(report_bytes(r + 2, reached=(9.0, 9.0)))   # forged, the next seq
+        learner.report_pub.publish(report_bytes(r + 2, reached=(2.0, 2.0)))  # the real one meanwhile
+        assert spin_until(lambda: g.guard.counts.get("report.publishers", 0) >= before + 2)
         assert g.gen.reports == r + 1
         assert "node /intruder2" in g.guard.last_message["report.publishers"]
-        learner.report_pub.publish(report_bytes(r + 2, reached=(2.0, 2.0)))  # the real report r+2
-        assert spin_until(lambda: g.gen.reports == r + 2)
-        assert g.gen.skipped_reports == skipped  # no real report was lost
+        intruder.destroy_publisher(pub)
+        assert spin_until(lambda: g.gen.reports == r + 2)  # the real r+2, from the learner's history
+        assert g.resubscriptions >= 1 and g.gen.skipped_reports == skipped  # no real report was lost
+        points = np.concatenate([leaf.points[:leaf.count] for leaf in g.gen.tree.leaves()])
+        assert any(np.array_equal(p, [2.0, 2.0]) for p in points)       # the real report's point
+        assert not any(np.array_equal(p, [9.0, 9.0]) for p in points)   # never the forged one
     finally:
         ex.remove_node(g)
         intruder.destroy_node()

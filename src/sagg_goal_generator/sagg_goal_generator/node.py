@@ -30,7 +30,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sagg_common.cdr import decode_report, encode_region_tree
 from sagg_common.diagnostics import InputGuard, diagnostic_array, report_problem
 from sagg_common.params import ConfigError, Param, Schema
-from sagg_common.publishers import PublisherStream, PublisherWatch
+from sagg_common.publishers import PublisherWatch
 from sagg_common.ros_params import declare_schema, reliable, run_node
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
@@ -108,14 +108,17 @@ class GoalGeneratorNode(Node):
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
         # transient_local: after a restart, the reports missed come again from the learner's history
-        sub = self.create_subscription(CompetenceReport, "/sagg/competence",
-                                       lambda raw, info: self.on_report(raw, info["publication_sequence_number"]),
-                                       reliable(10000, transient_local=True), raw=True)
-        # reports only from the learner's stream (DESIGN §8; sagg_common.publishers.PublisherStream):
-        # another publisher is named, and its reports never take the seq of a real one
+        # reports only from the learner (DESIGN §8): while /sagg/competence has another publisher
+        # (or its only one is not the learner), reports are dropped and named; once it is gone the
+        # subscription is made again, and the learner's transient_local history (10000 reports, the
+        # report_window) delivers the real reports dropped meanwhile (duplicates are dropped by seq).
+        # (Per-message publisher numbers would need message info, which the events executor does
+        # not hand to callbacks.)
         self.watch = PublisherWatch(self)
-        self.watch.watch("/sagg/competence", sub, "sagg_learner")
-        self.stream = PublisherStream(self.watch, "/sagg/competence", "sagg_learner")
+        self.report_sub = None
+        self.resubscribe_due = False  # reports were dropped for a foreign publisher
+        self.resubscriptions = 0
+        self._subscribe_reports()
         srv = self.create_service(NextGoal, "/sagg/next_goal", self.on_next_goal)
         srv.__class__ = DeferrableService
         self.waiting: list[Deferred] = []   # requests waiting for their reports
@@ -132,8 +135,24 @@ class GoalGeneratorNode(Node):
             + ("serving /sagg/next_goal" if self.active else "idle (actuator strategy: no goals)"))
 
     # ------------------------------------------------------------ reports
-    def on_report(self, raw: bytes, pub_seq: int | None = None) -> None:
-        """One report (``pub_seq``: its publisher's sequence number, from the message info)."""
+    def _subscribe_reports(self) -> None:
+        if self.report_sub is not None:
+            self.destroy_subscription(self.report_sub)
+        self.report_sub = self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report,
+                                                   reliable(10000, transient_local=True), raw=True)
+        self.watch.watch("/sagg/competence", self.report_sub, "sagg_learner")
+
+    def _check_report_publishers(self) -> None:
+        """After reports were dropped for a foreign publisher: once it is gone, subscribe again."""
+        if self.resubscribe_due and not self.watch.refresh("/sagg/competence") \
+                and self.count_publishers("/sagg/competence") == 1:
+            self.resubscribe_due = False
+            self.resubscriptions += 1
+            self.get_logger().info("/sagg/competence has the learner as its only publisher again: "
+                                   "subscribing again for the reports dropped meanwhile")
+            self._subscribe_reports()
+
+    def on_report(self, raw: bytes) -> None:
         gen = self.gen
         try:
             msg = decode_report(raw)
@@ -159,11 +178,12 @@ class GoalGeneratorNode(Node):
             # rejected before its seq is consumed: the real report with this number is still taken
             self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; dropped")
             return
-        why = self.stream.check(pub_seq)  # a well-formed new report: from the learner's stream only
-        if why:
-            self.guard.reject("report.publishers", f"/sagg/competence report {msg.seq}: {why}; dropped")
+        problem = self.watch.problem("/sagg/competence")  # a well-formed new report: from the learner only
+        if problem:
+            self.guard.reject("report.publishers", f"/sagg/competence has {problem}; report {msg.seq} dropped "
+                                                   "(taken again from the learner's history once it is gone)")
+            self.resubscribe_due = True
             return
-        self.stream.commit(pub_seq)
         if msg.seq != gen.reports + 1:
             lost = msg.seq - gen.reports - 1
             self.guard.reject("report.lost", f"competence report {msg.seq} follows report {gen.reports}: "
@@ -189,6 +209,7 @@ class GoalGeneratorNode(Node):
         state = {"reports": str(gen.reports), "skipped_reports": str(gen.skipped_reports),
                  "goals": str(len(gen.goals)), "regions": str(len(gen.tree.leaves()))}
         state.update({f"publishers {t}": p for t, p in self.watch.all_problems().items()})
+        state["report_resubscriptions"] = str(self.resubscriptions)
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def _release(self) -> None:
@@ -320,6 +341,8 @@ class GoalGeneratorNode(Node):
 
     # ------------------------------------------------------------ regions
     def on_regions_timer(self) -> None:
+        if self.resubscribe_due:
+            self._check_report_publishers()
         if self.goals_to_publish and self._goal_subscribers_ok():
             for rec in self.goals_to_publish:
                 self._publish_goal(rec)
