@@ -9,6 +9,7 @@ InputGuard (what /diagnostics publishes) and must leave the node's state as it w
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -190,7 +191,9 @@ def test_duplicated_and_lost_reports(nodes):
     g.on_report(report_bytes(seq))
     g.on_report(report_bytes(seq))  # duplicate: dropped
     assert gen.reports == seq and g.guard.counts["report.duplicate"] >= 1
-    g.on_report(report_bytes(seq + 3))  # two lost: skipped, then this one is used
+    g.on_report(report_bytes(seq + 3))  # two missing: kept for report_reorder_wait...
+    assert gen.reports == seq
+    g._check_early(now=time.monotonic() + 60.0)  # ...then they are skipped, and this one is used
     assert gen.reports == seq + 3 and g.guard.counts["report.lost"] >= 1
     assert gen.skipped_reports >= 2
 

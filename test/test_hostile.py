@@ -391,3 +391,16 @@ def test_a_forged_report_never_takes_the_seq_of_the_learners_real_one(nodes):
     finally:
         ex.remove_node(g)
         intruder.destroy_node()
+
+
+def test_reordered_reports_are_kept_not_skipped(nodes):
+    """A report ahead of the next one (reordered, or re-delivered after a re-subscription) waits for
+    the ones before it: nothing is skipped when they come within report_reorder_wait."""
+    g = nodes["generator"]
+    gen = g.gen
+    r, skipped = gen.reports, gen.skipped_reports
+    g.on_report(report_bytes(r + 3))
+    g.on_report(report_bytes(r + 2))
+    assert gen.reports == r and sorted(g.early) == [r + 2, r + 3]
+    g.on_report(report_bytes(r + 1))
+    assert gen.reports == r + 3 and gen.skipped_reports == skipped and not g.early

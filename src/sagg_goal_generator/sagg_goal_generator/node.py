@@ -19,6 +19,7 @@ import array
 import math
 import struct
 import sys
+import time
 
 import numpy as np
 
@@ -56,6 +57,10 @@ NODE_SCHEMA: Schema = (
           "checkpoint after a crash. Our choice.", low=1, high=10000),
     Param("journal_fsync", "bool", False,
           "fsync the goal journal after every goal (survives a power cut, not only a killed process)."),
+    Param("report_reorder_wait", "float", 2.0,
+          "A report ahead of the next one expected is kept this long (s) for the ones before it "
+          "(reordered, or re-delivered from the learner's history after a re-subscription) before "
+          "those are counted as lost and skipped. Our choice.", low=0.0, high=3600.0),
     Param("report_window", "int", 10000,
           "A competence report whose seq lies more than this beyond the last one processed is rejected "
           "(its gap is not skipped; DESIGN §8). The learner's /sagg/competence history (10000) bounds a "
@@ -122,6 +127,7 @@ class GoalGeneratorNode(Node):
         srv = self.create_service(NextGoal, "/sagg/next_goal", self.on_next_goal)
         srv.__class__ = DeferrableService
         self.waiting: list[Deferred] = []   # requests waiting for their reports
+        self.early: dict[int, tuple] = {}   # seq -> (kind, target, competence, received): reports ahead of the next
         self.checkpointer = None
         self.replay_goals: list = []  # journaled goals to choose again after a resume
         self.goals_to_publish: list = []  # journaled goals to publish again after a resume
@@ -185,13 +191,43 @@ class GoalGeneratorNode(Node):
             self.resubscribe_due = True
             return
         if msg.seq != gen.reports + 1:
-            lost = msg.seq - gen.reports - 1
-            self.guard.reject("report.lost", f"competence report {msg.seq} follows report {gen.reports}: "
-                                             f"{lost} report(s) lost or reordered, counted as skipped (goals "
-                                             "no longer match an in-process run)")
+            # early: kept until the reports before it come (reordered, or re-delivered from the
+            # learner's history after a re-subscription); skipped only after report_reorder_wait
+            if msg.seq not in self.early:
+                self.early[msg.seq] = (msg.kind, target, msg.competence, time.monotonic())
+            return
+        gen.report(msg.kind, target, msg.competence)
+        self._after_report()
+        if self.early:
+            self._drain_early()
+
+    def _check_early(self, now: float | None = None) -> None:
+        """Skip the reports missing before the kept early ones after report_reorder_wait."""
+        now = time.monotonic() if now is None else now
+        if min(v[3] for v in self.early.values()) <= now - self.params["report_reorder_wait"]:
+            self._drain_early(skip=True)
+
+    def _drain_early(self, skip: bool = False) -> None:
+        """Process the kept early reports that are now next in line; ``skip``: first count the
+        missing ones before the earliest as lost (they did not come within report_reorder_wait)."""
+        gen = self.gen
+        if skip and self.early and gen.reports + 1 not in self.early:
+            first = min(self.early)
+            lost = first - gen.reports - 1
+            self.guard.reject("report.lost", f"competence report {first} follows report {gen.reports}: {lost} "
+                                             "report(s) lost, counted as skipped (goals no longer match an "
+                                             "in-process run)")
             for _ in range(lost):
                 gen.skip_report()
-        gen.report(msg.kind, target, msg.competence)
+        while gen.reports + 1 in self.early:
+            kind, target, competence, _ = self.early.pop(gen.reports + 1)
+            gen.report(kind, target, competence)
+            self._after_report()
+        for seq in [q for q in self.early if q <= gen.reports]:
+            del self.early[seq]
+
+    def _after_report(self) -> None:
+        gen = self.gen
         if self.checkpointer is not None:
             self._after_report_checkpoint()
         self.regions_dirty = True
@@ -343,6 +379,8 @@ class GoalGeneratorNode(Node):
     def on_regions_timer(self) -> None:
         if self.resubscribe_due:
             self._check_report_publishers()
+        if self.early:
+            self._check_early()
         if self.goals_to_publish and self._goal_subscribers_ok():
             for rec in self.goals_to_publish:
                 self._publish_goal(rec)

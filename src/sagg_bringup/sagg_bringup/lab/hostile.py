@@ -438,7 +438,7 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
 
 def bench_hostile(config: str, minutes: float, out_dir: str | None, sets: list[str] | None = None,
                   quiet: float = 3.0, out: Callable[[str], None] = print, only: list[str] | None = None,
-                  eval_every: int = 5000) -> dict:
+                  eval_every: int = 5000, drain: float = 20.0) -> dict:
     """Both phases (half of ``minutes`` each); prints the per-case table and the invariants;
     writes OUT/hostile.json. Returns it (``ok``: every case survived, counted, logged and learning
     went on, and every invariant holds)."""
@@ -449,7 +449,7 @@ def bench_hostile(config: str, minutes: float, out_dir: str | None, sets: list[s
     rows = []
     for phase in ("content", "publishers"):
         outcomes, inv, logged = run_phase(phase, config, minutes * 30.0, outp, sets or [], quiet, out, only,
-                                          eval_every)
+                                          eval_every, drain)
         result["phases"][phase] = {"cases": {k: vars(v) for k, v in outcomes.items()}, "logged": logged,
                                    "invariants": inv}
         for name, o in outcomes.items():
