@@ -95,5 +95,9 @@ def test_hostile_bench_short(tmp_path):
     assert res["ok"], "\n".join(lines)
     content = res["phases"]["content"]
     assert set(content["cases"]) == {"joint states 3.0 rad", "report seq +10^12"}
-    inv = res["phases"]["publishers"]["invariants"]
-    assert inv["bag complete for the legitimate publishers"] and inv["no command farther than max_joint_step"]
+    for phase in ("content", "publishers"):
+        inv = res["phases"][phase]["invariants"]
+        assert inv["bag complete for the legitimate publishers"] is True
+        assert inv["no command farther than max_joint_step"] is True
+        assert inv["every stored α is a posture the driver published"] is True
+        assert inv["recorder dropped"] == {}

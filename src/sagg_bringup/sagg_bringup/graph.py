@@ -806,6 +806,22 @@ class GraphSession:
                 if may_end(now - done_at):
                     return
 
+    def drain_recorder(self, quiet: float = 0.5, limit: float = 60.0) -> None:
+        """After the nodes stopped: take what the recorder's subscriptions still hold (a recorder
+        that fell behind, e.g. on an interrupted run on a loaded machine, would otherwise lose its
+        backlog), until nothing came for ``quiet`` s (at most ``limit`` s)."""
+        if self.recorder is None or self.bag.closed:
+            return
+        t_end = time.perf_counter() + limit
+        last, t_last = self.bag.written, time.perf_counter()
+        while time.perf_counter() < t_end:
+            self.executor.spin_once(timeout_sec=0.05)
+            now = time.perf_counter()
+            if self.bag.written != last:
+                last, t_last = self.bag.written, now
+            elif now - t_last >= quiet:
+                break
+
     def final_drain(self, seconds: float = 0.3) -> None:
         """Spin a little longer: the recorder takes the final Evaluation message."""
         t_end = time.perf_counter() + seconds
@@ -834,6 +850,7 @@ class GraphSession:
             stop_processes(self.procs)
             for sig, handler in old_handlers.items():
                 signal.signal(sig, handler)
+            self.drain_recorder()
             if between is not None:
                 between()
             self.close()

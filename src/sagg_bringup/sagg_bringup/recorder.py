@@ -183,6 +183,26 @@ def _msg_class(msgtype: str):
     return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
 
+def _follow(tails: list[int], seq: int, streams: int = 4, max_gap: int = 100_000) -> int:
+    """Messages missed before publication number ``seq``, given the last numbers ``tails`` of the
+    topic's recent publisher streams (updated; most recent last). A number continues the stream
+    whose last number is the largest below it; one at or below every tail, or too far ahead, starts
+    a new stream (another publisher) and counts nothing."""
+    best = -1
+    for i, t in enumerate(tails):
+        if t < seq and (best < 0 or t > tails[best]):
+            best = i
+    if best >= 0 and seq - tails[best] <= max_gap:
+        gap = seq - tails[best] - 1
+        tails.append(seq)
+        del tails[best]
+        return gap
+    tails.append(seq)
+    if len(tails) > streams:
+        del tails[0]
+    return 0
+
+
 class TopicRecorder:
     """Raw subscriptions on ``node`` writing every message of ``topics`` into ``bag``.
 
@@ -216,7 +236,7 @@ class TopicRecorder:
         self.streams: dict = {}              # topic -> PublisherStream (topics with an expected publisher)
         self.rejected: dict[str, int] = {}   # "<topic> <why>" -> messages not handed to the handler
         self.dropped: dict[str, int] = {}    # topic -> messages published but never received (missed)
-        self.last_seq: dict[str, int] = {}   # topic -> the last publication sequence number received
+        self.last_seq: dict[str, list] = {}  # topic -> the last publication numbers of its recent streams
         self._offered: set[str] = set()      # topics whose publishers' QoS went to the bag
         self.problems: dict[str, str] = {}   # topic -> the last publisher problem seen
         self._gated = [t for t in topics if t.name in gate]
@@ -276,13 +296,12 @@ class TopicRecorder:
             # publisher; the count starts again whenever the set of publishers changed)
             seq = info["publication_sequence_number"]
             if count_drops and seq is not None:
-                if holder["sub"].get_publisher_count() == 1:
-                    prev = last_seq.get(topic)
-                    if prev is not None and seq > prev + 1:
-                        dropped[topic] = dropped.get(topic, 0) + seq - prev - 1
-                    last_seq[topic] = seq
-                else:
-                    last_seq.pop(topic, None)
+                tails = last_seq.setdefault(topic, [])
+                gap = _follow(tails, seq)
+                # counted while the topic has one publisher (a departed one's queued messages are
+                # told apart by their numbers: each stream's last number is followed separately)
+                if gap and holder["sub"].get_publisher_count() == 1:
+                    dropped[topic] = dropped.get(topic, 0) + gap
             self.first_ns.setdefault(topic, now)
             self.last_ns[topic] = now
             if handler is not None:

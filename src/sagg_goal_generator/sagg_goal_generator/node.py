@@ -165,11 +165,6 @@ class GoalGeneratorNode(Node):
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
             self.guard.reject("report.undecodable", f"/sagg/competence: undecodable message ({exc})")
             return
-        if msg.seq <= gen.reports:
-            # already processed: re-sent from the learner's history after a restart, or a duplicate
-            self.guard.reject("report.duplicate", f"competence report {msg.seq}: already have reports "
-                                                  f"1..{gen.reports}; dropped")
-            return
         window = self.params["report_window"]
         if msg.seq > gen.reports + window:
             # (checked before anything else: a forged seq of 10^12 must cost nothing)
@@ -183,6 +178,11 @@ class GoalGeneratorNode(Node):
         if problem:
             # rejected before its seq is consumed: the real report with this number is still taken
             self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; dropped")
+            return
+        if msg.seq <= gen.reports:
+            # already processed: re-sent from the learner's history after a restart, or a duplicate
+            self.guard.reject("report.duplicate", f"competence report {msg.seq}: already have reports "
+                                                  f"1..{gen.reports}; dropped")
             return
         problem = self.watch.problem("/sagg/competence")  # a well-formed new report: from the learner only
         if problem:
