@@ -280,9 +280,9 @@ class LearnerNode(LearnerNodeBase):
         if not ((alpha >= self.js_lo).all() and (alpha <= self.js_hi).all()):
             self._reject_js_values(alpha, v)
             return
-        if v is not None:
-            vmax = self.max_velocity
-            if not ((v >= -vmax).all() and (v <= vmax).all()):
+        if v is not None:  # (min/max serve the settle test below too; NaN fails both comparisons)
+            vlo, vhi = v.min(), v.max()
+            if not (-self.max_velocity <= vlo and vhi <= self.max_velocity):
                 self._reject_js_values(alpha, v)
                 return
         verdict = self.js_track.check(st, time.monotonic_ns())
@@ -292,7 +292,7 @@ class LearnerNode(LearnerNodeBase):
             if self.state is self.RUNNING_COMMAND:  # the command's freshness bound moves back too
                 self.js_min = min(self.js_min, st - 1 + self.delay_ns)
         sv = self.settle_velocity
-        settled = v is None or bool(-sv < v.min() and v.max() < sv)  # every |velocity| < settle_velocity
+        settled = v is None or bool(-sv < vlo and vhi < sv)  # every |velocity| < settle_velocity
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
         self.js_rx = time.monotonic()
         if self.js_run.ok():
@@ -541,8 +541,6 @@ class LearnerNode(LearnerNodeBase):
                 self.publish_status()
                 return
             if type(req) is Command:
-                if self.single_publisher and (self.watch.problem("/joint_states") or self.watch.problem(self.task_topic)):
-                    self._check_publishers()
                 if self.holds:
                     self.pending = req
                     self.state = self.PAUSED
