@@ -806,6 +806,36 @@ class GraphSession:
                 if may_end(now - done_at):
                     return
 
+    def catch_up(self, limit: float = 120.0) -> None:
+        """After Ctrl-C / SIGTERM: pause the learner (/sagg/pause; the micro-action in flight
+        completes) and record until every sample it stored is in and nothing came for 0.5 s (at
+        most ``limit`` s; a second Ctrl-C stops at once), so that an interrupted run's bag is as
+        complete as a finished one's (a recorder behind a fast lockstep learner on a loaded machine
+        otherwise loses its backlog)."""
+        if self.recorder is None or self.bag.closed:
+            return
+        from std_srvs.srv import SetBool
+        self.stop_signal.clear()
+        cli = self.node.create_client(SetBool, "/sagg/pause")
+        try:
+            if cli.service_is_ready():
+                cli.call_async(SetBool.Request(data=True))
+            else:
+                return
+            st, bag = self.st, self.bag
+            t0 = time.perf_counter()
+            last, t_last, paused = bag.written, t0, False
+            while time.perf_counter() - t0 < limit and not self.stop_signal:
+                self.executor.spin_once(timeout_sec=0.05)
+                now = time.perf_counter()
+                paused = paused or bool(st.status and st.status.get("paused"))
+                if bag.written != last:
+                    last, t_last = bag.written, now
+                elif paused and st.status and st.samples >= st.status["samples"] and now - t_last >= 0.5:
+                    break
+        finally:
+            self.node.destroy_client(cli)
+
     def drain_recorder(self, quiet: float = 0.5, limit: float = 60.0) -> None:
         """After the nodes stopped: take what the recorder's subscriptions still hold (a recorder
         that fell behind, e.g. on an interrupted run on a loaded machine, would otherwise lose its
@@ -843,6 +873,7 @@ class GraphSession:
             body()
         except KeyboardInterrupt:
             self.interrupted = True
+            self.catch_up()
         except GraphError as exc:
             self.error = exc
         finally:
