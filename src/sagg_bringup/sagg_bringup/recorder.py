@@ -34,7 +34,9 @@ class TopicSpec:
 
     name: str
     msgtype: str
-    depth: int = 10000
+    # (10000 overflowed: a lockstep learner outran the recorder by more than that on a machine at
+    # load 16, and the reader dropped the oldest messages; now counted in bag.dropped either way)
+    depth: int = 100000
     transient_local: bool = False
     publisher: str | None = None  # the node whose messages the handler accepts (None: any single publisher)
 
