@@ -404,3 +404,11 @@ def test_reordered_reports_are_kept_not_skipped(nodes):
     assert gen.reports == r and sorted(g.early) == [r + 2, r + 3]
     g.on_report(report_bytes(r + 1))
     assert gen.reports == r + 3 and gen.skipped_reports == skipped and not g.early
+
+
+def test_recorder_counts_the_messages_it_missed_from_publisher_sequence_numbers():
+    from sagg_bringup.recorder import _follow
+    tails: list[int] = []
+    assert [_follow(tails, s) for s in (1, 2, 5, 6, 10)] == [0, 0, 2, 0, 3]
+    # a restarted publisher (numbers start again) is a new stream, not a loss
+    assert [_follow(tails, s) for s in (1, 2, 3, 11)] == [0, 0, 0, 0]

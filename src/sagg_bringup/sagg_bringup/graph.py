@@ -1139,7 +1139,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         splits=tracker.splits,
         bag={"path": str(bag_path), "paths": [str(b) for b in prior_bags + [bag_path]], "storage": "mcap",
              "topics": bag_topics, "sequence_gaps": st.gaps, "rejected": session.rejected(),
-             "dropped": dict(recorder.dropped)},
+             "dropped": dict(recorder.dropped), "dropped_not_estimated": sorted(recorder.drops_unknown)},
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
 
     def write_report() -> None:

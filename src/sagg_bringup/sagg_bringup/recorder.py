@@ -238,6 +238,7 @@ class TopicRecorder:
         self.streams: dict = {}              # topic -> PublisherStream (topics with an expected publisher)
         self.rejected: dict[str, int] = {}   # "<topic> <why>" -> messages not handed to the handler
         self.dropped: dict[str, int] = {}    # topic -> messages published but never received (missed)
+        self.drops_unknown: set[str] = set()  # topics that had several publishers: no drop estimate
         self.last_seq: dict[str, list] = {}  # topic -> the last publication numbers of its recent streams
         self._offered: set[str] = set()      # topics whose publishers' QoS went to the bag
         self.problems: dict[str, str] = {}   # topic -> the last publisher problem seen
@@ -283,6 +284,7 @@ class TopicRecorder:
         last_seq = self.last_seq
         dropped = self.dropped
         offered = self._offered
+        unsure = self.drops_unknown
         holder: dict = {}
         count_drops = t.name not in NO_DROP_COUNT
 
@@ -297,13 +299,14 @@ class TopicRecorder:
             # message info), counted while the topic has exactly one publisher (numbers are per
             # publisher; the count starts again whenever the set of publishers changed)
             seq = info["publication_sequence_number"]
-            if count_drops and seq is not None:
-                tails = last_seq.setdefault(topic, [])
-                gap = _follow(tails, seq)
-                # counted while the topic has one publisher (a departed one's queued messages are
-                # told apart by their numbers: each stream's last number is followed separately)
-                if gap and holder["sub"].get_publisher_count() == 1:
-                    dropped[topic] = dropped.get(topic, 0) + gap
+            if count_drops and seq is not None and topic not in unsure:
+                if holder["sub"].get_publisher_count() != 1:
+                    # numbers of several publishers interleave: no estimate for this topic from now on
+                    unsure.add(topic)
+                else:
+                    gap = _follow(last_seq.setdefault(topic, []), seq)
+                    if gap:
+                        dropped[topic] = dropped.get(topic, 0) + gap
             self.first_ns.setdefault(topic, now)
             self.last_ns[topic] = now
             if handler is not None:

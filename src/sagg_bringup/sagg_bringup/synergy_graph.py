@@ -175,7 +175,8 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
         splits=[],
         bag={"path": str(out / "bag"), "storage": "mcap", "topics": session.bag.topics(),
              "sequence_gaps": {"/sagg/sample": st.gaps["/sagg/sample"]}, "rejected": session.rejected(),
-             "dropped": dict(session.recorder.dropped)},
+             "dropped": dict(session.recorder.dropped),
+             "dropped_not_estimated": sorted(session.recorder.drops_unknown)},
         synergy={"setup": full["sagg_sim_bridge"]["setup"], "outcome_extents": outcome_extents(outcomes)})
     return session.finish(summary, (lambda: write_synergy_report(summary, out)) if report else None)
 
