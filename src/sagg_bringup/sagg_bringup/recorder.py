@@ -242,6 +242,7 @@ class TopicRecorder:
         self.last_seq: dict[str, list] = {}  # topic -> the last publication numbers of its recent streams
         self._offered: set[str] = set()      # topics whose publishers' QoS went to the bag
         self.problems: dict[str, str] = {}   # topic -> the last publisher problem seen
+        self._logged: dict[str, float] = {}  # when each kind was last logged
         self._gated = [t for t in topics if t.name in gate]
         self._wait_for = set(wait_for)
         self._waiting_subs = []
@@ -333,10 +334,13 @@ class TopicRecorder:
         return sub
 
     def _drop(self, topic: str, why: str, detail: str) -> None:
+        """Count a message not handed to its handler; logged at the first and then at most every 5 s."""
         key = f"{topic} {why}"
         n = self.rejected.get(key, 0) + 1
         self.rejected[key] = n
-        if n == 1 or self.problems.get(key) != detail:
+        now = time.monotonic()
+        if n == 1 or now - self._logged.get(key, 0.0) >= 5.0:
+            self._logged[key] = now
             self.problems[key] = detail
             self.node.get_logger().error(f"{topic}: message not used ({why}: {detail}); {n} so far")
 
