@@ -38,6 +38,7 @@ class TopicSpec:
     # load 16, and the reader dropped the oldest messages; now counted in bag.dropped either way)
     depth: int = 100000
     transient_local: bool = False
+    best_effort: bool = False  # (`sagg record` takes the publishers' reliability)
     publisher: str | None = None  # the node whose messages the handler accepts (None: any single publisher)
 
 
@@ -72,7 +73,7 @@ def _qos(spec: TopicSpec):
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                     QosTime)
     zero = QosTime(0, 0)  # rosbag2's "unspecified" (the rmw default)
-    return Qos(QosHistory.KEEP_LAST, spec.depth, QosReliability.RELIABLE,
+    return Qos(QosHistory.KEEP_LAST, spec.depth, QosReliability.BEST_EFFORT if spec.best_effort else QosReliability.RELIABLE,
                QosDurability.TRANSIENT_LOCAL if spec.transient_local else QosDurability.VOLATILE,
                zero, zero, QosLiveliness.AUTOMATIC, zero, False)
 
@@ -124,13 +125,19 @@ class BagWriter:
         self.types: dict[str, str] = {}
         try:
             for t in topics:
-                self.typestore.hash_rihs01(t.msgtype)  # an unknown type fails here, not mid-run
-                self.counts[t.name] = 0
-                self.types[t.name] = t.msgtype
+                self.add_topic(t)
         except Exception:
             self.abort()
             raise
         self.closed = False
+
+    def add_topic(self, t: TopicSpec) -> None:
+        """One more topic (e.g. first seen after the bag was opened); its connection is made at its
+        first message (or at :meth:`close`), with its publishers' QoS when :meth:`offer` gave them."""
+        self.typestore.hash_rihs01(t.msgtype)  # an unknown type fails here, not mid-run
+        self._specs[t.name] = t
+        self.counts[t.name] = 0
+        self.types[t.name] = t.msgtype
 
     def offer(self, topic: str, qos_profiles: list) -> None:
         """The offered QoS of ``topic``'s publishers (before its first message is written)."""
