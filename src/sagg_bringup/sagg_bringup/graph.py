@@ -835,9 +835,9 @@ class GraphSession:
                 if may_end(now - done_at):
                     return
 
-    def catch_up(self, limit: float = 120.0) -> None:
+    def catch_up(self, limit: float = 60.0) -> None:
         """After Ctrl-C / SIGTERM: pause the learner (/sagg/pause; the micro-action in flight
-        completes) and record until every sample it stored is in and nothing came for 0.5 s (at
+        completes) and record until every sample it stored is in and no new one came for 0.5 s (at
         most ``limit`` s; a second Ctrl-C stops at once), so that an interrupted run's bag is as
         complete as a finished one's (a recorder behind a fast lockstep learner on a loaded machine
         otherwise loses its backlog)."""
@@ -851,15 +851,16 @@ class GraphSession:
                 cli.call_async(SetBool.Request(data=True))
             else:
                 return
-            st, bag = self.st, self.bag
+            st = self.st
             t0 = time.perf_counter()
-            last, t_last, paused = bag.written, t0, False
+            # (samples, not all messages: status and idle joint states keep coming while paused)
+            last, t_last, paused = st.samples, t0, False
             while time.perf_counter() - t0 < limit and not self.stop_signal:
                 self.executor.spin_once(timeout_sec=0.05)
                 now = time.perf_counter()
                 paused = paused or bool(st.status and st.status.get("paused"))
-                if bag.written != last:
-                    last, t_last = bag.written, now
+                if st.samples != last:
+                    last, t_last = st.samples, now
                 elif paused and st.status and st.samples >= st.status["samples"] and now - t_last >= 0.5:
                     break
         finally:
