@@ -9,6 +9,7 @@ InputGuard (what /diagnostics publishes) and must leave the node's state as it w
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +73,16 @@ def tip_bytes(x, y, sec=1) -> bytes:
     return serialize_message(m)
 
 
+def fresh_stamps(n: LearnerNode) -> None:
+    """Forget the newest stamps (each test's messages are stamped anew) and the rejection runs."""
+    from sagg_common.envelope import RejectRun, StampTracker
+    p = n.params
+    n.js_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
+    n.tip_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
+    n.js_run, n.tip_run = RejectRun(p["plausibility.hold_after"]), RejectRun(p["plausibility.hold_after"])
+    n.js_stamp = n.tip_stamp = 0
+
+
 def learner_state(n: LearnerNode):
     return (None if n.js_alpha is None else n.js_alpha.tobytes(), n.js_stamp,
             None if n.tip is None else n.tip.tobytes(), n.tip_stamp, len(n.learner.memory), n.state)
@@ -99,20 +110,22 @@ def test_random_bytes_never_crash_any_callback(nodes, data):
 @FUZZ
 @given(names=st.lists(st.sampled_from(JOINTS + ["other", ""]), max_size=5),
        pos=st.lists(floats, max_size=5), vel=st.lists(floats, max_size=5))
-# finite values whose sum overflows (the hot path's quick test): accepted
+# finite values far outside the limits (issue 11: 1e308 was accepted): rejected
 @example(names=list(JOINTS), pos=[1.7e308] * len(JOINTS), vel=[-1.7e308] * len(JOINTS))
+# within the limits ± plausibility.joint_tolerance (0.1), velocities within the bound (1000): accepted
+@example(names=list(JOINTS), pos=[1.05, -1.05, 0.0], vel=[999.0, -999.0, 0.0])
 # one NaN velocity among finite values: rejected
 @example(names=list(JOINTS), pos=[0.1] * len(JOINTS), vel=[0.0] * (len(JOINTS) - 1) + [math.nan])
 def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos, vel):
     n = nodes["learner"]
-    n.js_stamp = 0  # this test's messages are all stamped 1 s: never "out of order"
+    fresh_stamps(n)  # this test's messages are all stamped 1 s: never "out of order"
     before, total = learner_state(n), n.guard.total
     n.on_joint_state(js_bytes(names, pos, vel))
     where = {nm: i for i, nm in enumerate(names)}
     valid = (len(pos) == len(names) and len(vel) in (0, len(names)) and len(where) == len(names)
              and all(j in where for j in JOINTS)
-             and all(math.isfinite(pos[where[j]]) for j in JOINTS)
-             and (not vel or all(math.isfinite(vel[where[j]]) for j in JOINTS)))
+             and all(-1.1 <= pos[where[j]] <= 1.1 for j in JOINTS)  # (NaN fails)
+             and (not vel or all(-1000.0 <= vel[where[j]] <= 1000.0 for j in JOINTS)))
     if valid:
         assert np.array_equal(n.js_alpha, [pos[where[j]] for j in JOINTS]) and n.guard.total == total
     else:
@@ -123,10 +136,11 @@ def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos
 @given(x=floats, y=floats)
 def test_task_points_with_nan_or_inf_are_rejected(nodes, x, y):
     n = nodes["learner"]
-    n.tip_stamp = 0
+    fresh_stamps(n)
     before, total = n.tip, n.guard.total
     n.on_task_point(tip_bytes(x, y))
-    if math.isfinite(x) and math.isfinite(y):
+    # valid: finite and within Y ([-10, 10]²) enlarged by plausibility.task_margin (1: [-30, 30]²)
+    if -30.0 <= x <= 30.0 and -30.0 <= y <= 30.0:
         assert np.array_equal(n.tip, [x, y])
     else:
         assert n.guard.total == total + 1 and (n.tip is before)
@@ -134,7 +148,7 @@ def test_task_points_with_nan_or_inf_are_rejected(nodes, x, y):
 
 def test_out_of_order_observations_keep_the_newest(nodes):
     n = nodes["learner"]
-    n.js_stamp = n.tip_stamp = 0
+    fresh_stamps(n)
     n.on_joint_state(js_bytes(JOINTS, [0.1, 0.2, 0.3], [], sec=5))
     n.on_task_point(tip_bytes(1.0, 2.0, sec=5))
     total = n.guard.total
@@ -162,11 +176,11 @@ def test_reports_with_bad_content_are_skipped_without_corrupting_the_tree(nodes,
     g.on_report(report_bytes(seq, kind=kind, target=coords, reached=coords, competence=competence))
     valid = (kind in (0, 1, 2, 3) and len(coords) == 2 and all(math.isfinite(c) for c in coords)
              and math.isfinite(competence) and competence <= 0.0)
-    assert gen.reports == seq  # numbering stays aligned either way
     if valid:
-        assert g.guard.total == total and gen.skipped_reports == skipped
+        assert gen.reports == seq and g.guard.total == total and gen.skipped_reports == skipped
     else:
-        assert g.guard.total == total + 1 and gen.skipped_reports == skipped + 1
+        # rejected without consuming its seq: the real report with that number is still taken
+        assert gen.reports == seq - 1 and g.guard.total == total + 1 and gen.skipped_reports == skipped
         assert len(gen.tree.leaves()) == leaves
 
 
@@ -177,7 +191,9 @@ def test_duplicated_and_lost_reports(nodes):
     g.on_report(report_bytes(seq))
     g.on_report(report_bytes(seq))  # duplicate: dropped
     assert gen.reports == seq and g.guard.counts["report.duplicate"] >= 1
-    g.on_report(report_bytes(seq + 3))  # two lost: skipped, then this one is used
+    g.on_report(report_bytes(seq + 3))  # two missing: kept for report_reorder_wait...
+    assert gen.reports == seq
+    g._check_early(now=time.monotonic() + 60.0)  # ...then they are skipped, and this one is used
     assert gen.reports == seq + 3 and g.guard.counts["report.lost"] >= 1
     assert gen.skipped_reports >= 2
 

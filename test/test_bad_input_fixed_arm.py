@@ -16,7 +16,7 @@ from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_a
 from sagg_low_level.position_link import PositionLink
 from sagg_low_level.synergy_node import SynergyLearnerNode
 
-from joint_state_bytes import encode_joint_state
+from sagg_common.cdr import encode_joint_state
 
 
 @pytest.fixture(scope="module")

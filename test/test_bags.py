@@ -19,7 +19,7 @@ from sagg_bringup.bags import relearn
 from sagg_bringup.graph import pick_domain_id
 from sagg_low_level.memory import SampleMemory
 
-from learner_checkpoint import checkpoint_memory
+from sagg_low_level.checkpoint import checkpoint_memory
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -78,6 +78,43 @@ def test_relearn_detects_a_tampered_recording(run_dir, tmp_path):
     from sagg_common.params import ConfigError
     with pytest.raises(ConfigError, match="samples are missing"):
         relearn([tmp_path / "bag"], tmp_path / "re", params_file=run_dir / "params.yaml", out=lambda _: None)
+
+
+def test_relearn_drops_hostile_messages_and_rebuilds_the_real_memory(run_dir, tmp_path):
+    """Issue 11: a NaN sample, a well-formed sample far ahead, a NaN report, a report with seq
+    10^12, a NaN goal and undecodable bytes in a bag: relearn never crashes, counts what it drops,
+    and rebuilds exactly the run's memory, goals and tree (no forged message took a real index)."""
+    from sagg_bringup.recorder import BagWriter, TopicSpec
+    from sagg_common.cdr import encode_report, encode_sample
+    from rclpy.serialization import serialize_message
+    from sagg_msgs.msg import Goal
+    summary = json.loads((run_dir / "summary.json").read_text())
+    msgs = list(bag_messages([run_dir / "bag"]))
+    types = {t: ty for t, ty, _, _ in msgs}
+    bag = BagWriter(tmp_path / "bag", [TopicSpec(t, ty) for t, ty in types.items()])
+    injected = False
+    samples = 0
+    for topic, _, ts, raw in msgs:
+        if topic == "/sagg/sample":
+            if samples == STEPS // 2 and not injected:
+                injected = True
+                z = np.zeros(7)
+                bag.write(topic, ts, encode_sample(ts, samples, z + np.nan, z, np.zeros(2)))   # NaN, next index
+                bag.write(topic, ts, encode_sample(ts, samples + 1000, z, z, np.zeros(2)))     # far ahead
+                bag.write(topic, ts, encode_sample(ts, samples, z + 9.0, z, np.zeros(2)))      # α outside limits
+                bag.write(topic, ts, b"\x00\x01\x00\x00garbage")
+                bag.write("/sagg/competence", ts, encode_report(ts, 10**12, 0, 3, (), (1.0, 1.0), (0.0, 0.0), 0.0, 1))
+                bag.write("/sagg/competence", ts, encode_report(ts, 1, 0, 3, (), (np.nan, 1.0), (0.0, 0.0), 0.0, 1))
+                g = Goal()
+                g.seq, g.position = 2, [float("nan"), 0.0]
+                bag.write("/sagg/goal", ts, serialize_message(g))
+            samples += 1
+        bag.write(topic, ts, raw)
+    bag.close()
+    s = relearn([tmp_path / "bag"], tmp_path / "re", params_file=run_dir / "params.yaml", out=lambda _: None)
+    assert s["memory"]["digest"] == summary["memory"]["digest"] and s["memory"]["samples"] == STEPS
+    assert s["goals_match"] and s["regions_match"] and s["reports"] == summary["reports"]
+    assert s["rejected"] == {"sample": 3, "sample undecodable": 1, "report": 2, "goal": 1}
 
 
 def _subscriber(domain: int, topics: dict[str, str]):

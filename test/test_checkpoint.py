@@ -18,7 +18,7 @@ from sagg_low_level.checkpoint import LearnerCheckpointer
 from sagg_low_level.memory import SampleMemory
 
 import test_nodes_graph
-from learner_checkpoint import checkpoint_memory
+from sagg_low_level.checkpoint import checkpoint_memory
 from test_nodes_graph import (ROOT, RUN_TIMEOUT, STARTUP_TIMEOUT, Collector, graph_params, in_process, logs,
                               same_bits, start, stop)
 
@@ -305,7 +305,7 @@ def test_a_request_answered_meanwhile_gets_the_same_goal(ros_env, tmp_path):
     params = graph_params(ROOT / "config" / "arm15_y50.yaml", tmp_path / "params.yaml", {"dof": 7, "mode": "kinematic"},
                           generator={"min_goal_subscribers": 1, "regions_period": 3600.0})
     gen = start(ros_env, "goal_generator", params, tmp_path)
-    node = rclpy.create_node("sagg_test_learner", context=ros_env["ctx"])
+    node = rclpy.create_node("sagg_learner", context=ros_env["ctx"])  # (the generator takes reports from the learner only)
     ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
     ex.add_node(node)
     pub = node.create_publisher(CompetenceReport, "/sagg/competence", QoSProfile(

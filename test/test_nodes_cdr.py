@@ -14,7 +14,7 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from sagg_common import cdr
 from sagg_msgs.msg import CompetenceReport, RegionTree, Sample
 
-from joint_state_bytes import encode_joint_state
+from sagg_common.cdr import encode_joint_state
 
 floats = st.floats(allow_nan=False, width=64)
 arrays = st.lists(floats, max_size=9).map(lambda v: np.array(v, dtype=np.float64))

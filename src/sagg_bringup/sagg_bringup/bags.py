@@ -30,8 +30,10 @@ import numpy as np
 import yaml
 
 from sagg_common.cdr import decode_report, decode_sample
+from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, flatten
+from sagg_common.report_kinds import KIND_NAMES
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
@@ -190,35 +192,67 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     goals: dict[int, tuple] = {}
     snapshots: dict[int, bytes] = {}  # /sagg/regions by reports folded in (the last one of each count)
     dup = {"samples": 0, "reports": 0, "goals": 0}
+    # every recorded message is checked as the nodes check it (DESIGN §8): a bad one is dropped and
+    # counted, never stored, and never takes the index / seq of a real one
+    dropped: dict[str, int] = {}
+    ahead: set[int] = set()  # indices of well-formed samples received before the one expected
+
+    def drop(kind: str) -> None:
+        dropped[kind] = dropped.get(kind, 0) + 1
+
+    j_lo, j_hi = full["sagg_learner"]["joint_limits.lower"], full["sagg_learner"]["joint_limits.upper"]
+    j_tol = full["sagg_learner"].get("plausibility.joint_tolerance", 0.1)
+    if len(j_lo) != mem.alpha.shape[1]:  # (a params file without the arm's joints: the arm's limits)
+        j_lo, j_hi = spec.limits()
+    window = full["sagg_goal_generator"].get("report_window", 10000)
     wanted = {"/sagg/sample", "/sagg/competence", "/sagg/goal", "/sagg/regions"}
     for topic, _, _, raw in bag_messages(paths, wanted):
-        if topic == "/sagg/sample":
-            _, idx, a, da, dy = decode_sample(raw)
-            if idx < len(mem):
-                dup["samples"] += 1
-                continue
-            if idx != len(mem):
-                raise ConfigError(f"bag: /sagg/sample index {idx} after {len(mem)} samples: samples are missing")
-            mem.add(a, da, dy)
-        elif topic == "/sagg/competence":
-            r = decode_report(raw)
-            if r.seq in reports:
-                dup["reports"] += 1
-            reports.setdefault(int(r.seq), r)
-        elif topic == "/sagg/goal":
-            from rclpy.serialization import deserialize_message
-            from sagg_msgs.msg import Goal
-            g = deserialize_message(bytes(raw), Goal)
-            key = (int(g.mode), int(g.after_report), np.asarray(g.position, float).tobytes())
-            if int(g.seq) in goals:
-                dup["goals"] += 1
-                if goals[int(g.seq)] != key:
-                    raise ConfigError(f"bag: goal {g.seq} recorded twice with different values")
-            goals.setdefault(int(g.seq), key)
-        else:
-            from rclpy.serialization import deserialize_message
-            from sagg_msgs.msg import RegionTree
-            snapshots[int(deserialize_message(bytes(raw), RegionTree).reports)] = bytes(raw)
+        try:
+            if topic == "/sagg/sample":
+                _, idx, a, da, dy = decode_sample(raw)
+                if idx < len(mem):
+                    dup["samples"] += 1
+                    continue
+                if sample_problem(idx, len(mem), a, da, dy, j_lo, j_hi, gen.dim, j_tol):
+                    if idx > len(mem) and not sample_problem(idx, idx, a, da, dy, j_lo, j_hi, gen.dim, j_tol):
+                        ahead.add(int(idx))
+                    drop("sample")
+                    continue
+                mem.add(a, da, dy)
+            elif topic == "/sagg/competence":
+                r = decode_report(raw)
+                target = r.target if len(r.target) else r.reached
+                if not 0 < r.seq <= len(reports) + window or report_problem(
+                        r.kind, target, r.competence, gen.dim, KIND_NAMES):
+                    drop("report")
+                    continue
+                if r.seq in reports:
+                    dup["reports"] += 1
+                reports.setdefault(int(r.seq), r)
+            elif topic == "/sagg/goal":
+                from rclpy.serialization import deserialize_message
+                from sagg_msgs.msg import Goal
+                g = deserialize_message(bytes(raw), Goal)
+                if goal_problem(g.position, gen.lower, gen.upper)[1] or not 0 < int(g.seq) <= len(goals) + window:
+                    drop("goal")
+                    continue
+                key = (int(g.mode), int(g.after_report), np.asarray(g.position, float).tobytes())
+                if int(g.seq) in goals:
+                    dup["goals"] += 1
+                    if goals[int(g.seq)] != key:
+                        raise ConfigError(f"bag: goal {g.seq} recorded twice with different values")
+                goals.setdefault(int(g.seq), key)
+            else:
+                from rclpy.serialization import deserialize_message
+                from sagg_msgs.msg import RegionTree
+                snapshots[int(deserialize_message(bytes(raw), RegionTree).reports)] = bytes(raw)
+        except ConfigError:
+            raise
+        except Exception:  # noqa: BLE001 - an undecodable message is dropped, never a crash
+            drop(f"{topic.rsplit('/', 1)[-1]} undecodable")
+    if len(mem) + 1 in ahead:  # the recording goes on after a hole: samples are missing, not forged
+        raise ConfigError(f"bag: /sagg/sample index {len(mem)} is not recorded but later samples are "
+                          f"({len(ahead)} of them, from {min(ahead)}): samples are missing")
     # the generator, fed as the node feeds it: reports in seq order, each goal chosen once the
     # reports it follows are in
     seqs = sorted(reports)
@@ -283,7 +317,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         "format": "sagg.relearn/1", "bags": [str(p) for p in paths], "strategy": lp["strategy"], "seed": lp["seed"],
         "memory": {"samples": len(mem), "digest": mem.digest(), "bytes": int(mem.nbytes)},
         "reports": gen.reports, "goals": len(gen.goals), "regions": len(gen.tree.leaves()),
-        "splits": len(gen.tree.splits), "duplicates_dropped": dup,
+        "splits": len(gen.tree.splits), "duplicates_dropped": dup, "rejected": dropped,
         "goals_match": not mismatches and len(gen.goals) == len(goals), "goal_mismatches": mismatches[:100],
         "regions_match": regions_match, "regions_snapshots_checked": len(checked),
         "regions_snapshots_differing": differ[:100],
@@ -311,5 +345,6 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         f"{len(gen.goals)} goals (match recorded: {summary['goals_match']}), {len(gen.tree.leaves())} regions "
         f"(equal to all {len(checked)} recorded /sagg/regions snapshots: {regions_match})"
         + (f"; mean test error {curve[-1]['mean_error']:.3f} (median {curve[-1]['median_error']:.3f})" if curve else "")
+        + (f"; rejected {sum(dropped.values())} message(s): {dropped}" if dropped else "")
         + f" -> {outp}")
     return summary

@@ -7,24 +7,10 @@ from pathlib import Path
 
 import yaml
 
-from sagg_common.params import STRATEGIES, ConfigError
+from sagg_common.params import STRATEGIES, ConfigError, parse_set
 
 # Each command imports its modules when it runs (lazily): rclpy, mujoco and matplotlib take seconds
 # to import, and `sagg params` or `sagg bench table` need none of them.
-
-
-def parse_set(items: list[str] | None) -> dict:
-    """``--set name=value`` overrides; values are parsed as YAML (numbers, lists, booleans)."""
-    out = {}
-    for item in items or []:
-        if "=" not in item:
-            raise ConfigError(f"--set {item!r}: expected name=value")
-        name, value = item.split("=", 1)
-        try:
-            out[name.strip()] = yaml.safe_load(value)
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {name}: value {value!r} is not valid YAML ({exc})") from exc
-    return out
 
 
 def positive_int(text: str) -> int:
@@ -223,6 +209,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "(needs the optional extra: make ray)")
     c.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override any parameter for every run (repeatable)")
+    h = bsub.add_parser("hostile", help="a running graph under a fuzzer publishing every hostile case of "
+                                        "issue 11 on every topic; per-case table and invariants")
+    h.add_argument("--config", default="config/arm8.yaml")
+    h.add_argument("--minutes", type=float, default=10.0, help="total fuzzing time (two phases, half each)")
+    h.add_argument("--quiet", type=float, default=3.0, help="seconds watched after each case")
+    h.add_argument("--out", default=None, help="directory (default runs/hostile-<time>)")
+    h.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
     qu = bsub.add_parser("quality", help="test error against queries for both learner contexts and "
                                          "every strategy, over seeds, in the config's Y and a wide one; "
                                          "queries/s, mean ± std, SAGG-RIAC vs SAGG-RANDOM p-values, the "
@@ -405,6 +398,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "bench" and args.bench == "soak":
             from .lab.soak import main_soak
             return main_soak(args, parse_set(args.set))
+        if args.command == "bench" and args.bench == "hostile":
+            from .lab.hostile import bench_hostile
+            res = bench_hostile(args.config, args.minutes, args.out, args.set or [], args.quiet)
+            return 0 if res["ok"] else 1
         if args.command == "bench" and args.bench == "table":
             from .compare import load_results, summary_markdown
             results = load_results(args.results)

@@ -41,10 +41,11 @@ from typing import Any, Callable
 import numpy as np
 import yaml
 
+from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
-from sagg_common.report_kinds import KIND_GOAL
+from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
 from sagg_goal_generator.core import MODE_NAMES
 
 from .bag_reader import bag_messages
@@ -210,11 +211,12 @@ def write_params_file(path: Path, params: dict[str, dict]) -> None:
 def sagg_topics() -> list[TopicSpec]:
     """The /sagg topics every graph run records (the hardware topics depend on the set-up)."""
     return [
-        TopicSpec("/sagg/goal", "sagg_msgs/msg/Goal"),
-        TopicSpec("/sagg/competence", "sagg_msgs/msg/CompetenceReport"),
-        TopicSpec("/sagg/regions", "sagg_msgs/msg/RegionTree", depth=1000, transient_local=True),
-        TopicSpec("/sagg/sample", "sagg_msgs/msg/Sample"),
-        TopicSpec("/sagg/status", "sagg_msgs/msg/LearnerStatus", depth=100),
+        TopicSpec("/sagg/goal", "sagg_msgs/msg/Goal", publisher="sagg_goal_generator"),
+        TopicSpec("/sagg/competence", "sagg_msgs/msg/CompetenceReport", publisher="sagg_learner"),
+        TopicSpec("/sagg/regions", "sagg_msgs/msg/RegionTree", depth=1000, transient_local=True,
+                  publisher="sagg_goal_generator"),
+        TopicSpec("/sagg/sample", "sagg_msgs/msg/Sample", publisher="sagg_learner"),
+        TopicSpec("/sagg/status", "sagg_msgs/msg/LearnerStatus", depth=100, publisher="sagg_learner"),
         TopicSpec("/sagg/evaluation", "sagg_msgs/msg/Evaluation", depth=100),
         TopicSpec("/sagg/markers", "visualization_msgs/msg/MarkerArray", depth=1, transient_local=True),
     ]
@@ -590,21 +592,45 @@ class RunState:
     gaps: dict[str, int] = field(default_factory=lambda: {"/sagg/sample": 0, "/sagg/competence": 0,
                                                           "/sagg/goal": 0})
     status_rate: bool = True  # keep /sagg/status's micro_actions_per_second in `status`
+    # messages from the expected publisher that were rejected, by "<topic> <problem>" (DESIGN §8)
+    rejected: dict[str, int] = field(default_factory=dict)
+    task_lower: Any = None  # Y, for checking goals (None: not checked)
+    task_upper: Any = None
+    window: int = 10000     # a goal or report seq further than this beyond the last is rejected
+
+    def reject(self, topic: str, kind: str) -> None:
+        key = f"{topic} {kind}"
+        self.rejected[key] = self.rejected.get(key, 0) + 1
 
     def on_goal(self, m) -> None:
         """/sagg/goal (keyed by seq)."""
         if int(m.seq) in self.goals:
             return  # published again (a repeated goal request after a generator restart)
+        if not 0 < int(m.seq) <= len(self.goals) + self.window:
+            self.reject("/sagg/goal", "seq out of window")
+            return
+        if self.task_lower is not None and goal_problem(m.position, self.task_lower, self.task_upper)[1]:
+            self.reject("/sagg/goal", "position not finite or outside Y")
+            return
         if int(m.seq) != len(self.goals) + 1:
             self.gaps["/sagg/goal"] += 1
         self.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
                                   "mode_name": MODE_NAMES.get(int(m.mode), str(m.mode)),
                                   "after_report": int(m.after_report)}
+        return True
 
     def on_report(self, m) -> None:
         """/sagg/competence: the micro-actions at each report, the competence of each goal."""
         if int(m.seq) <= self.reports:
             return  # republished by a resumed learner
+        if int(m.seq) > self.reports + self.window:
+            self.reject("/sagg/competence", "seq out of window")
+            return
+        target = m.target if len(m.target) else m.reached
+        dim = len(self.task_lower) if self.task_lower is not None else len(m.reached)
+        if report_problem(int(m.kind), target, float(m.competence), dim, KIND_NAMES):
+            self.reject("/sagg/competence", "invalid content")
+            return
         if int(m.seq) != self.reports + 1:
             self.gaps["/sagg/competence"] += 1
         self.reports += 1
@@ -612,6 +638,7 @@ class RunState:
         if m.kind == KIND_GOAL:
             self.goal_competence[int(m.goal_seq)] = float(m.competence)
             self.last_competence = float(m.competence)
+        return True
 
     def on_regions(self, m) -> None:
         self.last_regions = m
@@ -738,6 +765,15 @@ class GraphSession:
         self.eval_pub.publish(msg)
         self.st.last_error = msg.mean_error
 
+    def rejected(self) -> dict[str, int]:
+        """Messages of the /sagg topics not used: another publisher on the topic (the recorder) or
+        content/sequence rejected (the handlers); all are in the bag (it records what happened)."""
+        out = dict(self.st.rejected)
+        if self.recorder is not None:
+            for k, v in self.recorder.rejected.items():
+                out[k] = out.get(k, 0) + v
+        return out
+
     def start_nodes(self, params_file: Path, extra: dict[str, dict] | None = None) -> None:
         """Start every node on ``params_file``, plus ``extra[node name]`` as ``-p`` parameters."""
         for p in self.procs:
@@ -791,6 +827,53 @@ class GraphSession:
                 if may_end(now - done_at):
                     return
 
+    def catch_up(self, limit: float = 60.0) -> None:
+        """After Ctrl-C / SIGTERM: pause the learner (/sagg/pause; the micro-action in flight
+        completes) and record until every sample it stored is in and no new one came for 0.5 s (at
+        most ``limit`` s; a second Ctrl-C stops at once), so that an interrupted run's bag is as
+        complete as a finished one's (a recorder behind a fast lockstep learner on a loaded machine
+        otherwise loses its backlog)."""
+        if self.recorder is None or self.bag.closed:
+            return
+        from std_srvs.srv import SetBool
+        self.stop_signal.clear()
+        cli = self.node.create_client(SetBool, "/sagg/pause")
+        try:
+            if cli.service_is_ready():
+                cli.call_async(SetBool.Request(data=True))
+            else:
+                return
+            st = self.st
+            t0 = time.perf_counter()
+            # (samples, not all messages: status and idle joint states keep coming while paused)
+            last, t_last, paused = st.samples, t0, False
+            while time.perf_counter() - t0 < limit and not self.stop_signal:
+                self.executor.spin_once(timeout_sec=0.05)
+                now = time.perf_counter()
+                paused = paused or bool(st.status and st.status.get("paused"))
+                if st.samples != last:
+                    last, t_last = st.samples, now
+                elif paused and st.status and st.samples >= st.status["samples"] and now - t_last >= 0.5:
+                    break
+        finally:
+            self.node.destroy_client(cli)
+
+    def drain_recorder(self, quiet: float = 0.5, limit: float = 60.0) -> None:
+        """After the nodes stopped: take what the recorder's subscriptions still hold (a recorder
+        that fell behind, e.g. on an interrupted run on a loaded machine, would otherwise lose its
+        backlog), until nothing came for ``quiet`` s (at most ``limit`` s)."""
+        if self.recorder is None or self.bag.closed:
+            return
+        t_end = time.perf_counter() + limit
+        last, t_last = self.bag.written, time.perf_counter()
+        while time.perf_counter() < t_end:
+            self.executor.spin_once(timeout_sec=0.05)
+            now = time.perf_counter()
+            if self.bag.written != last:
+                last, t_last = self.bag.written, now
+            elif now - t_last >= quiet:
+                break
+
     def final_drain(self, seconds: float = 0.3) -> None:
         """Spin a little longer: the recorder takes the final Evaluation message (and view)."""
         if self.view is not None:
@@ -814,6 +897,7 @@ class GraphSession:
             body()
         except KeyboardInterrupt:
             self.interrupted = True
+            self.catch_up()
         except GraphError as exc:
             self.error = exc
         finally:
@@ -821,6 +905,7 @@ class GraphSession:
             stop_processes(self.procs)
             for sig, handler in old_handlers.items():
                 signal.signal(sig, handler)
+            self.drain_recorder()
             if between is not None:
                 between()
             self.close()
@@ -966,17 +1051,24 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
             evaluator.curve.append({"micro_actions": at, "mean_error": float(errors.mean()),
                                     "median_error": float(np.median(errors))})
 
+        j_lo, j_hi = params["sagg_learner"]["joint_limits.lower"], params["sagg_learner"]["joint_limits.upper"]
+        j_tol, t_dim = params["sagg_learner"]["plausibility.joint_tolerance"], len(t_lower)
+
         def on_sample(m) -> None:
             if int(m.index) < st.samples:
                 return  # republished by a resumed learner (same values)
+            # a sample must continue the sequence and be plausible (a forged one is dropped and
+            # counted; it never takes the index of the real one)
+            if sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha, m.delta_y, j_lo, j_hi, t_dim, j_tol):
+                st.reject("/sagg/sample", "index or content rejected")
+                return
             now = time.perf_counter()
             if st.sample_t0 is None:
                 st.sample_t0 = now
             st.sample_t1 = now
-            if int(m.index) != st.samples:
-                st.gaps["/sagg/sample"] += 1
             st.samples += 1
             evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
+            return True
 
         tracker = SplitTracker(t_lower, t_upper)
 
@@ -994,6 +1086,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
             st.sample_t0 = st.sample_t1 = None  # rates: this segment only
         prior_samples = st.samples
 
+        st.task_lower, st.task_upper = t_lower, t_upper
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions, "/sagg/status": st.on_status})
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
@@ -1061,7 +1154,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         test_goals=evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
         splits=tracker.splits,
         bag={"path": str(bag_path), "paths": [str(b) for b in prior_bags + [bag_path]], "storage": "mcap",
-             "topics": bag_topics, "sequence_gaps": st.gaps},
+             "topics": bag_topics, "sequence_gaps": st.gaps, "rejected": session.rejected(),
+             "dropped": dict(recorder.dropped), "dropped_not_estimated": sorted(recorder.drops_unknown)},
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
 
     def write_report() -> None:

@@ -21,18 +21,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+# topics whose publisher keeps only the latest message by design (a reader may skip snapshots):
+# not counted as dropped
+NO_DROP_COUNT = ("/sagg/regions",)
 SAGG_MSGS = ("Goal", "CompetenceReport", "Region", "RegionTree", "Sample", "LearnerStatus", "Evaluation")
 
 
 @dataclass(frozen=True)
 class TopicSpec:
-    """One recorded topic: name, ROS type (``pkg/msg/Name``), subscription depth, durability."""
+    """One recorded topic: name, ROS type (``pkg/msg/Name``), subscription depth, durability, and
+    the node expected to publish it (its handler gets no message while another node publishes too)."""
 
     name: str
     msgtype: str
-    depth: int = 10000
+    # (10000 overflowed: a lockstep learner outran the recorder by more than that on a machine at
+    # load 16, and the reader dropped the oldest messages; now counted in bag.dropped either way)
+    depth: int = 100000
     transient_local: bool = False
     best_effort: bool = False  # (`sagg record` takes the publishers' reliability)
+    publisher: str | None = None  # the node whose messages the handler accepts (None: any single publisher)
 
 
 def find_msg_dir() -> Path:
@@ -71,8 +78,35 @@ def _qos(spec: TopicSpec):
                zero, zero, QosLiveliness.AUTOMATIC, zero, False)
 
 
+def publishers_qos(infos) -> list:
+    """The offered QoS of the publishers ``infos`` (``Node.get_publishers_info_by_topic``) as
+    rosbags ``Qos``, as ``ros2 bag record`` writes them (history unknown, depth 0: DDS does not
+    tell the reader; infinite durations as INT64_MAX ns)."""
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
+                                    QosTime)
+
+    def dur(d) -> QosTime:
+        return QosTime(*divmod(int(d.nanoseconds), 1_000_000_000))
+
+    out = []
+    for i in infos:
+        q = i.qos_profile
+        out.append(Qos(QosHistory(int(q.history)), int(q.depth), QosReliability(int(q.reliability)),
+                       QosDurability(int(q.durability)), dur(q.deadline), dur(q.lifespan),
+                       QosLiveliness(int(q.liveliness)), dur(q.liveliness_lease_duration),
+                       bool(q.avoid_ros_namespace_conventions)))
+    return out
+
+
 class BagWriter:
-    """An mcap rosbag2 bag (version 9) being written; one connection per topic."""
+    """An mcap rosbag2 bag (version 9) being written; one connection per topic.
+
+    A topic's connection is created at its first message (or at :meth:`close`), so that the
+    recorder can give it the offered QoS of the topic's publishers (:meth:`offer`), as ``ros2 bag
+    record`` does; without an offer, the spec's QoS is written. metadata.yaml says
+    ``ros_distro: jazzy`` (the distribution whose types and QoS the bag holds)."""
+
+    ROS_DISTRO = "jazzy"
 
     def __init__(self, path: str | Path, topics: list[TopicSpec], typestore=None):
         from rosbags.rosbag2 import StoragePlugin, Writer
@@ -84,6 +118,8 @@ class BagWriter:
         self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._writer.open()
         self._conn = {}
+        self._specs = {t.name: t for t in topics}
+        self._offered: dict[str, list] = {}
         self.counts: dict[str, int] = {}
         self.written = 0  # messages written, all topics
         self.types: dict[str, str] = {}
@@ -96,15 +132,28 @@ class BagWriter:
         self.closed = False
 
     def add_topic(self, t: TopicSpec) -> None:
-        """One more connection (a topic first seen after the bag was opened)."""
-        self._conn[t.name] = self._writer.add_connection(
-            t.name, t.msgtype, typestore=self.typestore, serialization_format="cdr",
-            offered_qos_profiles=[_qos(t)])
+        """One more topic (e.g. first seen after the bag was opened); its connection is made at its
+        first message (or at :meth:`close`), with its publishers' QoS when :meth:`offer` gave them."""
+        self.typestore.hash_rihs01(t.msgtype)  # an unknown type fails here, not mid-run
+        self._specs[t.name] = t
         self.counts[t.name] = 0
         self.types[t.name] = t.msgtype
 
+    def offer(self, topic: str, qos_profiles: list) -> None:
+        """The offered QoS of ``topic``'s publishers (before its first message is written)."""
+        if topic not in self._conn and qos_profiles:
+            self._offered[topic] = list(qos_profiles)
+
+    def _connect(self, topic: str):
+        t = self._specs[topic]
+        conn = self._conn[topic] = self._writer.add_connection(
+            topic, t.msgtype, typestore=self.typestore, serialization_format="cdr",
+            offered_qos_profiles=self._offered.get(topic) or [_qos(t)])
+        return conn
+
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
-        self._writer.write(self._conn[topic], int(timestamp_ns), data)
+        conn = self._conn.get(topic) or self._connect(topic)
+        self._writer.write(conn, int(timestamp_ns), data)
         self.counts[topic] += 1
         self.written += 1
 
@@ -112,7 +161,19 @@ class BagWriter:
         """Write the mcap footer and metadata.yaml (idempotent)."""
         if not self.closed:
             self.closed = True
+            for topic in self._specs:
+                if topic not in self._conn:
+                    self._connect(topic)
             self._writer.close()
+            self._set_distro()
+
+    def _set_distro(self) -> None:
+        """metadata.yaml's ``ros_distro`` (rosbags writes its own name there)."""
+        import yaml
+        meta = self.path / "metadata.yaml"
+        doc = yaml.safe_load(meta.read_text())
+        doc["rosbag2_bagfile_information"]["ros_distro"] = self.ROS_DISTRO
+        meta.write_text(yaml.safe_dump(doc, sort_keys=False))
 
     def abort(self) -> None:
         self.closed = True
@@ -131,11 +192,34 @@ def _msg_class(msgtype: str):
     return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
 
+def _follow(tails: list[int], seq: int, streams: int = 4, max_gap: int = 100_000) -> int:
+    """Messages missed before publication number ``seq``, given the last numbers ``tails`` of the
+    topic's recent publisher streams (updated; most recent last). A number continues the stream
+    whose last number is the largest below it; one at or below every tail, or too far ahead, starts
+    a new stream (another publisher) and counts nothing."""
+    best = -1
+    for i, t in enumerate(tails):
+        if t < seq and (best < 0 or t > tails[best]):
+            best = i
+    if best >= 0 and seq - tails[best] <= max_gap:
+        gap = seq - tails[best] - 1
+        tails.append(seq)
+        del tails[best]
+        return gap
+    tails.append(seq)
+    if len(tails) > streams:
+        del tails[0]
+    return 0
+
+
 class TopicRecorder:
     """Raw subscriptions on ``node`` writing every message of ``topics`` into ``bag``.
 
     ``handlers[topic](msg)`` is called (in the executor's thread) with the deserialized message
-    after it has been written, for the topics that have one.
+    after it has been written, for the topics that have one; for a topic with an expected
+    publisher, only for messages continuing that publisher's stream
+    (:class:`~sagg_common.publishers.PublisherStream`), which a handler's truthy return (message
+    used) advances.
 
     ``gate``: topics subscribed only once every topic of ``wait_for`` has had a matched publisher
     for ``settle`` seconds (:meth:`poll_gate`; the publisher side of the match, which decides
@@ -154,6 +238,18 @@ class TopicRecorder:
         self.first_ns: dict[str, int] = {}
         self.last_ns: dict[str, int] = {}
         self._subs = []
+        # handlers take messages only from the expected publisher (DESIGN §8): while a topic has
+        # another, its messages are recorded (the bag is what happened) but not handled; counted
+        from sagg_common.publishers import PublisherWatch
+        self.watch = PublisherWatch(node)
+        self.streams: dict = {}              # topic -> PublisherStream (topics with an expected publisher)
+        self.rejected: dict[str, int] = {}   # "<topic> <why>" -> messages not handed to the handler
+        self.dropped: dict[str, int] = {}    # topic -> messages published but never received (missed)
+        self.drops_unknown: set[str] = set()  # topics that had several publishers: no drop estimate
+        self.last_seq: dict[str, list] = {}  # topic -> the last publication numbers of its recent streams
+        self._offered: set[str] = set()      # topics whose publishers' QoS went to the bag
+        self.problems: dict[str, str] = {}   # topic -> the last publisher problem seen
+        self._logged: dict[str, float] = {}  # when each kind was last logged
         self._gated = [t for t in topics if t.name in gate]
         self._wait_for = set(wait_for)
         self._waiting_subs = []
@@ -182,6 +278,7 @@ class TopicRecorder:
     def _subscribe(self, t: TopicSpec):
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
+        from sagg_common.publishers import PublisherStream
 
         cls = _msg_class(t.msgtype)
         qos = QoSProfile(
@@ -190,18 +287,69 @@ class TopicRecorder:
             durability=DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local else DurabilityPolicy.VOLATILE)
         handler = self.handlers.get(t.name)
 
-        def callback(data, topic=t.name, cls=cls, handler=handler):
+        watched = handler is not None and t.publisher is not None
+
+        last_seq = self.last_seq
+        dropped = self.dropped
+        offered = self._offered
+        unsure = self.drops_unknown
+        holder: dict = {}
+        count_drops = t.name not in NO_DROP_COUNT
+
+        def callback(data, info, topic=t.name, cls=cls, handler=handler):
             now = time.time_ns()
             if not self.bag.closed:
+                if topic not in offered:  # the first message: the connection gets its publishers' QoS
+                    offered.add(topic)
+                    self.bag.offer(topic, publishers_qos(self.node.get_publishers_info_by_topic(topic)))
                 self.bag.write(topic, now, data)
+            # messages the recorder missed: gaps in the publisher's sequence numbers (the rmw's
+            # message info), counted while the topic has exactly one publisher (numbers are per
+            # publisher; the count starts again whenever the set of publishers changed)
+            seq = info["publication_sequence_number"]
+            if count_drops and seq is not None and topic not in unsure:
+                if holder["sub"].get_publisher_count() != 1:
+                    # numbers of several publishers interleave: no estimate for this topic from now on
+                    unsure.add(topic)
+                else:
+                    gap = _follow(last_seq.setdefault(topic, []), seq)
+                    if gap:
+                        dropped[topic] = dropped.get(topic, 0) + gap
             self.first_ns.setdefault(topic, now)
             self.last_ns[topic] = now
             if handler is not None:
-                handler(deserialize_message(data, cls))
+                stream = self.streams.get(topic)
+                if stream is not None:
+                    why = stream.check(seq)
+                    if why:
+                        self._drop(topic, "publishers", why)
+                        return
+                try:
+                    accepted = handler(deserialize_message(data, cls))
+                except Exception as exc:  # noqa: BLE001 - a hostile message never ends the run
+                    self._drop(topic, "undecodable or rejected", f"{type(exc).__name__}: {exc}")
+                    return
+                if accepted and stream is not None:
+                    stream.commit(seq)
 
         sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True)
+        holder["sub"] = sub
+        if watched:
+            self.watch.watch(t.name, sub, t.publisher)
+            self.streams[t.name] = PublisherStream(self.watch, t.name, t.publisher)
         self._subs.append(sub)
         return sub
+
+    def _drop(self, topic: str, why: str, detail: str) -> None:
+        """Count a message not handed to its handler; logged at the first and then at most every 5 s."""
+        key = f"{topic} {why}"
+        n = self.rejected.get(key, 0) + 1
+        self.rejected[key] = n
+        now = time.monotonic()
+        if n == 1 or now - self._logged.get(key, 0.0) >= 5.0:
+            self._logged[key] = now
+            self.problems[key] = detail
+            self.node.get_logger().error(f"{topic}: message not used ({why}: {detail}); {n} so far")
 
     def destroy(self) -> None:
         for s in self._subs:

@@ -376,6 +376,16 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None) -> P
                   "| topic | type | messages |", "|---|---|---:|"]
         lines += [f"| `{t}` | `{v['type']}` | {v['count']:,} |" for t, v in sorted(bag.get("topics", {}).items())]
         lines.append("")
+        # issue 11: the recorder never falls behind silently, and hostile messages are named
+        dropped, rejected = bag.get("dropped") or {}, bag.get("rejected") or {}
+        lines.append("Messages missed by the recorder (gaps in the publishers' sequence numbers): "
+                     + (", ".join(f"`{t}` {n:,}" for t, n in sorted(dropped.items())) if dropped else "none") + "."
+                     + (" Not estimated (the topic had several publishers): "
+                        + ", ".join(f"`{t}`" for t in bag["dropped_not_estimated"]) + "."
+                        if bag.get("dropped_not_estimated") else ""))
+        lines.append("Messages recorded but not used (another publisher on the topic, or rejected content): "
+                     + (", ".join(f"`{k}` {n:,}" for k, n in sorted(rejected.items())) if rejected else "none") + ".")
+        lines.append("")
     path = out / "report.md"
     path.write_text("\n".join(lines))
     return path

@@ -116,13 +116,18 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
         samples: list[tuple[np.ndarray, np.ndarray]] = []
 
         def on_sample(m) -> None:
+            # the next index and finite values only (DESIGN §8): a forged or broken sample never
+            # takes the index of the real one
+            alpha, dy = np.array(m.alpha, float), np.array(m.delta_y, float)
+            if int(m.index) != len(samples) or not (np.isfinite(alpha).all() and np.isfinite(dy).all()):
+                st.reject("/sagg/sample", "index or content rejected")
+                return None
             now = time.perf_counter()
             st.sample_t0 = st.sample_t0 or now
             st.sample_t1 = now
-            if int(m.index) != len(samples):
-                st.gaps["/sagg/sample"] += 1
-            samples.append((np.array(m.alpha), np.array(m.delta_y)))
+            samples.append((alpha, dy))
             st.samples = len(samples)
+            return True
 
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/status": st.on_status, "/sagg/regions": st.on_regions})
@@ -177,7 +182,9 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
         test_goals=goals_test.tolist() if goals_test is not None else None,
         splits=[],
         bag={"path": str(out / "bag"), "storage": "mcap", "topics": session.bag.topics(),
-             "sequence_gaps": {"/sagg/sample": st.gaps["/sagg/sample"]}},
+             "sequence_gaps": {"/sagg/sample": st.gaps["/sagg/sample"]}, "rejected": session.rejected(),
+             "dropped": dict(session.recorder.dropped),
+             "dropped_not_estimated": sorted(session.recorder.drops_unknown)},
         synergy={"setup": setup_name, "outcome_extents": outcome_extents(outcomes)})
     return session.finish(summary, (lambda: write_synergy_report(summary, out)) if report else None)
 

@@ -179,6 +179,18 @@ def decode_f64_array(data: bytes) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ sensor_msgs/JointState
+def encode_joint_state(stamp_ns: int, frame_id: str, names, position, velocity=(), effort=()) -> bytes:
+    """Any sensor_msgs/JointState, arrays of any length (the hostile-input fuzzer's and the tests'
+    writer; the bridge's hot path uses :class:`JointStateEncoder`)."""
+    w = Writer()
+    w.header(stamp_ns, frame_id)
+    w.strings(list(names))
+    w.f64_seq(position)
+    w.f64_seq(velocity)
+    w.f64_seq(effort)
+    return w.tobytes()
+
+
 class JointStateEncoder:
     """Fixed joint names and frame: a template whose stamp and values are overwritten per message."""
 

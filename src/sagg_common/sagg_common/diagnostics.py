@@ -102,3 +102,40 @@ def diagnostic_array(stamp, node_name: str, guard: InputGuard, state: dict[str, 
     msg.header.stamp = stamp
     msg.status = [st]
     return msg
+
+
+def sample_problem(index: int, expected: int, alpha, delta_alpha, delta_y, lower, upper, m: int,
+                   tolerance: float = 0.1) -> str:
+    """What is wrong with a /sagg/sample received after ``expected`` samples ('' if nothing): its
+    index must be ``expected`` (the next one), α one finite value per joint within the joint limits
+    ± ``tolerance`` (the learner's plausibility.joint_tolerance), Δα one finite value per joint,
+    Δy ``m`` finite values. A sample with an older index is a re-publication, not a problem
+    (the caller drops it)."""
+    if index != expected:
+        return f"index {index}; allowed: {expected} (the next sample)"
+    lo, hi = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+    a, da, dy = (np.asarray(x, dtype=float) for x in (alpha, delta_alpha, delta_y))
+    if a.shape != lo.shape or da.shape != lo.shape or dy.shape != (m,):
+        return (f"{a.size} alpha, {da.size} delta_alpha, {dy.size} delta_y values; allowed: {lo.size}, "
+                f"{lo.size}, {m}")
+    if not (np.isfinite(a).all() and np.isfinite(da).all() and np.isfinite(dy).all()):
+        return "NaN/inf value; allowed: finite values"
+    if (a < lo - tolerance).any() or (a > hi + tolerance).any():
+        return f"alpha {a.tolist()}; allowed: within the joint limits ± {tolerance}"
+    return ""
+
+
+def report_problem(kind: int, target, competence: float, dim: int, kinds) -> str:
+    """What is wrong with a competence report's content ('' if nothing): ``kind`` one of
+    ``kinds``, ``target`` (the target, or the reached point when it has none) ``dim`` finite
+    values, ``competence`` finite and <= 0."""
+    t = np.asarray(target, dtype=float)
+    if kind not in kinds:
+        return f"kind {kind}; allowed: {sorted(kinds)}"
+    if t.shape != (dim,):
+        return f"{t.size} target/reached coordinates; allowed: {dim} (the task space)"
+    if not np.all(np.isfinite(t)):
+        return f"NaN/inf position {t.tolist()}; allowed: finite values"
+    if not math.isfinite(competence) or competence > 0.0:
+        return f"competence {competence}; allowed: a finite value <= 0"
+    return ""

@@ -268,3 +268,17 @@ def schema_markdown(schema: Schema) -> str:
     for p in schema:
         rows.append(f"| `{p.name}` | {p.kind} | `{p.default!r}` | {p.allowed()} | {p.description} |")
     return "\n".join(rows)
+
+
+def parse_set(items: list[str] | None) -> dict:
+    """``--set name=value`` overrides; values are parsed as YAML (numbers, lists, booleans)."""
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ConfigError(f"--set {item!r}: expected name=value")
+        name, value = item.split("=", 1)
+        try:
+            out[name.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {name}: value {value!r} is not valid YAML ({exc})") from exc
+    return out

@@ -245,6 +245,9 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
             try:
                 if hasattr(node, "close"):
                     node.close()
+                if getattr(node, "published", None) is not None:  # (what a bag must hold; issue 11)
+                    import json
+                    node.get_logger().info("published counts: " + json.dumps(node.published, sort_keys=True))
                 node.destroy_node()
             except Exception:  # noqa: BLE001
                 pass
@@ -256,7 +259,7 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
 # History depth of the hardware-contract topics (commands, joint states, task point) published by our
 # nodes: deep enough that a slow reader such as the bag recorder never loses a reliable message
 # (depth 10 lost ~3 % of them on a loaded machine).
-HW_DEPTH = 1000
+HW_DEPTH = 10000  # (1000 still lost 6-8 % of them to a recorder falling behind under load: issue 11)
 
 
 def reliable(depth: int, transient_local: bool = False):

@@ -20,6 +20,7 @@ import math
 import struct
 import sys
 import threading
+import time
 
 import numpy as np
 
@@ -29,8 +30,9 @@ from rclpy.node import Node
 from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import decode_report, encode_region_tree
-from sagg_common.diagnostics import InputGuard, diagnostic_array
+from sagg_common.diagnostics import InputGuard, diagnostic_array, report_problem
 from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.publishers import PublisherWatch
 from sagg_common.report_kinds import KIND_NAMES
 from sagg_common.ros_params import declare_schema, reliable, run_node, spin
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
@@ -58,6 +60,15 @@ NODE_SCHEMA: Schema = (
           "checkpoint after a crash. Our choice.", low=1, high=10000),
     Param("journal_fsync", "bool", False,
           "fsync the goal journal after every goal (survives a power cut, not only a killed process)."),
+    Param("report_reorder_wait", "float", 10.0,
+          "A report ahead of the next one expected is kept this long (s) for the ones before it "
+          "(reordered, or re-delivered from the learner's history after a re-subscription) before "
+          "those are counted as lost and skipped (2 s lost 36 reports in the 10-minute soak at load 16: "
+          "the history after a re-subscription came later). Our choice.", low=0.0, high=3600.0),
+    Param("report_window", "int", 10000,
+          "A competence report whose seq lies more than this beyond the last one processed is rejected "
+          "(its gap is not skipped; DESIGN §8). The learner's /sagg/competence history (10000) bounds a "
+          "real gap. Our choice.", low=1, high=1_000_000),
 )
 SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
@@ -124,11 +135,22 @@ class GoalGeneratorNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
         self.create_timer(1.0, _locked(self.cond, self.publish_diagnostics))
         self.goal_pub = self.create_publisher(Goal, "/sagg/goal", reliable(100))
+        self.published = {"/sagg/goal": 0}  # (logged at shutdown: what a bag must hold)
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
         # transient_local: after a restart, the reports missed come again from the learner's history
-        self.create_subscription(CompetenceReport, "/sagg/competence", _locked(self.cond, self.on_report),
-                                 reliable(10000, transient_local=True), raw=True)
+        # reports only from the learner (DESIGN §8): while /sagg/competence has another publisher
+        # (or its only one is not the learner), reports are dropped and named; once it is gone the
+        # subscription is made again, and the learner's transient_local history (10000 reports, the
+        # report_window) delivers the real reports dropped meanwhile (duplicates are dropped by seq).
+        # (Per-message publisher numbers would need message info, which the events executor does
+        # not hand to callbacks.)
+        self.watch = PublisherWatch(self)
+        self.report_sub = None
+        self.resubscribe_due = False  # reports were dropped for a foreign publisher
+        self.resubscriptions = 0
+        self.early: dict[int, tuple] = {}   # seq -> (kind, target, competence, received): reports ahead of the next
+        self._subscribe_reports()
         self.checkpointer = None
         self.replay_goals: list = []  # journaled goals to choose again after a resume
         self.goals_to_publish: list = []  # journaled goals to publish again after a resume
@@ -143,6 +165,24 @@ class GoalGeneratorNode(Node):
             + ("serving /sagg/next_goal" if self.active else "idle (actuator strategy: no goals)"))
 
     # ------------------------------------------------------------ reports
+    def _subscribe_reports(self) -> None:
+        if self.report_sub is not None:
+            self.destroy_subscription(self.report_sub)
+        self.report_sub = self.create_subscription(CompetenceReport, "/sagg/competence",
+                                                   _locked(self.cond, self.on_report),
+                                                   reliable(10000, transient_local=True), raw=True)
+        self.watch.watch("/sagg/competence", self.report_sub, "sagg_learner")
+
+    def _check_report_publishers(self) -> None:
+        """After reports were dropped for a foreign publisher: once it is gone, subscribe again."""
+        if self.resubscribe_due and not self.watch.refresh("/sagg/competence") \
+                and self.count_publishers("/sagg/competence") == 1:
+            self.resubscribe_due = False
+            self.resubscriptions += 1
+            self.get_logger().info("/sagg/competence has the learner as its only publisher again: "
+                                   "subscribing again for the reports dropped meanwhile")
+            self._subscribe_reports()
+
     def on_report(self, raw: bytes) -> None:
         gen = self.gen
         try:
@@ -150,26 +190,69 @@ class GoalGeneratorNode(Node):
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
             self.guard.reject("report.undecodable", f"/sagg/competence: undecodable message ({exc})")
             return
+        window = self.params["report_window"]
+        if msg.seq > gen.reports + window:
+            # (checked before anything else: a forged seq of 10^12 must cost nothing)
+            self.guard.reject("report.out_of_window",
+                              f"competence report seq {msg.seq}: allowed: {gen.reports + 1}..{gen.reports + window} "
+                              "(report_window beyond the last report processed); dropped")
+            return
+        # Reached points / exploration samples carry the reached point (target may be empty).
+        target = np.asarray(msg.target if len(msg.target) else msg.reached, dtype=float)
+        problem = self._report_problem(msg, target)
+        if problem:
+            # rejected before its seq is consumed: the real report with this number is still taken
+            self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; dropped")
+            return
         if msg.seq <= gen.reports:
             # already processed: re-sent from the learner's history after a restart, or a duplicate
             self.guard.reject("report.duplicate", f"competence report {msg.seq}: already have reports "
                                                   f"1..{gen.reports}; dropped")
             return
+        problem = self.watch.problem("/sagg/competence")  # a well-formed new report: from the learner only
+        if problem:
+            self.guard.reject("report.publishers", f"/sagg/competence has {problem}; report {msg.seq} dropped "
+                                                   "(taken again from the learner's history once it is gone)")
+            self.resubscribe_due = True
+            return
         if msg.seq != gen.reports + 1:
-            lost = msg.seq - gen.reports - 1
-            self.guard.reject("report.lost", f"competence report {msg.seq} follows report {gen.reports}: "
-                                             f"{lost} report(s) lost or reordered, counted as skipped (goals "
-                                             "no longer match an in-process run)")
+            # early: kept until the reports before it come (reordered, or re-delivered from the
+            # learner's history after a re-subscription); skipped only after report_reorder_wait
+            if msg.seq not in self.early:
+                self.early[msg.seq] = (msg.kind, target, msg.competence, time.monotonic())
+            return
+        gen.report(msg.kind, target, msg.competence)
+        self._after_report()
+        if self.early:
+            self._drain_early()
+
+    def _check_early(self, now: float | None = None) -> None:
+        """Skip the reports missing before the kept early ones after report_reorder_wait."""
+        now = time.monotonic() if now is None else now
+        if min(v[3] for v in self.early.values()) <= now - self.params["report_reorder_wait"]:
+            self._drain_early(skip=True)
+
+    def _drain_early(self, skip: bool = False) -> None:
+        """Process the kept early reports that are now next in line; ``skip``: first count the
+        missing ones before the earliest as lost (they did not come within report_reorder_wait)."""
+        gen = self.gen
+        if skip and self.early and gen.reports + 1 not in self.early:
+            first = min(self.early)
+            lost = first - gen.reports - 1
+            self.guard.reject("report.lost", f"competence report {first} follows report {gen.reports}: {lost} "
+                                             "report(s) lost, counted as skipped (goals no longer match an "
+                                             "in-process run)")
             for _ in range(lost):
                 gen.skip_report()
-        # Reached points / exploration samples carry the reached point (target may be empty).
-        target = np.asarray(msg.target if len(msg.target) else msg.reached, dtype=float)
-        problem = self._report_problem(msg, target)
-        if problem:
-            self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; skipped")
-            gen.skip_report()
-        else:
-            gen.report(msg.kind, target, msg.competence)
+        while gen.reports + 1 in self.early:
+            kind, target, competence, _ = self.early.pop(gen.reports + 1)
+            gen.report(kind, target, competence)
+            self._after_report()
+        for seq in [q for q in self.early if q <= gen.reports]:
+            del self.early[seq]
+
+    def _after_report(self) -> None:
+        gen = self.gen
         if self.checkpointer is not None:
             self._after_report_checkpoint()
         self.regions_dirty = True
@@ -178,20 +261,14 @@ class GoalGeneratorNode(Node):
 
     def _report_problem(self, msg, target: np.ndarray) -> str:
         """What is wrong with a report's content ('' if nothing)."""
-        if msg.kind not in KIND_NAMES:
-            return f"kind {msg.kind}; allowed: {sorted(KIND_NAMES)}"
-        if target.shape != (self.gen.dim,):
-            return f"{target.size} target/reached coordinates; allowed: {self.gen.dim} (the task space)"
-        if not np.all(np.isfinite(target)):
-            return f"NaN/inf position {target.tolist()}; allowed: finite values"
-        if not math.isfinite(msg.competence) or msg.competence > 0.0:
-            return f"competence {msg.competence}; allowed: a finite value <= 0"
-        return ""
+        return report_problem(msg.kind, target, msg.competence, self.gen.dim, KIND_NAMES)
 
     def publish_diagnostics(self) -> None:
         gen = self.gen
         state = {"reports": str(gen.reports), "skipped_reports": str(gen.skipped_reports),
                  "goals": str(len(gen.goals)), "regions": str(len(gen.tree.leaves()))}
+        state.update({f"publishers {t}": p for t, p in self.watch.all_problems().items()})
+        state["report_resubscriptions"] = str(self.resubscriptions)
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def _goal_subscribers_ok(self) -> bool:
@@ -266,6 +343,7 @@ class GoalGeneratorNode(Node):
         g.mode = rec.mode
         g.position = array.array("d", rec.position.tobytes())
         self.goal_pub.publish(g)
+        self.published["/sagg/goal"] += 1
 
     # ------------------------------------------------------------ checkpoint / resume
     def _setup_checkpoint(self) -> None:
@@ -325,6 +403,10 @@ class GoalGeneratorNode(Node):
 
     # ------------------------------------------------------------ regions
     def on_regions_timer(self) -> None:
+        if self.resubscribe_due:
+            self._check_report_publishers()
+        if self.early:
+            self._check_early()
         if self.goals_to_publish and self._goal_subscribers_ok():
             for rec in self.goals_to_publish:
                 self._publish_goal(rec)

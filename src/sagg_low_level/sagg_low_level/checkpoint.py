@@ -36,6 +36,7 @@ found (the last two checkpoint intervals); receivers drop indices / sequence num
 """
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -76,6 +77,14 @@ def load_segments(directory: str | Path, meta: dict, memory: SampleMemory) -> Sa
         raise ValueError(f"checkpoint_dir: {len(memory)} samples in the segments, learner.json says "
                          f"{meta['memory_samples']}")
     return memory
+
+
+def checkpoint_memory(directory: str | Path) -> SampleMemory:
+    """The sample memory of the learner checkpoint in ``directory`` (exact search; the digest does
+    not depend on the search mode): for tools that check a run's stored samples."""
+    meta = json.loads((Path(directory) / "learner.json").read_text())
+    n, m = int(meta["joints"]), int(meta["task_dim"])
+    return load_segments(directory, meta, SampleMemory(n, n, m))
 
 
 class LearnerCheckpointer(Checkpointer):

@@ -35,7 +35,9 @@ from std_srvs.srv import SetBool
 from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64_array, encode_report,
                              encode_sample)
 from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
+from sagg_common.envelope import ACCEPT, FUTURE, OUT_OF_ORDER, RejectRun, StampTracker
 from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.publishers import PublisherWatch
 from sagg_common.ros_params import HW_DEPTH, reliable, run_node
 from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
@@ -108,6 +110,36 @@ NODE_SCHEMA: Schema = (
           "generator was restarted and lost it). The generator answers a repeated request "
           "(same after_report) with the same goal, so a retry never changes the run. Our choice.",
           low=0.0, high=3600.0, low_open=True),
+    # the plausibility envelope of the measurements (DESIGN §8; sagg_common.envelope)
+    Param("plausibility.joint_tolerance", "float", 0.1,
+          "A joint state is rejected when a position lies outside the joint limits by more than this "
+          "(rad): encoders may read slightly past a limit, never far. Our choice.", low=0.0, high=100.0),
+    Param("plausibility.task_margin", "float", 1.0,
+          "A task point is rejected when it lies outside Y enlarged on every side by this fraction of "
+          "Y's extent (1 = a box 3x Y per axis: the paper's camera field is ~3x the reachable area). "
+          "Our choice.", low=0.0, high=1e6),
+    Param("plausibility.max_joint_velocity", "float", 1000.0,
+          "A joint state is rejected when a |velocity| exceeds this (rad/s): a sanity bound, far above "
+          "any motor (the simulated arm's fastest return to rest stays below ~150 rad/s).",
+          low=0.0, high=1e12, low_open=True),
+    Param("plausibility.hold_after", "int", 10,
+          "After this many rejected joint states (or task points) in a row the learner holds (no "
+          "command goes out) naming the last rejection; it resumes at the next valid one.",
+          low=1, high=1_000_000),
+    Param("plausibility.future_tolerance", "float", 30.0,
+          "A stamp further ahead of the newest accepted one than the receive time elapsed since it "
+          "arrived plus this (s) is rejected as 'in the future' (the newest stamp stays). Above the "
+          "longest settle in simulation time of a lockstep bridge (1000 steps x 0.01 s).",
+          low=0.0, high=1e9, low_open=True),
+    Param("plausibility.single_publisher", "bool", True,
+          "Hold (no command, no report or sample published) while /joint_states or the task topic has "
+          "more than one publisher, or a /sagg topic a publisher other than its node, naming them "
+          "(node and GID); their messages are rejected meanwhile. False for a robot whose joint "
+          "states come from several drivers."),
+    Param("plausibility.resync_after", "int", 5,
+          "This many messages in a row older than the newest accepted stamp are a clock jump back "
+          "(driver or sim-time restart): logged, and the stream re-synchronised on them.",
+          low=1, high=1_000_000),
 )
 SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 
@@ -150,15 +182,39 @@ class LearnerNode(LearnerNodeBase):
         self.guard = InputGuard(self.get_logger().error)
         self.holds: dict[str, str] = {}  # reason key -> text; no command goes out while any is set
         self.js_rx = self.tip_rx = time.monotonic()  # last valid joint state / task point received
-        self.js_limit_tol = 1e-9
+        # the plausibility envelope (DESIGN §8): limits ± tolerance, Y ± margin, a velocity bound,
+        # stamps neither in the future of their stream nor wedged by a clock jump back
+        tol, margin = p["plausibility.joint_tolerance"], p["plausibility.task_margin"]
+        self.js_lo, self.js_hi = self.robot.lower - tol, self.robot.upper + tol
+        self.max_velocity = p["plausibility.max_joint_velocity"]
+        t_lo = np.asarray(p["task_space.lower"], dtype=float)
+        t_hi = np.asarray(p["task_space.upper"], dtype=float)
+        ext = margin * (t_hi - t_lo)
+        self.tip_box = tuple(zip((t_lo - ext).tolist(), (t_hi + ext).tolist()))
+        self.js_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
+        self.tip_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
+        self.js_run = RejectRun(p["plausibility.hold_after"])
+        self.tip_run = RejectRun(p["plausibility.hold_after"])
 
         # --- topics
         self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
+        self.task_topic = p["task_topic"]
+        # messages published per topic (logged at shutdown and on /diagnostics: what a bag must hold)
+        self.published = {self.cmd_topic: 0, "/sagg/sample": 0, "/sagg/competence": 0}
         self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
         self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         # hot path: raw CDR in and out (sagg_common.cdr), no message objects
-        self.create_subscription(JointState, "/joint_states", self.on_joint_state, reliable(10), raw=True)
-        self.create_subscription(PointStamped, p["task_topic"], self.on_task_point, reliable(10), raw=True)
+        js_sub = self.create_subscription(JointState, "/joint_states", self.on_joint_state, reliable(10), raw=True)
+        tip_sub = self.create_subscription(PointStamped, p["task_topic"], self.on_task_point, reliable(10), raw=True)
+        # one publisher per input and per /sagg output (DESIGN §8; sagg_common.publishers)
+        self.single_publisher = p["plausibility.single_publisher"]
+        self.watch = PublisherWatch(self)
+        self.watch.watch("/joint_states", js_sub)
+        self.watch.watch(p["task_topic"], tip_sub)
+        for topic, owner in (("/sagg/competence", NODE_NAME), ("/sagg/sample", NODE_NAME),
+                             ("/sagg/status", NODE_NAME), ("/sagg/goal", "sagg_goal_generator"),
+                             ("/sagg/regions", "sagg_goal_generator")):
+            self.watch.watch(topic, None, owner)
         self.js_decoder = JointStateDecoder()
         self.create_service(SetBool, "/sagg/pause", self.on_pause)
 
@@ -203,49 +259,112 @@ class LearnerNode(LearnerNodeBase):
 
     # ------------------------------------------------------------------ observations
     def on_joint_state(self, data: bytes) -> None:
+        if self.single_publisher and self.watch.problem("/joint_states"):
+            self._foreign("/joint_states", "joint_states")
+            return
         try:
             st, names, pos, vel = self.js_decoder.decode(data)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
-            self.guard.reject("joint_states.undecodable", f"/joint_states: undecodable message ({exc})")
+            self._reject_js("joint_states.undecodable", f"/joint_states: undecodable message ({exc})")
             return
         if len(pos) != len(names) or (len(vel) and len(vel) != len(names)):
-            self.guard.reject("joint_states.length",
-                              f"/joint_states: {len(names)} names but {len(pos)} positions and {len(vel)} "
-                              "velocities; allowed: one position per name, and no or one velocity per name")
+            self._reject_js("joint_states.length",
+                            f"/joint_states: {len(names)} names but {len(pos)} positions and {len(vel)} "
+                            "velocities; allowed: one position per name, and no or one velocity per name")
             return
         if names is not self._names and not self._map_names(names):
-            return
-        if st < self.js_stamp:
-            self.guard.reject("joint_states.out_of_order",
-                              f"/joint_states: stamp {st} ns is older than the newest one ({self.js_stamp} ns); "
-                              "kept the newest")
             return
         idx = self._idx
         alpha = pos[idx]
         v = vel[idx] if len(vel) else None
-        if not (all_finite(alpha) and (v is None or all_finite(v))):
-            bad = [self.robot.joint_names[i] for i in range(len(idx))
-                   if not math.isfinite(alpha[i]) or (v is not None and not math.isfinite(v[i]))]
-            self.guard.reject("joint_states.non_finite",
-                              f"/joint_states: NaN/inf position or velocity of {', '.join(bad)}; "
-                              "allowed: finite values")
+        # one vector test each (NaN fails a comparison, so non-finite values are caught too)
+        if not ((alpha >= self.js_lo).all() and (alpha <= self.js_hi).all()):
+            self._reject_js_values(alpha, v)
             return
+        if v is not None:  # (min/max serve the settle test below too; NaN fails both comparisons)
+            vlo, vhi = v.min(), v.max()
+            if not (-self.max_velocity <= vlo and vhi <= self.max_velocity):
+                self._reject_js_values(alpha, v)
+                return
+        verdict = self.js_track.check(st, time.monotonic_ns())
+        if verdict != ACCEPT:
+            if not self._stamp_verdict(verdict, "joint_states", "/joint_states", self.js_track, st):
+                return
+            if self.state is self.RUNNING_COMMAND:  # the command's freshness bound moves back too
+                self.js_min = min(self.js_min, st - 1 + self.delay_ns)
         sv = self.settle_velocity
-        settled = v is None or bool(-sv < v.min() and v.max() < sv)  # every |velocity| < settle_velocity
+        settled = v is None or bool(-sv < vlo and vhi < sv)  # every |velocity| < settle_velocity
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
         self.js_rx = time.monotonic()
+        if self.js_run.ok():
+            self._set_hold("joint_states", None)
         if self.holds:
             self._check_driver()
         if self.state is self.RUNNING_COMMAND and st > self.js_min:
             self.js_fresh = True
             self._try_answer_command(False)
 
+    def _reject_js(self, kind: str, message: str) -> None:
+        """A rejected joint state: counted, logged, and after ``plausibility.hold_after`` in a row a hold."""
+        self.guard.reject(kind, message)
+        if self.js_run.reject() and "joint_states" not in self.holds:  # (named once: no log flood)
+            self._set_hold("joint_states", f"{self.js_run.run} rejected joint states in a row, the last: "
+                                           f"[{kind}] {message}")
+
+    def _reject_js_values(self, alpha: np.ndarray, v: np.ndarray | None) -> None:
+        """Name the first implausible field of a joint state (the slow path of the checks)."""
+        robot = self.robot
+        for i, name in enumerate(robot.joint_names):
+            a = float(alpha[i])
+            if not math.isfinite(a) or (v is not None and not math.isfinite(v[i])):
+                bad = [robot.joint_names[k] for k in range(robot.n) if not math.isfinite(alpha[k])
+                       or (v is not None and not math.isfinite(v[k]))]
+                self._reject_js("joint_states.non_finite", f"/joint_states: NaN/inf position or velocity of "
+                                                           f"{', '.join(bad)}; allowed: finite values")
+                return
+        for i, name in enumerate(robot.joint_names):
+            a = float(alpha[i])
+            if not self.js_lo[i] <= a <= self.js_hi[i]:
+                self._reject_js("joint_states.out_of_limits",
+                                f"/joint_states: position of {name} = {a!r} rad; allowed: "
+                                f"[{self.js_lo[i]:.6g}, {self.js_hi[i]:.6g}] (joint limits ± "
+                                f"plausibility.joint_tolerance)")
+                return
+        i = int(np.argmax(np.abs(v)))
+        self._reject_js("joint_states.velocity",
+                        f"/joint_states: velocity of {robot.joint_names[i]} = {float(v[i])!r} rad/s; allowed: "
+                        f"|v| <= {self.max_velocity:g} (plausibility.max_joint_velocity)")
+
+    def _stamp_verdict(self, verdict: int, key: str, topic: str, track: StampTracker, st: int) -> bool:
+        """A stamp that was not simply accepted: False (rejected: logged, counted) for one out of
+        order or in the future; True for a clock jump back (logged; the stream is re-synchronised)."""
+        if verdict == OUT_OF_ORDER:
+            self.guard.reject(f"{key}.out_of_order",
+                              f"{topic}: header.stamp {st} ns is older than the newest one ({track.newest} "
+                              f"ns); kept the newest (after {track.resync_after} in a row: a clock jump back)")
+            return False
+        if verdict == FUTURE:
+            self.guard.reject(f"{key}.future_stamp",
+                              f"{topic}: header.stamp {st} ns is in the future of the stream; allowed: <= "
+                              f"{track.allowed_until(time.monotonic_ns())} ns (newest stamp + time since it "
+                              f"arrived + plausibility.future_tolerance); the newest stamp stays")
+            if key == "joint_states":
+                self.js_run.reject()
+            else:
+                self.tip_run.reject()
+            return False
+        self.guard.reject(f"{key}.clock_jump_back",
+                          f"{topic}: clock jumped back from {track.previous} ns to {st} ns ({track.resync_after} "
+                          "messages in a row older than the newest; driver or sim-time restart?): "
+                          "re-synchronised on the new stamps")
+        return True
+
     def _map_names(self, names: tuple) -> bool:
         where = {n: i for i, n in enumerate(names)}
         missing = [j for j in self.robot.joint_names if j not in where]
         if missing or len(where) != len(names):
             why = (f"lacks joint(s) {', '.join(missing)}" if missing else "names a joint twice")
-            self.guard.reject("joint_states.names",
+            self._reject_js("joint_states.names",
                               f"/joint_states {why}; allowed: every joint of the 'joints' parameter "
                               f"({', '.join(self.robot.joint_names)}) once, other joints are ignored")
             return False
@@ -254,29 +373,66 @@ class LearnerNode(LearnerNodeBase):
         return True
 
     def on_task_point(self, data: bytes) -> None:
+        topic = self.params["task_topic"]
+        if self.single_publisher and self.watch.problem(topic):
+            self._foreign(topic, "task_point")
+            return
         try:
             st, xyz = decode_point_stamped(data)
         except (ValueError, IndexError, struct.error) as exc:
-            self.guard.reject("task_point.undecodable", f"{self.params['task_topic']}: undecodable message ({exc})")
-            return
-        if st < self.tip_stamp:
-            self.guard.reject("task_point.out_of_order",
-                              f"{self.params['task_topic']}: stamp {st} ns is older than the newest one "
-                              f"({self.tip_stamp} ns); kept the newest")
+            self._reject_tip("task_point.undecodable", f"{topic}: undecodable message ({exc})")
             return
         xyz = xyz[:self.m]
-        if not all(map(math.isfinite, xyz)):
-            self.guard.reject("task_point.non_finite",
-                              f"{self.params['task_topic']}: NaN/inf coordinate {list(xyz)}; allowed: finite values")
-            return
+        for (lo, hi), x in zip(self.tip_box, xyz):
+            if not lo <= x <= hi:  # (NaN fails too)
+                if all(map(math.isfinite, xyz)):
+                    self._reject_tip("task_point.outside_task_space",
+                                     f"{topic}: point {list(xyz)}; allowed: within "
+                                     f"{[list(b) for b in self.tip_box]} (task_space enlarged by "
+                                     "plausibility.task_margin)")
+                else:
+                    self._reject_tip("task_point.non_finite",
+                                     f"{topic}: NaN/inf coordinate {list(xyz)}; allowed: finite values")
+                return
+        verdict = self.tip_track.check(st, time.monotonic_ns())
+        if verdict != ACCEPT:
+            if not self._stamp_verdict(verdict, "task_point", topic, self.tip_track, st):
+                return
+            if self.state is self.RUNNING_COMMAND:
+                self.tip_min = min(self.tip_min, st - 1 + self.delay_ns)
         self.tip = np.array(xyz)
         self.tip_stamp = st
         self.tip_rx = time.monotonic()
+        if self.tip_run.ok():
+            self._set_hold("task_point", None)
         if self.holds:
             self._check_driver()
         if self.state is self.RUNNING_COMMAND and st > self.tip_min:
             self.tip_fresh = True
             self._try_answer_command(False)
+
+    def _foreign(self, topic: str, key: str) -> None:
+        """A message on a topic with an unexpected publisher: rejected, and the learner holds."""
+        problem = self.watch.problems[topic]
+        self.guard.reject(f"{key}.publishers", f"{topic}: {problem}; message dropped")
+        if "publishers" not in self.holds:  # (the status timer keeps the full list up to date)
+            self._set_hold("publishers", f"{topic} has {problem}")
+
+    def _check_publishers(self) -> None:
+        """Hold while a watched topic has an unexpected publisher (named), release when it is gone."""
+        if not self.single_publisher:
+            return
+        problems = self.watch.all_problems()
+        if problems:
+            self._set_hold("publishers", "; ".join(f"{t} has {p}" for t, p in sorted(problems.items())))
+        elif "publishers" in self.holds:
+            self._set_hold("publishers", None)
+
+    def _reject_tip(self, kind: str, message: str) -> None:
+        self.guard.reject(kind, message)
+        if self.tip_run.reject() and "task_point" not in self.holds:
+            self._set_hold("task_point", f"{self.tip_run.run} rejected task points in a row, the last: "
+                                         f"[{kind}] {message}")
 
     def _try_answer_command(self, timed_out: bool) -> None:
         if not (self.js_fresh and self.tip_fresh):
@@ -357,6 +513,7 @@ class LearnerNode(LearnerNodeBase):
         learner = self.learner
         state = {"state": self.state or "running", "micro_actions": str(learner.micro_actions),
                  "samples": str(len(learner.memory)), "holds": "; ".join(self.holds.values())}
+        state.update({f"published {t}": str(n) for t, n in self.published.items()})
         fault = "; ".join(v for k, v in self.holds.items() if k != "service")
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state, fault))
 
@@ -405,6 +562,7 @@ class LearnerNode(LearnerNodeBase):
                 self.state = self.RUNNING_COMMAND
                 self.cmd_time = time.monotonic()
                 self.cmd_pub.publish(data)
+                self.published[self.cmd_topic] += 1
                 # while the driver works: publish the queued reports/samples in bursts
                 if self.outbox and (len(self.outbox) >= self.publish_batch
                                     or self.cmd_time - self.last_flush >= self.publish_period):
@@ -457,6 +615,8 @@ class LearnerNode(LearnerNodeBase):
     def flush(self) -> None:
         """Publish the queued reports (Report) and samples (memory index), in order. Encoding is
         skipped for a topic nobody subscribes to (the message would be dropped anyway)."""
+        if "publishers" in self.holds:
+            return  # withheld while another node publishes on our topics: receivers reject meanwhile
         box = self.outbox
         samples = self.sample_pub.get_subscription_count() > 0
         reports = self.report_pub.get_subscription_count() > 0
@@ -533,16 +693,19 @@ class LearnerNode(LearnerNodeBase):
     def publish_report(self, r: Report) -> None:
         # exploration reports have no target (the message's convention); the generator uses reached
         target = r.target if r.kind != KIND_EXPLORATION else ()
+        self.published["/sagg/competence"] += 1
         self.report_pub.publish(encode_report(
             self.now_ns(), r.seq, r.goal_seq, r.kind, target, r.reached, r.start, r.competence,
             r.micro_actions))
 
     def publish_sample(self, idx: int) -> None:
         mem = self.learner.memory
+        self.published["/sagg/sample"] += 1
         self.sample_pub.publish(encode_sample(
             self.now_ns(), idx, mem.alpha[idx], mem.delta_alpha[idx], mem.delta_y[idx]))
 
     def publish_status(self) -> None:
+        self._check_publishers()
         learner = self.learner
         now = time.monotonic()
         self.rate_window.append((now, learner.micro_actions))

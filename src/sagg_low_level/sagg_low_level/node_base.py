@@ -56,7 +56,7 @@ class LearnerNodeBase(Node):
         self.report_pub = self.create_publisher(CompetenceReport, "/sagg/competence",
                                                 reliable(10000, transient_local=True))
         self.sample_pub = self.create_publisher(Sample, "/sagg/sample", reliable(10000))
-        self.status_pub = self.create_publisher(LearnerStatus, "/sagg/status", reliable(10))
+        self.status_pub = self.create_publisher(LearnerStatus, "/sagg/status", reliable(100))
         self.goal_client = self.create_client(NextGoal, "/sagg/next_goal")
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
         self.goal_future = None  # the goal request whose answer is awaited

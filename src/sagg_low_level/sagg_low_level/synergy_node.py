@@ -102,6 +102,8 @@ class SynergyLearnerNode(LearnerNodeBase):
             self.traj_pub = self.create_publisher(JointTrajectory, self.traj_topic, reliable(HW_DEPTH))
             out_type = PoseStamped if self.m == 3 else PointStamped
             self.create_subscription(out_type, p["task_topic"], self.on_outcome, reliable(HW_DEPTH))
+        # messages published per topic (logged at shutdown: what a bag must hold; issue 11)
+        self.published = {self.traj_topic: 0, "/sagg/sample": 0, "/sagg/competence": 0}
         self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         self.goal_retry_at: float | None = None
         self.create_timer(1.0, self.publish_diagnostics)
@@ -163,6 +165,7 @@ class SynergyLearnerNode(LearnerNodeBase):
             msg.header.stamp = Time(sec=0, nanosec=stamp)
             msg.joint_names = list(self.synergy.joint_names)
             self.traj_pub.publish(msg)
+            self.published[self.traj_topic] += 1
         if self.waiting_stamp is not None and time.monotonic() - self.sent_time > self.params["response_timeout"]:
             self.get_logger().error(f"no outcome on {self.params['task_topic']} {self.params['response_timeout']} s "
                                     f"after a trajectory on {self.traj_topic}: is the driver running?")
@@ -174,6 +177,7 @@ class SynergyLearnerNode(LearnerNodeBase):
         self.waiting_stamp = self.trial_counter
         self.sent_time = time.monotonic()
         self.traj_pub.publish(traj_msg_fn(self.trial_counter))
+        self.published[self.traj_topic] += 1
 
     def dispatch(self, req) -> None:
         if self.max_experiments and self.learner.experiments >= self.max_experiments:
@@ -239,11 +243,13 @@ class SynergyLearnerNode(LearnerNodeBase):
         return self.get_clock().now().nanoseconds
 
     def publish_report(self, r: Report) -> None:
+        self.published["/sagg/competence"] += 1
         self.report_pub.publish(encode_report(self._now_ns(), r.seq, r.goal_seq, r.kind, r.target, r.reached,
                                               r.start, r.competence, r.micro_actions))
 
     def publish_sample(self, idx: int) -> None:
         lr = self.learner
+        self.published["/sagg/sample"] += 1
         self.sample_pub.publish(encode_sample(self._now_ns(), idx, lr.thetas[idx], np.zeros(0), lr.outcomes[idx]))
 
     def publish_diagnostics(self) -> None:

@@ -90,6 +90,8 @@ class BridgeNode(Node):
         self.create_timer(1.0, self.publish_diagnostics)
         self.js_pub = self.create_publisher(JointState, "/joint_states", reliable(HW_DEPTH))
         self.tip_pub = self.create_publisher(PointStamped, p["task_topic"], reliable(HW_DEPTH))
+        self.task_topic = p["task_topic"]
+        self.published = {"/joint_states": 0, self.task_topic: 0}  # logged at shutdown (run_node)
         # hot path: raw CDR in and out (sagg_common.cdr), no message objects
         self.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(HW_DEPTH), raw=True)
         self.js_encoder = JointStateEncoder(list(self.sim.joint_names), p["frame_id"])
@@ -182,6 +184,11 @@ class BridgeNode(Node):
         self.js_pub.publish(self.js_encoder.encode(ns, sim.data.qpos, sim.data.qvel if self.dynamic else self.zeros))
         tip = sim.observe()[1]
         self.tip_pub.publish(self.tip_encoder.encode(ns, float(tip[0]), float(tip[1])))
+        if self.commands:
+            # counted from the first command on (what a recorder that the learner waited for must
+            # hold; the idle re-publications before it may precede any recorder's match)
+            self.published["/joint_states"] += 1
+            self.published[self.task_topic] += 1
 
 
 def main(args: list[str] | None = None) -> int:

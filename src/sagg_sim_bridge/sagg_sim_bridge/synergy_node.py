@@ -65,6 +65,7 @@ class SynergyBridgeNode(Node):
         self.out_pub = self.create_publisher(PoseStamped if self.pose else PointStamped, p["task_topic"],
                                              reliable(HW_DEPTH))
         self.create_subscription(JointTrajectory, topic, self.on_trajectory, reliable(HW_DEPTH))
+        self.published = {p["task_topic"]: 0}  # logged at shutdown (run_node): what a bag must hold
         self.experiments = 0
         self.busy_seconds = 0.0
         self.guard = InputGuard(self.get_logger().error)
@@ -113,6 +114,7 @@ class SynergyBridgeNode(Node):
             else:
                 out.point.x, out.point.y = float(y[0]), float(y[1])
         self.out_pub.publish(out)
+        self.published[self.params["task_topic"]] += 1
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,0 +1,478 @@
+"""``sagg bench hostile``: a running graph under a fuzzer (issue 11, item 6; DESIGN §8).
+
+Two phases, each a real ``sagg run`` (lockstep, its own ROS domain, recorder and evaluator) and a
+fuzzer node in this process publishing the hostile cases of issue 11's table on the graph's topics:
+
+- ``content``: the learner's ``plausibility.single_publisher`` off, so that each content check is
+  what meets the fuzzer's messages (joint states outside the limits / 1e308 / NaN / unknown joint /
+  wrong length / a future stamp, task points 1e308 / NaN, reports with seq +10^12 / NaN / a bad
+  kind at the next seq, NaN samples and goals, bad commands to the bridge), and random mixtures;
+- ``publishers``: the defaults: a second publisher flooding /joint_states with 2,000 valid-looking
+  states/s, forged samples with the next index, a forged valid report at the next seq, a second
+  publisher on /sagg/goal.
+
+Each case is active for a few seconds (or sent once), then the fuzzer's publishers are destroyed
+and the graph is watched for a few quiet seconds. Per case: **survived** (the run and its nodes
+alive, /sagg/status fresh), **counted** (the expected rejection counter on /diagnostics grew, or
+for `sagg run`'s own handlers the summary's ``bag.rejected``), **logged** (the node logs name the
+kind), **learning went on** (micro-actions grew after the case), **reports lost** (the generator's
+skipped reports grew during the case). At the end, per phase, the invariants: all nodes alive (no
+error in the summary), final test error below the initial one, no stored α outside the joint limits
+(± tolerance), nothing non-finite in memory / goals / regions / curve, every command within
+``max_joint_step`` of a preceding measured posture of the driver (or the rest posture: a return to
+rest), and the bag complete for the legitimate publishers (the nodes' published counts equal the
+bag's counts less the fuzzer's own messages; nothing dropped by the recorder).
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from sagg_common.cdr import (JointStateDecoder, PointStampedEncoder, decode_f64_array, decode_point_stamped,
+                             encode_f64_array, encode_joint_state, encode_report, encode_sample)
+from sagg_low_level.checkpoint import checkpoint_memory
+
+from sagg_common.params import parse_set
+
+from ..bag_reader import bag_messages
+from ..graph import graph_params, load_graph_config, pick_domain_id
+
+SEC = 1_000_000_000
+FUZZ = "fuzz"  # frame_id of the fuzzer's stamped messages
+
+
+@dataclass
+class Case:
+    name: str
+    phase: str                      # "content" or "publishers"
+    row: str                        # the issue's row
+    kinds: tuple[str, ...]          # expected rejection kinds: "<node>:<kind>" or "run:<key prefix>"
+    send: Callable                  # send(fuzzer, k): the k-th burst of the case
+    seconds: float = 3.0            # active time (bursts every `period` s); once: one burst
+    once: bool = False
+    period: float = 0.02
+
+
+@dataclass
+class Outcome:
+    runs: int = 0
+    survived: int = 0
+    counted: int = 0
+    learning: int = 0
+    reports_lost: int = 0
+
+
+class Fuzzer:
+    """The hostile node: publishers created per case (and destroyed after it), and what it
+    watches (/diagnostics counters, /sagg/status, the bridge's newest stamp)."""
+
+    def __init__(self, domain: int, learner: dict):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from diagnostic_msgs.msg import DiagnosticArray
+        from sensor_msgs.msg import JointState
+        from sagg_msgs.msg import LearnerStatus
+
+        self.rclpy = rclpy
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("sagg_fuzzer", context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        self.joints = list(learner["joints"])
+        self.n = len(self.joints)
+        self.task_topic = learner["task_topic"]
+        self.cmd_topic = f"/{learner['controller'].strip('/')}/commands"
+        self.rng = np.random.default_rng(12345)
+        self.diag: dict[str, dict[str, str]] = {}     # node -> values
+        self.status = None
+        self.status_t = 0.0
+        self.bridge_stamp = 0
+        self.sent: dict[str, int] = {}                # topic -> messages the fuzzer published
+        self.pubs: dict[str, object] = {}
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 100)
+        self.node.create_subscription(LearnerStatus, "/sagg/status", self._on_status, 10)
+        self._dec = JointStateDecoder()
+        self.node.create_subscription(JointState, "/joint_states", self._on_js, 100, raw=True)
+
+    # ------------------------------------------------------------------ watching
+    def _on_diag(self, m) -> None:
+        for st in m.status:
+            self.diag[st.hardware_id] = {kv.key: kv.value for kv in st.values}
+
+    def _on_status(self, m) -> None:
+        self.status, self.status_t = m, time.monotonic()
+
+    def _on_js(self, raw) -> None:
+        st = self._dec.decode(raw)[0]
+        if st < 10**15:  # (the fuzzer's own stamps are ~1e18 ns of wall time, or +1,000 s)
+            self.bridge_stamp = max(self.bridge_stamp, st)
+
+    def count(self, node: str, kind: str) -> int:
+        return int(self.diag.get(node, {}).get(f"rejected.{kind}", 0))
+
+    def value(self, node: str, key: str) -> int:
+        try:
+            return int(self.diag.get(node, {}).get(key, 0))
+        except ValueError:
+            return 0
+
+    def micro_actions(self) -> int:
+        return int(self.status.micro_actions) if self.status is not None else 0
+
+    def spin(self, seconds: float) -> None:
+        t_end = time.monotonic() + seconds
+        while time.monotonic() < t_end:
+            self.ex.spin_once(timeout_sec=min(0.01, max(0.0, t_end - time.monotonic())))
+
+    # ------------------------------------------------------------------ publishing
+    def _pub(self, topic: str, cls_name: str, transient_local: bool = False):
+        if topic not in self.pubs:
+            from sagg_bringup.recorder import _msg_class
+            from sagg_common.ros_params import reliable
+            self.pubs[topic] = self.node.create_publisher(_msg_class(cls_name), topic,
+                                                          reliable(1000, transient_local=transient_local))
+        return self.pubs[topic]
+
+    def publish(self, topic: str, cls_name: str, data: bytes, transient_local: bool = False) -> None:
+        self._pub(topic, cls_name, transient_local).publish(data)
+        self.sent[topic] = self.sent.get(topic, 0) + 1
+
+    def drop_publishers(self) -> None:
+        for p in self.pubs.values():
+            self.node.destroy_publisher(p)
+        self.pubs = {}
+
+    def joint_state(self, pos, vel=(), stamp: int | None = None, names=None) -> None:
+        st = self.bridge_stamp + 1_000_000 if stamp is None else stamp
+        self.publish("/joint_states", "sensor_msgs/msg/JointState",
+                     encode_joint_state(max(1, st), FUZZ, names or self.joints, pos, vel))
+
+    def tip(self, x: float, y: float, stamp: int | None = None) -> None:
+        st = self.bridge_stamp + 1_000_000 if stamp is None else stamp
+        self.publish(self.task_topic, "geometry_msgs/msg/PointStamped", PointStampedEncoder(FUZZ).encode(max(1, st), x, y))
+
+    def report(self, seq: int, kind: int = 2, reached=(10.0, 0.0), competence: float = 0.0) -> None:
+        self.publish("/sagg/competence", "sagg_msgs/msg/CompetenceReport",
+                     encode_report(time.time_ns(), seq, 0, kind, (), reached, (0.0, 0.0), competence, 0, FUZZ),
+                     transient_local=True)
+
+    def sample(self, index: int, alpha=None) -> None:
+        a = np.zeros(self.n) if alpha is None else np.asarray(alpha, float)
+        self.publish("/sagg/sample", "sagg_msgs/msg/Sample",
+                     encode_sample(time.time_ns(), index, a, np.zeros(self.n), np.zeros(2), FUZZ))
+
+    def goal(self, seq: int, position) -> None:
+        from sagg_msgs.msg import Goal
+        from rclpy.serialization import serialize_message
+        g = Goal()
+        g.header.frame_id, g.seq, g.position = FUZZ, seq, [float(p) for p in position]
+        self.publish("/sagg/goal", "sagg_msgs/msg/Goal", serialize_message(g))
+
+    def command(self, values) -> None:
+        self.publish(self.cmd_topic, "std_msgs/msg/Float64MultiArray", encode_f64_array(np.asarray(values, float)))
+
+    def pause(self, on: bool) -> None:
+        """/sagg/pause (std_srvs/SetBool), waiting up to 10 s for the answer."""
+        from std_srvs.srv import SetBool
+        cli = self.node.create_client(SetBool, "/sagg/pause")
+        if cli.wait_for_service(timeout_sec=5.0):
+            fut = cli.call_async(SetBool.Request(data=on))
+            t_end = time.monotonic() + 10.0
+            while not fut.done() and time.monotonic() < t_end:
+                self.ex.spin_once(timeout_sec=0.05)
+        self.node.destroy_client(cli)
+
+    def close(self) -> None:
+        self.drop_publishers()
+        self.ex.shutdown()
+        self.node.destroy_node()
+        self.rclpy.shutdown(context=self.ctx)
+
+
+def _next_report(f: Fuzzer) -> int:
+    return f.value("sagg_goal_generator", "reports") + 1
+
+
+def _next_sample(f: Fuzzer) -> int:
+    return int(f.status.samples) if f.status is not None else 0
+
+
+def cases() -> list[Case]:
+    """Every row of issue 11's table (and the rows that were already fine)."""
+    L, G, B = "sagg_learner", "sagg_goal_generator", "sagg_sim_bridge"
+    return [
+        Case("joint states 3.0 rad", "content", "joint states outside the limits",
+             (f"{L}:joint_states.out_of_limits",), lambda f, k: f.joint_state([3.0] * f.n)),
+        Case("joint states 1e308", "content", "huge finite joint states",
+             (f"{L}:joint_states.out_of_limits",), lambda f, k: f.joint_state([1e308] * f.n)),
+        Case("joint velocities 1e6", "content", "velocities beyond a bound",
+             (f"{L}:joint_states.velocity",), lambda f, k: f.joint_state([0.0] * f.n, [1e6] * f.n)),
+        Case("task point 1e308", "content", "task point 1e308 (stamp +1 ms)",
+             (f"{L}:task_point.outside_task_space",), lambda f, k: f.tip(1e308, 0.0)),
+        Case("joint state stamped +1,000 s", "content", "one joint state in the future",
+             (f"{L}:joint_states.future_stamp",),
+             lambda f, k: f.joint_state([0.0] * f.n, stamp=f.bridge_stamp + 1000 * SEC), once=True),
+        Case("report seq +10^12", "content", "one report far outside the window",
+             (f"{G}:report.out_of_window",), lambda f, k: f.report(_next_report(f) + 10**12), once=True),
+        Case("report NaN at the next seq", "content", "a NaN report takes no seq",
+             (f"{G}:report.invalid",), lambda f, k: f.report(_next_report(f), reached=(float("nan"), 0.0)),
+             once=True),
+        Case("report bad kind at the next seq", "content", "a bad kind takes no seq",
+             (f"{G}:report.invalid",), lambda f, k: f.report(_next_report(f), kind=77), once=True),
+        Case("NaN sample", "content", "one NaN sample on /sagg/sample",
+             ("run:/sagg/sample",), lambda f, k: f.sample(_next_sample(f), [float("nan")] * f.n), once=True),
+        Case("NaN goal", "content", "a goal with NaN on /sagg/goal",
+             ("run:/sagg/goal",), lambda f, k: f.goal(10**6, [float("nan"), 0.0]), once=True),
+        Case("NaN / unknown / wrong-length joint states", "content", "already fine: keep so",
+             (f"{L}:joint_states.non_finite", f"{L}:joint_states.names", f"{L}:joint_states.length"),
+             lambda f, k: [f.joint_state([float("nan")] * f.n), f.joint_state([0.0] * f.n, names=["nope"] * f.n),
+                           f.joint_state([0.0] * (f.n + 1))]),
+        Case("NaN tip", "content", "already fine: keep so", (f"{L}:task_point.non_finite",),
+             lambda f, k: f.tip(float("nan"), 0.0)),
+        Case("bad commands to the bridge", "content", "already fine: keep so",
+             (f"{B}:command.non_finite", f"{B}:command.length"),
+             lambda f, k: [f.command([float("nan")] * f.n), f.command([0.0] * (f.n + 3))], seconds=1.0),
+        Case("2,000 joint states/s from a second publisher", "publishers", "a second publisher, named",
+             (f"{L}:joint_states.publishers",),
+             lambda f, k: [f.joint_state([0.1] * f.n) for _ in range(20)], period=0.01),
+        Case("forged sample with the next index", "publishers", "a forged sample never takes the real index",
+             ("run:/sagg/sample",), lambda f, k: f.sample(_next_sample(f)), once=True),
+        Case("forged report at the next seq", "publishers", "a forged report never takes the real seq",
+             (f"{G}:report.publishers",),  # (spread: the generator's report count is up to 1 s old)
+             lambda f, k: [f.report(_next_report(f) + d) for d in (0, 20, 50, 100, 200, 400, 800)], once=True),
+        Case("second publisher on /sagg/goal", "publishers", "a forged goal",
+             ("run:/sagg/goal",), lambda f, k: f.goal(10**6, [10.0, 0.0]), once=True),
+    ]
+
+
+def _run_case(f: Fuzzer, case: Case, proc, out: Outcome, quiet: float) -> None:
+    node_kinds = [k.split(":", 1) for k in case.kinds if not k.startswith("run:")]
+    before = {tuple(k): f.count(*k) for k in node_kinds}
+    skipped0 = f.value("sagg_goal_generator", "skipped_reports")
+    bursts = 1 if case.once else max(1, int(case.seconds / case.period))
+    for k in range(bursts):
+        case.send(f, k)
+        f.spin(case.period)
+    f.spin(0.3)
+    f.drop_publishers()
+    f.spin(1.2)  # /diagnostics comes once a second
+    ma0 = f.micro_actions()
+    f.spin(quiet)
+    out.runs += 1
+    alive = proc.poll() is None and time.monotonic() - f.status_t < 3.0
+    out.survived += alive
+    out.counted += all(f.count(*k) > before[tuple(k)] for k in node_kinds) if node_kinds else 0
+    out.learning += f.micro_actions() > ma0
+    out.reports_lost += f.value("sagg_goal_generator", "skipped_reports") - skipped0
+
+
+def _start_run(config: str, out: Path, domain: int, sets: list[str], micro_actions: int, eval_every: int):
+    cmd = [str(Path(sys.executable).parent / "sagg"), "run", config, "--micro-actions", str(micro_actions),
+           "--eval-every", str(eval_every), "--out", str(out), "--domain-id", str(domain), "--quiet"]
+    for s in sets:
+        cmd += ["--set", s]
+    out.mkdir(parents=True, exist_ok=True)
+    log = open(out.parent / f"{out.name}.sagg_run.log", "w")
+    return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True), log, cmd
+
+
+def _published_counts(logs: Path) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for log in logs.glob("*.log"):
+        for line in log.read_text(errors="replace").splitlines():
+            m = re.search(r"published counts: (\{.*\})", line)
+            if m:
+                for t, n in json.loads(m.group(1)).items():
+                    counts[t] = counts.get(t, 0) + n
+    return counts
+
+
+def invariants(run_dir: Path, sent: dict[str, int]) -> dict[str, object]:
+    """The end-of-phase invariants, from the run's summary, checkpoint, bag and logs."""
+    import yaml
+
+    s = json.loads((run_dir / "summary.json").read_text())
+    lp = yaml.safe_load((run_dir / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]
+    lo, hi = np.array(lp["joint_limits"]["lower"]), np.array(lp["joint_limits"]["upper"])
+    tol = lp.get("plausibility", {}).get("joint_tolerance", 0.1)
+    step = lp.get("max_joint_step", 0.05)
+    rest = np.array(lp["rest_posture"])
+    mem = checkpoint_memory(run_dir / "checkpoint")
+    k = len(mem)
+    alpha, dalpha, dy = mem.alpha[:k], mem.delta_alpha[:k], mem.delta_y[:k]
+    curve = s.get("curve") or []
+    out: dict[str, object] = {}
+    out["all nodes alive (no error)"] = s.get("error") is None and all(
+        v.get("exit_code") in (0, None) for v in s.get("nodes", {}).values())
+    # (None: fewer than two evaluations finished, e.g. a run of seconds with a niced evaluator)
+    out["final test error below initial"] = (curve[-1]["mean_error"] < curve[0]["mean_error"]
+                                             if len(curve) >= 2 else None)
+    out["no stored α outside the limits"] = bool(((alpha >= lo - tol) & (alpha <= hi + tol)).all())
+    goals = np.array([g["position"] for g in s.get("goals", [])], float)
+    out["nothing non-finite"] = bool(np.isfinite(alpha).all() and np.isfinite(dalpha).all() and np.isfinite(dy).all()
+                                     and np.isfinite(goals).all()
+                                     and all(np.isfinite(c["mean_error"]) for c in curve))
+    # commands against the measured postures: the micro-action commands (every command but a return
+    # to rest) are, in order, the commands of the stored samples, each sent from its sample's α; and
+    # every stored α is a joint state the driver published (never the fuzzer's)
+    dec = JointStateDecoder()
+    cmd_topic = f"/{lp.get('controller', 'forward_position_controller')}/commands"
+    task_topic = lp.get("task_topic", "/tip_position")
+    driver_postures: set[bytes] = set()
+    micro: list[np.ndarray] = []
+    counts: dict[str, int] = {}
+    for topic, _, _, raw in bag_messages([run_dir / "bag"]):
+        fuzz = FUZZ.encode() in bytes(raw[:64])
+        if topic == "/joint_states":
+            st, names, pos, _ = dec.decode(raw)
+            if not fuzz:
+                driver_postures.add(np.ascontiguousarray(pos[:len(lo)], dtype=float).tobytes())
+                if st > 0:
+                    counts[topic] = counts.get(topic, 0) + 1
+            continue
+        if topic == task_topic:
+            if not fuzz and decode_point_stamped(raw)[0] > 0:
+                counts[topic] = counts.get(topic, 0) + 1
+            continue
+        if topic == cmd_topic:  # (the fuzzer's commands are the malformed ones: no header to mark)
+            try:
+                c = decode_f64_array(raw)
+            except Exception:  # noqa: BLE001 - the fuzzer's undecodable commands
+                continue
+            if c.shape == lo.shape and np.isfinite(c).all():
+                counts[topic] = counts.get(topic, 0) + 1
+                if not np.array_equal(c, rest):
+                    micro.append(c)
+            continue
+        if not fuzz:  # (the fuzzer's stamped messages carry frame_id "fuzz")
+            counts[topic] = counts.get(topic, 0) + 1
+    m = min(len(micro), k)
+    steps = np.abs(np.array(micro[:m]) - alpha[:m]).max(axis=1) if m else np.zeros(0)
+    out["micro-action commands / stored samples"] = f"{len(micro)} / {k}"
+    out["largest command step from the sample's measured α"] = round(float(steps.max()) if m else 0.0, 6)
+    out["no command farther than max_joint_step"] = bool(m and steps.max() <= step + 1e-6 and abs(len(micro) - k) <= 1)
+    out["every stored α is a posture the driver published"] = all(
+        np.ascontiguousarray(a).tobytes() in driver_postures for a in alpha)
+    published = _published_counts(run_dir / "logs")
+    legit = {t: counts.get(t, 0) for t in published}
+    out["bag complete for the legitimate publishers"] = legit == published and not s["bag"].get("dropped")
+    out["published vs bag"] = {t: [published[t], legit[t]] for t in sorted(published)}
+    out["recorder dropped"] = s["bag"].get("dropped", {})
+    out["sagg run rejected"] = s["bag"].get("rejected", {})
+    out["micro_actions"] = s.get("micro_actions")
+    out["curve"] = [(c["micro_actions"], round(c["mean_error"], 3)) for c in curve]
+    return out
+
+
+def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str], quiet: float,
+              log: Callable[[str], None], only: list[str] | None = None,
+              eval_every: int = 5000, drain: float = 20.0) -> tuple[dict[str, Outcome], dict, dict]:
+    domain = pick_domain_id()
+    run_dir = out / phase
+    phase_sets = list(sets) + (["plausibility.single_publisher=false"] if phase == "content" else [])
+    proc, fh, cmd = _start_run(config, run_dir, domain, phase_sets, micro_actions=2_000_000, eval_every=eval_every)
+    log(f"[{phase}] {' '.join(cmd)}")
+    params = graph_params(load_graph_config(config, parse_set(phase_sets)), 1, "lockstep")
+    f = Fuzzer(domain, params["sagg_learner"])
+    outcomes: dict[str, Outcome] = {}
+    my_cases = [c for c in cases() if c.phase == phase and (only is None or c.name in only)]
+    try:
+        t0 = time.monotonic()
+        while f.micro_actions() < 200 and time.monotonic() - t0 < 180 and proc.poll() is None:
+            f.spin(0.5)  # the graph is up and learning
+        t_end = time.monotonic() + seconds
+        rng = np.random.default_rng(7)
+        k = 0
+        while (time.monotonic() < t_end or k < len(my_cases)) and proc.poll() is None:  # every case once at least
+            case = my_cases[k % len(my_cases)]
+            if k % (len(my_cases) + 1) == len(my_cases):  # a random mixture of three cases at once
+                picks = [my_cases[i] for i in rng.choice(len(my_cases), 3, replace=False)]
+                case = Case("mixture of 3 random cases", phase, "random mixtures",
+                            tuple(x for p in picks for x in p.kinds if not x.startswith("run:")),
+                            lambda f, j, picks=picks: [p.send(f, j) for p in picks], seconds=2.0)
+            o = outcomes.setdefault(case.name, Outcome())
+            _run_case(f, case, proc, o, quiet)
+            log(f"[{phase}] {case.name}: survived {o.survived}/{o.runs}, counted {o.counted}, learning "
+                f"{o.learning}, reports lost {o.reports_lost}; micro-actions {f.micro_actions()}")
+            k += 1
+        sent = dict(f.sent)
+        # a clean end: pause the learner (the micro-action in flight completes), give the recorder
+        # time to take what is queued, then stop the run
+        f.pause(True)
+        f.spin(drain)
+    finally:
+        f.close()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(timeout=180)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        fh.close()
+    inv = invariants(run_dir, sent)
+    logs_text = "\n".join(p.read_text(errors="replace") for p in (run_dir / "logs").glob("*.log"))
+    logs_text += (out / f"{phase}.sagg_run.log").read_text(errors="replace")
+    logged = {}
+    summary = json.loads((run_dir / "summary.json").read_text())
+    rejected = summary["bag"].get("rejected", {})
+    for c in my_cases:
+        node_kinds = [k.split(":", 1)[1] for k in c.kinds if not k.startswith("run:")]
+        run_keys = [k.split(":", 1)[1] for k in c.kinds if k.startswith("run:")]
+        logged[c.name] = (all(f"[{k}]" in logs_text for k in node_kinds)
+                          and all(any(r.startswith(k) for r in rejected) for k in run_keys))
+        if run_keys and c.name in outcomes:  # counted by sagg run's handlers (summary)
+            outcomes[c.name].counted = outcomes[c.name].runs if all(any(r.startswith(k) for r in rejected)
+                                                                   for k in run_keys) else 0
+    return outcomes, inv, logged
+
+
+def bench_hostile(config: str, minutes: float, out_dir: str | None, sets: list[str] | None = None,
+                  quiet: float = 3.0, out: Callable[[str], None] = print, only: list[str] | None = None,
+                  eval_every: int = 5000, drain: float = 20.0) -> dict:
+    """Both phases (half of ``minutes`` each); prints the per-case table and the invariants;
+    writes OUT/hostile.json. Returns it (``ok``: every case survived, counted, logged and learning
+    went on, and every invariant holds)."""
+    outp = Path(out_dir or f"runs/hostile-{time.strftime('%Y%m%d-%H%M%S')}")
+    outp.mkdir(parents=True, exist_ok=True)
+    result = {"config": config, "minutes": minutes, "sets": sets or [], "phases": {}}
+    ok = True
+    rows = []
+    for phase in ("content", "publishers"):
+        outcomes, inv, logged = run_phase(phase, config, minutes * 30.0, outp, sets or [], quiet, out, only,
+                                          eval_every, drain)
+        result["phases"][phase] = {"cases": {k: vars(v) for k, v in outcomes.items()}, "logged": logged,
+                                   "invariants": inv}
+        for name, o in outcomes.items():
+            good = o.survived == o.runs and (o.counted == o.runs) and o.learning == o.runs
+            lg = logged.get(name, True)
+            ok &= good and lg
+            rows.append(f"| {phase} | {name} | {o.runs} | {o.survived}/{o.runs} | {'yes' if lg else 'NO'} | "
+                        f"{o.counted}/{o.runs} | {o.learning}/{o.runs} | {o.reports_lost} |")
+        ok &= all(v or v is None for k, v in inv.items() if k.startswith((
+            "all nodes", "final test", "no stored", "nothing", "no command", "every stored", "bag complete")))
+    table = ["| phase | case | times | survived | logged | counted | learning went on | reports lost |",
+             "|---|---|---:|---:|---|---:|---:|---:|"] + rows
+    out("\n".join(table))
+    for phase, r in result["phases"].items():
+        out(f"\ninvariants ({phase}):")
+        for k, v in r["invariants"].items():
+            out(f"  {k}: {v}")
+    result["ok"] = bool(ok)
+    result["table"] = table
+    (outp / "hostile.json").write_text(json.dumps(result, indent=1, default=str))
+    out(f"\n{'ALL OK' if ok else 'NOT ALL OK'} -> {outp / 'hostile.json'}")
+    return result

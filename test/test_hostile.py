@@ -1,0 +1,414 @@
+"""Issue 11: nothing a publisher sends can poison, wedge or crash the graph (DESIGN §8).
+
+One test per row of the issue's table of hostile inputs, on the nodes built in this process (their
+own rclpy context and parameter file, callbacks called directly with the hostile bytes, as in
+test_bad_input) or on the `sagg run` / `sagg relearn` handlers. Each asserts that the input is
+rejected, counted under its kind, changes no state, and that what follows it still works.
+"""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+import yaml
+from rclpy.serialization import serialize_message
+
+from geometry_msgs.msg import PointStamped
+from sensor_msgs.msg import JointState
+
+from sagg_bringup.graph import RunState, pick_domain_id
+from sagg_goal_generator.node import GoalGeneratorNode
+from sagg_low_level.learner import Command
+from sagg_low_level.node import LearnerNode
+from sagg_msgs.msg import CompetenceReport, Goal
+from sagg_sim_bridge.node import BridgeNode
+
+JOINTS = ["j0", "j1", "j2"]
+LIMIT = 1.0
+HOLD_AFTER = 4
+RESYNC_AFTER = 3
+SEC = 1_000_000_000
+
+
+@pytest.fixture(scope="module")
+def nodes(tmp_path_factory):
+    """Learner, generator and bridge on a private domain (not spun). The bridge publishes
+    /joint_states and /tip_position: the one expected publisher of each."""
+    tmp = tmp_path_factory.mktemp("hostile")
+    params = {
+        "/**": {"ros__parameters": {"seed": 0, "strategy": "sagg-riac",
+                                    "task_space": {"lower": [-10.0, -10.0], "upper": [10.0, 10.0]}}},
+        "sagg_learner": {"ros__parameters": {
+            "joints": JOINTS, "joint_limits": {"lower": [-LIMIT] * 3, "upper": [LIMIT] * 3},
+            "rest_posture": [0.1, 0.2, 0.3],
+            "plausibility": {"hold_after": HOLD_AFTER, "resync_after": RESYNC_AFTER, "future_tolerance": 5.0}}},
+        "sagg_sim_bridge": {"ros__parameters": {"arm": {"dof": 3, "mode": "kinematic"}}},
+    }
+    path = tmp / "params.yaml"
+    path.write_text(yaml.safe_dump(params))
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=pick_domain_id())
+    try:
+        built = {"learner": LearnerNode(), "generator": GoalGeneratorNode(), "bridge": BridgeNode()}
+        yield built
+        for n in built.values():
+            n.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+
+
+def js_bytes(pos, vel=(), ns=SEC, names=JOINTS) -> bytes:
+    m = JointState()
+    m.header.stamp.sec, m.header.stamp.nanosec = divmod(int(ns), SEC)
+    m.name, m.position, m.velocity = list(names), [float(p) for p in pos], [float(v) for v in vel]
+    return serialize_message(m)
+
+
+def tip_bytes(x, y, ns=SEC) -> bytes:
+    m = PointStamped()
+    m.header.stamp.sec, m.header.stamp.nanosec = divmod(int(ns), SEC)
+    m.point.x, m.point.y = float(x), float(y)
+    return serialize_message(m)
+
+
+def fresh_streams(n: LearnerNode) -> None:
+    """Forget the stamps and rejection runs of earlier tests (the node is shared), release holds."""
+    from sagg_common.envelope import RejectRun, StampTracker
+    p = n.params
+    n.js_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
+    n.tip_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
+    n.js_run, n.tip_run = RejectRun(HOLD_AFTER), RejectRun(HOLD_AFTER)
+    n.holds.clear()
+    n.js_stamp = n.tip_stamp = -1
+
+
+def state(n: LearnerNode):
+    return (None if n.js_alpha is None else n.js_alpha.tobytes(), n.js_stamp,
+            None if n.tip is None else n.tip.tobytes(), n.tip_stamp, len(n.learner.memory))
+
+
+# ------------------------------------------------------------------ row 1: joint states 3.0 rad
+def test_joint_states_outside_the_limits_are_rejected_and_hold_after_a_run(nodes):
+    n = nodes["learner"]
+    fresh_streams(n)
+    n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=1 * SEC))
+    before = state(n)
+    count = n.guard.counts.get("joint_states.out_of_limits", 0)
+    for k in range(HOLD_AFTER):
+        n.on_joint_state(js_bytes([3.0, 3.0, 3.0], ns=SEC + (k + 1) * 1000))
+        assert state(n) == before  # never stored, never the posture a command's step is bounded by
+    assert n.guard.counts["joint_states.out_of_limits"] == count + HOLD_AFTER
+    assert "j0 = 3.0" in n.guard.last_message["joint_states.out_of_limits"]
+    assert "allowed: [-1.1, 1.1]" in n.guard.last_message["joint_states.out_of_limits"]
+    assert "joint_states" in n.holds and "out_of_limits" in n.holds["joint_states"]
+    # the stamps of the rejected states did not move the newest stamp
+    assert n.js_track.newest == 1 * SEC
+    # a command now is bounded by the last VALID posture
+    n.learner.p["max_joint_step"] = 0.05
+    target = n._safe_command(Command(np.array([1.0, 1.0, 1.0]), "micro"))
+    assert np.all(np.abs(target - [0.1, 0.2, 0.3]) <= 0.05 + 1e-6)
+    # a valid reading releases the hold
+    n.on_joint_state(js_bytes([0.15, 0.2, 0.3], ns=SEC + 10_000))
+    assert "joint_states" not in n.holds and n.js_alpha[0] == 0.15
+    # within the tolerance (0.1 rad) past a limit: accepted
+    n.on_joint_state(js_bytes([LIMIT + 0.05, 0.2, 0.3], ns=SEC + 20_000))
+    assert n.js_alpha[0] == LIMIT + 0.05
+
+
+def test_joint_velocities_beyond_the_bound_are_rejected(nodes):
+    n = nodes["learner"]
+    fresh_streams(n)
+    n.on_joint_state(js_bytes([0.1, 0.2, 0.3], [0.0] * 3, ns=SEC))
+    before = state(n)
+    n.on_joint_state(js_bytes([0.1, 0.2, 0.3], [0.0, 5e3, 0.0], ns=2 * SEC))
+    assert state(n) == before
+    assert "j1 = 5000.0 rad/s" in n.guard.last_message["joint_states.velocity"]
+
+
+# ------------------------------------------------------------------ row 2: joint states 1e308
+@pytest.mark.parametrize("value", [1e308, -1.7e308, 1e10])
+def test_huge_finite_joint_states_are_rejected(nodes, value):
+    n = nodes["learner"]
+    fresh_streams(n)
+    n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=SEC))
+    before = state(n)
+    total = n.guard.total
+    n.on_joint_state(js_bytes([value, 0.2, 0.3], ns=2 * SEC))
+    assert state(n) == before and n.guard.total == total + 1
+    assert n.guard.counts["joint_states.out_of_limits"] >= 1
+
+
+# ------------------------------------------------------------------ row 3: task point 1e308
+@pytest.mark.parametrize("x, y", [(1e308, 0.0), (0.0, -1e308), (31.0, 0.0), (0.0, -30.5)])
+def test_task_points_far_outside_y_are_rejected(nodes, x, y):
+    n = nodes["learner"]
+    fresh_streams(n)
+    n.on_task_point(tip_bytes(1.0, 2.0, ns=SEC))
+    before = state(n)
+    n.on_task_point(tip_bytes(x, y, ns=SEC + 1_000_000))  # stamp +1 ms, as in the issue
+    assert state(n) == before
+    msg = n.guard.last_message["task_point.outside_task_space"]
+    assert "allowed: within [[-30.0, 30.0], [-30.0, 30.0]]" in msg  # Y [-10, 10]² ± 1·extent
+    # inside Y ± margin but outside Y: a real camera may see it
+    n.on_task_point(tip_bytes(-25.0, 12.0, ns=2 * SEC))
+    assert list(n.tip) == [-25.0, 12.0]
+
+
+def test_task_points_rejected_in_a_row_hold_and_release(nodes):
+    n = nodes["learner"]
+    fresh_streams(n)
+    n.on_task_point(tip_bytes(1.0, 2.0, ns=SEC))
+    for k in range(HOLD_AFTER):
+        n.on_task_point(tip_bytes(1e308, 0.0, ns=SEC + (k + 1) * 1000))
+    assert "task_point" in n.holds and "outside_task_space" in n.holds["task_point"]
+    n.on_task_point(tip_bytes(1.0, 2.5, ns=SEC + 10_000))
+    assert "task_point" not in n.holds
+
+
+# ------------------------------------------------------------------ row 4: a stamp +1,000 s
+def test_a_future_stamp_is_rejected_and_never_wedges_the_stream(nodes):
+    n = nodes["learner"]
+    fresh_streams(n)
+    n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=100 * SEC))
+    n.on_joint_state(js_bytes([0.2, 0.2, 0.3], ns=1100 * SEC))  # +1,000 s
+    assert n.js_alpha[0] == 0.1 and n.js_track.newest == 100 * SEC
+    assert "future" in n.guard.last_message["joint_states.future_stamp"]
+    # the real states after it are accepted at once
+    n.on_joint_state(js_bytes([0.3, 0.2, 0.3], ns=100 * SEC + 10_000_000))
+    assert n.js_alpha[0] == 0.3
+    # the same for task points
+    n.on_task_point(tip_bytes(1.0, 1.0, ns=100 * SEC))
+    n.on_task_point(tip_bytes(2.0, 2.0, ns=1100 * SEC))
+    n.on_task_point(tip_bytes(3.0, 3.0, ns=100 * SEC + 10_000_000))
+    assert list(n.tip) == [3.0, 3.0] and n.guard.counts["task_point.future_stamp"] >= 1
+
+
+def test_a_clock_jump_back_is_detected_and_resynchronised(nodes):
+    """A driver (or sim time) restart: stamps start again near 0. After resync_after messages in a
+    row older than the newest, the stream is re-synchronised, logged, counted; never a wedge."""
+    n = nodes["learner"]
+    fresh_streams(n)
+    n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=500 * SEC))
+    jumps = n.guard.counts.get("joint_states.clock_jump_back", 0)
+    for k in range(RESYNC_AFTER - 1):
+        n.on_joint_state(js_bytes([0.4, 0.2, 0.3], ns=(k + 1) * SEC // 10))
+        assert n.js_alpha[0] == 0.1  # an isolated older stamp: out of order, kept the newest
+    n.on_joint_state(js_bytes([0.5, 0.2, 0.3], ns=SEC))
+    assert n.js_alpha[0] == 0.5 and n.js_stamp == SEC
+    assert n.guard.counts["joint_states.clock_jump_back"] == jumps + 1
+    assert "clock jumped back from 500000000000 ns" in n.guard.last_message["joint_states.clock_jump_back"]
+    n.on_joint_state(js_bytes([0.6, 0.2, 0.3], ns=2 * SEC))
+    assert n.js_alpha[0] == 0.6
+
+
+def test_a_pending_command_is_answered_after_a_future_stamp_got_through_first(nodes):
+    """The worst case: the first stamp of the stream was forged +1,000 s (no reference yet), a
+    command went out; the real answers look older: after resync_after of them the command is answered."""
+    n = nodes["learner"]
+    fresh_streams(n)
+    n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=1000 * SEC))   # forged, first of the stream
+    n.on_task_point(tip_bytes(1.0, 1.0, ns=1 * SEC))
+    answered = []
+    n.state, n.js_min, n.tip_min = n.RUNNING_COMMAND, n.js_stamp, 0
+    n.js_fresh = n.tip_fresh = False
+    n.tip_fresh = True
+    old_advance = n.advance
+    n.advance = answered.append
+    try:
+        for k in range(RESYNC_AFTER):
+            n.on_joint_state(js_bytes([0.12, 0.2, 0.3], ns=SEC + k))
+        assert answered and answered[0][0][0] == 0.12
+    finally:
+        n.advance = old_advance
+        n.state = None
+
+
+# ------------------------------------------------------------------ rows 5-6: reports
+def report_bytes(seq, kind=3, reached=(1.0, 1.0), competence=0.0) -> bytes:
+    m = CompetenceReport()
+    m.seq, m.kind, m.competence = seq, kind, competence
+    m.target, m.reached, m.start = [], list(reached), [0.0, 0.0]
+    return serialize_message(m)
+
+
+def test_a_report_far_outside_the_window_is_rejected_at_once(nodes):
+    g = nodes["generator"]
+    gen = g.gen
+    reports, skipped = gen.reports, gen.skipped_reports
+    t0 = time.perf_counter()
+    g.on_report(report_bytes(gen.reports + 10**12))
+    assert time.perf_counter() - t0 < 0.5  # main tried to skip 10^12 reports one by one
+    assert gen.reports == reports and gen.skipped_reports == skipped
+    assert g.guard.counts["report.out_of_window"] >= 1
+    g.on_report(report_bytes(reports + 1))  # the real next one is taken
+    assert gen.reports == reports + 1 and gen.skipped_reports == skipped
+
+
+@pytest.mark.parametrize("bad", [dict(reached=(math.nan, 1.0)), dict(kind=77), dict(competence=math.inf),
+                                 dict(competence=0.5), dict(reached=(1.0,))])
+def test_a_bad_report_never_consumes_the_seq_of_the_real_one(nodes, bad):
+    g = nodes["generator"]
+    gen = g.gen
+    seq, skipped, leaves = gen.reports + 1, gen.skipped_reports, len(gen.tree.leaves())
+    g.on_report(report_bytes(seq, **bad))
+    assert gen.reports == seq - 1 and gen.skipped_reports == skipped and len(gen.tree.leaves()) == leaves
+    assert g.guard.counts["report.invalid"] >= 1
+    g.on_report(report_bytes(seq))  # the learner's real report with that number
+    assert gen.reports == seq and gen.skipped_reports == skipped
+
+
+# ------------------------------------------------------------------ row 8: goals
+def goal_msg(seq, position):
+    g = Goal()
+    g.seq, g.after_report, g.mode = seq, 0, 0
+    g.position = [float(p) for p in position]
+    return g
+
+
+@pytest.mark.parametrize("position", [(math.nan, 1.0), (1e9, 0.0), (1.0,), (math.inf, math.inf)])
+def test_run_state_drops_nan_and_out_of_y_goals(position):
+    st = RunState(task_lower=np.array([-10.0, -10.0]), task_upper=np.array([10.0, 10.0]))
+    st.on_goal(goal_msg(1, (1.0, 1.0)))
+    st.on_goal(goal_msg(2, position))
+    st.on_goal(goal_msg(10**12, (1.0, 1.0)))  # a forged seq far ahead
+    st.on_goal(goal_msg(2, (2.0, 2.0)))        # the real goal 2
+    assert sorted(st.goals) == [1, 2] and st.goals[2]["position"] == [2.0, 2.0]
+    assert st.gaps["/sagg/goal"] == 0
+    assert st.rejected == {"/sagg/goal position not finite or outside Y": 1, "/sagg/goal seq out of window": 1}
+
+
+def test_learner_rejects_nan_and_out_of_y_goals_from_the_service(nodes):
+    n = nodes["learner"]
+
+    class Fut:
+        def __init__(self, pos):
+            from sagg_msgs.srv import NextGoal
+            self.resp = NextGoal.Response()
+            self.resp.goal = goal_msg(1, pos)
+
+        def result(self):
+            return self.resp
+
+    for pos in [(math.nan, 0.0), (50.0, 0.0)]:
+        fut = Fut(pos)
+        n.goal_future = fut
+        before = (n.goals_received, n.guard.counts.get("goal.invalid", 0))
+        n.on_goal(fut)
+        assert n.goals_received == before[0] and n.guard.counts["goal.invalid"] == before[1] + 1
+    n.goal_future = None
+
+
+def test_run_state_drops_reports_far_ahead_and_invalid_ones_without_consuming_their_seq():
+    st = RunState(task_lower=np.array([-10.0, -10.0]), task_upper=np.array([10.0, 10.0]))
+    from rclpy.serialization import deserialize_message
+    for raw in (report_bytes(1), report_bytes(10**12), report_bytes(2, reached=(math.nan, 0.0)), report_bytes(2)):
+        st.on_report(deserialize_message(raw, CompetenceReport))
+    assert st.reports == 2 and st.gaps["/sagg/competence"] == 0
+    assert st.rejected == {"/sagg/competence seq out of window": 1, "/sagg/competence invalid content": 1}
+
+
+# ------------------------------------------------------------------ row 9: a second publisher
+def wait_for(cond, timeout=10.0):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if cond():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_a_second_publisher_on_joint_states_is_named_and_the_learner_holds(nodes):
+    from sagg_common.ros_params import reliable
+    n = nodes["learner"]
+    fresh_streams(n)
+    intruder = rclpy.create_node("intruder")
+    try:
+        pub = intruder.create_publisher(JointState, "/joint_states", reliable(10))
+        assert wait_for(lambda: n.count_publishers("/joint_states") == 2)
+        before = state(n)
+        n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=5 * SEC))  # valid-looking: from which publisher?
+        assert state(n) == before
+        assert "node /intruder" in n.holds["publishers"] and "gid " in n.holds["publishers"]
+        assert "allowed: one" in n.guard.last_message["joint_states.publishers"]
+        # no command goes out, nothing is published while it is there
+        n.outbox.append(0)
+        n.flush()
+        assert n.outbox == [0]
+        n.outbox.clear()
+        intruder.destroy_publisher(pub)
+        assert wait_for(lambda: n.count_publishers("/joint_states") == 1)
+        n._check_publishers()
+        assert "publishers" not in n.holds
+        n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=6 * SEC))
+        assert n.js_stamp == 6 * SEC
+    finally:
+        intruder.destroy_node()
+
+
+def test_a_forged_report_never_takes_the_seq_of_the_learners_real_one(nodes):
+    """Reports reach the generator over DDS here: the learner's own publisher and an intruder's.
+    While the intruder publishes on /sagg/competence every report is dropped and the intruder named;
+    once it is gone the generator subscribes again and takes the learner's real reports from its
+    transient_local history: the forged report never took the seq of the real one, nothing is lost."""
+    from rclpy.executors import SingleThreadedExecutor
+    from sagg_common.ros_params import reliable
+    g, learner = nodes["generator"], nodes["learner"]
+    ex = SingleThreadedExecutor()
+    ex.add_node(g)
+
+    def spin_until(cond, timeout=10.0) -> bool:
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            ex.spin_once(timeout_sec=0.05)
+            if cond():
+                return True
+        return False
+
+    intruder = rclpy.create_node("intruder2")
+    try:
+        r, skipped = g.gen.reports, g.gen.skipped_reports
+        assert wait_for(lambda: learner.report_pub.get_subscription_count() >= 1)
+        learner.report_pub.publish(report_bytes(r + 1))  # the learner's stream starts
+        assert spin_until(lambda: g.gen.reports == r + 1)
+        # (transient_local like the learner's: a volatile publisher does not even match the generator)
+        pub = intruder.create_publisher(CompetenceReport, "/sagg/competence", reliable(10, transient_local=True))
+        assert wait_for(lambda: pub.get_subscription_count() >= 1)
+        before = g.guard.counts.get("report.publishers", 0)
+        pub.publish(report_bytes(r + 2, reached=(9.0, 9.0)))   # forged, the next seq
+        learner.report_pub.publish(report_bytes(r + 2, reached=(2.0, 2.0)))  # the real one meanwhile
+        assert spin_until(lambda: g.guard.counts.get("report.publishers", 0) >= before + 2)
+        assert g.gen.reports == r + 1
+        assert "node /intruder2" in g.guard.last_message["report.publishers"]
+        intruder.destroy_publisher(pub)
+        assert spin_until(lambda: g.gen.reports == r + 2)  # the real r+2, from the learner's history
+        assert g.resubscriptions >= 1 and g.gen.skipped_reports == skipped  # no real report was lost
+        points = np.concatenate([leaf.points[:leaf.count] for leaf in g.gen.tree.leaves()])
+        assert any(np.array_equal(p, [2.0, 2.0]) for p in points)       # the real report's point
+        assert not any(np.array_equal(p, [9.0, 9.0]) for p in points)   # never the forged one
+    finally:
+        ex.remove_node(g)
+        intruder.destroy_node()
+
+
+def test_reordered_reports_are_kept_not_skipped(nodes):
+    """A report ahead of the next one (reordered, or re-delivered after a re-subscription) waits for
+    the ones before it: nothing is skipped when they come within report_reorder_wait."""
+    g = nodes["generator"]
+    gen = g.gen
+    r, skipped = gen.reports, gen.skipped_reports
+    g.on_report(report_bytes(r + 3))
+    g.on_report(report_bytes(r + 2))
+    assert gen.reports == r and sorted(g.early) == [r + 2, r + 3]
+    g.on_report(report_bytes(r + 1))
+    assert gen.reports == r + 3 and gen.skipped_reports == skipped and not g.early
+
+
+def test_recorder_counts_the_messages_it_missed_from_publisher_sequence_numbers():
+    from sagg_bringup.recorder import _follow
+    tails: list[int] = []
+    assert [_follow(tails, s) for s in (1, 2, 5, 6, 10)] == [0, 0, 2, 0, 3]
+    # a restarted publisher (numbers start again) is a new stream, not a loss
+    assert [_follow(tails, s) for s in (1, 2, 3, 11)] == [0, 0, 0, 0]
