@@ -16,6 +16,7 @@ from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import substream_seed
 from sagg_goal_generator.core import MODE_NAMES, SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.evaluate import evaluate
 from sagg_low_level.learner import (SCHEMA as LEARNER_SCHEMA, Command, EvolvingContextLearner,
                                     GoalRequest, Observe, Robot)
@@ -102,9 +103,11 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
 
     bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']}", enabled=progress)
-    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar)
+    frame = metric_frame(goals, np.zeros(goals.shape[1]))  # the arm's base is the origin
+    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar, frame)
 
     result = build_result(run, curve, area, micro_actions, eval_seconds)
+    result["eval_metrics"] = frame_summary(frame)
     result["test_goals"] = goals.tolist()
     result["final_errors"] = errors.tolist()
     write_result(out_dir, result)
@@ -128,11 +131,14 @@ def run_overrides(micro_actions: int, eval_every: int, strategy: str | None, see
 
 
 def learning_curve(run, goals: np.ndarray, micro_actions: int, eval_every: int,
-                   bar: Progress) -> tuple[list[dict], float, np.ndarray]:
+                   bar: Progress, frame: dict | None = None) -> tuple[list[dict], float, np.ndarray]:
     """Step an in-process run (:class:`InProcessRun` or a synergy run) to every multiple of
     ``eval_every`` and to ``micro_actions``, evaluating the frozen model on ``goals`` at each
-    (never counted as learning). Returns the curve, the evaluation seconds and the final errors;
-    ``bar`` is closed."""
+    (never counted as learning). Each curve point holds the evaluation's metrics
+    (:func:`sagg_low_level.eval_metrics.error_metrics` against ``frame``; default: base at the
+    origin). Returns the curve, the evaluation seconds and the final errors; ``bar`` is closed."""
+    if frame is None:
+        frame = metric_frame(goals, np.zeros(np.asarray(goals).shape[1]))
     curve = []
     eval_seconds = 0.0
     for target in list(range(0, micro_actions, eval_every)) + [micro_actions]:
@@ -140,8 +146,7 @@ def learning_curve(run, goals: np.ndarray, micro_actions: int, eval_every: int,
         t0 = time.perf_counter()
         errors = run.evaluate(goals)
         eval_seconds += time.perf_counter() - t0
-        curve.append({"micro_actions": target, "mean_error": float(errors.mean()),
-                      "median_error": float(np.median(errors))})
+        curve.append({"micro_actions": target, **error_metrics(errors, frame)})
         bar.update(target, goals=len(run.generator.goals), regions=len(run.generator.tree.leaves()),
                    competence=run.learner.last_competence, error=float(errors.mean()))
     bar.close()

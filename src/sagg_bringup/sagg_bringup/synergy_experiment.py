@@ -17,6 +17,8 @@ from sagg_common.progress import Progress
 from sagg_common.rng import stream
 from sagg_common.synergy import transported_outcome
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_low_level.eval_metrics import frame_summary, metric_frame
+from sagg_low_level.outcome_set import reachable_outcomes
 from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Driver, FixedContextLearner,
                                           ThetaSpace, evaluate_fixed, spread_goals, synergy_from_params)
 from sagg_sim_bridge.synergy_params import NODE_SCHEMA as BRIDGE_NODE_SCHEMA, SCHEMA as SIM_SCHEMA, SETUPS, make_sim
@@ -111,18 +113,17 @@ class SynergyRun:
         return evaluate_fixed(self.learner, self.run_eval, goals)
 
     def test_pool(self) -> np.ndarray:
-        """Outcomes of ``eval.pool`` uniformly random synergies (seeded by eval.seed), no-contact
-        trials dropped: what the test goals are picked from."""
+        """``eval.pool`` synergy executions spread over the reachable outcome set by
+        :func:`sagg_low_level.outcome_set.reachable_outcomes` (``eval.pool_rounds`` rounds; 0 = plain
+        uniformly random synergies), seeded by eval.seed, no-contact trials dropped: the estimate of
+        the reachable outcome set the test goals are picked from (and the goal-share box)."""
         lp = self.config["sagg_learner"]
         rng = stream(lp["eval.seed"], "synergy_test_pool")
-        out = []
-        for _ in range(lp["eval.pool"]):
-            y = self.run_eval(rng.uniform(self.synergy.lower, self.synergy.upper))
-            if y is not None:
-                out.append(y)
-        if not out:
-            raise ConfigError("eval.pool: no random synergy produced an outcome")
-        return np.array(out)
+        out = reachable_outcomes(self.run_eval, self.synergy.lower, self.synergy.upper,
+                                 lp["eval.pool"], lp["eval.pool_rounds"], rng)
+        if not len(out):
+            raise ConfigError("eval.pool: no synergy of the test pool produced an outcome")
+        return out
 
     def test_goals(self, pool: np.ndarray) -> np.ndarray:
         lp = self.config["sagg_learner"]
@@ -158,7 +159,8 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
     area = BoxArea(pool, lp["task_space.lower"], lp["task_space.upper"])
 
     bar = Progress(micro_actions, f"{bp_setup(config)} {lp['strategy']} seed {lp['seed']}", enabled=progress)
-    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar)
+    frame = metric_frame(goals, run.sim.rest_outcome)  # distance bands from the rest outcome
+    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar, frame)
 
     learner = run.learner
     outcomes = learner.outcomes.copy()
@@ -166,6 +168,7 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
                          {"samples": len(learner), "digest": learner.by_theta.digest(),
                           "bytes": int(learner.by_theta.nbytes + learner.by_y.nbytes)})
     result.update({
+        "eval_metrics": frame_summary(frame),
         "test_goals": goals.tolist(),
         "final_errors": errors.tolist(),
         "synergy": {
