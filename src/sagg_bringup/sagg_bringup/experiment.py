@@ -99,7 +99,7 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     lp = config["sagg_learner"]
     lower = np.asarray(lp["task_space.lower"])
     upper = np.asarray(lp["task_space.upper"])
-    area = reachable_area(run.spec, lower, upper, seed=lp["eval.seed"])
+    area = cached_reachable_area(run.spec, lower, upper, lp["eval.seed"])
     goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
 
     bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']}", enabled=progress)
@@ -112,6 +112,20 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     result["final_errors"] = errors.tolist()
     write_result(out_dir, result)
     return result
+
+
+_AREAS: dict[str, Any] = {}
+
+
+def cached_reachable_area(spec, lower, upper, seed: int):
+    """:func:`reachable_area` of (arm, bounds, seed), kept for the next run in this process: the
+    runs of a comparison share it, and a worker process runs many of them (0.5-2.5 s each)."""
+    key = repr((spec, np.asarray(lower, float).tolist(), np.asarray(upper, float).tolist(), int(seed)))
+    if key not in _AREAS:
+        if len(_AREAS) >= 4:
+            _AREAS.pop(next(iter(_AREAS)))
+        _AREAS[key] = reachable_area(spec, lower, upper, seed=seed)
+    return _AREAS[key]
 
 
 def run_overrides(micro_actions: int, eval_every: int, strategy: str | None, seed: int | None,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 from pathlib import Path
 from typing import Callable
@@ -197,25 +198,24 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
                   registry: str | Path = REGISTRY, out_fn: Callable[[str], None] = print) -> list[dict]:
     """Run (or resume) every experiment the selected claims need, then write claims.json and
     report.md with figures. Returns the claims.json list."""
-    from .sweep import run_compare
+    import os
+
     reg = load_registry(registry)
     claims = select(reg, which)
     out = Path(out or f"runs/reproduce-{scale}")
     commit = code_commit()
     needed = list(dict.fromkeys(c["experiment"] for c in claims))
     summaries, settings = {}, {}
-    for i, name in enumerate(needed, 1):
-        e = reg["experiments"][name]
-        sc = scale_of(reg, e, scale)
-        overrides = {**e["set"], **sc.get("set", {})}
-        out_fn(f"== experiment {i}/{len(needed)}: {name} (Sec. {e['section']}, {e['config']}, "
-               f"{scale} scale: {sc['seeds']} seeds x {sc['micro_actions']})")
-        summaries[name] = run_compare(resolve_config(e["config"]), e["strategies"], sc["seeds"],
-                                      sc["micro_actions"], sc["eval_every"], out / "experiments" / name,
-                                      workers=workers, ray_address=ray_address, overrides=overrides,
-                                      base_seed=0, out_fn=out_fn)
-        settings[name] = {"config": e["config"], "overrides": overrides, **{
-            k: sc[k] for k in ("seeds", "micro_actions", "eval_every")}}
+    workers = workers or os.cpu_count() or 1
+    pool = None  # one pool for every experiment, made when the first run is due (warm workers)
+    try:
+        for i, name in enumerate(needed, 1):
+            pool = _run_experiment(reg, name, i, len(needed), scale, out, workers, ray_address,
+                                   pool, summaries, settings, out_fn)
+    finally:
+        if pool is not None:
+            pool.close()
+
     alpha = float(reg.get("alpha", 0.05))
     rows = []
     for c in claims:
@@ -235,6 +235,27 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
     out_fn(f"wrote {out / 'claims.json'}, {out / 'report.md'}: "
            + ", ".join(f"{n} {v}" for v, n in counts.items()))
     return rows
+
+
+def _run_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, summaries, settings,
+                    out_fn):
+    """One experiment through run_compare (on ``pool``, made here if None and runs are due);
+    fills ``summaries`` / ``settings``; returns the pool."""
+    from .sweep import make_pool, run_compare
+    e = reg["experiments"][name]
+    sc = scale_of(reg, e, scale)
+    overrides = {**e["set"], **sc.get("set", {})}
+    out_fn(f"== experiment {i}/{n}: {name} (Sec. {e['section']}, {e['config']}, "
+           f"{scale} scale: {sc['seeds']} seeds x {sc['micro_actions']})")
+    if pool is None:
+        pool = make_pool(workers, ray_address)
+    summaries[name] = run_compare(resolve_config(e["config"]), e["strategies"], sc["seeds"],
+                                  sc["micro_actions"], sc["eval_every"], out / "experiments" / name,
+                                  workers=workers, ray_address=ray_address, overrides=overrides,
+                                  base_seed=0, out_fn=out_fn, pool=pool)
+    settings[name] = {"config": e["config"], "overrides": overrides,
+                      **{k: sc[k] for k in ("seeds", "micro_actions", "eval_every")}}
+    return pool
 
 
 # --------------------------------------------------------------------------------------- report
@@ -282,9 +303,8 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
                           f"{_fmt(pr.get('p_floor'))}): {pr['verdict']}")
         md.append("")
         if results:
-            from .compare import plot_curves
-            plot_curves(results, figs / f"{exp}_curves.png",
-                        f"{exp}: {len(first['seeds'])} seeds, mean ± std")
+            # the comparison's own figure (mean ± std over seeds, drawn by write_summary)
+            shutil.copyfile(d / "curves.png", figs / f"{exp}_curves.png")
             md += [f"![{exp} curves](figures/{exp}_curves.png)", ""]
             if plot_goal_histograms(results, figs / f"{exp}_goals.png", exp):
                 md += [f"![{exp} goals](figures/{exp}_goals.png)", ""]
