@@ -143,3 +143,49 @@ def test_rerun_after_a_lost_run_redoes_only_that_run(tmp_path):
     assert [row["id"] for row in rows] == ["fishing-riac-beats-random"]
     r = reproduce(out, "fishing-riac-beats-random")
     assert "0 to run" in r.stdout
+
+
+# ------------------------------------------------------------ the evaluation's pieces, known inputs
+def test_error_metrics_on_known_inputs():
+    from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
+    goals = np.array([[1.0, 0.0], [0.0, 3.0], [5.0, 0.0], [0.0, 10.0], [8.0, 6.0]])  # |g| 1, 3, 5, 10, 10
+    f = metric_frame(goals, [0.0, 0.0])
+    assert f["radius"] == 10.0 and f["within"] == pytest.approx(0.2)
+    assert f["band_edges"] == [0.0, 2.5, 5.0, 7.5, 10.0]
+    assert f["band_of_goal"] == [0, 1, 2, 3, 3] and f["band_counts"] == [1, 1, 1, 2]
+    m = error_metrics([0.1, 0.3, 0.2, 4.0, 2.0], f)
+    assert m["mean_error"] == pytest.approx(1.32) and m["median_error"] == pytest.approx(0.3)
+    assert m["within_share"] == pytest.approx(0.4)  # 0.1 and 0.2 are within 0.2
+    assert m["band_mean_errors"] == pytest.approx([0.1, 0.3, 0.2, 3.0])
+    assert "band_of_goal" not in frame_summary(f)
+    f2 = metric_frame(np.array([[0.5, 0.0], [1.0, 0.0]]), [0.0, 0.0])  # bands 0 and 1 hold no goal
+    assert error_metrics([1.0, 2.0], f2)["band_mean_errors"] == [None, None, 1.0, 2.0]
+    with pytest.raises(ValueError, match="errors"):
+        error_metrics([1.0], f)
+
+
+def test_synergy_test_goals_do_not_follow_the_random_synergy_density():
+    """A synergy whose outcome is the mean of many parameters (like the quadruped's 12 amplitudes):
+    uniformly random synergies pile up near the centre and almost never reach the edges of the
+    reachable set [-1, 1]^2. The goals spread over the estimated reachable set must not."""
+    from sagg_low_level.fixed_context import spread_goals
+    from sagg_low_level.outcome_set import reachable_outcomes
+
+    def outcome(theta):
+        return np.array([theta[:6].mean(), theta[6:].mean()])
+
+    lo, hi = -np.ones(12), np.ones(12)
+    random_outcomes = np.array([outcome(t) for t in np.random.default_rng(3).uniform(lo, hi, (4000, 12))])
+    far = lambda p: float((np.abs(p).max(axis=1) > 0.5).mean())  # noqa: E731
+    uniform_share = 1.0 - 0.5 ** 2  # of a uniform density over [-1, 1]^2
+    for seed in (1, 2):
+        pool = reachable_outcomes(outcome, lo, hi, 1000, 8, np.random.default_rng(seed))
+        old = reachable_outcomes(outcome, lo, hi, 1000, 0, np.random.default_rng(seed))
+        goals = spread_goals(pool, 100, np.random.default_rng(7), [-1.0, -1.0], [1.0, 1.0])
+        old_goals = spread_goals(old, 100, np.random.default_rng(7), [-1.0, -1.0], [1.0, 1.0])
+        # the random-synergy density puts ~6 % of outcomes beyond 0.5; the goals ~ the uniform 75 %
+        assert far(random_outcomes) < 0.1
+        assert far(goals) > 0.45 > far(old_goals) and far(goals) > 0.6 * uniform_share
+        # and the goals reach further out than the random synergies' 99th percentile
+        assert np.abs(goals).max() > np.percentile(np.abs(random_outcomes).max(axis=1), 99) + 0.1
+        assert np.all(np.abs(pool) <= 1.0)  # only real outcomes: never outside the reachable set

@@ -6,6 +6,7 @@ synergy executions with an outcome) plus a ``synergy`` section (trials, discarde
 """
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -63,6 +64,9 @@ class BoxArea:
         return float(np.prod((self.hi - self.lo) / (self.upper_y - self.lower_y)))
 
 
+_POOLS: dict[str, np.ndarray] = {}
+
+
 class SynergyRun:
     """A synergy learning run of one strategy and seed, stepped in-process."""
 
@@ -118,11 +122,20 @@ class SynergyRun:
         uniformly random synergies), seeded by eval.seed, no-contact trials dropped: the estimate of
         the reachable outcome set the test goals are picked from (and the goal-share box)."""
         lp = self.config["sagg_learner"]
+        # the same for every strategy and seed of a set-up: kept for the next run in this process
+        key = json.dumps([self.config["sagg_sim_bridge"], {k: v for k, v in lp.items()
+                                                           if k not in ("seed", "strategy")}],
+                         sort_keys=True, default=str)
+        if key in _POOLS:
+            return _POOLS[key].copy()
         rng = stream(lp["eval.seed"], "synergy_test_pool")
         out = reachable_outcomes(self.run_eval, self.synergy.lower, self.synergy.upper,
                                  lp["eval.pool"], lp["eval.pool_rounds"], rng)
         if not len(out):
             raise ConfigError("eval.pool: no synergy of the test pool produced an outcome")
+        if len(_POOLS) >= 4:
+            _POOLS.pop(next(iter(_POOLS)))
+        _POOLS[key] = out.copy()
         return out
 
     def test_goals(self, pool: np.ndarray) -> np.ndarray:

@@ -9,8 +9,8 @@ strategy that samples like them.
 
 Method (our choice, the synergy analogue of :func:`sagg_sim_bridge.arm.reachable_area`): a first
 batch of uniformly random synergies; then ``rounds`` batches, each re-drawing earlier synergies with
-probability ∝ 1 / (number of outcomes in their outcome cell) (so every occupied cell of the outcome
-grid is drawn equally often, however dense) and perturbing them with Gaussian noise of a log-uniform
+probability ∝ (number of outcomes in their outcome cell)^-2 (sparse cells, which lie at the edges,
+are drawn more often than dense ones, however many outcomes these hold) and perturbing them with Gaussian noise of a log-uniform
 scale (1 %..30 % of each θ range). This evens the sample density out and pushes it to the edges of
 the set. Every outcome is one actually produced by the simulator, so the estimate can only miss
 reachable parts, never invent them. It uses its own seeded stream and no strategy's data; all
@@ -61,7 +61,7 @@ def reachable_outcomes(run_theta: Callable[[np.ndarray], np.ndarray | None], the
             continue
         keys = grid_cells(np.array(outs), bins)
         _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-        w = 1.0 / counts[inverse]
+        w = counts[inverse] ** -2.0
         pick = rng.choice(len(outs), size=int(n), p=w / w.sum())
         scale = np.exp(rng.uniform(np.log(noise[0]), np.log(noise[1]), size=(int(n), 1))) * (hi - lo)
         run(np.clip(np.array(thetas)[pick] + rng.normal(size=(int(n), lo.size)) * scale, lo, hi))
