@@ -110,7 +110,8 @@ def test_smoke_all_writes_every_claim_with_every_field(tmp_path):
             assert row["ours"]["strategies"][s]["n"] == 2
             assert np.isfinite(row["ours"]["strategies"][s]["mean"])
         # 2 seeds: the smallest two-sided Mann-Whitney p is 1/3, so nothing can be decided
-        assert row["verdict"] == "inconclusive" and row["p_value"] >= 1 / 3 - 1e-12
+        # (p is NaN when all values tie, e.g. no goal in the second half of 100 micro-actions)
+        assert row["verdict"] == "inconclusive" and not row["p_value"] < 1 / 3 - 1e-12
         assert row["commit"]
     report = (tmp_path / "all" / "report.md").read_text()
     for row in rows:

@@ -280,7 +280,10 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
     md += ["| claim | Sec. | paper | ours (mean over seeds) | p | verdict |", "|---|---|---|---|---|---|"]
     for r in rows:
         s = r["ours"]["strategies"]
-        ours = "; ".join(f"{n} {_fmt(v['mean'])}" for n, v in s.items())
+        named = {n for pr in r["pairs"] for n in (pr["a"], pr["b"])}  # the claim's strategies only
+        ours = "; ".join(f"{n} {_fmt(v['mean'])}" for n, v in s.items() if n in named)
+        if r["ours"]["metric"] != "final_mean_error":
+            ours += f" ({r['ours']['metric']})"
         md.append(f"| {r['id']} | {r['section']} | {r['paper']} | {ours} | {_fmt(r['p_value'])} | "
                   f"**{r['verdict']}** |")
     md.append("")
