@@ -190,3 +190,16 @@ def test_synergy_test_goals_do_not_follow_the_random_synergy_density():
         # and the goals reach further out than the random synergies' 99th percentile
         assert np.abs(goals).max() > np.percentile(np.abs(random_outcomes).max(axis=1), 99) + 0.1
         assert np.all(np.abs(pool) <= 1.0)  # only real outcomes: never outside the reachable set
+
+
+def test_estimate_table_sums_core_hours():
+    from sagg_bringup.reproduce import estimate_table
+    rows = [{"experiment": "a", "section": "3.9", "seeds": 15, "micro_actions": 200_000,
+             "strategies": {"sagg-riac": {"rate": 2000.0, "core_hours_per_run": 0.5}},
+             "core_hours": 7.5},
+            {"experiment": "b", "section": "5.3", "seeds": 10, "micro_actions": 10_000,
+             "strategies": {"sagg-riac": {"rate": 10.0, "core_hours_per_run": 0.25}},
+             "core_hours": 2.5}]
+    table = estimate_table(rows)
+    assert "| a | 3.9 | 15 × 200,000 | sagg-riac 2,000 | sagg-riac 0.50 | 7.5 |" in table
+    assert table.splitlines()[-1] == "| **total** | | | | | **10.0** |"
