@@ -86,7 +86,7 @@ def test_decide_reads_the_compare_summary():
     assert d["statistic"] == "welch_p" and d["p_value"] < 1e-4
 
 
-def reproduce(out: Path, *what: str, timeout: float = 300) -> subprocess.CompletedProcess:
+def reproduce(out: Path, *what: str, timeout: float = 600) -> subprocess.CompletedProcess:
     return subprocess.run([str(SAGG), "reproduce", *what, "--scale", "smoke", "--out", str(out),
                            "--workers", "2"], capture_output=True, text=True, timeout=timeout)
 
