@@ -203,3 +203,23 @@ def test_estimate_table_sums_core_hours():
     table = estimate_table(rows)
     assert "| a | 3.9 | 15 × 200,000 | sagg-riac 2,000 | sagg-riac 0.50 | 7.5 |" in table
     assert table.splitlines()[-1] == "| **total** | | | | | **10.0** |"
+
+
+def test_compare_summary_carries_the_other_metrics():
+    from sagg_bringup.compare import summary_json, summary_markdown
+
+    def run(seed, med, within, bands):
+        return {"strategy": "sagg-riac", "seed": seed, "final_mean_error": 1.0,
+                "curve": [{"micro_actions": 0, "mean_error": 2.0},
+                          {"micro_actions": 100, "mean_error": 1.0, "median_error": med,
+                           "within_share": within, "band_mean_errors": bands}],
+                "eval_metrics": {"band_edges": [0.0, 1.0, 2.0], "within": 0.04},
+                "goal_stats": {"goal_share_reachable_second_half": 0.5, "reachable_share_of_Y": 0.1}}
+
+    rs = [run(0, 0.2, 0.5, [1.0, None]), run(1, 0.4, 0.7, [3.0, None])]
+    s = summary_json(rs)["strategies"]["sagg-riac"]
+    assert s["final_median_error"] == [0.2, 0.4] and s["mean_of_median_errors"] == pytest.approx(0.3)
+    assert s["mean_within_share"] == pytest.approx(0.6)
+    assert s["band_mean_errors"] == [2.0, None]
+    row = summary_markdown(rs, tests=False).splitlines()[-1]
+    assert row.endswith("| 0.300 | 60% (≤ 0.04) | [0, 1]: 2.000, [1, 2]: — |")
