@@ -28,6 +28,7 @@ SUMMARY_KEYS = {"format", "strategy", "seed", "config", "node_params", "params_f
 TOPICS = {"/sagg/goal": "sagg_msgs/msg/Goal", "/sagg/competence": "sagg_msgs/msg/CompetenceReport",
           "/sagg/regions": "sagg_msgs/msg/RegionTree", "/sagg/sample": "sagg_msgs/msg/Sample",
           "/sagg/status": "sagg_msgs/msg/LearnerStatus", "/sagg/evaluation": "sagg_msgs/msg/Evaluation",
+          "/sagg/markers": "visualization_msgs/msg/MarkerArray",
           "/joint_states": "sensor_msgs/msg/JointState",
           "/forward_position_controller/commands": "std_msgs/msg/Float64MultiArray",
           "/tip_position": "geometry_msgs/msg/PointStamped"}

@@ -11,7 +11,7 @@ import yaml
 
 from sagg_bringup.experiment import InProcessRun, load_experiment_config
 from sagg_bringup.graph import (SplitTracker, graph_params, graph_topics, load_graph_config, pick_domain_id,
-                                write_params_file)
+                                run_only_params, write_params_file)
 from sagg_bringup.recorder import BagWriter, TopicRecorder, TopicSpec, make_typestore
 from sagg_bringup.report import leaves_after
 from sagg_common.params import ConfigError
@@ -116,8 +116,12 @@ def test_params_file_gives_every_node_its_parameters(tmp_path):
     assert lp["joints"] == [f"joint_{i}" for i in range(8)]
     assert len(lp["joint_limits"]["lower"]) == 8 and len(lp["rest_posture"]) == 8
     assert lp["task_space"] == {"lower": [0.0, -60.0], "upper": [100.0, 60.0]}
-    assert lp["min_sample_subscribers"] == 1  # the recorder must see every sample
-    assert doc["sagg_goal_generator"]["ros__parameters"]["min_goal_subscribers"] == 1
+    # the waits for `sagg run`'s recorder are not in the file (it must work without sagg run) ...
+    assert lp["min_sample_subscribers"] == 0
+    assert doc["sagg_goal_generator"]["ros__parameters"]["min_goal_subscribers"] == 0
+    # ... they are given on the nodes' command lines: the recorder must see every sample and goal
+    assert run_only_params(params) == {"sagg_learner": {"min_sample_subscribers": 1},
+                                       "sagg_goal_generator": {"min_goal_subscribers": 1}}
     bp = doc["sagg_sim_bridge"]["ros__parameters"]
     assert bp["timing"] == "lockstep" and bp["arm"]["dof"] == 8 and bp["arm"]["motor_noise"] == 0.2
     # the learner's joints are the bridge arm's, so the rest posture is the arm's

@@ -1,32 +1,65 @@
-"""Launch the sagg graph on a full ROS 2 install: ``ros2 launch sagg_bringup sagg.launch.py config:=FILE``.
+"""Launch the sagg graph on a full ROS 2 install.
 
-Mirrors ``sagg run`` without its extras (recording, evaluation, report): the three nodes with one
-parameter file. Unlike ``sagg run``, nothing is filled in for you: for the learner, the file must set
-``joints``, ``joint_limits.lower/upper``, ``rest_posture`` (and ``max_micro_actions`` if wanted) to
-match the bridge's arm or your real arm's controller; ``sagg run`` writes such a file
-(``DIR/params.yaml``) that can be passed here as is. For a real arm, set ``use_sim:=false`` and
-run your ros2_control driver instead of the MuJoCo bridge.
+    ros2 launch sagg_bringup sagg.launch.py [config:=arm8] [driver:=sim|external] [record:=false|true]
+                                            [micro_actions:=0] [record_out:=DIR]
+
+``config``: an installed config's name (``arm8``, ``arm15``, ``quadruped``, ...) or any parameter
+file (a config, or the ``params.yaml`` a ``sagg run`` wrote). Every derived parameter is filled in
+from it exactly as ``sagg run`` does (``sagg_bringup.launch_params.launch_plan``): the learner's
+``joints``, ``joint_limits``, ``rest_posture`` from the simulated arm (``driver:=sim``) or the
+config's own (``driver:=external``: your arm's driver runs already; no bridge is started), the
+synergy set-ups' nodes. The expanded parameter file is written to a temporary directory and its
+path logged. ``record:=true`` also starts ``sagg record`` (``sagg run``'s topic set, mcap, into
+``record_out`` or ``runs/record-<time>``), and the learner and generator then wait for it, so the
+bag misses nothing. ``micro_actions``: the learner stops there (0 = never).
 """
+import tempfile
+from pathlib import Path
+
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.conditions import IfCondition
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, LogInfo, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 
+def _nodes(context):
+    from sagg_bringup.graph import find_node_executable
+    from sagg_bringup.launch_params import launch_plan, write_plan
+
+    def arg(name):
+        return LaunchConfiguration(name).perform(context)
+
+    record = arg("record").lower()
+    if record not in ("true", "false"):
+        raise RuntimeError(f"record:={record!r}; allowed: true or false")
+    plan = launch_plan(arg("config"), arg("driver"), int(arg("micro_actions")))
+    path = write_plan(plan, Path(tempfile.mkdtemp(prefix="sagg-launch-")) / "params.yaml")
+    waits = {"sagg_learner": {"min_sample_subscribers": 1}, "sagg_goal_generator": {"min_goal_subscribers": 1}}
+    actions = [LogInfo(msg=f"sagg: {plan.config} (driver {plan.driver}) -> parameters in {path}")]
+    for package, executable, name in plan.nodes:
+        params = [str(path)] + ([waits[name]] if record == "true" and name in waits else [])
+        actions.append(Node(package=package, executable=executable, name=name, parameters=params,
+                            output="screen"))
+    if record == "true":
+        cmd = [str(find_node_executable("sagg_bringup", "sagg")), "record", "--params", str(path)]
+        if arg("record_out"):
+            cmd += ["--out", arg("record_out")]
+        actions.append(ExecuteProcess(cmd=cmd, output="screen", sigterm_timeout="10"))
+    return actions
+
+
 def generate_launch_description():
-    config = LaunchConfiguration("config")
-    use_sim = LaunchConfiguration("use_sim")
     return LaunchDescription([
-        DeclareLaunchArgument(
-            "config", description="ROS 2 parameter file with sections sagg_goal_generator, "
-                                  "sagg_learner and sagg_sim_bridge (e.g. a `sagg run` params.yaml)"),
-        DeclareLaunchArgument("use_sim", default_value="true",
-                              description="start the MuJoCo bridge (false: a real driver is running)"),
-        Node(package="sagg_sim_bridge", executable="mujoco_bridge", name="sagg_sim_bridge",
-             parameters=[config], output="screen", condition=IfCondition(use_sim)),
-        Node(package="sagg_goal_generator", executable="goal_generator", name="sagg_goal_generator",
-             parameters=[config], output="screen"),
-        Node(package="sagg_low_level", executable="learner", name="sagg_learner",
-             parameters=[config], output="screen"),
+        DeclareLaunchArgument("config", default_value="arm8",
+                              description="an installed config's name (arm8, arm15, quadruped, ...) or a "
+                                          "parameter file (a config or a `sagg run` params.yaml)"),
+        DeclareLaunchArgument("driver", default_value="sim", choices=["sim", "external"],
+                              description="sim: start the MuJoCo bridge; external: your driver is running"),
+        DeclareLaunchArgument("record", default_value="false", choices=["true", "false"],
+                              description="also record sagg run's topic set with `sagg record`"),
+        DeclareLaunchArgument("record_out", default_value="",
+                              description="bag directory of record:=true (default runs/record-<time>)"),
+        DeclareLaunchArgument("micro_actions", default_value="0",
+                              description="the learner stops after this many micro-actions (0 = never)"),
+        OpaqueFunction(function=_nodes),
     ])

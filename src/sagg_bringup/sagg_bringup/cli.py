@@ -101,8 +101,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="evaluate the frozen model on the test goals every K micro-actions")
     r.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override any node parameter, e.g. --set arm.dof=7 (repeatable)")
-    r.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: a random private one)")
+    r.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: a random private one; with "
+                   "--driver external the environment's, where your driver runs)")
     r.add_argument("--quiet", action="store_true", help="no progress display")
+    r.add_argument("--driver", choices=["sim", "external"], default="sim",
+                   help="sim: start the MuJoCo bridge; external: your driver is running (start only the "
+                        "goal generator and the learner; evaluate on the robot)")
+    r.add_argument("--robot-eval-goals", type=positive_int, default=10,
+                   help="--driver external: test goals reached on the robot (default 10)")
+    r.add_argument("--robot-eval-every", type=int, default=0, metavar="K",
+                   help="--driver external: also evaluate on the robot every K micro-actions, pausing "
+                        "learning (default 0: only at the end)")
+    r.add_argument("--driver-timeout", type=float, default=120.0,
+                   help="--driver external: seconds to wait for the driver's topics (default 120)")
 
     rp = sub.add_parser("replay", help="republish a bag's raw CDR with its recorded timing and QoS "
                                        "(for Foxglove, PlotJuggler, a second learner)")
@@ -114,6 +125,25 @@ def build_parser() -> argparse.ArgumentParser:
                     help="start once every topic has N matched subscribers (default 0: at once)")
     rp.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
     rp.add_argument("--quiet", action="store_true", help="no progress display")
+    rc = sub.add_parser("record", help="the recorder alone (sagg run's topics, the publishers' QoS) into an "
+                                       "mcap bag, until Ctrl-C; also publishes the live view /sagg/markers")
+    rc.add_argument("--out", help="bag directory to create (default runs/record-<time>-<pid>)")
+    rc.add_argument("--params", help="the graph's parameter file (a config or a run's params.yaml), for the "
+                                     "command and task-space topic names (default: the defaults)")
+    rc.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
+    rc.add_argument("--duration", type=float, help="stop after this many seconds (default: at Ctrl-C)")
+    rc.add_argument("--no-markers", action="store_true", help="do not publish /sagg/markers")
+    rc.add_argument("--quiet", action="store_true", help="no progress display")
+    cd = sub.add_parser("check-driver", help="check a running driver against the contract: rates, delays, "
+                                             "name mapping, noise; moves one joint a little and back")
+    cd.add_argument("config", help="the config (or params.yaml) naming joints, limits, rest posture, "
+                                   "controller and task topic of your arm")
+    cd.add_argument("--joint", help="the joint to move (default: the last of 'joints')")
+    cd.add_argument("--step", type=float, default=0.05, help="how far to move it (rad, default 0.05; at most "
+                                                             "max_joint_step)")
+    cd.add_argument("--seconds", type=float, default=2.0, help="seconds of listening at rest (rates, noise)")
+    cd.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
+    cd.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the driver")
     rl = sub.add_parser("relearn", help="rebuild the learner memory and the region tree from bags, "
                                         "check them against the recording, evaluate")
     rl.add_argument("bags", nargs="+", help="rosbag2 directories of one run, in order (bag, bag2, ...)")
@@ -219,16 +249,25 @@ def _run(args) -> int:
         strategy = "" if args.strategy is None else f"-{args.strategy}"
         out = Path("runs") / f"{Path(args.config).stem}{strategy}{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
-        s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
-                      timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
-                      progress=not args.quiet, domain_id=args.domain_id)
+        if args.driver == "external":
+            from .external import run_external_graph
+            s = run_external_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
+                                   eval_every=args.eval_every, overrides=parse_set(args.set),
+                                   progress=not args.quiet, domain_id=args.domain_id,
+                                   robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
+                                   driver_timeout=args.driver_timeout)
+        else:
+            s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
+                          timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
+                          progress=not args.quiet, domain_id=args.domain_id)
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
         from .synergy_experiment import config_setup
 
-        hint = (f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
+        hint = (" (external-driver runs cannot be resumed: start a new run)" if args.driver == "external"
+                else f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
                 else " (synergy runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
@@ -238,6 +277,11 @@ def _run(args) -> int:
           f"{len(s['goals'])} goals, {len(s['regions'])} regions, "
           f"{sum(t['count'] for t in s['bag']['topics'].values()):,} messages recorded\n"
           f"-> {Path(out) / 'summary.json'}, {Path(out) / 'report.md'}, {s['bag']['path']}")
+    if "robot_evaluation" in s:
+        r = s["robot_evaluation"]
+        print(f"on the robot: mean error {r['final_mean_error']:.3f} on {len(r['goals'] or [])} test goals "
+              f"(initial {r['initial_mean_error']:.3f}); the test error above is "
+              f"{s['curve_source']}")
     return 0
 
 
@@ -263,6 +307,9 @@ def _resume(args) -> int:
     old = {}
     if (out / "summary.json").is_file():
         old = json.loads((out / "summary.json").read_text())
+    if old.get("driver") == "external":
+        raise ConfigError(f"--resume: '{out}' is a --driver external run; allowed: the directory of a run "
+                          "with the simulated bridge (start a new external-driver run)")
     micro = args.micro_actions or int(learner.get("max_micro_actions") or 10_000)
     eval_every = old.get("eval_every", args.eval_every)
     timing = bridge.get("timing", args.timing)
@@ -307,6 +354,16 @@ def main(argv: list[str] | None = None) -> int:
             res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
                          domain_id=args.domain_id, progress=not args.quiet)
             return 130 if res["interrupted"] else 0
+        if args.command == "record":
+            from .record import default_out, record
+            res = record(args.out or default_out(), args.params, args.domain_id, args.duration,
+                         progress=not args.quiet, markers=not args.no_markers)
+            if args.quiet:
+                print(f"bag closed: {res['path']}")
+            return 0
+        if args.command == "check-driver":
+            from .check_driver import main_check_driver
+            return main_check_driver(args)
         if args.command == "relearn":
             from .bags import relearn
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)

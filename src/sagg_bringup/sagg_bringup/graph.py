@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import ctypes
 import importlib
+import json
 import os
 import shutil
 import signal
@@ -156,12 +157,20 @@ def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str) -> 
         if k in bp and k in lp and bp[k] != lp[k]:
             raise ConfigError(f"parameter '{k}' differs between sagg_sim_bridge ({bp[k]!r}) and "
                               f"sagg_learner ({lp[k]!r}); set it once under '/**'")
-    # every goal and sample must reach the recorder: nodes that can wait for subscribers do so
-    for name, key in (("sagg_goal_generator", "min_goal_subscribers"), ("sagg_learner", "min_sample_subscribers"),
-                      ("sagg_learner", "min_subscribers")):
-        if key in params[name] and params[name][key] == 0:
-            params[name][key] = 1
+    # (the waits for `sagg run`'s recorder are not written here: run_only_params)
     return params
+
+
+def run_only_params(params: dict[str, dict]) -> dict[str, dict]:
+    """What only ``sagg run`` gives the nodes, on their command line (``-p``), never in
+    ``DIR/params.yaml``: every goal and sample must reach its recorder, so nodes that can wait for
+    subscribers wait for one. Written into params.yaml, these waits made a graph started from it
+    with ``ros2 run`` / ``ros2 launch`` (no recorder) wait forever."""
+    out: dict[str, dict] = {}
+    for name, key in (("sagg_goal_generator", "min_goal_subscribers"), ("sagg_learner", "min_sample_subscribers")):
+        if params.get(name, {}).get(key) == 0:
+            out.setdefault(name, {})[key] = 1
+    return out
 
 
 def run_bags(out: Path) -> list[Path]:
@@ -204,6 +213,7 @@ def sagg_topics() -> list[TopicSpec]:
         TopicSpec("/sagg/sample", "sagg_msgs/msg/Sample"),
         TopicSpec("/sagg/status", "sagg_msgs/msg/LearnerStatus", depth=100),
         TopicSpec("/sagg/evaluation", "sagg_msgs/msg/Evaluation", depth=100),
+        TopicSpec("/sagg/markers", "visualization_msgs/msg/MarkerArray", depth=1, transient_local=True),
     ]
 
 
@@ -236,11 +246,13 @@ class NodeProcess:
     popen: subprocess.Popen | None = None
     exit_code: int | None = None
 
-    def start(self, params_file: Path, env: dict) -> None:
+    def start(self, params_file: Path, env: dict, extra: dict | None = None) -> None:
+        """Start the node on ``params_file``; ``extra``: parameters given as ``-p name:=value``."""
         log = open(self.log_path, "wb")
+        args = [a for k, v in (extra or {}).items() for a in ("-p", f"{k}:={json.dumps(v)}")]  # (JSON is YAML)
         try:
             self.popen = subprocess.Popen(
-                [str(self.exe), "--ros-args", "--params-file", str(params_file)],
+                [str(self.exe), "--ros-args", "--params-file", str(params_file), *args],
                 stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
                 start_new_session=True,  # a terminal Ctrl-C reaches `sagg run` only; it stops us in order
                 preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
@@ -656,7 +668,14 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
                 "resumed_segments", "learn_seconds", "startup_seconds", "eval_seconds", "wall_seconds", "curve",
                 "final_mean_error", "final_median_error", "memory", "learner_status", "reports", "goals",
                 "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
-                "interrupted", "error")
+                "interrupted", "error", "driver", "curve_source", "simulated_evaluation", "robot_evaluation")
+
+
+def _both(first: Callable, second: Callable) -> Callable:
+    def handler(msg) -> None:
+        first(msg)
+        second(msg)
+    return handler
 
 
 class GraphSession:
@@ -670,13 +689,14 @@ class GraphSession:
     per loop before the bookkeeping."""
 
     def __init__(self, procs: list[NodeProcess], domain_id: int | None, topics: list[TopicSpec],
-                 bag_path: Path, out: Path, drain: int, status_rate: bool = True):
+                 bag_path: Path, out: Path, drain: int, status_rate: bool = True, localhost: bool = True):
         self.procs, self.topics, self.out, self.drain = procs, topics, out, drain
         self.domain = pick_domain_id() if domain_id is None else domain_id
-        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-                        PYTHONUNBUFFERED="1")
-        # this process joins the same private domain (the rmw reads the discovery range at init)
-        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.domain), PYTHONUNBUFFERED="1")
+        if localhost:  # (an external driver may run on another host: the environment's range then)
+            self.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+            # this process joins the same private domain (the rmw reads the discovery range at init)
+            os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -693,6 +713,7 @@ class GraphSession:
         self.st = RunState(status_rate=status_rate)
         self.eval_pub = self.node.create_publisher(Evaluation, "/sagg/evaluation", 100)
         self.recorder: TopicRecorder | None = None
+        self.view = None  # markers.MarkerView, from record()
         self.stop_signal: list[int] = []
         self.interrupted = False
         self.error: GraphError | None = None
@@ -706,6 +727,11 @@ class GraphSession:
         learner waits for that subscriber before its first command, so the bag misses no command
         or answer of the driver."""
         hw = tuple(t.name for t in self.topics if not t.name.startswith("/sagg/") and t.name != "/clock")
+        from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
+        self.view = MarkerView(self.node, self.topics)
+        handlers = dict(handlers)
+        for topic, h in self.view.handlers().items():
+            handlers[topic] = h if topic not in handlers else _both(handlers[topic], h)
         self.recorder = TopicRecorder(self.node, self.bag, self.topics, handlers,
                                       gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
 
@@ -720,9 +746,10 @@ class GraphSession:
         self.eval_pub.publish(msg)
         self.st.last_error = msg.mean_error
 
-    def start_nodes(self, params_file: Path) -> None:
+    def start_nodes(self, params_file: Path, extra: dict[str, dict] | None = None) -> None:
+        """Start every node on ``params_file``, plus ``extra[node name]`` as ``-p`` parameters."""
         for p in self.procs:
-            p.start(params_file, self.env)
+            p.start(params_file, self.env, (extra or {}).get(p.name))
         self.t_nodes = time.perf_counter()
 
     def spin(self) -> None:
@@ -731,6 +758,8 @@ class GraphSession:
         KeyboardInterrupt after Ctrl-C / SIGTERM."""
         self.executor.spin_once(timeout_sec=0.02)
         self.recorder.poll_gate()
+        if self.view is not None:
+            self.view.maybe_publish()
         bag = self.bag
         for _ in range(self.drain):
             before = bag.written
@@ -771,7 +800,9 @@ class GraphSession:
                     return
 
     def final_drain(self, seconds: float = 0.3) -> None:
-        """Spin a little longer: the recorder takes the final Evaluation message."""
+        """Spin a little longer: the recorder takes the final Evaluation message (and view)."""
+        if self.view is not None:
+            self.view.maybe_publish(force=True)
         t_end = time.perf_counter() + seconds
         while time.perf_counter() < t_end:
             self.executor.spin_once(timeout_sec=0.02)
@@ -998,6 +1029,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                 session.publish_evaluation(at, errors)
             if evaluator.error:
                 raise GraphError(f"evaluation failed: {evaluator.error}")
+            if evaluator.test_goals is not None and session.view.test_goals is None:
+                session.view.set_test_goals(evaluator.test_goals)
 
         def may_end(waited: float) -> bool:
             nonlocal waiting_note
@@ -1019,7 +1052,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
 
         def body() -> None:
             evaluator.start()
-            session.start_nodes(params_file)
+            session.start_nodes(params_file, run_only_params(params))
             session.wait_for_learner(micro_actions, stall_timeout, "micro-actions", tick, may_end)
             bar.update(st.samples, force=True, **st.progress())
             session.final_drain()

@@ -32,6 +32,7 @@ class TopicSpec:
     msgtype: str
     depth: int = 10000
     transient_local: bool = False
+    best_effort: bool = False  # (`sagg record` takes the publishers' reliability)
 
 
 def find_msg_dir() -> Path:
@@ -65,7 +66,7 @@ def _qos(spec: TopicSpec):
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                     QosTime)
     zero = QosTime(0, 0)  # rosbag2's "unspecified" (the rmw default)
-    return Qos(QosHistory.KEEP_LAST, spec.depth, QosReliability.RELIABLE,
+    return Qos(QosHistory.KEEP_LAST, spec.depth, QosReliability.BEST_EFFORT if spec.best_effort else QosReliability.RELIABLE,
                QosDurability.TRANSIENT_LOCAL if spec.transient_local else QosDurability.VOLATILE,
                zero, zero, QosLiveliness.AUTOMATIC, zero, False)
 
@@ -88,15 +89,19 @@ class BagWriter:
         self.types: dict[str, str] = {}
         try:
             for t in topics:
-                self._conn[t.name] = self._writer.add_connection(
-                    t.name, t.msgtype, typestore=self.typestore, serialization_format="cdr",
-                    offered_qos_profiles=[_qos(t)])
-                self.counts[t.name] = 0
-                self.types[t.name] = t.msgtype
+                self.add_topic(t)
         except Exception:
             self.abort()
             raise
         self.closed = False
+
+    def add_topic(self, t: TopicSpec) -> None:
+        """One more connection (a topic first seen after the bag was opened)."""
+        self._conn[t.name] = self._writer.add_connection(
+            t.name, t.msgtype, typestore=self.typestore, serialization_format="cdr",
+            offered_qos_profiles=[_qos(t)])
+        self.counts[t.name] = 0
+        self.types[t.name] = t.msgtype
 
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
         self._writer.write(self._conn[topic], int(timestamp_ns), data)

@@ -28,7 +28,8 @@ from sagg_common.params import ConfigError
 from sagg_common.progress import Progress
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
-from .graph import GraphSession, check_domain_id, node_processes, sagg_topics, write_params_file
+from .graph import (GraphSession, check_domain_id, node_processes, run_only_params, sagg_topics,
+                    write_params_file)
 from .recorder import TopicSpec
 from .synergy_experiment import BoxArea, SynergyRun, load_synergy_config, outcome_extents
 
@@ -47,17 +48,13 @@ def synergy_node_schemas() -> dict[str, tuple]:
 
 def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, dict]:
     params = {name: dict(values) for name, values in full.items()}
-    lp, bp, gp = params["sagg_learner"], params["sagg_sim_bridge"], params["sagg_goal_generator"]
+    lp, bp = params["sagg_learner"], params["sagg_sim_bridge"]
     lp["max_experiments"] = int(experiments)
     for k in ("controller", "task_topic"):
         if bp[k] != lp[k]:
             raise ConfigError(f"parameter '{k}' differs between sagg_sim_bridge ({bp[k]!r}) and "
                               f"sagg_learner ({lp[k]!r}); set it once under '/**'")
-    # every goal and sample must reach the recorder
-    if lp["min_sample_subscribers"] == 0:
-        lp["min_sample_subscribers"] = 1
-    if gp.get("min_goal_subscribers") == 0:
-        gp["min_goal_subscribers"] = 1
+    # (the waits for the recorder are given on the command line: graph.run_only_params)
     return params
 
 
@@ -127,7 +124,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
 
         def body() -> None:
             nonlocal run, goals_test, area, eval_seconds
-            session.start_nodes(params_file)
+            session.start_nodes(params_file, run_only_params(params))
             session.wait_for_learner(micro_actions, stall_timeout, "experiments",
                                      lambda now: bar.update(st.samples, **st.progress()),
                                      lambda waited: waited > 0.5)

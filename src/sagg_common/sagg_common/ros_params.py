@@ -117,6 +117,21 @@ def check_own_sections(node, schema: Schema, args: list[str]) -> None:
                     f"allowed: {', '.join(sorted(known))}")
 
 
+def wildcard_params(args: list[str]) -> set[str]:
+    """The parameter names of the ``/**`` sections of the parameter files of ``args``."""
+    out: set[str] = set()
+    for path in params_files(args):
+        try:
+            with open(path) as fh:
+                data = yaml.safe_load(fh)
+        except (OSError, yaml.YAMLError):
+            continue
+        body = data.get("/**") if isinstance(data, dict) else None
+        if isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
+            out.update(flatten(body["ros__parameters"]))
+    return out
+
+
 def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[str, Any]:
     """Declare every parameter of ``schema`` on ``node`` and return the validated values.
 
@@ -134,7 +149,10 @@ def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[
         value = p.validate(_plain(raw))
         node.declare_parameter(p.name, value, descriptor(p), ignore_override=True)
         values[p.name] = value
-    unused = sorted(n for n in overrides if not node.has_parameter(n))
+    # '/**' parameters are meant for every node that declares them (seed, strategy, task_space.*):
+    # not worth a line in the nodes that do not
+    shared = wildcard_params(args if args is not None else (_ARGS or sys.argv))
+    unused = sorted(n for n in overrides if not node.has_parameter(n) and n not in shared)
     if unused:
         # They may come from the '/**' section meant for other nodes: not an error (as in ROS).
         node.get_logger().info(f"parameters not used by this node: {', '.join(unused)}")

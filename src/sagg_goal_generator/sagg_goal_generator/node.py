@@ -187,7 +187,11 @@ class GoalGeneratorNode(Node):
 
     def _goal_subscribers_ok(self) -> bool:
         need = self.params["min_goal_subscribers"]
-        return need == 0 or self.goal_pub.get_subscription_count() >= need
+        ok = need == 0 or self.goal_pub.get_subscription_count() >= need
+        if not ok:
+            self.get_logger().info(f"goal requests wait for {need} subscriber(s) on /sagg/goal "
+                                   "(min_goal_subscribers; set 0 when nothing records)", throttle_duration_sec=5.0)
+        return ok
 
     # ------------------------------------------------------------ goals
     def on_next_goal(self, request: NextGoal.Request, response: NextGoal.Response):

@@ -361,7 +361,9 @@ class LearnerNode(LearnerNodeBase):
 
     def _ready(self) -> bool:
         if self.js_alpha is None or self.tip is None:
-            return False
+            missing = [w for w, v in (("/joint_states with joints " + ", ".join(self.robot.joint_names), self.js_alpha),
+                                      (f"a task point on {self.params['task_topic']}", self.tip)) if v is None]
+            return self._waiting_for(" and ".join(missing))
         return self._peers_ready(self.cmd_pub, self.cmd_topic, match_reports=True)
 
     def advance(self, answer) -> None:

@@ -69,16 +69,29 @@ class LearnerNodeBase(Node):
         ``min_sample_subscribers`` read /sagg/sample."""
         # the controller must be listening, or the first command is lost
         if hw_pub.get_subscription_count() < max(1, self.count_subscribers(hw_topic)):
-            return False
+            return self._waiting_for(f"a subscriber on {hw_topic} (the driver's controller)")
         if self.uses_goals:
             if not self.goal_client.service_is_ready():
-                return False
+                return self._waiting_for("the goal generator's /sagg/next_goal service")
             infos = self.get_subscriptions_info_by_topic("/sagg/competence")
             if not any(i.node_name == "sagg_goal_generator" for i in infos):
-                return False
+                return self._waiting_for("the goal generator's /sagg/competence subscription")
             if match_reports and self.report_pub.get_subscription_count() < len(infos):
-                return False
-        return self.sample_pub.get_subscription_count() >= self.params["min_sample_subscribers"]
+                return self._waiting_for("every /sagg/competence subscriber to match")
+        need = self.params["min_sample_subscribers"]
+        if self.sample_pub.get_subscription_count() < need:
+            return self._waiting_for(f"{need} subscriber(s) on /sagg/sample (min_sample_subscribers; "
+                                     "set 0 when nothing records)")
+        return True
+
+    def _waiting_for(self, what: str) -> bool:
+        """Start-up: say what the node waits for (``pause_reason``, /sagg/status; logged once per
+        reason). Returns False."""
+        reason = f"waiting for {what}"
+        if getattr(self, "pause_reason", None) != reason:
+            self.get_logger().info(reason)
+        self.pause_reason = reason
+        return False
 
     # ------------------------------------------------------------------ goals
     def _goal_retry_seconds(self) -> float:

@@ -1,0 +1,209 @@
+"""``sagg check-driver CONFIG``: check a running driver against the hardware contract before learning.
+
+With the learner's parameters of ``CONFIG`` (``joints``, limits, rest posture, controller, task
+topic, ``observation_delay``, ``settle_velocity``; the simulated arm's when the config sets no
+``joints``), it
+
+1. waits for the contract (:class:`~sagg_bringup.external.DriverMonitor`: ``/joint_states`` and the
+   task topic published with the right types and every joint named, a subscriber on the commands);
+2. listens at rest for ``--seconds``: publish rates, the delay between a message's stamp and its
+   arrival (same clock assumed), the name mapping (each learner joint's index in the message), and
+   the noise (standard deviation of each joint position and of the task point);
+3. moves one joint by ``--step`` rad (at most ``max_joint_step``, inside the limits), holding the
+   others where they are: time to the first joint state that shows the move, time to settled,
+   the measured displacement of that joint and of every other joint (a wrong name mapping or
+   command order moves another joint), and the task point's displacement; then moves it back;
+4. prints the report and the ``observation_delay`` / ``joint_state_timeout`` it suggests.
+
+Exit code 0 when the contract holds and only the moved joint moved (by 50-150 % of the step),
+1 otherwise (each problem named), 2 for a bad config.
+"""
+from __future__ import annotations
+
+import signal
+import sys
+import time
+
+import numpy as np
+
+from sagg_common.params import ConfigError
+
+from .external import DriverMonitor, explicit_joints, external_params
+
+
+def learner_params(config: str) -> dict:
+    from .graph import load_graph_config
+    full = load_graph_config(config)
+    return external_params(full, 0, explicit_joints(config, None))["sagg_learner"]
+
+
+class _Probe:
+    """The monitor plus per-message records (receive time, stamp, mapped positions, tip)."""
+
+    def __init__(self, lp: dict):
+        task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
+        self.mon = DriverMonitor(lp["joints"], task, f"/{lp['controller'].strip('/')}/commands", lp["settle_velocity"])
+        self.js: list[tuple[float, int, np.ndarray | None]] = []
+        self.tips: list[tuple[float, int, np.ndarray]] = []
+        self.index: list[int] | None = None
+
+    def on_js(self, msg) -> None:
+        self.mon.on_joint_state(msg)
+        names = list(msg.name)
+        if all(j in names for j in self.mon.joints):
+            self.index = [names.index(j) for j in self.mon.joints]
+        self.js.append((time.time(), DriverMonitor._stamp(msg),
+                        self.mon.alpha.copy() if self.mon.alpha is not None else None))
+
+    def on_tip(self, msg) -> None:
+        self.mon.on_task_point(msg)
+        self.tips.append((time.time(), DriverMonitor._stamp(msg), np.array([msg.point.x, msg.point.y])))
+
+
+def check_driver(config: str, joint: str | None = None, step: float = 0.05, seconds: float = 2.0,
+                 domain_id: int | None = None, timeout: float = 30.0, out=sys.stdout) -> dict:
+    """Run the check; returns the measurements and ``problems`` (empty = fine)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
+    from sagg_common.ros_params import HW_DEPTH, reliable
+
+    lp = learner_params(config)
+    joints = list(lp["joints"])
+    joint = joint or joints[-1]
+    if joint not in joints:
+        raise ConfigError(f"--joint {joint!r}; allowed: one of the learner's joints {', '.join(joints)}")
+    j = joints.index(joint)
+    if not 0 < step <= lp["max_joint_step"]:
+        raise ConfigError(f"--step {step}; allowed: (0, max_joint_step = {lp['max_joint_step']}]")
+    ctx = Context()
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO,
+               **({} if domain_id is None else {"domain_id": int(domain_id)}))
+    stop: list[int] = []
+    old = {s: signal.signal(s, lambda *_: stop.append(1)) for s in (signal.SIGINT, signal.SIGTERM)}
+    node = rclpy.create_node("sagg_check_driver", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    probe = _Probe(lp)
+    mon = probe.mon
+    node.create_subscription(JointState, "/joint_states", probe.on_js, reliable(100))
+    node.create_subscription(PointStamped, mon.task_topic, probe.on_tip, reliable(100))
+    pub = node.create_publisher(Float64MultiArray, mon.cmd_topic, reliable(HW_DEPTH))
+    problems: list[str] = []
+    res: dict = {"joints": joints, "moved_joint": joint, "step": step, "problems": problems}
+
+    def spin_for(secs: float, until=None) -> bool:
+        t_end = time.monotonic() + secs
+        while time.monotonic() < t_end:
+            if stop:
+                raise KeyboardInterrupt
+            ex.spin_once(timeout_sec=0.01)
+            if until is not None and until():
+                return True
+        return False
+
+    def say(text: str) -> None:
+        print(text, file=out, flush=True)
+
+    try:
+        # 1. the contract
+        t0 = time.monotonic()
+        missing = mon.missing(node, own_node="sagg_check_driver")
+        while missing and time.monotonic() - t0 < timeout:
+            spin_for(0.5)
+            missing = mon.missing(node, own_node="sagg_check_driver")
+        if missing:
+            problems += missing
+            say("contract NOT met:\n  - " + "\n  - ".join(missing))
+            return res
+        say(f"contract met: /joint_states names {', '.join(joints)}; {mon.task_topic}; {mon.cmd_topic} has a subscriber")
+        # 2. at rest
+        probe.js.clear()
+        probe.tips.clear()
+        spin_for(seconds)
+        js, tips = probe.js, probe.tips
+        if len(js) < 2 or len(tips) < 2:
+            problems.append(f"fewer than 2 joint states / task points in {seconds} s at rest")
+            return res
+        res["joint_state_rate"] = (len(js) - 1) / (js[-1][0] - js[0][0])
+        res["task_point_rate"] = (len(tips) - 1) / (tips[-1][0] - tips[0][0])
+        res["joint_state_delay"] = float(np.median([rx - st / 1e9 for rx, st, _ in js]))
+        res["task_point_delay"] = float(np.median([rx - st / 1e9 for rx, st, _ in tips]))
+        res["name_mapping"] = {name: i for name, i in zip(joints, probe.index or [])}
+        pos = np.array([a for _, _, a in js if a is not None])
+        res["joint_noise"] = dict(zip(joints, pos.std(axis=0).tolist()))
+        res["task_point_noise"] = np.array([t for _, _, t in tips]).std(axis=0).tolist()
+        say(f"rates: joint states {res['joint_state_rate']:.1f}/s, task points {res['task_point_rate']:.1f}/s")
+        say(f"delay stamp -> arrival (same clock): joint states {1e3 * res['joint_state_delay']:.1f} ms, "
+            f"task points {1e3 * res['task_point_delay']:.1f} ms")
+        say("name mapping (learner joint -> index in /joint_states): "
+            + ", ".join(f"{k} -> {v}" for k, v in res["name_mapping"].items()))
+        say("noise at rest (std): joints " + ", ".join(f"{k} {v:.2g} rad" for k, v in res["joint_noise"].items())
+            + f"; task point {', '.join(f'{v:.2g}' for v in res['task_point_noise'])}")
+        # 3. one joint, a little
+        start = mon.alpha.copy()
+        tip0 = mon.tip[:2].copy()
+        lower, upper = np.asarray(lp["joint_limits.lower"]), np.asarray(lp["joint_limits.upper"])
+        sign = 1.0 if start[j] + step <= upper[j] else -1.0
+        target = start.copy()
+        target[j] = np.clip(start[j] + sign * step, lower[j], upper[j])
+        stamp0 = mon.js_stamp
+        msg = Float64MultiArray()
+        msg.data = target.tolist()
+        t_cmd = time.time()
+        pub.publish(msg)
+        half = abs(target[j] - start[j]) / 2
+        # wait for any joint to move (a wrong mapping moves another one), then for the arm to settle
+        moved = spin_for(10.0, lambda: mon.js_stamp > stamp0 and np.abs(mon.alpha - start).max() > half)
+        if not moved:
+            problems.append(f"no joint moved within 10 s of a command on {mon.cmd_topic}")
+            say(problems[-1])
+        else:
+            first = next((rx for rx, st, a in probe.js if rx >= t_cmd and a is not None
+                          and np.abs(a - start).max() > half), time.time())
+            res["response_seconds"] = first - t_cmd
+            spin_for(0.2)
+            spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled)
+            res["settle_seconds"] = time.time() - t_cmd
+            delta = mon.alpha - start
+            res["displacement"] = dict(zip(joints, delta.tolist()))
+            res["task_point_displacement"] = float(np.linalg.norm(mon.tip[:2] - tip0))
+            ratio = float(delta[j] / (target[j] - start[j]))
+            res["step_ratio"] = ratio
+            say(f"moved {joint} by {target[j] - start[j]:+.3f} rad: measured {delta[j]:+.3f} rad ({100 * ratio:.0f} %), "
+                f"first sign after {1e3 * res['response_seconds']:.0f} ms, settled after {1e3 * res['settle_seconds']:.0f} ms; "
+                f"task point moved {res['task_point_displacement']:.3g}")
+            if not 0.5 <= ratio <= 1.5:
+                problems.append(f"joint {joint} moved {100 * ratio:.0f} % of the commanded step; allowed: 50-150 %")
+            noise = np.array([res["joint_noise"][n] for n in joints])
+            others = [n for i, n in enumerate(joints) if i != j and abs(delta[i]) > max(0.25 * step, 6 * noise[i])]
+            if others:
+                problems.append(f"commanding {joint} also moved {', '.join(others)}: the command order (= 'joints') "
+                                "or the names in /joint_states do not match the driver's")
+            # back where it was
+            msg.data = start.tolist()
+            pub.publish(msg)
+            spin_for(0.2)
+            spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled)
+            period = 1.0 / res["joint_state_rate"]
+            res["suggested_observation_delay"] = max(res["joint_state_delay"], res["task_point_delay"], 0.0) + 2 * period
+            res["suggested_joint_state_timeout"] = max(2.0, 10 * period)
+            say(f"suggested: observation_delay {res['suggested_observation_delay']:.3f} (now {lp['observation_delay']}), "
+                f"joint_state_timeout >= {res['suggested_joint_state_timeout']:.1f} (now {lp['joint_state_timeout']})")
+        say("OK: the driver meets the contract" if not problems else "PROBLEMS:\n  - " + "\n  - ".join(problems))
+        return res
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def main_check_driver(args) -> int:
+    res = check_driver(args.config, args.joint, args.step, args.seconds, args.domain_id, args.timeout)
+    return 1 if res["problems"] else 0

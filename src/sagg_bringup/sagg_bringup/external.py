@@ -1,0 +1,631 @@
+"""``sagg run CONFIG --driver external``: the goal generator and the learner against a robot driver
+that is already running (your arm's ros2_control stack, a tracker, or ``test/fake_driver.py``).
+
+Like :func:`~sagg_bringup.graph.run_graph` (same session: private ``ROS_DOMAIN_ID`` unless
+``--domain-id`` names the driver's, recorder, progress, summary and report), except:
+
+- no bridge is started; before the nodes start, the driver's side of the contract is checked and
+  what is missing is named (:class:`DriverMonitor`: topic, type, joint names), every few seconds,
+  until ``driver_timeout``;
+- the learner's ``joints`` / ``joint_limits`` / ``rest_posture`` are the config's when it sets
+  ``joints`` (your arm), else those of the config's simulated arm;
+- **evaluation on the robot** (:class:`RobotEvaluation`): with learning paused (at the end, the
+  learner has stopped at ``max_micro_actions``; in between, ``/sagg/pause``), each test goal is
+  reached from rest with the frozen model *through the driver* (:class:`ContractRobot`: the same
+  commands, freshness and settle rules as the learner node, joint limits and ``max_joint_step``),
+  and the final distance is measured by the task-point topic. ``robot_eval_goals`` goals, at the
+  end and every ``robot_eval_every`` micro-actions (0: only at the end; real robots are slow);
+- **simulated evaluation**, labelled as such: when the config's simulated arm is the same arm (same
+  number of joints, limits and rest posture; :func:`sim_model_matches`), the offline evaluation of
+  ``sagg run`` from the recorded samples, on the model's 100 test goals, is given too.
+
+Test goals on the robot: the simulated model's test-goal set (``test_goals(spec, Y, n, eval.seed)``)
+when there is one; else (the reachable area is unknown) ``n`` points spread by farthest-point
+selection (seeded by ``eval.seed``) over the task points the robot reached before the first
+evaluation, which is stated in the summary (``robot_evaluation.goal_source``): such goals are
+reachable but not independent of the exploration.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sagg_common.params import ConfigError, read_config
+from sagg_common.progress import Progress
+
+from .graph import (GraphError, GraphSession, NODES, Evaluator, SplitTracker, check_domain_id,
+                    core_config, graph_params, graph_topics, load_graph_config, node_processes,
+                    run_only_params, set_checkpoint_dirs, write_params_file)
+
+JS_TYPE = "sensor_msgs/msg/JointState"
+TIP_TYPE = "geometry_msgs/msg/PointStamped"
+CMD_TYPE = "std_msgs/msg/Float64MultiArray"
+EXTERNAL_NODES = {k: v for k, v in NODES.items() if k != "sagg_sim_bridge"}
+# Evaluation on the robot: a command asking a joint to move at least this much (rad) is answered
+# only by a state that shows the motion (ContractRobot.command). Our choice: above reading noise.
+MOTION_FLOOR = 0.01
+# Seconds between two "waiting for the driver" lines.
+WAIT_REPORT_EVERY = 5.0
+
+
+# ------------------------------------------------------------------------------ parameters
+def explicit_joints(config_path: str | Path, overrides: dict[str, Any] | None) -> bool:
+    """True when the config (learner section or ``/**``) or an override sets ``joints``: the
+    learner then uses the config's joints, limits and rest posture (your arm)."""
+    sections = read_config(config_path)
+    return any("joints" in sections.get(s, {}) for s in ("/**", "sagg_learner")) or "joints" in (overrides or {})
+
+
+def external_params(full: dict[str, dict], micro_actions: int, own_joints: bool) -> dict[str, dict]:
+    """The nodes' parameters for an external driver: :func:`~sagg_bringup.graph.graph_params`, but
+    the learner keeps the config's ``joints`` / ``joint_limits`` / ``rest_posture`` when
+    ``own_joints`` (they are checked here, before anything starts)."""
+    from sagg_low_level.node import robot_from_params
+    params = graph_params(full, micro_actions, "lockstep")
+    if own_joints:
+        lp = params["sagg_learner"]
+        for k in ("joints", "joint_limits.lower", "joint_limits.upper", "rest_posture"):
+            lp[k] = full["sagg_learner"][k]
+        robot_from_params(lp)  # ConfigError naming the parameter
+    return params
+
+
+def sim_model_matches(learner_params: dict, spec) -> bool:
+    """The config's simulated arm (``spec``) is a model of the learner's arm: same number of joints,
+    same joint limits and rest posture (to 1e-9 rad). Joint names may differ (a driver names its
+    joints its own way); link lengths cannot be checked here, the config states them."""
+    lower, upper = spec.limits()
+    lp = learner_params
+    if len(lp["joints"]) != spec.dof:
+        return False
+    return all(np.allclose(np.asarray(lp[k], float), v, rtol=0.0, atol=1e-9) for k, v in (
+        ("joint_limits.lower", lower), ("joint_limits.upper", upper), ("rest_posture", spec.rest_posture())))
+
+
+# ------------------------------------------------------------------------------ the driver
+class DriverMonitor:
+    """What the driver publishes, from the recorder's deserialized messages: joint states mapped
+    by name (positions, velocities, stamp), the newest task point and its stamp, receive times;
+    and :meth:`missing`, the contract items not yet met, each naming topic, type or joints."""
+
+    def __init__(self, joints: list[str], task_topic: str, cmd_topic: str, settle_velocity: float):
+        self.joints = list(joints)
+        self.task_topic, self.cmd_topic = task_topic, cmd_topic
+        self.settle_velocity = settle_velocity
+        self.js_names: list[str] | None = None   # names of the last joint state
+        self.alpha: np.ndarray | None = None
+        self.js_stamp = -1
+        self.settled = False
+        self.tip: np.ndarray | None = None
+        self.tip_stamp = -1
+        self.js_count = self.tip_count = 0
+        self.cmd_rx = 0.0  # receive time (monotonic) of the last message on the commands topic
+        self.js_rx: list[float] = []  # receive times (monotonic) of the last joint states
+        self.tip_rx: list[float] = []
+
+    @staticmethod
+    def _stamp(msg) -> int:
+        return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+    def on_joint_state(self, msg) -> None:
+        names = list(msg.name)
+        self.js_names = names
+        self.js_count += 1
+        self.js_rx = (self.js_rx + [time.monotonic()])[-200:]
+        where = {n: i for i, n in enumerate(names)}
+        if any(j not in where for j in self.joints) or len(msg.position) != len(names):
+            return
+        idx = [where[j] for j in self.joints]
+        pos = np.asarray(msg.position, float)[idx]
+        vel = np.asarray(msg.velocity, float)[idx] if len(msg.velocity) == len(names) else None
+        st = self._stamp(msg)
+        if not np.all(np.isfinite(pos)) or st < self.js_stamp:
+            return
+        self.alpha, self.js_stamp = pos, st
+        self.settled = vel is None or bool(np.all(np.abs(vel) < self.settle_velocity))
+
+    def on_command(self, msg) -> None:  # noqa: ARG002 - only its time matters
+        self.cmd_rx = time.monotonic()
+
+    def on_task_point(self, msg) -> None:
+        p = np.array([msg.point.x, msg.point.y, msg.point.z])
+        st = self._stamp(msg)
+        self.tip_count += 1
+        self.tip_rx = (self.tip_rx + [time.monotonic()])[-200:]
+        if np.all(np.isfinite(p)) and st >= self.tip_stamp:
+            self.tip, self.tip_stamp = p, st
+
+    def missing(self, node, own_node: str = "sagg_run") -> list[str]:
+        """The contract items not met yet (empty: the driver is ready), in words."""
+        out = []
+        for topic, kind, count in (("/joint_states", JS_TYPE, self.js_count), (self.task_topic, TIP_TYPE, self.tip_count)):
+            pubs = node.get_publishers_info_by_topic(topic)
+            wrong = sorted({p.topic_type for p in pubs if p.topic_type != kind})
+            if not pubs:
+                out.append(f"{topic} ({kind}): no publisher")
+            elif wrong:
+                out.append(f"{topic}: published as {', '.join(wrong)}; expected {kind}")
+            elif count == 0:
+                out.append(f"{topic} ({kind}): a publisher but no message received (it must be reliable "
+                           "and publish continuously, or at least once)")
+        if self.js_names is not None:
+            lacking = [j for j in self.joints if j not in self.js_names]
+            if lacking:
+                out.append(f"/joint_states lacks joint(s) {', '.join(lacking)} (it names "
+                           f"{', '.join(self.js_names) or 'none'}; the learner's 'joints': {', '.join(self.joints)})")
+            elif self.alpha is None:
+                out.append("/joint_states: no valid message yet (one finite position per name, stamps not "
+                           "decreasing)")
+        subs = [s for s in node.get_subscriptions_info_by_topic(self.cmd_topic) if s.node_name != own_node]
+        wrong = sorted({s.topic_type for s in subs if s.topic_type != CMD_TYPE})
+        if not subs:
+            out.append(f"{self.cmd_topic} ({CMD_TYPE}): no subscriber (the driver's position controller)")
+        elif wrong:
+            out.append(f"{self.cmd_topic}: subscribed as {', '.join(wrong)}; expected {CMD_TYPE}")
+        return out
+
+    @staticmethod
+    def rate(rx: list[float]) -> float:
+        """Messages per second over the recent receive times."""
+        return (len(rx) - 1) / (rx[-1] - rx[0]) if len(rx) > 1 and rx[-1] > rx[0] else float("nan")
+
+
+def wait_for_driver(session: GraphSession, monitor: DriverMonitor, timeout: float, progress: bool) -> float:
+    """Spin until the driver meets the contract; print what is missing every
+    :data:`WAIT_REPORT_EVERY` s; GraphError naming it after ``timeout`` s. Returns the seconds waited."""
+    import sys
+    t0 = time.monotonic()
+    last = None
+    while True:
+        session.spin()
+        missing = monitor.missing(session.node)
+        now = time.monotonic()
+        if not missing:
+            return now - t0
+        if now - t0 > timeout:
+            raise GraphError(f"the driver did not come up in {timeout:.0f} s; missing:\n  - " + "\n  - ".join(missing))
+        if now - t0 > 1.0 and (last is None or now - last >= WAIT_REPORT_EVERY):
+            last = now
+            if progress:
+                print(f"waiting for the driver (ROS_DOMAIN_ID {session.domain}):\n  - " + "\n  - ".join(missing),
+                      file=sys.stderr, flush=True)
+
+
+class ContractRobot:
+    """The robot behind the driver as a :class:`~sagg_low_level.evaluate.ReachingRobot`: a command
+    is published on ``/<controller>/commands`` (joint order = ``joints``), and answered by a joint
+    state and a task point both stamped more than ``observation_delay`` after the newest ones
+    before it, once settled (every |velocity| < ``settle_velocity``) and, stricter than the learner
+    node, with a task point sampled no earlier than that joint state and once some joint has moved at least half the largest commanded displacement (when that is
+    at least :data:`MOTION_FLOOR`); or
+    ``settle_timeout`` s after the command (then the latest fresh state). Targets are clipped to the joint limits (and, by
+    ``reach_frozen``, to ``max_joint_step`` from the measured posture)."""
+
+    def __init__(self, session: GraphSession, monitor: DriverMonitor, learner_params: dict,
+                 answer_timeout: float = 30.0):
+        from std_msgs.msg import Float64MultiArray
+        from sagg_common.ros_params import HW_DEPTH, reliable
+        lp = learner_params
+        self.session, self.monitor = session, monitor
+        self.lower = np.asarray(lp["joint_limits.lower"], float)
+        self.upper = np.asarray(lp["joint_limits.upper"], float)
+        self.rest = np.asarray(lp["rest_posture"], float)
+        self.m = len(lp["task_space.lower"])
+        self.delay_ns = int(round(lp["observation_delay"] * 1e9))
+        self.settle_timeout = lp["settle_timeout"]
+        self.answer_timeout = max(answer_timeout, lp["joint_state_timeout"])
+        self._msg = Float64MultiArray
+        self.pub = session.node.create_publisher(Float64MultiArray, monitor.cmd_topic, reliable(HW_DEPTH))
+        self.commands = 0
+        self.timeouts = 0  # answers taken after settle_timeout (not settled, or no motion seen)
+        self.trace: list[dict] = []  # every command and its answer (DIR/robot_evaluation.json)
+        # a return to rest is a long move: it may take this long before its state is taken unsettled
+        self.reset_timeout = max(10.0, 5.0 * self.settle_timeout)
+        self.rest_tip: np.ndarray | None = None  # the task point at the last reset
+
+    def observe(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.monitor.alpha.copy(), self.monitor.tip[: self.m].copy()
+
+    def command(self, target: np.ndarray, settle_timeout: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Publish ``target`` and return the answering (posture, task point); ``settle_timeout``:
+        this command's (default the learner's ``settle_timeout``)."""
+        settle_timeout = self.settle_timeout if settle_timeout is None else settle_timeout
+        mon = self.monitor
+        target = np.minimum(np.maximum(np.asarray(target, float), self.lower), self.upper)
+        # take what is queued first: freshness is judged against the newest state the driver has
+        # sent, not an older one still waiting in our queue
+        self.session.spin()
+        js_min, tip_min = mon.js_stamp + self.delay_ns, mon.tip_stamp + self.delay_ns
+        before = mon.alpha.copy()
+        asked = float(np.abs(target - before).max())
+        msg = self._msg()
+        msg.data = target.tolist()
+        self.pub.publish(msg)
+        self.commands += 1
+        t0 = time.monotonic()
+        settled_at = None  # stamp of the first fresh, settled joint state that shows the motion
+        while True:
+            self.session.spin()
+            fresh = mon.js_stamp > js_min and mon.tip_stamp > tip_min
+            waited = time.monotonic() - t0
+            # a state that shows no motion is not the answer to a command that asks for one (under
+            # load the driver may take the command later than observation_delay after our newest
+            # state); position control moves at least half way, even with 20 % motor noise. The
+            # last steps of a reach can be below the reading noise: no test under MOTION_FLOOR
+            moved = asked < MOTION_FLOOR or float(np.abs(mon.alpha - before).max()) >= 0.5 * asked
+            if settled_at is None and mon.js_stamp > js_min and mon.settled and moved:
+                settled_at = mon.js_stamp
+            # the task point must be sampled no earlier than that joint state: a fresh one of the
+            # moving arm may still be queued behind it (measured under load: a reset answered by
+            # the rest posture and the tip of half-way)
+            done = settled_at is not None and mon.tip_stamp >= settled_at
+            if done or (fresh and waited > settle_timeout):
+                if not done:
+                    self.timeouts += 1
+                self.trace.append({"t": time.time(), "target": target.tolist(), "before": before.tolist(),
+                                   "alpha": mon.alpha.tolist(), "tip": mon.tip[: self.m].tolist(),
+                                   "waited": waited, "settled": mon.settled, "moved": moved})
+                return self.observe()
+            if waited > self.answer_timeout:
+                raise GraphError(f"no fresh joint state and task point {waited:.0f} s after a command on "
+                                 f"{mon.cmd_topic}: the driver stopped answering")
+
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        alpha, y = self.command(self.rest, self.reset_timeout)
+        self.rest_tip = y
+        return alpha, y
+
+
+def spread_points(points: np.ndarray, n: int, seed: int) -> np.ndarray:
+    """``n`` of ``points`` spread by farthest-point selection (the first one drawn with ``seed``):
+    test goals over where the robot has been, when the reachable area is unknown."""
+    pts = np.unique(np.asarray(points, float), axis=0)
+    if len(pts) <= n:
+        return pts
+    rng = np.random.default_rng(seed)
+    chosen = [int(rng.integers(len(pts)))]
+    d = np.linalg.norm(pts - pts[chosen[0]], axis=1)
+    while len(chosen) < n:
+        i = int(np.argmax(d))
+        chosen.append(i)
+        d = np.minimum(d, np.linalg.norm(pts - pts[i], axis=1))
+    return pts[chosen]
+
+
+class RobotEvaluation:
+    """The frozen model reaching test goals from rest on the robot, at the scheduled points
+    (``every`` micro-actions, 0 = only at the end) and at the end. Results: ``curve`` (micro-actions,
+    mean, median, the errors of every goal) and the initial error (the empty model does not move the
+    arm: the distance from the measured rest tip to each goal)."""
+
+    def __init__(self, learner_params: dict, robot: ContractRobot, n_goals: int, every: int, goals=None):
+        self.lp, self.robot, self.n_goals, self.every = learner_params, robot, n_goals, every
+        self.goals = None if goals is None else np.asarray(goals, float)
+        self.goal_source = "the simulated model's test goals" if goals is not None else None
+        self.curve: list[dict] = []
+        self.initial_errors: np.ndarray | None = None
+        self.seconds = 0.0
+        self.next_at = every if every > 0 else None
+
+    def choose_goals(self, reached: list[np.ndarray]) -> None:
+        """The test goals (once): the simulated model's if given, else spread over ``reached``."""
+        if self.goals is None:
+            if not reached:
+                raise GraphError("no task point recorded: nothing to choose test goals from")
+            self.goals = spread_points(np.array(reached), self.n_goals, self.lp["eval.seed"])
+            self.goal_source = (f"spread over the {len(reached)} task points the robot reached before "
+                                "the first evaluation (no model of the reachable area; not independent "
+                                "of exploration)")
+
+    def learner(self, alpha, dalpha, dy):
+        """A frozen learner (``EvolvingContextLearner`` with the run's parameters) on the samples."""
+        from sagg_low_level.learner import EvolvingContextLearner, SCHEMA
+        from sagg_low_level.node import robot_from_params
+        core = {p.name: self.lp[p.name] for p in SCHEMA}
+        learner = EvolvingContextLearner(core, robot_from_params(self.lp), len(self.lp["task_space.lower"]))
+        for a, da, d in zip(alpha, dalpha, dy):
+            learner.memory.add(a, da, d)
+        return learner
+
+    def run(self, at: int, alpha, dalpha, dy, reached: list[np.ndarray]) -> np.ndarray:
+        """Evaluate the model of the first ``at`` samples on the robot (learning must be paused)."""
+        from sagg_low_level.evaluate import reach_frozen
+        self.choose_goals(reached)
+        t0 = time.perf_counter()
+        learner = self.learner(alpha[:at], dalpha[:at], dy[:at])
+        errors, rest = [], []
+        for g in self.goals:
+            errors.append(reach_frozen(learner, self.robot, g))
+            rest.append(float(np.linalg.norm(g - self.robot.rest_tip)))
+        self.seconds += time.perf_counter() - t0
+        errors = np.array(errors)
+        if self.initial_errors is None:
+            self.initial_errors = np.array(rest)
+        self.curve.append({"micro_actions": int(at), "mean_error": float(errors.mean()),
+                           "median_error": float(np.median(errors)), "errors": errors.tolist()})
+        return errors
+
+    def summary(self) -> dict:
+        init = self.initial_errors
+        return {"label": "on the robot", "goals": None if self.goals is None else self.goals.tolist(),
+                "goal_source": self.goal_source, "every": self.every,
+                "initial_mean_error": float(init.mean()) if init is not None else float("nan"),
+                "initial_errors": None if init is None else init.tolist(),
+                "curve": self.curve,
+                "final_mean_error": self.curve[-1]["mean_error"] if self.curve else float("nan"),
+                "commands": self.robot.commands, "settle_timeouts": self.robot.timeouts, "seconds": self.seconds}
+
+
+class Pauser:
+    """``/sagg/pause`` (std_srvs/SetBool) from the orchestrator: pause the learner and wait until it
+    has stopped acting, or resume it. Stopped: paused in /sagg/status, and neither a new micro-action
+    nor a command on the commands topic for ``quiet`` s (the micro-action in flight when the pause
+    came completes first: its command, if it reached the driver after ours, would move the arm
+    elsewhere; measured under load before this wait)."""
+
+    def __init__(self, session: GraphSession, monitor: DriverMonitor, quiet: float):
+        from std_srvs.srv import SetBool
+        self.session, self.monitor, self.quiet, self._req = session, monitor, quiet, SetBool.Request
+        self.client = session.node.create_client(SetBool, "/sagg/pause")
+
+    def set(self, paused: bool, timeout: float = 30.0) -> None:
+        fut = self.client.call_async(self._req(data=paused))
+        t0 = time.monotonic()
+        while not fut.done():
+            self.session.spin()
+            if time.monotonic() - t0 > timeout:
+                raise GraphError("/sagg/pause: no answer from the learner")
+        if not paused:
+            return
+        st, mon = self.session.st, self.monitor
+        last = (st.samples, time.monotonic())
+        while True:
+            self.session.spin()
+            now = time.monotonic()
+            if st.samples != last[0]:
+                last = (st.samples, now)
+            paused = st.status is not None and st.status["paused"]
+            if paused and now - last[1] > self.quiet and now - mon.cmd_rx > self.quiet:
+                return
+            if now - t0 > timeout + self.quiet:
+                raise GraphError("the learner did not pause")
+
+
+# ------------------------------------------------------------------------------ the run
+def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
+                       seed: int | None = None, strategy: str | None = None, eval_every: int = 1000,
+                       overrides: dict[str, Any] | None = None, progress: bool = True,
+                       domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True,
+                       robot_eval_goals: int = 10, robot_eval_every: int = 0,
+                       driver_timeout: float = 120.0) -> dict:
+    """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
+    from .experiment import run_overrides
+    from .synergy_experiment import config_setup
+    from sagg_sim_bridge.arm import reachable_area, test_goals
+    from sagg_sim_bridge.params import arm_spec_from_params
+
+    if config_setup(config_path) is not None:
+        raise ConfigError("--driver external: synergy set-ups (config parameter 'setup') are not supported; "
+                          "allowed: an arm config")
+    if robot_eval_goals < 1 or robot_eval_every < 0:
+        raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every}; "
+                          "allowed: goals >= 1, every >= 0")
+    ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
+    check_domain_id(domain_id)
+    full = load_graph_config(config_path, ov)
+    out = Path(out_dir)
+    if (out / "bag").exists():
+        raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
+    params = external_params(full, micro_actions, explicit_joints(config_path, ov))
+    lp = params["sagg_learner"]
+    if len(lp["task_space.lower"]) != 2:
+        raise ConfigError("--driver external: a 2-D task space (geometry_msgs/PointStamped x, y) is needed")
+    procs = node_processes(EXTERNAL_NODES, out / "logs")
+    t_start = time.perf_counter()
+    set_checkpoint_dirs(params, out)
+    params_file = out / "params.yaml"
+    write_params_file(params_file, params)
+    config = core_config(full)
+    spec = arm_spec_from_params(config["sagg_sim_bridge"])
+    simulated = sim_model_matches(lp, spec)
+    if not simulated:
+        config.pop("sagg_sim_bridge")  # not a model of this arm: no reachable area, no simulated evaluation
+    t_lower, t_upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
+    cmd_topic = f"/{lp['controller'].strip('/')}/commands"
+    task_topic = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
+
+    # the driver runs in the environment's domain and discovery range (not a private one)
+    import os
+    if domain_id is None:
+        domain_id = int(os.environ.get("ROS_DOMAIN_ID") or 0)
+    session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False)
+    st = session.st
+    try:
+        monitor = DriverMonitor(lp["joints"], task_topic, cmd_topic, lp["settle_velocity"])
+        evaluator = None
+        checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
+        if simulated:
+            evaluator = Evaluator(config["sagg_learner"], config["sagg_sim_bridge"], checkpoints)
+        samples: tuple[list, list, list] = ([], [], [])
+        reached: list[np.ndarray] = []
+
+        def on_sample(m) -> None:
+            if int(m.index) != st.samples:
+                st.gaps["/sagg/sample"] += 1
+            now = time.perf_counter()
+            st.sample_t0 = st.sample_t0 or now
+            st.sample_t1 = now
+            st.samples += 1
+            a, da, dy = np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y)
+            for lst, v in zip(samples, (a, da, dy)):
+                lst.append(v)
+            if evaluator is not None:
+                evaluator.add(int(m.index), a, da, dy)
+
+        def on_tip(m) -> None:
+            monitor.on_task_point(m)
+            if st.samples and monitor.tip is not None and len(reached) < 200_000:
+                reached.append(monitor.tip[:2].copy())
+
+        tracker = SplitTracker(t_lower, t_upper)
+
+        def on_regions(m) -> None:
+            st.last_regions = m
+            tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
+
+        session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
+                        "/sagg/regions": on_regions, "/sagg/status": st.on_status,
+                        "/joint_states": monitor.on_joint_state, task_topic: on_tip, cmd_topic: monitor.on_command})
+        robot = ContractRobot(session, monitor, lp)
+        sim_goals = None
+        if simulated:
+            area0 = reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
+            sim_goals = test_goals(spec, t_lower, t_upper, n=robot_eval_goals, seed=lp["eval.seed"], area=area0)
+        robot_eval = RobotEvaluation(lp, robot, robot_eval_goals, robot_eval_every, sim_goals)
+        pauser = Pauser(session, monitor, lp["settle_timeout"] + 0.5)
+        bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, external driver)", enabled=progress)
+        timing: dict[str, float] = {}
+
+        def evaluate_on_robot(at: int, final: bool) -> None:
+            if progress:
+                import sys
+                print(f"\nevaluating on the robot at {at} micro-actions ({robot_eval_goals} goals from rest"
+                      + (", learning paused)" if not final else ")"), file=sys.stderr, flush=True)
+            if not final:
+                pauser.set(True)
+                posture = monitor.alpha.copy()
+            errors = robot_eval.run(at, *samples, reached)
+            session.view.set_test_goals(robot_eval.goals)
+            if not final:  # back where learning paused, then resume
+                robot.command(posture)
+                pauser.set(False)
+            st.last_error = float(errors.mean())
+
+        def body() -> None:
+            if evaluator is not None:
+                evaluator.start()
+            timing["driver_wait"] = wait_for_driver(session, monitor, driver_timeout, progress)
+            session.start_nodes(params_file, run_only_params(params))
+            last = (0, time.perf_counter())
+            while True:
+                session.spin()
+                now = time.perf_counter()
+                if st.samples and "first_sample" not in timing:
+                    timing["first_sample"] = now
+                bar.update(min(st.samples, micro_actions - 1), **st.progress())
+                if evaluator is not None:
+                    evaluator.flush()
+                    for at, errors in evaluator.poll():
+                        session.publish_evaluation(at, errors)
+                    if evaluator.error:
+                        raise GraphError(f"evaluation failed: {evaluator.error}")
+                done = st.status is not None and st.status["micro_actions"] >= micro_actions
+                for p in session.procs:
+                    code = p.poll()
+                    if code is not None:
+                        raise GraphError(f"node {p.name} exited with code {code} (log {p.log_path}):\n"
+                                         f"{p.log_tail()}", code=2 if code == 2 else 1)
+                if (robot_eval.next_at is not None and robot_eval.next_at < micro_actions
+                        and st.samples >= robot_eval.next_at and not done):  # (the end has its own)
+                    evaluate_on_robot(min(st.samples, micro_actions), final=False)
+                    robot_eval.next_at += robot_eval.every
+                    last = (st.samples, time.perf_counter())
+                    continue
+                if st.samples != last[0]:
+                    last = (st.samples, now)
+                elif not done and now - last[1] > stall_timeout:
+                    raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} micro-actions); "
+                                     f"node logs in {out / 'logs'}; driver: "
+                                     + ("; ".join(monitor.missing(session.node)) or "meets the contract"))
+                if done and st.samples >= st.status["samples"]:
+                    if evaluator is None or evaluator.finished(st.samples):
+                        break
+            bar.update(st.samples, force=True, **st.progress())
+            evaluate_on_robot(st.samples, final=True)
+            session.final_drain()
+    except BaseException:
+        session.close()
+        raise
+
+    session.run(body, bar, between=evaluator.stop if evaluator is not None else None)
+
+    # ---- summary
+    sim_curve = sorted(evaluator.curve, key=lambda c: c["micro_actions"]) if evaluator is not None else []
+    robot_summary = robot_eval.summary()
+    robot_summary.update(driver_wait_seconds=timing.get("driver_wait", float("nan")),
+                         joint_state_rate=DriverMonitor.rate(monitor.js_rx),
+                         task_point_rate=DriverMonitor.rate(monitor.tip_rx))
+    robot_curve = [{k: c[k] for k in ("micro_actions", "mean_error", "median_error")} for c in robot_eval.curve]
+    if robot_eval.initial_errors is not None:
+        e = robot_eval.initial_errors
+        robot_curve.insert(0, {"micro_actions": 0, "mean_error": float(e.mean()), "median_error": float(np.median(e))})
+    area = None
+    if simulated:
+        area = evaluator.area or reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
+    bag_topics = session.bag.topics()
+    rec = session.recorder
+    span = {t: (rec.last_ns[t] - rec.first_ns[t]) / 1e9 for t in rec.first_ns}
+    summary = session.summary(
+        lp, config, params, params_file, "external driver", micro_actions,
+        sim_curve if simulated else robot_curve, area, t_start,
+        eval_every=eval_every,
+        startup_seconds=(timing["first_sample"] - session.t_nodes) if "first_sample" in timing else float("nan"),
+        eval_seconds=(evaluator.eval_seconds if evaluator is not None else 0.0) + robot_eval.seconds,
+        memory=_memory_info(samples),
+        test_goals=robot_summary["goals"],
+        splits=tracker.splits,
+        bag={"path": str(out / "bag"), "paths": [str(out / "bag")], "storage": "mcap",
+             "topics": bag_topics, "sequence_gaps": st.gaps},
+        rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0},
+        driver="external", robot_evaluation=robot_summary,
+        curve_source="simulated (offline, from the recorded samples)" if simulated else "on the robot",
+        simulated_evaluation=simulated)
+    if simulated:
+        summary["test_goals"] = evaluator.test_goals.tolist() if evaluator.test_goals is not None else None
+
+    from sagg_common.journal import write_json_atomic
+    write_json_atomic(out / "robot_evaluation.json", {"summary": robot_summary, "trace": robot.trace})
+
+    def write_report() -> None:
+        from .report import write_report
+        path = write_report(summary, out, area=area)
+        path.write_text(path.read_text() + robot_report_section(summary))
+
+    return session.finish(summary, write_report if report and summary["curve"] else None)
+
+
+def _memory_info(samples) -> dict:
+    from sagg_low_level.memory import SampleMemory
+    alpha, dalpha, dy = samples
+    if not alpha:
+        return {"samples": 0}
+    mem = SampleMemory(len(alpha[0]), len(dalpha[0]), len(dy[0]), capacity=len(alpha))
+    for a, da, d in zip(alpha, dalpha, dy):
+        mem.add(a, da, d)
+    return {"samples": len(mem), "digest": mem.digest(), "bytes": int(mem.nbytes)}
+
+
+def robot_report_section(summary: dict) -> str:
+    """The report's section on the evaluation on the robot (and which curve is which)."""
+    r = summary["robot_evaluation"]
+    lines = ["", "## Evaluation on the robot", "",
+             f"The frozen model reached {len(r['goals'] or [])} test goals from rest through the driver, learning "
+             f"paused ({'every ' + str(r['every']) + ' micro-actions and ' if r['every'] else ''}at the end); "
+             f"test goals: {r['goal_source']}. Errors measured by the task-point topic.", "",
+             "| micro-actions | mean error (on the robot) | median error |", "|---:|---:|---:|",
+             f"| 0 (empty model: the arm stays at rest) | {r['initial_mean_error']:.3f} | "
+             f"{float(np.median(r['initial_errors'])) if r['initial_errors'] else float('nan'):.3f} |"]
+    lines += [f"| {c['micro_actions']:,} | {c['mean_error']:.3f} | {c['median_error']:.3f} |" for c in r["curve"]]
+    lines += ["", f"Joint states at {r['joint_state_rate']:.0f}/s, task points at {r['task_point_rate']:.0f}/s; "
+              f"{r['commands']} evaluation commands in {r['seconds']:.1f} s ({r['settle_timeouts']} answered only "
+              "after settle_timeout).", ""]
+    if summary.get("simulated_evaluation"):
+        lines += ["The learning curve above is the **simulated** evaluation (offline, the recorded samples "
+                  "in the config's simulated model of the same arm, on its test goals).", ""]
+    else:
+        lines += ["The config's simulated arm is not this arm (joints, limits or rest posture differ): "
+                  "no simulated evaluation; the learning curve above is the evaluation on the robot.", ""]
+    return "\n".join(lines)

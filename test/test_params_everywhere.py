@@ -1,0 +1,156 @@
+"""Parameter files that work everywhere (issue 12, item 3):
+
+- the params.yaml a `sagg run` writes starts a learning graph with the three node executables alone
+  (no `sagg run`, no recorder): it holds none of the waits only `sagg run`'s recorder satisfies;
+- the launch file's expansion (sagg_bringup.launch_params) fills every derived parameter for every
+  installed config, for both drivers, and `config:=` defaults to arm8;
+- shared '/**' parameters produce no "parameters not used" line in the nodes that do not declare them.
+"""
+from __future__ import annotations
+
+import ast
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from sagg_bringup.graph import (graph_params, load_graph_config, run_only_params, set_checkpoint_dirs,
+                                write_params_file)
+from sagg_bringup.launch_params import installed_configs, launch_plan, resolve_config, write_plan
+from sagg_common.params import read_config
+from sagg_msgs.msg import CompetenceReport, LearnerStatus
+from sagg_sim_bridge.params import arm_spec_from_params
+
+import test_nodes_graph
+from test_nodes_graph import STARTUP_TIMEOUT, logs, start
+
+ros_env = test_nodes_graph.ros_env  # the fixture: a private ROS domain per test
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH = ROOT / "src/sagg_bringup/launch/sagg.launch.py"
+
+
+def run_params_file(out: Path, micro_actions: int) -> Path:
+    """params.yaml exactly as `sagg run` writes it (run_graph: graph_params, checkpoint dirs, write)."""
+    full = load_graph_config(ROOT / "config/arm8.yaml")
+    params = graph_params(full, micro_actions, "lockstep")
+    set_checkpoint_dirs(params, out)
+    write_params_file(out / "params.yaml", params)
+    return out / "params.yaml"
+
+
+def test_run_params_file_has_no_recorder_waits(tmp_path):
+    path = run_params_file(tmp_path, 100)
+    doc = yaml.safe_load(path.read_text())
+    assert doc["sagg_learner"]["ros__parameters"]["min_sample_subscribers"] == 0
+    assert doc["sagg_goal_generator"]["ros__parameters"]["min_goal_subscribers"] == 0
+    # ... `sagg run` gives them on its nodes' command lines instead
+    assert run_only_params({k: v["ros__parameters"] for k, v in doc.items()}) == {
+        "sagg_goal_generator": {"min_goal_subscribers": 1}, "sagg_learner": {"min_sample_subscribers": 1}}
+
+
+def test_three_executables_learn_from_a_run_params_file(ros_env, tmp_path):
+    steps = 150
+    params = run_params_file(tmp_path, steps)
+    node = Node("sagg_test_watcher", context=ros_env["ctx"])
+    status: list[LearnerStatus] = []
+    reports: list[CompetenceReport] = []
+    qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    # (no /sagg/sample or /sagg/goal subscriber: nothing records here)
+    node.create_subscription(LearnerStatus, "/sagg/status", status.append, qos)
+    node.create_subscription(CompetenceReport, "/sagg/competence", reports.append, qos)
+    import rclpy.executors
+    ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
+    ex.add_node(node)
+    procs = [start(ros_env, s, params, tmp_path) for s in ("mujoco_bridge", "goal_generator", "learner")]
+    end = time.monotonic() + STARTUP_TIMEOUT + 60
+    while time.monotonic() < end and not (status and status[-1].micro_actions >= steps):
+        for p in procs:
+            assert p.poll() is None, logs(tmp_path)
+        ex.spin_once(timeout_sec=0.05)
+    assert status and status[-1].micro_actions >= steps, logs(tmp_path)
+    assert "max_micro_actions" in status[-1].pause_reason
+    assert len(reports) > 10 and reports[-1].micro_actions <= steps  # reports flow to the generator
+    assert len({r.goal_seq for r in reports if r.goal_seq}) >= 2      # goals were answered
+    # the bridge got only its own section: no "parameters not used" line
+    assert "parameters not used" not in (tmp_path / "mujoco_bridge.log").read_text()
+    ex.shutdown()
+    node.destroy_node()
+
+
+def test_shared_parameters_make_no_unused_warning(ros_env, tmp_path):
+    """config/arm8.yaml as is (with its '/**' section) for the bridge, which declares none of
+    strategy / task_space: no "parameters not used" line; a '-p' parameter nobody declares still is."""
+    p = start(ros_env, "mujoco_bridge", ROOT / "config/arm8.yaml", tmp_path)
+    log = tmp_path / "mujoco_bridge.log"
+    end = time.monotonic() + STARTUP_TIMEOUT
+    while time.monotonic() < end and "arm" not in log.read_text():
+        assert p.poll() is None, log.read_text()
+        time.sleep(0.2)
+    time.sleep(0.5)
+    text = log.read_text()
+    assert "sagg_sim_bridge" in text and "parameters not used" not in text, text
+
+
+@pytest.mark.parametrize("name", sorted(installed_configs()))
+@pytest.mark.parametrize("driver", ["sim", "external"])
+def test_launch_plan_fills_every_derived_parameter(name, driver, tmp_path):
+    plan = launch_plan(name, driver)
+    assert plan.config == resolve_config(name)
+    names = [n for _, _, n in plan.nodes]
+    assert names == (["sagg_sim_bridge"] if driver == "sim" else []) + ["sagg_goal_generator", "sagg_learner"] \
+        or names == ["sagg_goal_generator", "sagg_learner"] + (["sagg_sim_bridge"] if driver == "sim" else [])
+    lp, gp = plan.params["sagg_learner"], plan.params["sagg_goal_generator"]
+    # no waits for a recorder; no stop unless asked
+    assert lp["min_sample_subscribers"] == 0 and gp["min_goal_subscribers"] == 0
+    # the task space is the config's, the same for both levels
+    sections = read_config(plan.config)
+    for key in ("task_space.lower", "task_space.upper"):
+        want = sections.get("/**", {}).get(key, sections.get("sagg_learner", {}).get(key))
+        if want is not None:
+            assert lp[key] == [float(v) for v in want] == gp[key]
+    if plan.setup is None:  # arm: joints / limits / rest from the config's arm (its DOF)
+        spec = arm_spec_from_params(plan.params["sagg_sim_bridge"])
+        assert lp["joints"] == spec.joint_names() and len(lp["joints"]) == spec.dof
+        assert lp["rest_posture"] == spec.rest_posture().tolist()
+        assert lp["joint_limits.lower"] == spec.limits()[0].tolist()
+        assert [e for _, e, _ in plan.nodes if e != "goal_generator"] == (["learner", "mujoco_bridge"] if driver == "sim"
+                                                                         else ["learner"]) or driver == "sim"
+    else:  # synergy set-ups: their own learner and bridge
+        assert ("sagg_low_level", "synergy_learner", "sagg_learner") in plan.nodes
+    path = write_plan(plan, tmp_path / "params.yaml")
+    assert set(yaml.safe_load(path.read_text())) == set(plan.params)
+
+
+def test_launch_plan_uses_the_configs_own_joints_with_an_external_driver(tmp_path):
+    cfg = tmp_path / "myarm.yaml"
+    cfg.write_text(yaml.safe_dump({"sagg_learner": {"ros__parameters": {
+        "joints": ["a", "b"], "joint_limits": {"lower": [-1.0, -1.0], "upper": [1.0, 1.0]},
+        "rest_posture": [0.1, 0.2]}}}))
+    plan = launch_plan(str(cfg), "external")
+    assert plan.params["sagg_learner"]["joints"] == ["a", "b"]
+    assert [n for _, _, n in plan.nodes] == ["sagg_goal_generator", "sagg_learner"]
+    # with the simulated bridge, the bridge's arm wins (as in `sagg run`)
+    assert len(launch_plan(str(cfg), "sim").params["sagg_learner"]["joints"]) == 8
+    from sagg_common.params import ConfigError
+    with pytest.raises(ConfigError, match="driver"):
+        launch_plan(str(cfg), "robot")
+    with pytest.raises(ConfigError, match="arm8"):
+        launch_plan("no_such_config")
+
+
+def test_launch_file_arguments():
+    """The launch file's declared arguments and defaults (read from its source: no ros2 launch on PyPI)."""
+    tree = ast.parse(LAUNCH.read_text())
+    args = {}
+    for call in ast.walk(tree):
+        if isinstance(call, ast.Call) and getattr(call.func, "id", "") == "DeclareLaunchArgument":
+            kw = {k.arg: ast.literal_eval(k.value) for k in call.keywords if k.arg in ("default_value", "choices")}
+            args[ast.literal_eval(call.args[0])] = kw
+    assert args["config"]["default_value"] == "arm8"
+    assert args["driver"] == {"default_value": "sim", "choices": ["sim", "external"]}
+    assert args["record"] == {"default_value": "false", "choices": ["true", "false"]}
+    assert "launch_plan(" in LAUNCH.read_text()
