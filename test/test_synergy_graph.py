@@ -59,3 +59,43 @@ def test_quadruped_graph_equals_in_process_and_records_trajectories(tmp_path):
     got = np.array([p.positions for p in first.points])
     np.testing.assert_array_equal(got, expected.positions)
     assert list(first.joint_names) == syn.joint_names
+
+
+def test_fixed_context_arm_graph_equals_in_process_and_speaks_the_position_contract(tmp_path):
+    """The arm with context: fixed through the graph (goal_generator + synergy_learner + mujoco_bridge
+    in lockstep; config/arm8.yaml: dynamic, 20 % motor noise) equals the in-process run bit for bit,
+    and the bag holds one rest command then θ per experiment on the position controller's topic."""
+    n = 20
+    ov = {"context": "fixed", "eval.goals": 5}
+    graph = run_graph("config/arm8.yaml", n, tmp_path / "graph", eval_every=10, overrides=ov,
+                      progress=False, stall_timeout=120.0)
+    inproc = run_experiment("config/arm8.yaml", None, None, n, 10, tmp_path / "inproc", progress=False,
+                            overrides=ov)
+    assert graph["memory"]["samples"] == inproc["memory"]["samples"] == n
+    assert graph["memory"]["digest"] == inproc["memory"]["digest"]
+    assert graph["curve"] == inproc["curve"]
+    assert graph["test_goals"] == inproc["test_goals"]
+    assert [g["position"] for g in graph["goals"]] == [g["position"] for g in inproc["goals"]]
+    assert graph["synergy"]["setup"] == inproc["synergy"]["setup"] == "arm-fixed"
+
+    topics = graph["bag"]["topics"]
+    cmd_topic = "/forward_position_controller/commands"
+    assert topics[cmd_topic]["type"] == "std_msgs/msg/Float64MultiArray"
+    assert topics["/tip_position"]["type"] == "geometry_msgs/msg/PointStamped"
+    assert "/joint_trajectory_controller/joint_trajectory" not in topics
+
+    from rosbags.highlevel import AnyReader
+    cfg = load_synergy_config("config/arm8.yaml", ov)
+    rest = np.array(cfg["sagg_learner"]["rest_posture"])
+    with AnyReader([tmp_path / "graph" / "bag"], default_typestore=make_typestore()) as reader:
+        conns = {c.topic: c for c in reader.connections}
+        cmds = [np.array(reader.deserialize(raw, c.msgtype).data)
+                for c, _, raw in reader.messages(connections=[conns[cmd_topic]])]
+        samples = [reader.deserialize(raw, c.msgtype)
+                   for c, _, raw in reader.messages(connections=[conns["/sagg/sample"]])]
+    # the rest-outcome query (a rest command), then per experiment: rest, θ
+    assert len(cmds) == 1 + 2 * n
+    for c in [cmds[0]] + cmds[1::2]:
+        np.testing.assert_array_equal(c, rest)
+    for c, s in zip(cmds[2::2], samples):
+        np.testing.assert_array_equal(c, np.array(s.alpha))

@@ -202,6 +202,9 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     gp = {p.name: full["sagg_goal_generator"][p.name] for p in GEN_SCHEMA}
     lp = {p.name: full["sagg_learner"][p.name] for p in LEARNER_SCHEMA}
     bp = {p.name: full["sagg_sim_bridge"][p.name] for p in BRIDGE_SCHEMA}
+    if lp["context"] != "evolving":
+        raise ConfigError("relearn: the run's learner has context 'fixed'; allowed: evolving-context arm runs "
+                          "(fixed-context runs are evaluated from their samples by `sagg run` itself)")
     t0 = time.perf_counter()
     spec, area, test_goals, learner = evaluation_setup(lp, bp)
     mem = learner.memory

@@ -188,6 +188,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="timed windows per row on fresh runs, sizes interleaved; the best is kept")
     s.add_argument("--profile", type=int, default=0, metavar="N",
                    help="print the N functions with the most own time in the last timed window")
+    rs = bsub.add_parser("riac", help="ACTUATOR-RIAC micro-actions/s: the leaf table against the tree walk "
+                                      "it replaced, same seeded run, bit-identity checked")
+    rs.add_argument("--config", default="config/arm15.yaml")
+    rs.add_argument("--micro-actions", type=positive_int, default=60_000)
+    rs.add_argument("--window", type=positive_int, default=5_000, help="micro-actions per timed window")
+    rs.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
     g = bsub.add_parser("graph", help="graph vs in-process micro-actions/s vs a bare rclpy ping-pong, "
                                       "and the contract floor (the lockstep exchange with no work)")
     g.add_argument("--config", default="config/arm8.yaml")
@@ -225,6 +231,23 @@ def build_parser() -> argparse.ArgumentParser:
                         "(needs the optional extra: make ray)")
     c.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override any parameter for every run (repeatable)")
+    qu = bsub.add_parser("quality", help="test error against queries for both learner contexts and "
+                                         "every strategy, over seeds, in the config's Y and a wide one; "
+                                         "queries/s, mean ± std, SAGG-RIAC vs SAGG-RANDOM p-values, the "
+                                         "analytic-Jacobian reach check (issue 10)")
+    qu.add_argument("--config", default="config/arm7_ratio15.yaml")
+    qu.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    qu.add_argument("--seeds", type=positive_int, default=5, help="number of seeds: base seed + i")
+    qu.add_argument("--base-seed", type=int, default=0)
+    qu.add_argument("--points", type=positive_int, nargs="+", default=[5000, 20000],
+                    help="queries (micro-actions) at which the test error is reported")
+    qu.add_argument("--contexts", nargs="+", choices=["evolving", "fixed"], default=["evolving", "fixed"],
+                    help="learner contexts (fixed = --set context=fixed on every run)")
+    qu.add_argument("--wide", type=float, nargs=4, default=[-2.0, -2.0, 2.0, 2.0],
+                    metavar=("XLO", "YLO", "XHI", "YHI"), help="the second task space")
+    qu.add_argument("--no-analytic", action="store_true", help="skip the analytic-Jacobian reach check")
+    qu.add_argument("--out", help="directory for quality.json, quality.md and every result.json")
+    qu.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override (every run)")
     t = bsub.add_parser("table", help="compare strategies from result.json files (Markdown table "
                                       "and Mann-Whitney / Welch tests)")
     t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
@@ -267,7 +290,7 @@ def _run(args) -> int:
         from .synergy_experiment import config_setup
 
         hint = (" (external-driver runs cannot be resumed: start a new run)" if args.driver == "external"
-                else f" (sagg run --resume {out} continues)" if config_setup(args.config) is None
+                else f" (sagg run --resume {out} continues)" if config_setup(args.config, parse_set(args.set)) is None
                 else " (synergy runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
@@ -387,6 +410,10 @@ def main(argv: list[str] | None = None) -> int:
             from .bench import bench_graph
             bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
+        if args.command == "bench" and args.bench == "riac":
+            from .lab.riac_speed import bench_riac
+            res = bench_riac(args.config, args.micro_actions, args.window, overrides=parse_set(args.set))
+            return 0 if all(res["identical"].values()) else 1
         if args.command == "bench" and args.bench == "soak":
             from .soak import main_soak
             return main_soak(args, parse_set(args.set))
@@ -406,6 +433,12 @@ def main(argv: list[str] | None = None) -> int:
                                args.eval_every, args.out, workers=args.workers, ray_address=args.ray,
                                overrides=parse_set(args.set), base_seed=args.base_seed)
             return 1 if summ["failed_runs"] else 0
+        if args.command == "bench" and args.bench == "quality":
+            from .lab.quality import bench_quality
+            bench_quality(args.config, args.strategies, args.seeds, args.points, args.contexts,
+                          args.wide, parse_set(args.set), args.base_seed, args.out,
+                          analytic=not args.no_analytic)
+            return 0
         if args.command == "bench" and args.bench == "speed":
             from .bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,

@@ -23,11 +23,13 @@ from sagg_low_level.learner import (SCHEMA as LEARNER_SCHEMA, Command, EvolvingC
 from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
+from .phases import PhaseCounter, coverage, phase_breakdown
+
 
 def load_experiment_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
     """Resolve the three nodes' parameters from a config file (+ overrides applied to every node)."""
     from .synergy_experiment import config_setup, load_synergy_config
-    if config_setup(path) is not None:  # quadruped / fishing: the synergy nodes' schemas
+    if config_setup(path, overrides) is not None:  # quadruped / fishing / context: fixed arm
         return load_synergy_config(path, overrides)
     out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": LEARNER_SCHEMA,
                                "sagg_sim_bridge": BRIDGE_SCHEMA}, overrides)
@@ -49,6 +51,7 @@ class InProcessRun:
         self.learner = EvolvingContextLearner(lp, robot, self.sim.task_dim)
         self.learner.on_report = self._on_report
         self.goal_micro_actions: dict[int, int] = {}
+        self.phases = PhaseCounter()
         self.sim.reset()
         self._coro = self.learner.run()
         self._pending = next(self._coro)
@@ -59,14 +62,16 @@ class InProcessRun:
 
     def step_until(self, micro_actions: int) -> None:
         """Advance the learner until it has done ``micro_actions`` micro-actions in total."""
-        learner, sim, gen = self.learner, self.sim, self.generator
+        learner, sim, gen, phases = self.learner, self.sim, self.generator, self.phases
         coro, req = self._coro, self._pending
         t0 = time.perf_counter()
         while learner.micro_actions < micro_actions:
             if isinstance(req, Command):
                 answer = sim.command(req.target)
+                phases.command(req.kind)
             elif isinstance(req, GoalRequest):
                 g = gen.next_goal()
+                phases.goal(g.seq)
                 self.goal_micro_actions[g.seq] = learner.micro_actions
                 answer = (g.seq, g.position)
             elif isinstance(req, Observe):
@@ -89,8 +94,9 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     """Run one (strategy, seed) experiment in-process and write ``out_dir/result.json``."""
     # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): fixed-context
     # learner and synergy simulators, same result.json keys (micro_actions = experiments)
+    # and the arm with the learner parameter context: fixed (the same fixed-context learner)
     from .synergy_experiment import config_setup, run_synergy_experiment
-    if config_setup(config_path) is not None:
+    if config_setup(config_path, overrides) is not None:
         return run_synergy_experiment(config_path, strategy, seed, micro_actions, eval_every, out_dir,
                                       progress=progress, overrides=overrides)
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
@@ -110,6 +116,9 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     result["eval_metrics"] = frame_summary(frame)
     result["test_goals"] = goals.tolist()
     result["final_errors"] = errors.tolist()
+    mem = run.learner.memory
+    n = len(mem)
+    result["coverage"] = coverage(run.sim.tip_positions(mem.alpha[:n] + mem.delta_alpha[:n]), goals)
     write_result(out_dir, result)
     return result
 
@@ -191,9 +200,13 @@ def goal_share_stats(goal_positions: np.ndarray, goal_ma: np.ndarray, area, tota
 
 def build_result(run: InProcessRun, curve: list[dict], area, total: int, eval_seconds: float) -> dict:
     learner = run.learner
-    return result_dict(run, curve, area, total, eval_seconds, learner.micro_actions,
-                       {"samples": len(learner.memory), "digest": learner.memory.digest(),
-                        "bytes": int(learner.memory.nbytes)})
+    res = result_dict(run, curve, area, total, eval_seconds, learner.micro_actions,
+                      {"samples": len(learner.memory), "digest": learner.memory.digest(),
+                       "bytes": int(learner.memory.nbytes)})
+    gen = run.generator
+    res["phases"] = phase_breakdown(run.phases, [g.seq for g in gen.goals],
+                                    np.array([g.position for g in gen.goals]).reshape(-1, len(gen.lower)), area)
+    return res
 
 
 def result_dict(run, curve: list[dict], area, total: int, eval_seconds: float, done: int,

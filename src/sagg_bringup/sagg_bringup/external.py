@@ -408,8 +408,8 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     from sagg_sim_bridge.params import arm_spec_from_params
 
     if config_setup(config_path) is not None:
-        raise ConfigError("--driver external: synergy set-ups (config parameter 'setup') are not supported; "
-                          "allowed: an arm config")
+        raise ConfigError("--driver external: synergy set-ups (config parameter 'setup') and the arm with "
+                          "context: fixed are not supported; allowed: an arm config (context: evolving)")
     if robot_eval_goals < 1 or robot_eval_every < 0:
         raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every}; "
                           "allowed: goals >= 1, every >= 0")

@@ -928,9 +928,10 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     bag (``bag2``, ``bag3``, ...; logs ``logs/<node>.<k>.log``), and the earlier bags are read first,
     so the evaluation, the summary and the report cover the whole run (samples, reports and goals
     republished by the resumed nodes are dropped by index / sequence number)."""
-    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
+    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5) and the arm with
+    # context: fixed: the fixed-context learner node
     from .synergy_experiment import config_setup
-    if config_setup(config_path) is not None:
+    if config_setup(config_path, overrides) is not None:
         from .synergy_graph import run_synergy_graph
         return run_synergy_graph(config_path, micro_actions, out_dir, seed=seed, strategy=strategy,
                                  timing=timing, eval_every=eval_every, overrides=overrides, progress=progress,

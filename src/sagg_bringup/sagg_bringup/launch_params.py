@@ -78,13 +78,15 @@ def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) ->
     if setup is not None:
         from sagg_common.params import node_params, read_config
         from .synergy_experiment import load_synergy_config
-        from .synergy_graph import SYNERGY_NODES, synergy_graph_params, synergy_node_schemas
-        schemas = synergy_node_schemas()
+        from .synergy_experiment import ARM_FIXED
+        from .synergy_graph import ARM_FIXED_NODES, SYNERGY_NODES, synergy_graph_params, synergy_node_schemas
+        arm = setup == ARM_FIXED  # the arm with context: fixed (synergy learner + MuJoCo arm bridge)
+        schemas = synergy_node_schemas(arm)
         full = load_synergy_config(path, None, learner_schema=schemas["sagg_learner"],
                                    bridge_schema=schemas["sagg_sim_bridge"])
         full["sagg_goal_generator"] = node_params(read_config(path), "sagg_goal_generator", schemas["sagg_goal_generator"])
         params = synergy_graph_params(full, max_micro_actions)
-        nodes = SYNERGY_NODES
+        nodes = ARM_FIXED_NODES if arm else SYNERGY_NODES
     else:
         from .external import explicit_joints, external_params
         from .graph import NODES, graph_params, load_graph_config

@@ -285,7 +285,8 @@ def _setup_rows(bp: dict) -> list[tuple[str, str]]:
         return [("set-up", f"{setup} (synergies, fixed context; trajectories on "
                            f"{bp.get('controller')}, outcome on {bp.get('task_topic')})")]
     arm = {k[4:]: v for k, v in bp.items() if k.startswith("arm.")}
-    return [("arm", f"{arm.get('dof')} DOF, {arm.get('link_profile')} links, length "
+    links = (f"link ratio {arm['link_ratio']:g}" if arm.get("link_ratio") else f"{arm.get('link_profile')} links")
+    return [("arm", f"{arm.get('dof')} DOF, {links}, length "
                     f"{arm.get('total_length')}, {arm.get('mode')}, motor noise {arm.get('motor_noise')}")]
 
 
@@ -344,6 +345,9 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None) -> P
            f"[{', '.join(_fmt(float(v)) for v in lp['task_space.upper'])}]"
     rows.append(("task space Y (lower – upper)", task))
     rows += _setup_rows(bp)
+    if lp.get("context") == "fixed" and not bp.get("setup"):
+        rows.append(("context", "fixed (θ = joint targets, one position command from rest per experiment; "
+                                "micro-actions = experiments)"))
     lines += ["| | |", "|---|---|"] + [f"| {k} | {_fmt(v)} |" for k, v in rows] + [""]
 
     lines += ["## Learning curve", "",

@@ -1,11 +1,16 @@
-"""In-process synergy experiments (quadruped Sec. 4, fishing rod Sec. 5): the goal generator, the
-fixed-context learner and a synergy simulator wired together without ROS (``sagg experiment`` with a
-config whose ``setup`` is ``quadruped`` or ``fishing``). Writes the same ``result.json`` keys as the
-arm's :func:`~sagg_bringup.experiment.run_experiment` (``micro_actions`` counts experiments, i.e.
-synergy executions with an outcome) plus a ``synergy`` section (trials, discarded trials, outcomes).
+"""In-process fixed-context experiments (quadruped Sec. 4, fishing rod Sec. 5, and the arm in the
+fixed context): the goal generator, the fixed-context learner (Alg. 4) and a simulator wired together
+without ROS (``sagg experiment`` with a config whose ``setup`` is ``quadruped`` or ``fishing``, or an
+arm config with the learner parameter ``context: fixed``). Writes the same ``result.json`` keys as
+the arm's :func:`~sagg_bringup.experiment.run_experiment` (``micro_actions`` counts experiments, i.e.
+executions with an outcome) plus a ``synergy`` section (trials, discarded trials, outcomes).
+
+What differs between the set-ups is one small adapter (:class:`SynergySetup`, :class:`ArmPostureSetup`):
+how θ is executed on the simulator and the outcome read, the test goals, and the reachable area.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -15,10 +20,11 @@ import numpy as np
 
 from sagg_common.params import ConfigError, read_config, resolve_nodes
 from sagg_common.progress import Progress
-from sagg_common.rng import stream
+from sagg_common.rng import stream, substream_seed
 from sagg_common.synergy import transported_outcome
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import frame_summary, metric_frame
+from sagg_low_level.learner import CONTEXT
 from sagg_low_level.outcome_set import reachable_outcomes
 from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Driver, FixedContextLearner,
                                           ThetaSpace, evaluate_fixed, spread_goals, synergy_from_params)
@@ -29,21 +35,59 @@ LEARNER_SCHEMA = FC_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
 SYN_BRIDGE_SCHEMA = SIM_SCHEMA + BRIDGE_NODE_SCHEMA
 
 
-def config_setup(path: str | Path) -> str | None:
-    """The config's ``setup`` ('quadruped' / 'fishing', under '/**' or 'sagg_sim_bridge'), or None
-    (an arm config, which has no such parameter)."""
+ARM_FIXED = "arm-fixed"  # config_setup of an arm config with context: fixed
+
+
+def config_setup(path: str | Path, overrides: dict[str, Any] | None = None) -> str | None:
+    """The config's ``setup`` ('quadruped' / 'fishing', under '/**' or 'sagg_sim_bridge'); for an
+    arm config (no such parameter) ``'arm-fixed'`` when the learner parameter ``context`` (config or
+    ``overrides``) is 'fixed', else None (the evolving-context arm)."""
     sections = read_config(path)
     setup = sections.get("/**", {}).get("setup", sections.get("sagg_sim_bridge", {}).get("setup"))
     if setup is not None and setup not in SETUPS:
         raise ConfigError(f"parameter 'setup': got {setup!r}; allowed: one of {', '.join(map(repr, SETUPS))}")
-    return setup
+    if setup is not None:
+        return setup
+    context = sections.get("sagg_learner", {}).get("context", sections.get("/**", {}).get("context", "evolving"))
+    context = CONTEXT.validate((overrides or {}).get("context", context))
+    return ARM_FIXED if context == "fixed" else None
+
+
+def fixed_arm_learner_schema(node_schema=LEARNER_SCHEMA):
+    """The learner schema of the arm in the fixed context: the fixed-context learner node's, with the
+    arm's hardware-contract defaults (controller ``forward_position_controller``, task topic
+    ``/tip_position``, synergy.kind 'posture')."""
+    arm = {"controller": "forward_position_controller", "task_topic": "/tip_position",
+           "synergy.kind": "posture", "context": "fixed"}
+    return tuple(dataclasses.replace(p, default=arm[p.name]) if p.name in arm else p for p in node_schema)
 
 
 def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None = None,
-                        learner_schema=LEARNER_SCHEMA, bridge_schema=SYN_BRIDGE_SCHEMA) -> dict[str, dict]:
-    """Resolve the three nodes' parameters of a synergy config (+ overrides applied to every node)."""
-    out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": learner_schema,
-                               "sagg_sim_bridge": bridge_schema}, overrides)
+                        learner_schema=LEARNER_SCHEMA, bridge_schema=None) -> dict[str, dict]:
+    """Resolve the three nodes' parameters of a fixed-context config (+ overrides applied to every
+    node); ``bridge_schema`` None = the simulator's core schema (synergy or arm).
+
+    An arm config with ``context: fixed`` resolves the arm bridge's parameters and the learner's
+    with :func:`fixed_arm_learner_schema`; the evolving learner's own parameters (v, subgoals, ...)
+    are accepted there and dropped (unused in the fixed context); ``joints``, ``joint_limits.*`` and
+    ``rest_posture`` come from the simulated arm."""
+    if config_setup(path, overrides) == ARM_FIXED:
+        from sagg_low_level.learner import SCHEMA as EVOLVING_SCHEMA
+        from sagg_sim_bridge.params import SCHEMA as ARM_SCHEMA, arm_spec_from_params
+        fixed = fixed_arm_learner_schema(learner_schema)
+        names = {p.name for p in fixed}
+        tolerated = tuple(p for p in EVOLVING_SCHEMA if p.name not in names)
+        out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": fixed + tolerated,
+                                   "sagg_sim_bridge": bridge_schema or ARM_SCHEMA}, overrides)
+        lp = out["sagg_learner"] = {k: v for k, v in out["sagg_learner"].items() if k in names}
+        spec = arm_spec_from_params(out["sagg_sim_bridge"])
+        lower, upper = spec.limits()
+        lp.update({"joints": spec.joint_names(), "joint_limits.lower": lower.tolist(),
+                   "joint_limits.upper": upper.tolist(), "rest_posture": spec.rest_posture().tolist(),
+                   "synergy.kind": "posture"})
+    else:
+        out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": learner_schema,
+                                   "sagg_sim_bridge": bridge_schema or SYN_BRIDGE_SCHEMA}, overrides)
     synergy_from_params(out["sagg_learner"])  # validates the synergy, naming the bad parameter
     return out
 
@@ -67,37 +111,150 @@ class BoxArea:
 _POOLS: dict[str, np.ndarray] = {}
 
 
-class SynergyRun:
-    """A synergy learning run of one strategy and seed, stepped in-process."""
+class SynergySetup:
+    """Quadruped / fishing rod: θ → a joint trajectory run by the synergy simulator from its rest state
+    (the synergy bridge's ``on_trajectory``); test goals spread over an estimate of the reachable
+    outcome set (:mod:`sagg_low_level.outcome_set`)."""
 
     def __init__(self, config: dict[str, dict]):
+        lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
         self.config = config
-        gp, lp, bp = config["sagg_goal_generator"], config["sagg_learner"], config["sagg_sim_bridge"]
-        self.seed = lp["seed"]
+        self.name = bp["setup"]
         self.sim = make_sim(bp)
         self.eval_sim = make_sim(bp)
         self.synergy = synergy_from_params(lp)
         if sorted(self.synergy.joint_names) != sorted(self.sim.joint_names):
             raise ConfigError(f"parameter 'joints': got {self.synergy.joint_names}; allowed: the "
                               f"{bp['setup']}'s joints {list(self.sim.joint_names)}")
-        if len(lp["task_space.lower"]) != self.sim.task_dim:
+        self.task_dim = self.sim.task_dim
+        self.rest_outcome = self.sim.rest_outcome
+        self.metric_base = self.rest_outcome  # distance bands of the evaluation (eval_metrics)
+
+    def execute(self, theta):
+        # exactly what the learner node receives from the bridge (φ through the PoseStamped quaternion)
+        return transported_outcome(self.sim.execute(self.synergy.trajectory(theta)))
+
+    def evaluator(self):
+        """θ → outcome on the evaluation simulator (deterministic: one for the whole run)."""
+        return lambda theta: transported_outcome(self.eval_sim.execute(self.synergy.trajectory(theta)))
+
+    def test_pool(self) -> np.ndarray:
+        """``eval.pool`` synergy executions spread over the reachable outcome set by
+        :func:`sagg_low_level.outcome_set.reachable_outcomes` (``eval.pool_rounds`` rounds; 0 = plain
+        uniformly random synergies), seeded by eval.seed, no-contact trials dropped: the estimate of
+        the reachable outcome set the test goals are picked from (and the goal-share box). The same
+        for every strategy and seed of a set-up: kept for the next run in this process."""
+        lp = self.config["sagg_learner"]
+        key = json.dumps([self.config["sagg_sim_bridge"], {k: v for k, v in lp.items()
+                                                           if k not in ("seed", "strategy")}],
+                         sort_keys=True, default=str)
+        if key in _POOLS:
+            return _POOLS[key].copy()
+        rng = stream(lp["eval.seed"], "synergy_test_pool")
+        pool = reachable_outcomes(self.evaluator(), self.synergy.lower, self.synergy.upper,
+                                  lp["eval.pool"], lp["eval.pool_rounds"], rng)
+        if not len(pool):
+            raise ConfigError("eval.pool: no synergy of the test pool produced an outcome")
+        if len(_POOLS) >= 4:
+            _POOLS.pop(next(iter(_POOLS)))
+        _POOLS[key] = pool.copy()
+        return pool
+
+    def test_goals(self):
+        """(test goals, reachable-area estimate, extra result keys): goals spread cell by cell over
+        :meth:`test_pool`."""
+        lp = self.config["sagg_learner"]
+        pool = self.test_pool()
+        goals = spread_goals(pool, lp["eval.goals"], stream(lp["eval.seed"], "synergy_test_goals"),
+                             lp["task_space.lower"], lp["task_space.upper"])
+        area = BoxArea(pool, lp["task_space.lower"], lp["task_space.upper"])
+        return goals, area, {"pool_outcomes": len(pool), "pool_extents": outcome_extents(pool)}
+
+
+def posture_outcome(sim, rest: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """One experiment of the arm in the fixed context, as the MuJoCo bridge runs it from the synergy
+    learner's two position commands: back to the rest posture, then θ; the settled tip."""
+    sim.command(rest)
+    return sim.command(theta)[1]
+
+
+class ArmPostureSetup:
+    """The arm in the fixed context (``context: fixed``): θ = absolute joint targets within the joint
+    limits, one position command from the rest posture (:func:`posture_outcome`) on the same
+    ``ArmSim(spec, substream_seed(seed, "sim"))`` as the evolving arm and the MuJoCo bridge; test
+    goals and reachable area = the evolving arm's of the same config (``test_goals`` over
+    ``reachable_area``), each reached by ONE experiment θ_g of the frozen inverse model from rest
+    (:func:`~sagg_low_level.fixed_context.evaluate_fixed`; the evaluation of Sec. 4.6, one
+    experiment per goal, on a fresh evaluation arm as the evolving arm's evaluation)."""
+
+    name = ARM_FIXED
+
+    def __init__(self, config: dict[str, dict]):
+        from sagg_sim_bridge.arm import ArmSim
+        from sagg_sim_bridge.params import arm_spec_from_params
+        lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
+        self.config = config
+        self.spec = arm_spec_from_params(bp)
+        self.seed = lp["seed"]
+        self.sim = ArmSim(self.spec, seed=substream_seed(self.seed, "sim"))
+        self.synergy = synergy_from_params(lp)
+        if self.synergy.joint_names != list(self.sim.joint_names):
+            raise ConfigError(f"parameter 'joints': got {self.synergy.joint_names}; allowed: the arm's "
+                              f"joints {list(self.sim.joint_names)}")
+        self.rest = self.sim.rest.copy()
+        self.task_dim = self.sim.task_dim
+        self.rest_outcome = self.sim.command(self.rest)[1]  # the node's Observe: a rest command
+        self.metric_base = np.zeros(self.task_dim)  # the arm's base, as the evolving arm's evaluation
+
+    def execute(self, theta):
+        return posture_outcome(self.sim, self.rest, self.synergy.command(theta))
+
+    def evaluator(self):
+        from sagg_sim_bridge.arm import ArmSim
+        sim = ArmSim(self.spec, seed=substream_seed(self.seed, "eval_sim"))
+        return lambda theta: posture_outcome(sim, self.rest, self.synergy.command(theta))
+
+    def test_goals(self):
+        from sagg_sim_bridge.arm import reachable_area, test_goals
+        lp = self.config["sagg_learner"]
+        lower, upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
+        area = reachable_area(self.spec, lower, upper, seed=lp["eval.seed"])
+        goals = test_goals(self.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
+        return goals, area, {}
+
+
+def make_setup(config: dict[str, dict]):
+    """The set-up adapter of a resolved fixed-context config."""
+    return SynergySetup(config) if "setup" in config["sagg_sim_bridge"] else ArmPostureSetup(config)
+
+
+class SynergyRun:
+    """A fixed-context learning run of one strategy and seed (synergy set-up or the arm in the fixed
+    context), stepped in-process."""
+
+    def __init__(self, config: dict[str, dict]):
+        self.config = config
+        gp, lp = config["sagg_goal_generator"], config["sagg_learner"]
+        self.seed = lp["seed"]
+        self.setup = make_setup(config)
+        self.synergy = self.setup.synergy
+        if len(lp["task_space.lower"]) != self.setup.task_dim:
             raise ConfigError(f"parameter 'task_space.lower': {len(lp['task_space.lower'])} dimensions; "
-                              f"allowed: {self.sim.task_dim} for the {bp['setup']}")
+                              f"allowed: {self.setup.task_dim} for the {self.setup.name}")
         core = {p.name: lp[p.name] for p in FC_SCHEMA}
         self.generator = GoalGenerator(gp)
         self.learner = FixedContextLearner(core, ThetaSpace(self.synergy.lower, self.synergy.upper),
-                                           self.sim.task_dim)
+                                           self.setup.task_dim)
         self.learner.on_report = self._on_report
         self.goal_micro_actions: dict[int, int] = {}
-        self.driver = Driver(self.learner, self._execute, self._next_goal, self.sim.rest_outcome)
+        self.driver = Driver(self.learner, self._execute, self._next_goal, self.setup.rest_outcome)
         self.learn_seconds = 0.0
 
     def _on_report(self, r) -> None:
         self.generator.report(r.kind, r.target, r.competence)
 
     def _execute(self, theta, kind):
-        # exactly what the learner node receives from the bridge (φ through the PoseStamped quaternion)
-        return transported_outcome(self.sim.execute(self.synergy.trajectory(theta)))
+        return self.setup.execute(theta)
 
     def _next_goal(self):
         g = self.generator.next_goal()
@@ -109,39 +266,13 @@ class SynergyRun:
         self.driver.step_until(experiments)
         self.learn_seconds += time.perf_counter() - t0
 
-    def run_eval(self, theta):
-        return transported_outcome(self.eval_sim.execute(self.synergy.trajectory(theta)))
-
     def evaluate(self, goals: np.ndarray) -> np.ndarray:
         """Test errors of the frozen model on the evaluation simulator (never counted as learning)."""
-        return evaluate_fixed(self.learner, self.run_eval, goals)
+        return evaluate_fixed(self.learner, self.setup.evaluator(), goals)
 
-    def test_pool(self) -> np.ndarray:
-        """``eval.pool`` synergy executions spread over the reachable outcome set by
-        :func:`sagg_low_level.outcome_set.reachable_outcomes` (``eval.pool_rounds`` rounds; 0 = plain
-        uniformly random synergies), seeded by eval.seed, no-contact trials dropped: the estimate of
-        the reachable outcome set the test goals are picked from (and the goal-share box)."""
-        lp = self.config["sagg_learner"]
-        # the same for every strategy and seed of a set-up: kept for the next run in this process
-        key = json.dumps([self.config["sagg_sim_bridge"], {k: v for k, v in lp.items()
-                                                           if k not in ("seed", "strategy")}],
-                         sort_keys=True, default=str)
-        if key in _POOLS:
-            return _POOLS[key].copy()
-        rng = stream(lp["eval.seed"], "synergy_test_pool")
-        out = reachable_outcomes(self.run_eval, self.synergy.lower, self.synergy.upper,
-                                 lp["eval.pool"], lp["eval.pool_rounds"], rng)
-        if not len(out):
-            raise ConfigError("eval.pool: no synergy of the test pool produced an outcome")
-        if len(_POOLS) >= 4:
-            _POOLS.pop(next(iter(_POOLS)))
-        _POOLS[key] = out.copy()
-        return out
-
-    def test_goals(self, pool: np.ndarray) -> np.ndarray:
-        lp = self.config["sagg_learner"]
-        return spread_goals(pool, lp["eval.goals"], stream(lp["eval.seed"], "synergy_test_goals"),
-                            lp["task_space.lower"], lp["task_space.upper"])
+    def test_goals(self):
+        """(test goals, reachable-area estimate, extra ``synergy`` result keys) of the set-up."""
+        return self.setup.test_goals()
 
 
 def outcome_extents(outcomes: np.ndarray) -> dict:
@@ -166,13 +297,11 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
     run = SynergyRun(config)
     lp = config["sagg_learner"]
     t0 = time.perf_counter()
-    pool = run.test_pool()
-    goals = run.test_goals(pool)
+    goals, area, goal_info = run.test_goals()
     pool_seconds = time.perf_counter() - t0
-    area = BoxArea(pool, lp["task_space.lower"], lp["task_space.upper"])
 
-    bar = Progress(micro_actions, f"{bp_setup(config)} {lp['strategy']} seed {lp['seed']}", enabled=progress)
-    frame = metric_frame(goals, run.sim.rest_outcome)  # distance bands from the rest outcome
+    bar = Progress(micro_actions, f"{run.setup.name} {lp['strategy']} seed {lp['seed']}", enabled=progress)
+    frame = metric_frame(goals, run.setup.metric_base)  # distance bands (eval_metrics)
     curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar, frame)
 
     learner = run.learner
@@ -185,14 +314,13 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
         "test_goals": goals.tolist(),
         "final_errors": errors.tolist(),
         "synergy": {
-            "setup": config["sagg_sim_bridge"]["setup"],
+            "setup": run.setup.name,
             "experiments": learner.experiments,
             "trials": learner.trials,
             "discarded": learner.discarded,
             "goals_done": learner.goals_done,
             "pool_seconds": pool_seconds,
-            "pool_outcomes": len(pool),
-            "pool_extents": outcome_extents(pool),
+            **goal_info,
             "outcome_extents": outcome_extents(outcomes),
             "outcomes": outcomes.tolist(),
         },
@@ -200,6 +328,3 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
     write_result(out_dir, result)
     return result
 
-
-def bp_setup(config: dict) -> str:
-    return config["sagg_sim_bridge"]["setup"]

@@ -31,7 +31,7 @@ from sagg_low_level.eval_metrics import error_metrics, metric_frame
 from .graph import (GraphSession, check_domain_id, node_processes, run_only_params, sagg_topics,
                     write_params_file)
 from .recorder import TopicSpec
-from .synergy_experiment import BoxArea, SynergyRun, load_synergy_config, outcome_extents
+from .synergy_experiment import ARM_FIXED, SynergyRun, config_setup, load_synergy_config, outcome_extents
 
 SYNERGY_NODES = {
     "sagg_goal_generator": ("sagg_goal_generator", "goal_generator"),
@@ -40,9 +40,17 @@ SYNERGY_NODES = {
 }
 
 
-def synergy_node_schemas() -> dict[str, tuple]:
+# the arm in the fixed context (context: fixed): the synergy learner speaks the arm's position
+# contract (synergy.kind 'posture') to the MuJoCo arm bridge
+ARM_FIXED_NODES = dict(SYNERGY_NODES, sagg_sim_bridge=("sagg_sim_bridge", "mujoco_bridge"))
+
+
+def synergy_node_schemas(arm: bool = False) -> dict[str, tuple]:
     from sagg_goal_generator.node import SCHEMA as GEN
     from .synergy_experiment import LEARNER_SCHEMA, SYN_BRIDGE_SCHEMA
+    if arm:
+        from sagg_sim_bridge.node import SCHEMA as ARM_BRIDGE
+        return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": ARM_BRIDGE}
     return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": SYN_BRIDGE_SCHEMA}
 
 
@@ -50,6 +58,8 @@ def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, d
     params = {name: dict(values) for name, values in full.items()}
     lp, bp = params["sagg_learner"], params["sagg_sim_bridge"]
     lp["max_experiments"] = int(experiments)
+    if "timing" in bp:  # the MuJoCo arm bridge (context: fixed): one settled answer per command
+        bp["timing"] = "lockstep"
     for k in ("controller", "task_topic"):
         if bp[k] != lp[k]:
             raise ConfigError(f"parameter '{k}' differs between sagg_sim_bridge ({bp[k]!r}) and "
@@ -59,6 +69,9 @@ def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, d
 
 
 def synergy_topics(lp: dict) -> list[TopicSpec]:
+    if lp["synergy.kind"] == "posture":  # the arm's position contract
+        from .graph import graph_topics
+        return graph_topics(lp, "lockstep")
     task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
     out_type = "geometry_msgs/msg/PoseStamped" if len(lp["task_space.lower"]) == 3 else "geometry_msgs/msg/PointStamped"
     return sagg_topics() + [
@@ -79,9 +92,11 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
         raise ConfigError(f"--timing: got {timing!r}; allowed: 'lockstep' (the synergy bridge answers each "
                           "trajectory once it has run)")
     check_domain_id(domain_id)
-    schemas = synergy_node_schemas()
+    arm = config_setup(config_path, ov) == ARM_FIXED
+    schemas = synergy_node_schemas(arm)
     full = load_synergy_config(config_path, ov, learner_schema=schemas["sagg_learner"],
                                bridge_schema=schemas["sagg_sim_bridge"])
+    setup_name = full["sagg_sim_bridge"].get("setup", ARM_FIXED)
     # the goal generator's node-only parameters (load_synergy_config resolved its core schema)
     from sagg_common.params import node_params, read_config
     full["sagg_goal_generator"] = node_params(read_config(config_path), "sagg_goal_generator",
@@ -89,7 +104,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
     out = Path(out_dir)
     if (out / "bag").exists():
         raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
-    procs = node_processes(SYNERGY_NODES, out / "logs")
+    procs = node_processes(ARM_FIXED_NODES if arm else SYNERGY_NODES, out / "logs")
     t_start = time.perf_counter()
     params = synergy_graph_params(full, micro_actions)
     params_file = out / "params.yaml"
@@ -114,7 +129,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
 
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/status": st.on_status, "/sagg/regions": st.on_regions})
-        bar = Progress(micro_actions, f"{full['sagg_sim_bridge']['setup']} {lp['strategy']} seed {lp['seed']} (graph)",
+        bar = Progress(micro_actions, f"{setup_name} {lp['strategy']} seed {lp['seed']} (graph)",
                        enabled=progress)
         curve: list[dict] = []
         eval_seconds = 0.0
@@ -131,11 +146,9 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
             # ---- evaluation from the recorded samples (same test goals and simulator as in-process)
             run = SynergyRun({"sagg_goal_generator": full["sagg_goal_generator"], "sagg_learner": lp,
                               "sagg_sim_bridge": full["sagg_sim_bridge"]})
-            pool = run.test_pool()
-            goals_test = run.test_goals(pool)
-            area = BoxArea(pool, lp["task_space.lower"], lp["task_space.upper"])
+            goals_test, area, _ = run.test_goals()
             checkpoints = [c for c in list(range(0, micro_actions, eval_every)) + [micro_actions] if c <= len(samples)]
-            frame = metric_frame(goals_test, run.sim.rest_outcome)  # as in-process (eval_metrics)
+            frame = metric_frame(goals_test, run.setup.metric_base)  # as in-process (eval_metrics)
             fed = 0
             for at in checkpoints:
                 while fed < at:
@@ -168,7 +181,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
         splits=[],
         bag={"path": str(out / "bag"), "storage": "mcap", "topics": session.bag.topics(),
              "sequence_gaps": {"/sagg/sample": st.gaps["/sagg/sample"]}},
-        synergy={"setup": full["sagg_sim_bridge"]["setup"], "outcome_extents": outcome_extents(outcomes)})
+        synergy={"setup": setup_name, "outcome_extents": outcome_extents(outcomes)})
     return session.finish(summary, (lambda: write_synergy_report(summary, out)) if report else None)
 
 

@@ -185,3 +185,38 @@ class VelocitySynergy:
         v = np.repeat(vel[None, :], k + 1, axis=0)
         v[-1] = 0.0
         return Trajectory(self.joint_names, t, velocities=v)
+
+
+class PostureSynergy:
+    """The arm in the fixed context (learner parameter ``context`` = 'fixed'): θ = the absolute joint
+    targets themselves, within the joint limits. One experiment = a return to the rest posture, then
+    ONE position command θ (the hardware contract of the evolving arm: std_msgs/Float64MultiArray on
+    ``/<controller>/commands``); the outcome is the settled tip. No trajectory: :meth:`command` is
+    what goes out, in the order of ``joint_names``."""
+
+    def __init__(self, joint_names, lower, upper, rest):
+        self.joint_names = list(joint_names)
+        n = len(self.joint_names)
+        self._lower = _vec("joint_limits.lower", lower, n)
+        self._upper = _vec("joint_limits.upper", upper, n)
+        self.rest = _vec("rest_posture", rest, n)
+        if np.any(self._upper <= self._lower):
+            raise ValueError("joint_limits.upper: allowed: every value > joint_limits.lower")
+        if np.any(self.rest < self._lower) or np.any(self.rest > self._upper):
+            raise ValueError("rest_posture: allowed: within the joint limits")
+
+    @property
+    def dim(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return self._lower.copy()
+
+    @property
+    def upper(self) -> np.ndarray:
+        return self._upper.copy()
+
+    def command(self, theta) -> np.ndarray:
+        """θ → the position command: the joint targets, clipped to the limits."""
+        return np.clip(_vec("theta", theta, self.dim), self._lower, self._upper)

@@ -230,7 +230,7 @@ class RegionTree:
         # free the parent's storage: the children hold its points
         region.points = np.empty((0, self.dim))
         region.values = np.empty(0)
-        idx = next(i for i, r in enumerate(self._leaves) if r is region)
+        idx = self._leaves.index(region)  # by identity (Region compares by identity)
         self._leaves[idx:idx + 1] = [left, right]
         self.splits.append({"stamp": stamp, "region": region.id, "dim": j, "value": v,
                             "quality": choice.quality, "left": left.id, "right": right.id,

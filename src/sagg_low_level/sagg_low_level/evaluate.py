@@ -31,7 +31,7 @@ def reach_frozen(learner: EvolvingContextLearner, robot: ReachingRobot, goal: np
     for _ in range(budget):
         if float(np.linalg.norm(goal - y)) <= p["eval.tolerance"]:
             break
-        dalpha = learner.inverse(alpha, desired_displacement(y, goal, learner.v))
+        dalpha = learner.reach_step(alpha, desired_displacement(y, goal, learner.v))
         if dalpha is None:
             break
         alpha, y = robot.command(safe_target(alpha, alpha + dalpha, p["max_joint_step"], learner.robot))

@@ -26,14 +26,15 @@ import numpy as np
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
 from sagg_common.rng import stream
-from sagg_common.synergy import SinusoidSynergy, VelocitySynergy
+from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 from sagg_goal_generator.competence import competence, gamma, is_reached
 from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_goal_generator.regions import RegionTree
 
-from .learner import GoalRequest, Observe, Report
+from .learner import CONTEXT, GoalRequest, Observe, Report
 from .local_model import local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
+from .riac_leaves import RiacLeaves
 
 SCHEMA: Schema = SHARED_SCHEMA + (
     Param("l", "int", 10,
@@ -115,7 +116,14 @@ SYNERGY_SCHEMA: Schema = (
     Param("synergy.kind", "str", "sinusoid",
           "'sinusoid': θ = amplitudes + phases, joint i tracks rest_i + am_i·sin(ωt + ph_i) (Sec. 4.2); "
           "'velocity': θ ∈ [0,1]^n scaled to joint velocities tracked for synergy.duration, then stop "
-          "(Sec. 5.1).", choices=("sinusoid", "velocity")),
+          "(Sec. 5.1); 'posture': the arm in the fixed context (context = fixed): θ = absolute joint "
+          "targets within joint_limits.*, one position command on /<controller>/commands after a "
+          "return to rest_posture, outcome = the settled tip (PointStamped on task_topic).",
+          choices=("sinusoid", "velocity", "posture")),
+    Param("joint_limits.lower", "float_list", [-math.pi / 2] * 8,
+          "Lower joint limits (rad), one per joint: the lower bounds of θ (synergy.kind 'posture')."),
+    Param("joint_limits.upper", "float_list", [math.pi / 2] * 8,
+          "Upper joint limits (rad), one per joint: the upper bounds of θ (synergy.kind 'posture')."),
     Param("synergy.omega", "float", 2 * math.pi,
           "ω (rad/s) of the sinusoids; fixed (Sec. 4.2; no value in the paper: ours 1 Hz).",
           low=0.0, high=1e4, low_open=True),
@@ -154,6 +162,14 @@ SYNERGY_NODE_SCHEMA: Schema = (
     Param("min_sample_subscribers", "int", 0,
           "Start only once /sagg/sample has at least this many matched subscribers. 0 = do not wait.",
           low=0, high=1000),
+    Param("settle_timeout", "float", 2.0,
+          "synergy.kind 'posture': seconds after a command after which the latest fresh joint state is "
+          "taken even if not settled.", low=0.0, high=3600.0, low_open=True),
+    Param("settle_velocity", "float", 0.05,
+          "synergy.kind 'posture': a joint state answers a position command once every |velocity| is "
+          "below this (rad/s); joint states without velocities count as settled.",
+          low=0.0, high=1e6, low_open=True),
+    CONTEXT,
 )
 
 
@@ -162,12 +178,15 @@ def synergy_from_params(p: dict):
     n = len(p["joints"])
     if len(set(p["joints"])) != n:
         raise ConfigError(f"parameter 'joints': got {p['joints']!r}; allowed: distinct joint names")
-    names = (("rest_posture", "synergy.amplitude_max") if p["synergy.kind"] == "sinusoid"
-             else ("synergy.velocity_lower", "synergy.velocity_upper"))
+    names = {"sinusoid": ("rest_posture", "synergy.amplitude_max"),
+             "velocity": ("synergy.velocity_lower", "synergy.velocity_upper"),
+             "posture": ("rest_posture", "joint_limits.lower", "joint_limits.upper")}[p["synergy.kind"]]
     for name in names:
         if len(p[name]) != n:
             raise ConfigError(f"parameter '{name}': got {len(p[name])} values; allowed: one per joint ({n})")
     try:
+        if p["synergy.kind"] == "posture":
+            return PostureSynergy(p["joints"], p["joint_limits.lower"], p["joint_limits.upper"], p["rest_posture"])
         if p["synergy.kind"] == "sinusoid":
             return SinusoidSynergy(p["joints"], p["rest_posture"], p["synergy.amplitude_max"],
                                    p["synergy.omega"], p["synergy.duration"], p["synergy.rate"])
@@ -462,6 +481,7 @@ class FixedContextLearner:
             self.riac_tree = RegionTree(np.zeros(n), np.ones(n), self.p["riac.g_max"], self.p["riac.zeta"],
                                         self.p["riac.split_candidates"],
                                         stream(self.p["seed"], "actuator_riac_splits"))
+            self.riac_leaves = RiacLeaves(self.riac_tree, 0)  # every point goes through it
         while True:
             if riac:
                 theta = self._riac_choice()
@@ -474,7 +494,7 @@ class FixedContextLearner:
             if riac:
                 # RIAC's value: minus the prediction error of y (rescaled units); interest = its progress
                 err = self.distance(y, self.y_rest if predicted is None else predicted)
-                self.riac_tree.add(np.clip(self.norm_theta(theta), 0.0, 1.0), -err)
+                self.riac_leaves.add(np.clip(self.norm_theta(theta), 0.0, 1.0), -err)
                 self.last_competence = -err
             self._report(KIND_EXPLORATION, 0, y, 0.0, y)
 
@@ -484,7 +504,7 @@ class FixedContextLearner:
         leaves = self.riac_tree.leaves()
         if self.rng.random() < self.p["riac.p_random"] or len(leaves) < 2:
             return self._uniform_theta()
-        it = np.array([r.interest for r in leaves])
+        it = self.riac_leaves.interests()  # = [r.interest for r in leaves], kept up to date
         w = it - it.min()
         probs = np.full(len(leaves), 1.0 / len(leaves)) if w.sum() <= 0 else w / w.sum()
         region = leaves[int(self.rng.choice(len(leaves), p=probs))]

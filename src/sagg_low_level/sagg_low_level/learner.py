@@ -21,10 +21,20 @@ from sagg_goal_generator.competence import competence, gamma, is_reached
 from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_goal_generator.regions import RegionTree
 
-from .local_model import desired_displacement, local_jacobian, pseudo_inverse_step
+from .local_model import clamped_step, desired_displacement, local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
+from .riac_leaves import RiacLeaves
 
-SCHEMA: Schema = SHARED_SCHEMA + (
+CONTEXT = Param(
+    "context", "str", "evolving",
+    "Which low level drives an arm: 'evolving' (Sec. 3: micro-actions Δα from the current posture, "
+    "the reacher of this module, node 'learner') or 'fixed' (the arm driven like a synergy, Sec. 4.4 / "
+    "Alg. 4: θ = absolute joint targets within the joint limits, each experiment one position command "
+    "from the rest posture, outcome = the settled tip; node 'synergy_learner' with synergy.kind "
+    "'posture'). `sagg experiment` / `sagg run` choose the learner and node from it.",
+    choices=("evolving", "fixed"))
+
+SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("v", "float", 2.0, "Desired effector speed, task units per micro-action (Sec. 3.6.1).",
           low=0.0, high=1e9, low_open=True),
     Param("q", "int", 20, "Number of exploratory micro-actions per exploration phase (Sec. 3.6.2).",
@@ -54,6 +64,13 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "Blocking timeout (Sec. 3.7.6): stop a (sub)goal after w consecutive exploration phases "
           "(no progress). 0 disables it; the paper uses w = 3 (with q = 5) for large Y.",
           low=0, high=1_000_000),
+    Param("blocking_scope", "str", "goal",
+          "What the blocking timeout ends. 'goal' (paper, Sec. 3.7.6: 'when w consecutive low-level "
+          "explorations are triggered ... we declare a goal as unreached'): the whole attempt; its "
+          "remaining subgoals are reported unreached without moving, as when a per-goal distance "
+          "budget is spent. 'subgoal': only the current subgoal, the next one starts with a fresh "
+          "counter (the behaviour before 2026-11-23, which let a blocked attempt spend up to "
+          "subgoals × w exploration phases).", choices=("goal", "subgoal")),
     Param("exploration_respects_timeout", "bool", True,
           "If true (paper) the distance timeout also counts exploratory micro-actions one by one and "
           "cuts an exploration phase short when the budget is spent: Sec. 3.6.2 'during both phases, "
@@ -94,6 +111,16 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "directions and reaching stalls: measured on the 15-DOF arm, seeds 0/1, 20k micro-actions, "
           "mean test error 4.3/6.1 with 0 against 0.69/0.99 with 0.01 (see docs/results.md).",
           low=0.0, high=10.0),
+    Param("reach_limits", "str", "clamp",
+          "How a reaching micro-action respects the joint limits, in learning and in the evaluation's "
+          "reaching from rest alike (one function, reach_step). 'clamp' (default): joint clamping "
+          "with re-solving (Baerlocher & Boulic 2004, The Visual Computer 20(6); Flacco, De Luca & "
+          "Khatib 2012, ICRA): every joint the step Δα = J⁺Δy_next would carry past a limit stops "
+          "at the limit and the other joints are re-solved for the missing displacement, so a "
+          "saturated joint no longer stalls the reach (DESIGN.md §9). 'clip': the paper's plain "
+          "Δα = J⁺Δy_next (Sec. 3.3), clipped to the limits afterwards; the behaviour before "
+          "2026-11-23 (measured on config/arm7_ratio15.yaml with the analytic Jacobian: mean test "
+          "error 0.124, 35 of 100 test goals missed).", choices=("clamp", "clip")),
     Param("pinv_rcond", "float", 1e-2,
           "Relative cut-off of singular values in J⁺ (Sec. 3.3); paper: noise bypasses singularities.",
           low=0.0, high=1.0),
@@ -228,6 +255,9 @@ class EvolvingContextLearner:
                  memory: SampleMemory | None = None):
         self.p = params
         self.robot = robot
+        if params.get("context", "evolving") != "evolving":
+            raise ValueError(f"context: got {params['context']!r}; allowed here: 'evolving' (the fixed "
+                             "context is the FixedContextLearner, node synergy_learner)")
         self.strategy = params["strategy"]
         self.task_lower = np.asarray(params["task_space.lower"], dtype=float)
         self.task_upper = np.asarray(params["task_space.upper"], dtype=float)
@@ -256,6 +286,7 @@ class EvolvingContextLearner:
         self.on_report: Callable[[Report], None] | None = None
         self.on_sample: Callable[[int], None] | None = None
         self.riac_tree: RegionTree | None = None
+        self._riac_table: RiacLeaves | None = None
 
     # ---------------------------------------------------------------- helpers
     def _report(self, kind, goal_seq, target, start, comp) -> None:
@@ -301,6 +332,17 @@ class EvolvingContextLearner:
         """Δα = J⁺(α)·Δy_next from the local model (None while memory is too small)."""
         jac = self.jacobian_at(alpha)
         return None if jac is None else pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
+
+    def reach_step(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
+        """The reaching micro-action Δα for a desired effector displacement (Sec. 3.6.1), within
+        the joint limits as ``reach_limits`` says; used by learning and by the evaluation's
+        reaching from rest alike. None while the memory is too small."""
+        jac = self.jacobian_at(alpha)
+        if jac is None:
+            return None
+        if self.p["reach_limits"] == "clip":
+            return pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
+        return clamped_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper, self.p["pinv_rcond"])
 
     def predict(self, alpha: np.ndarray, dalpha: np.ndarray) -> np.ndarray:
         """Forward prediction Δy ≈ J(α)·Δα from the local model (zeros while memory is too small)."""
@@ -350,6 +392,7 @@ class EvolvingContextLearner:
             budget = timeout_budget(float(np.linalg.norm(goal - self.y)), self.v,
                                     self.p["timeout_factor"])
             used = 0
+        blocked = False  # blocking_scope 'goal': the attempt was declared unreached (Sec. 3.7.6)
         for j, target in enumerate(points):
             kind = KIND_GOAL if j == len(points) - 1 else KIND_SUBGOAL
             start = self.y.copy()
@@ -360,12 +403,13 @@ class EvolvingContextLearner:
             consecutive = 0
             while True:
                 c = self.competence_of(target, self.y, start)
-                if is_reached(c, self.p["eps_sim"]) or used >= budget:
+                if blocked or is_reached(c, self.p["eps_sim"]) or used >= budget:
                     break
                 if self.p["blocking_w"] and consecutive >= self.p["blocking_w"]:
+                    blocked = self.p["blocking_scope"] == "goal"
                     break
                 dy_next = desired_displacement(self.y, target, self.v)
-                dalpha = self.inverse(self.alpha, dy_next)
+                dalpha = self.reach_step(self.alpha, dy_next)
                 need_explore = dalpha is None
                 if dalpha is not None:
                     if self.p["reach_noise"] > 0:
@@ -421,8 +465,8 @@ class EvolvingContextLearner:
                 # RIAC's value: minus the prediction error of Δy; interest = its progress
                 actual_dalpha = self.memory.delta_alpha[len(self.memory) - 1]
                 err = float(np.linalg.norm(dy - predicted))
-                self.riac_tree.add(np.concatenate([alpha0, np.clip(actual_dalpha, -self.p["explore_amplitude"],
-                                                                  self.p["explore_amplitude"])]), -err)
+                self._riac_leaves().add(np.concatenate([alpha0, np.clip(actual_dalpha, -self.p["explore_amplitude"],
+                                                                        self.p["explore_amplitude"])]), -err)
                 self.last_competence = -err
             self._report(KIND_EXPLORATION, 0, self.y, self.y, 0.0)
 
@@ -435,27 +479,26 @@ class EvolvingContextLearner:
                           self.p["riac.g_max"], self.p["riac.zeta"], self.p["riac.split_candidates"],
                           stream(self.p["seed"], "actuator_riac_splits"))
 
+    def _riac_leaves(self) -> RiacLeaves:
+        """The leaf table of the current RIAC tree (rebuilt when the tree was replaced, e.g. by a
+        checkpoint restore); every point goes to the tree through it."""
+        if self._riac_table is None or self._riac_table.tree is not self.riac_tree:
+            self._riac_table = RiacLeaves(self.riac_tree, self.robot.n)
+        return self._riac_table
+
     def _riac_choice(self) -> np.ndarray:
         """ACTUATOR-RIAC action choice: among leaves whose α-part contains the current α, pick one
         with probability ∝ interest − min (as SAGG-RIAC mode 1) and draw Δα uniformly in its Δα-part;
         with probability ``riac.p_random`` draw Δα uniformly. (The context α is not ours to choose,
-        so the choice is restricted to compatible regions: our reading of RIAC for evolving context.)"""
+        so the choice is restricted to compatible regions: our reading of RIAC for evolving context.)
+        The compatible leaves come from the leaf table (:mod:`.riac_leaves`: arrays, the same leaves
+        and order as a walk down the tree, which this did before 2026-11-23)."""
         if self.rng.random() < self.p["riac.p_random"] or len(self.riac_tree.leaves()) < 2:
             return self._random_step()
         n = self.robot.n
         alpha = np.clip(self.alpha, self.robot.lower, self.robot.upper)
-        found = []
-        stack = [self.riac_tree.root]
-        while stack:
-            r = stack.pop()
-            if r.children is None:
-                found.append(r)
-            elif r.split_dim < n:
-                stack.append(r.children[0] if alpha[r.split_dim] < r.split_value else r.children[1])
-            else:
-                stack.extend(r.children)
-        it = np.array([r.interest for r in found])
+        rows, it = self._riac_leaves().compatible(alpha)
         w = it - it.min()
-        probs = np.full(len(found), 1.0 / len(found)) if w.sum() <= 0 else w / w.sum()
-        region = found[int(self.rng.choice(len(found), p=probs))]
+        probs = np.full(len(rows), 1.0 / len(rows)) if w.sum() <= 0 else w / w.sum()
+        region = self.riac_tree.leaves()[int(rows[int(self.rng.choice(len(rows), p=probs))])]
         return self.rng.uniform(region.lower[n:], region.upper[n:])

@@ -25,6 +25,45 @@ def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float) -> n
     return np.linalg.pinv(jac, rcond=rcond) @ dy_next
 
 
+def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower: np.ndarray,
+                 upper: np.ndarray, rcond: float) -> np.ndarray:
+    """Pseudo-inverse step that respects joint limits by clamping and re-solving (the "joint
+    clamping" loop of Baerlocher & Boulic 2004, "An inverse kinematics architecture enforcing an
+    arbitrary number of strict priority levels", The Visual Computer 20(6); see also Flacco, De Luca
+    & Khatib 2012, "Motion control of redundant robots under joint constraints: saturation in the
+    null space", ICRA).
+
+    Starts from the paper's ``Δα = J⁺ Δy_next`` (Sec. 3.3). Every joint that this step would carry
+    beyond its limit is clamped: it moves exactly to its limit (``Δα_i = bound_i − α_i``, 0 when it
+    is already there), its column leaves the problem, and the remaining joints are re-solved for
+    the displacement still missing, ``Δα_free = J_free⁺ (Δy_next − J_clamped Δα_clamped)``; until no
+    free joint violates a limit (at most n rounds). Without limits in the way it is exactly
+    ``J⁺ Δy_next``. A joint at its limit whose solution moves it back inside stays free, so the
+    arm can leave a limit again.
+    """
+    n = jac.shape[1]
+    free = np.ones(n, dtype=bool)
+    dalpha = np.zeros(n)
+    target = dy_next
+    cols = jac
+    for _ in range(n):
+        step = np.linalg.pinv(cols, rcond=rcond) @ target
+        idx = np.flatnonzero(free)
+        new = alpha[idx] + step
+        over = (new > upper[idx]) | (new < lower[idx])
+        dalpha[idx] = step
+        if not over.any():
+            break
+        hit = idx[over]
+        dalpha[hit] = np.minimum(np.maximum(new[over], lower[hit]), upper[hit]) - alpha[hit]
+        free[hit] = False
+        if not free.any():
+            break
+        target = dy_next - jac[:, ~free] @ dalpha[~free]
+        cols = jac[:, free]
+    return dalpha
+
+
 def desired_displacement(y_current: np.ndarray, goal: np.ndarray, v: float) -> np.ndarray:
     """Reaching direction of paper Sec. 3.6.1: ``Δy_next = v · (y_g − y_c)/||y_g − y_c||``.
 

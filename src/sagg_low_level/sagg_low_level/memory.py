@@ -20,65 +20,41 @@ nearest-neighbour index (FLANN, "Muja09"). Two modes:
 Design (measured with ``python -m sagg_low_level.memory_bench``; numbers in the commit messages):
 
 * Samples live in preallocated float64 arrays that double their capacity (amortised O(1) add).
-* Index = logarithmic method (Bentley-Saxe): the newest samples sit in a brute-force *buffer*;
-  whenever it holds ``2 * buffer_size`` samples, its oldest ``buffer_size`` become a static *block*,
-  merged like a binary counter with every trailing block of equal size, so a sample takes part in
-  O(log(N / buffer_size)) block builds and blocks hold contiguous index ranges (a bulk rebuild, e.g.
-  after load, reproduces the incremental state exactly). The buffer keeps its newest samples because
-  along a trajectory they give a first upper bound on the k-th distance for free.
-* A static block partitions its samples into leaves of ``leaf_size`` points (balanced kd partition,
-  or consecutive samples, chosen per block: ``leaf_order``), with bounding boxes of fan-out ``fanout``
-  above the leaves up to at most ``max_roots`` top nodes. The nodes of one height of ALL blocks live
-  in one array, so a query walks every block at once with a few vectorised numpy calls per height.
-* Exact duplicates of alpha (the rest posture after each reset) are stored once per block: median
-  splits would otherwise spread them over almost every leaf and inflate every box.
-* Bounds: the buffer's k-th distance, refined when it is loose by a greedy descent to the few
-  leaves closest to q (``refine_*``). Pruning uses box distance <= bound, which is exact: boxes and
-  points use the same canonical distance, so no float slack is needed.
-* Trajectory cache (``cache_*``): a query that walks the index also collects every sample within
-  ``cache_expand`` times the bound's radius; the next queries along the trajectory are answered from
-  that small set alone while the triangle inequality proves it contains their k nearest
-  (``sqrt(kth) + |q - centre| < radius``, with a 1e-9 relative margin for float rounding).
-* Approximate mode: blocks use kd leaves (``leaf_order="auto"`` means "kd" there: ranking leaves by
-  their box distance works best on compact kd cells. Measured on the learner's own queries after
-  ``sagg bench speed``'s prefill to 1M samples, 32 leaves: recall 0.87 (n=7) / 0.81 (n=15) with kd
-  leaves against 0.71 / 0.72 with the exact mode's per-block choice; ranking by distance to the
-  leaf's centroid (k-means-like) or box centre did no better), and exact duplicates of the query
-  (the rest posture) are always found through a hash of the duplicate groups.
+  Storage: :mod:`sagg_low_level.memory_store`.
+* Index (:mod:`sagg_low_level.memory_index`): a logarithmic method (Bentley-Saxe) of static blocks
+  of kd or time-ordered leaves under bounding boxes, plus a brute-force buffer of the newest samples;
+  exact duplicates of alpha (the rest posture) stored once per block.
+* Search (:mod:`sagg_low_level.memory_search`): exact or approximate (``checks``) k nearest over the
+  index, and the trajectory cache of the exact mode.
+* Persistence (:mod:`sagg_low_level.memory_io`): digest, atomic .npz save (no pickle), load with the
+  index rebuilt exactly.
+* Distances (:mod:`sagg_low_level.memory_distance`): squared Euclidean distances in float64, summed
+  over coordinates in index order, bit-identical whichever path found the point; the order of
+  results is by (that distance, sample index).
 * Why not scipy's cKDTree: one ``cKDTree.query`` costs ~30 us even on a 10-point tree here (Python
   argument handling), a logarithmic forest needs one call per tree, and its k-th-neighbour ties are
   not broken by index (a forest of cKDTrees measured no faster: ``memory_bench --ckdtree``).
-* Layouts are dimension-major ((n, points)) so numpy's inner loops run over points, not over the
-  7-30 coordinates, and every squared distance is summed in the SAME order (coordinate 0, 1, ...,
-  n-1, sequentially) whichever path found the point: distances are bit-identical across buffer,
-  leaves, cache and brute force, which makes ties exact and results independent of the index.
 
-Distances are squared Euclidean distances in float64, summed over coordinates in index order; the
-order of results is by (that distance, sample index).
-
-Pauses: a block build is done inside the ``add`` that triggers it. Builds double in size (binary
-counter): the add that creates a 512k-sample block (once per 512k adds) took 0.76 s (n = 7) /
-0.95 s (n = 15) with kd leaves (approximate mode) and 1.0 / 1.3 s with the exact mode's "auto"
-leaf order on the development machine; the 1M-sample merge about twice that. In-process runs
-just take the pause; a real-time robot loop would see that add stall (building the new block in
-a background thread while queries use the old blocks is the remedy, not done here).
+This module holds the class callers use: it checks the construction parameters, owns the public
+API and composes the parts above (one object: each part module is a mixin owning its own state).
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
 
 import numpy as np
 
 from sagg_common.diagnostics import all_finite
 
-__all__ = ["SampleMemory", "squared_distances"]
+# _sqdist_cols is also imported from here by the memory benchmark
+from .memory_distance import _sqdist_cols, squared_distances  # noqa: F401
+from .memory_index import LEAF_ORDERS as _LEAF_ORDERS, BlockIndex
+from .memory_io import load_memory, memory_digest, params_array, save_memory
+from .memory_search import KnnSearch
+from .memory_store import SampleStore
 
-_FORMAT_VERSION = 2  # 2: + checks, beam_ratio (version-1 files load as exact memories)
-_LEAF_ORDERS = ("auto", "kd", "time")
-_DIGEST_TAG = b"sagg.SampleMemory/v1"
+__all__ = ["SampleMemory", "squared_distances"]
 
 
 def _is_pow2(x: int) -> bool:
@@ -94,76 +70,8 @@ def _check_int(name: str, value, low: int, high: int | None = None) -> int:
     return value
 
 
-def squared_distances(points: np.ndarray, query: np.ndarray) -> np.ndarray:
-    """Canonical squared distances of the rows of ``points`` (c, n) to ``query`` (n,).
 
-    Sum over coordinates in index order, sequentially: ((d0^2 + d1^2) + d2^2) + ... . This is the
-    definition every path of :class:`SampleMemory` reproduces bit for bit.
-    """
-    points = np.asarray(points, dtype=np.float64)
-    query = np.asarray(query, dtype=np.float64)
-    if points.ndim != 2 or query.shape != (points.shape[1],):
-        raise ValueError(f"points must be (c, n) and query (n,), got {points.shape} and {query.shape}")
-    return _sqdist_cols(np.ascontiguousarray(points.T), query)
-
-
-def _sqdist_cols(xt: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Squared distances of the columns of C-contiguous ``xt`` (n, c) to ``q`` (n,), canonical order.
-
-    numpy reduces axis 0 of a C-contiguous (n, c >= 2) array row after row (sequential over n). With a
-    single column it would use pairwise summation over n instead, so that case is summed explicitly.
-    """
-    d = xt - q[:, None]
-    d *= d
-    if d.shape[1] == 1:
-        s = d[0].copy()
-        for j in range(1, d.shape[0]):
-            s += d[j]
-        return s
-    return np.add.reduce(d, axis=0)
-
-
-def _kd_order(x: np.ndarray, leaf_size: int, split_sample: int) -> np.ndarray:
-    """Permutation of the rows of ``x`` (P, n) into a balanced kd order with leaves of ``leaf_size``.
-
-    P / leaf_size must be a power of two. Every segment is split at its median (exact halves, so all
-    leaves are full) along the coordinate of widest spread, estimated on a strided sample of at most
-    ``split_sample`` of its points (a choice of ours: the exact spread costs a full pass per level).
-    Deterministic: np.argpartition is a deterministic selection and argmax takes the lowest dimension.
-    """
-    p = x.shape[0]
-    idx = np.arange(p)
-    segs, s = 1, p
-    while s > leaf_size:
-        seg = idx.reshape(segs, s)
-        step = max(1, s // split_sample)
-        sample = x[seg[:, ::step]]  # (segs, <=split_sample, n)
-        # NaN rows (padding) are ignored by fmax/fmin and sort last in argpartition
-        dim = (np.fmax.reduce(sample, axis=1) - np.fmin.reduce(sample, axis=1)).argmax(axis=1)
-        vals = x[seg, dim[:, None]]  # (segs, s)
-        half = s // 2
-        part = np.argpartition(vals, half, axis=1)
-        idx = np.take_along_axis(seg, part, axis=1).ravel()
-        segs, s = segs * 2, half
-    return idx
-
-
-class _Block:
-    """Bookkeeping of one static block: rows [start, start + size) of the memory."""
-
-    __slots__ = ("start", "size", "top", "nblocks", "offset", "ngroups", "nmembers")
-
-    def __init__(self, start: int, size: int, top: int, nblocks: list[int]):
-        self.start = start
-        self.size = size
-        self.top = top  # height of its root nodes
-        self.nblocks = nblocks  # number of F-wide node groups at heights 0..top
-        self.offset = [0] * (top + 1)  # first group index at heights 0..top in the global arrays
-        self.ngroups = 0  # groups of exact duplicates (stored once in the leaves)
-        self.nmembers = 0  # samples in those groups
-
-
-class SampleMemory:
+class SampleMemory(SampleStore, BlockIndex, KnnSearch):
     """Growing store of (alpha, delta_alpha, delta_y) with exact k-NN queries on alpha.
 
     Parameters (the paper gives none of these; they only trade speed and memory, never results):
@@ -262,306 +170,16 @@ class SampleMemory:
         # approximate search: nodes kept per box height (0 = leaves; heights stay far below 64)
         self._widths = [max(1, math.ceil(self._checks * self._beam_ratio**h)) for h in range(64)]
 
-        n = self._sd
-        self._n = 0  # number of samples
-        self._ns = 0  # samples [0, _ns) are in static blocks, [_ns, _n) in the buffer
-        self._alpha = np.empty((cap, n))
-        self._dalpha = np.empty((cap, self._ad))
-        self._dy = np.empty((cap, self._od))
-        # buffer, dimension-major: column j is sample _ns + j
-        self._buf_t = np.empty((n, 2 * self._buf))
-        # query scratch: rows (q, -q, 0) against boxes stored as (lo, -hi, 0)
-        self._q3 = np.zeros((3, n, 1))
-        self._arange_f = np.arange(self._fan)
-        self._arange_b = np.arange(self._leaf)
-        # query cache: every stored sample within sqrt(_cache_r2) of _cache_c (plus every sample added
-        # since), dimension-major; _cache_m < 0 means no cache
-        self._cache_t = np.empty((n, 0))
-        self._cache_i = np.empty(0, dtype=np.int64)
-        self._cache_c = np.zeros(n)
-        self._cache_r = 0.0
-        self._cache_m = -1
-        self._cache_k = 0
-        self.cache_hits = 0  # queries answered from the cache (statistics only)
-        self.leaves_scanned = 0  # leaves scanned by approximate queries (statistics only)
-        self._reset_index()
+        self._init_store(cap)
+        self._init_index()
+        self._init_search()
 
-    # ------------------------------------------------------------------ index storage
-    def _reset_index(self) -> None:
-        n = self._sd
-        self._blocks: list[_Block] = []
-        # per height: (3, n, slots) rows (lo, -hi, 0) of every node's box; node id = slot; a node
-        # at height h + 1 with id j has the children slots j*F .. j*F + F - 1 at height h
-        self._boxes: list[np.ndarray] = []
-        self._used: list[int] = []  # per height: F-wide groups in use
-        self._pts = np.empty((n, 0))  # leaf slot j holds points j*b .. j*b + b - 1, dimension-major
-        self._pidx = np.empty(0, dtype=np.int64)  # their sample indices
-        self._roots: list[tuple[int, int]] = []  # per height: slot range of root nodes
-        self._height = -1  # highest height in use
-        # Exact duplicates of alpha (the rest posture after every reset!) would be spread by the
-        # median splits over almost every leaf of a block, each leaf box then reaching from the
-        # duplicate to its other points. So a block stores each distinct alpha once; a leaf slot of
-        # a point standing for a group holds -(group + 2) in _pidx, and the group's sample indices
-        # (ascending) are _dup[_dup_off[group]:_dup_off[group + 1]].
-        self._dup = np.empty(0, dtype=np.int64)
-        self._dup_off = np.zeros(1, dtype=np.int64)
-        self._ngroups = 0
-        # approximate mode: alpha bytes of every group -> its group ids, and group id -> (bytes,
-        # leaf slot holding its representative), so a query equal to a stored duplicate always
-        # scans that leaf (with r = 1 every attempt's first query is the rest posture itself)
-        self._dupmap: dict[bytes, list[int]] = {}
-        self._ginfo: dict[int, tuple[bytes, int]] = {}
-
-    def _plan(self, size: int) -> tuple[int, list[int]]:
-        """Top height and F-wide groups per height for a block of ``size`` samples."""
-        f = self._fan
-        real = [size // self._leaf]
-        while real[-1] > self._max_roots:
-            real.append(-(-real[-1] // f))
-        top = len(real) - 1
-        groups = [0] * (top + 1)
-        groups[top] = -(-real[top] // f)
-        for h in range(top - 1, -1, -1):
-            groups[h] = groups[h + 1] * f
-        return top, groups
-
-    def _ensure_height(self, h: int, groups_needed: int) -> None:
-        n, f, b = self._sd, self._fan, self._leaf
-        while len(self._boxes) <= h:
-            self._boxes.append(np.empty((3, n, 0)))
-            self._used.append(0)
-        arr = self._boxes[h]
-        slots = groups_needed * f
-        if arr.shape[2] < slots:
-            new = np.empty((3, n, max(slots, 2 * arr.shape[2], 4 * f)))
-            used = self._used[h] * f
-            new[:, :, :used] = arr[:, :, :used]
-            self._boxes[h] = new
-        if h == 0 and self._pts.shape[1] < slots * b:
-            cap = max(slots * b, 2 * self._pts.shape[1])
-            pts = np.empty((n, cap))
-            pidx = np.empty(cap, dtype=np.int64)
-            used = self._used[0] * f * b
-            pts[:, :used] = self._pts[:, :used]
-            pidx[:used] = self._pidx[:used]
-            self._pts, self._pidx = pts, pidx
-
-    def _build_block(self, start: int, size: int) -> _Block:
-        """Build the static block over rows [start, start + size) and write it after the kept blocks."""
-        n, f, b = self._sd, self._fan, self._leaf
-        top, groups = self._plan(size)
-        blk = _Block(start, size, top, groups)
-        # offsets: right after the blocks that have each height (they precede this one)
-        for h in range(top + 1):
-            blk.offset[h] = sum(o.nblocks[h] for o in self._blocks if o.top >= h)
-        x, ids = self._distinct_rows(blk, start, size)  # (size, n): distinct alpha, NaN padding
-        perm = self._leaf_perm(x)
-        nleaf = size // b
-        slots0 = groups[0] * f
-        xp = x[perm]  # (size, n) in leaf order
-        leaves = xp.reshape(nleaf, b, n)
-        lo = np.full((n, slots0), np.inf)
-        nhi = np.full((n, slots0), np.inf)  # -hi
-        with np.errstate(invalid="ignore"):
-            lo[:, :nleaf] = np.fmin.reduce(leaves, axis=1).T  # NaN only for all-padding leaves
-            nhi[:, :nleaf] = -np.fmax.reduce(leaves, axis=1).T
-        lo[np.isnan(lo)] = np.inf
-        nhi[np.isnan(nhi)] = np.inf
-        for h in range(top + 1):
-            self._ensure_height(h, blk.offset[h] + groups[h])
-        p0, p1, p2 = blk.offset[0] * f * b, (blk.offset[0] * f + nleaf) * b, (blk.offset[0] * f + slots0) * b
-        self._pts[:, p0:p1] = xp.T
-        self._pts[:, p1:p2] = np.nan  # empty leaf slots never match
-        self._pidx[p0:p1] = ids[perm]
-        self._pidx[p1:p2] = -1
-        if self._checks:
-            self._hash_groups(blk, ids[perm], xp, p0)
-        for h in range(top + 1):
-            s0, cnt = blk.offset[h] * f, groups[h] * f
-            box = self._boxes[h]
-            box[0, :, s0 : s0 + cnt] = lo
-            box[1, :, s0 : s0 + cnt] = nhi
-            box[2, :, s0 : s0 + cnt] = 0.0
-            self._used[h] = blk.offset[h] + groups[h]
-            if h < top:  # parents: boxes of their F children
-                lo = lo.reshape(n, groups[h], f).min(axis=2)
-                nhi = nhi.reshape(n, groups[h], f).min(axis=2)
-        return blk
-
-    def _hash_groups(self, blk: _Block, codes: np.ndarray, xp: np.ndarray, p0: int) -> None:
-        """Register the block's duplicate groups in _dupmap/_ginfo (after dropping merged blocks')."""
-        g0 = self._ngroups - blk.ngroups  # groups of the blocks kept before this one
-        for g in [g for g in self._ginfo if g >= g0]:
-            key = self._ginfo.pop(g)[0]
-            ids = self._dupmap[key]
-            ids.remove(g)
-            if not ids:
-                del self._dupmap[key]
-        for pos in np.flatnonzero(codes < -1).tolist():
-            g = -int(codes[pos]) - 2
-            key = (xp[pos] + 0.0).tobytes()  # + 0.0: -0.0 -> 0.0, equal values give equal keys
-            self._ginfo[g] = (key, (p0 + pos) // self._leaf)
-            self._dupmap.setdefault(key, []).append(g)
-
-    def _distinct_rows(self, blk: _Block, start: int, size: int) -> tuple[np.ndarray, np.ndarray]:
-        """The block's rows with exact duplicates stored once, and their _pidx codes.
-
-        Returns (x, codes): the distinct rows in index order followed by NaN padding up to ``size``
-        rows, and per row its sample index, or -(group + 2) for the first sample of a group of
-        identical rows (whose samples are appended to _dup), or -1 for padding.
-        """
-        x = self._alpha[start : start + size]
-        # groups are appended after those of the blocks kept before this one
-        g0 = sum(o.ngroups for o in self._blocks)
-        m0 = sum(o.nmembers for o in self._blocks)
-        self._ngroups = g0
-        # identical rows share their first coordinate: a float sort finds the few candidates,
-        # only those are compared whole
-        o = np.argsort(x[:, 0], kind="stable")
-        first_col = x[o, 0]
-        eq = first_col[1:] == first_col[:-1]
-        if not eq.any():
-            return x, np.arange(start, start + size)
-        rep = np.zeros(size, dtype=bool)
-        rep[1:] = eq
-        rep[:-1] |= eq
-        cand = np.sort(o[rep])  # rows whose first coordinate repeats, ascending
-        keys = np.ascontiguousarray(x[cand]).view(np.dtype((np.void, 8 * x.shape[1]))).ravel()
-        _, first, inverse, counts = np.unique(keys, return_index=True, return_inverse=True, return_counts=True)
-        inverse = inverse.ravel()
-        grp = np.flatnonzero(counts > 1)
-        if not len(grp):
-            return x, np.arange(start, start + size)
-        order = np.argsort(inverse, kind="stable")  # grouped by value, ascending index inside
-        members = cand[order[counts[inverse[order]] > 1]]  # local rows, group after group
-        blk.ngroups, blk.nmembers = len(grp), len(members)
-        self._dup = np.concatenate((self._dup[:m0], members + start))
-        self._dup_off = np.concatenate((self._dup_off[: g0 + 1], m0 + np.cumsum(counts[grp])))
-        self._ngroups = g0 + len(grp)
-        firsts = cand[first[grp]]
-        kept = np.ones(size, dtype=bool)
-        kept[members] = False
-        kept[firsts] = True
-        codes = np.arange(start, start + size)
-        codes[firsts] = -(g0 + np.arange(len(grp))) - 2
-        distinct = np.flatnonzero(kept)
-        xd = np.full(x.shape, np.nan)
-        xd[: len(distinct)] = x[distinct]
-        out = np.full(size, -1, dtype=np.int64)
-        out[: len(distinct)] = codes[distinct]
-        return xd, out
-
-    def _leaf_perm(self, x: np.ndarray) -> np.ndarray:
-        """Order of the block's rows: leaf i holds rows perm[i * leaf_size:(i + 1) * leaf_size]."""
-        kd = _kd_order(x, self._leaf, self._split_sample)
-        if self._leaf_order == "kd" or (self._leaf_order == "auto" and self._checks):
-            return kd
-        nleaf = x.shape[0] // self._leaf
-        centres = x.reshape(nleaf, self._leaf, -1).mean(axis=1)
-        # consecutive samples per leaf; leaves in kd order of their centres so F-groups are compact
-        order = _kd_order(centres, 1, self._split_sample) if nleaf > 1 else np.zeros(1, dtype=np.int64)
-        tm = (order[:, None] * self._leaf + np.arange(self._leaf)).ravel()
-        if self._leaf_order == "time":
-            return tm
-        return tm if self._leaf_cost(x, tm) < self._leaf_cost(x, kd) else kd
-
-    # "auto" leaf order: sample queries and subset size of the cost estimate (speed only).
-    _TUNE_QUERIES = 8
-    _TUNE_SUBSET = 32768
-
-    def _leaf_cost(self, x: np.ndarray, perm: np.ndarray) -> int:
-        """Leaves whose box meets the k-NN ball of a few sample queries taken from the block itself."""
-        p, n = x.shape
-        u = p - int(np.count_nonzero(np.isnan(x[:, 0])))  # distinct rows (then NaN padding)
-        stride = -(-u // self._TUNE_SUBSET)
-        sub = np.ascontiguousarray(x[:u:stride].T)
-        k = max(1, min(sub.shape[1] - 1, round(self._tune_k / stride)))
-        pts = x[perm].reshape(p // self._leaf, self._leaf, n)
-        lo, hi = pts.min(axis=1), pts.max(axis=1)
-        cost = 0
-        for i in range(self._TUNE_QUERIES):
-            q = x[(2 * i + 1) * u // (2 * self._TUNE_QUERIES)]
-            r = np.partition(_sqdist_cols(sub, q), k)[k]
-            gap = np.maximum(np.maximum(lo - q, q - hi), 0.0)
-            cost += int(np.count_nonzero(np.einsum("ij,ij->i", gap, gap) <= r))
-        return cost
-
-    def _refresh_roots(self) -> None:
-        self._height = max((blk.top for blk in self._blocks), default=-1)
-        self._roots = []
-        f = self._fan
-        for h in range(self._height + 1):
-            firsts = [blk.offset[h] for blk in self._blocks if blk.top == h]
-            end = sum(blk.nblocks[h] for blk in self._blocks if blk.top >= h)
-            self._roots.append((firsts[0] * f, end * f) if firsts else (0, 0))
-            self._used[h] = end
-        self._root_groups = [np.arange(r0 // f, r1 // f) for r0, r1 in self._roots]  # F-aligned
-        for h in range(self._height + 1, len(self._used)):
-            self._used[h] = 0
-
-    def _index_batch(self) -> None:
-        """Move the oldest buffer_size buffered samples into the static blocks (binary-counter merge)."""
-        bsz = self._buf
-        start, size = self._ns, bsz
-        while self._blocks and self._blocks[-1].size == size:
-            start = self._blocks.pop().start
-            size *= 2
-        self._blocks.append(self._build_block(start, size))
-        self._ns += bsz
-        self._refresh_roots()
-        nb = self._n - self._ns
-        self._buf_t[:, :nb] = self._buf_t[:, bsz : bsz + nb]
-
-    def _rebuild_all(self) -> None:
-        """Build the index of the current rows exactly as incremental adds would have left it."""
-        self._reset_index()
-        bsz = self._buf
-        flushes = max(0, (self._n - bsz) // bsz)
-        start = 0
-        for bit in range(flushes.bit_length() - 1, -1, -1):
-            if flushes >> bit & 1:
-                size = bsz << bit
-                self._blocks.append(self._build_block(start, size))
-                start += size
-        self._ns = start
-        self._refresh_roots()
-        self._buf_t[:, : self._n - self._ns] = self._alpha[self._ns : self._n].T
-
-    # ------------------------------------------------------------------ storage API
-    def __len__(self) -> int:
-        return self._n
-
-    @property
-    def state_dim(self) -> int:
-        return self._sd
-
-    @property
-    def action_dim(self) -> int:
-        return self._ad
-
-    @property
-    def outcome_dim(self) -> int:
-        return self._od
-
-    def _view(self, arr: np.ndarray) -> np.ndarray:
-        v = arr[: self._n].view()
-        v.flags.writeable = False
-        return v
-
-    @property
-    def alpha(self) -> np.ndarray:
-        """Read-only (len, state_dim) view of the stored alpha."""
-        return self._view(self._alpha)
-
-    @property
-    def delta_alpha(self) -> np.ndarray:
-        """Read-only (len, action_dim) view of the stored delta_alpha."""
-        return self._view(self._dalpha)
-
-    @property
-    def delta_y(self) -> np.ndarray:
-        """Read-only (len, outcome_dim) view of the stored delta_y."""
-        return self._view(self._dy)
+    def add(self, alpha, delta_alpha, delta_y) -> int:
+        """Store one sample; return its index. Raises ValueError on wrong shapes or non-finite values."""
+        i, a = self._append(alpha, delta_alpha, delta_y)
+        self._cache_add(i, a)
+        self._buffer_add(i, a)
+        return i
 
     @property
     def nbytes(self) -> int:
@@ -570,54 +188,6 @@ class SampleMemory:
         total += self._pts.nbytes + self._pidx.nbytes + sum(b.nbytes for b in self._boxes)
         total += self._cache_t.nbytes + self._cache_i.nbytes + self._dup.nbytes + self._dup_off.nbytes
         return int(total)
-
-    @staticmethod
-    def _vector(name: str, value, dim: int) -> np.ndarray:
-        try:
-            arr = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name} must be a finite float vector of shape ({dim},): {exc}") from None
-        if arr.shape != (dim,):
-            raise ValueError(f"{name} must have shape ({dim},), got {arr.shape}")
-        return arr
-
-    def add(self, alpha, delta_alpha, delta_y) -> int:
-        """Store one sample; return its index. Raises ValueError on wrong shapes or non-finite values."""
-        a = self._vector("alpha", alpha, self._sd)
-        da = self._vector("delta_alpha", delta_alpha, self._ad)
-        dy = self._vector("delta_y", delta_y, self._od)
-        # x . x is finite unless some entry is inf/NaN (or |x| > 1e154): one cheap call per vector,
-        # the exact check only when it is not (inf * inf and NaN * NaN raise no FP warning).
-        if not a.dot(a) + da.dot(da) + dy.dot(dy) < np.inf:
-            for name, v in (("alpha", a), ("delta_alpha", da), ("delta_y", dy)):
-                if not np.isfinite(v).all():
-                    raise ValueError(f"{name} must be finite (no NaN/inf), got {v}")
-        i = self._n
-        if i == self._alpha.shape[0]:
-            self._grow(2 * i)
-        self._alpha[i] = a
-        self._dalpha[i] = da
-        self._dy[i] = dy
-        self._buf_t[:, i - self._ns] = a
-        m = self._cache_m
-        if m >= 0:
-            if m < self._cache_t.shape[1]:
-                self._cache_t[:, m] = a
-                self._cache_i[m] = i
-                self._cache_m = m + 1
-            else:
-                self._cache_m = -1
-        self._n = i + 1
-        if self._n - self._ns == 2 * self._buf:
-            self._index_batch()
-        return i
-
-    def _grow(self, cap: int) -> None:
-        for name in ("_alpha", "_dalpha", "_dy"):
-            old = getattr(self, name)
-            new = np.empty((cap, old.shape[1]))
-            new[: self._n] = old[: self._n]
-            setattr(self, name, new)
 
     # ------------------------------------------------------------------ queries
     def _query_vector(self, query) -> np.ndarray:
@@ -651,356 +221,19 @@ class SampleMemory:
             out[i] = self._knn(qs[i], k)
         return out
 
-    def _knn(self, q: np.ndarray, k: int) -> np.ndarray:
-        n_all, ns = self._n, self._ns
-        if k >= n_all:
-            if n_all == 0:
-                return np.empty(0, dtype=np.int64)
-            d = _sqdist_cols(np.ascontiguousarray(self._alpha[:n_all].T), q)
-            return np.lexsort((np.arange(n_all), d))
-        if self._checks:
-            got = self._knn_approx(q, k)
-            if got is not None:
-                return got
-            # fewer than k samples among the buffer and the scanned leaves (tiny buffers and
-            # large k only): the exact search, whose answer depends on nothing but the samples
-        m = self._cache_m
-        cache_kth = np.inf
-        if m >= k and k <= self._cache_k:
-            dq = q - self._cache_c
-            delta = math.sqrt(dq.dot(dq))
-            if delta < self._cache_r:
-                d = _sqdist_cols(self._cache_t[:, :m], q)
-                kth = np.partition(d, k - 1)[k - 1]
-                # Any sample outside the cache is farther than r from the centre, so farther than
-                # r - delta from q; if that exceeds the k-th cached distance the cache holds the
-                # answer. The 1e-9 margins dwarf the float rounding of all these distances.
-                if (math.sqrt(kth) + delta) * (1.0 + 1e-9) + 1e-150 < self._cache_r * (1.0 - 1e-9):
-                    self.cache_hits += 1
-                    keep = d <= kth
-                    ci = self._cache_i[:m][keep]
-                    return ci[np.lexsort((ci, d[keep]))[:k]]
-                cache_kth = kth  # k real samples: still an upper bound of the k-th distance
-        nb = n_all - ns
-        bd = _sqdist_cols(self._buf_t[:, :nb], q) if nb else np.empty(0)
-        # tight: an upper bound of the k-th distance (any k stored samples give one). wide: the walk
-        # also collects everything that far for the cache (capped at the leaves by cache_scan).
-        tight = np.partition(bd, k - 1)[k - 1] if nb >= k else np.inf
-        if cache_kth < tight:
-            tight = cache_kth
-        grow = self._cache_expand**2 if self._cache_expand else 1.0
-        wide = tight * grow
-        if self._height < 0:  # everything is in the buffer
-            leaf_d = leaf_i = None
-        else:
-            q3 = self._q3
-            q3[0, :, 0] = q
-            np.negative(q, out=q3[1, :, 0])
-            fan = self._fan
-            sel = None  # selected node ids (slots) at the height above
-            refined = False
-            for h in range(self._height, -1, -1):
-                r0, r1 = self._roots[h]
-                if sel is None or not len(sel):
-                    if r0 == r1:
-                        sel = None
-                        continue
-                    slots = None
-                    g = self._boxes[h][:, :, r0:r1] - q3
-                else:
-                    slots = (sel[:, None] * fan + self._arange_f).ravel()
-                    if r0 < r1:
-                        slots = np.concatenate((slots, np.arange(r0, r1)))
-                    g = self._boxes[h].take(slots, axis=2)
-                    g -= q3
-                lb = g.max(axis=0)
-                lb *= lb
-                lb = np.add.reduce(lb, axis=0)  # squared box distances, canonical order
-                keep = lb <= wide
-                if not refined and np.count_nonzero(keep) > self._refine_nodes:
-                    refined = True
-                    ids = np.arange(r0, r1) if slots is None else slots
-                    better = self._refine_bound(h, ids, g, lb, q, k, bd)
-                    if better < tight:
-                        tight, wide = better, better * grow
-                        keep = lb <= wide
-                if h == 0 and grow > 1.0:
-                    # cap the extra scan for the cache at cache_scan times the leaves the answer
-                    # needs (in 15-30 dims a wider ball holds most of the memory); the cache radius
-                    # is then what the scanned leaves cover
-                    need = int(self._cache_scan * np.count_nonzero(lb <= tight)) + 1
-                    if np.count_nonzero(keep) > need:
-                        wide = max(tight, np.partition(lb, need)[need])
-                        keep = lb <= wide
-                if slots is None:
-                    sel = np.flatnonzero(keep)
-                    sel += r0
-                else:
-                    sel = slots[keep]
-            if sel is None or not len(sel):
-                leaf_d = leaf_i = None
-            else:
-                idx = (sel[:, None] * self._leaf + self._arange_b).ravel()
-                p = self._pts.take(idx, axis=1)
-                p -= q[:, None]
-                p *= p
-                leaf_d = np.add.reduce(p, axis=0)
-                leaf_i = self._pidx[idx]
-        if leaf_d is None:
-            all_d, all_i = bd, np.arange(ns, n_all)
-        else:
-            all_d = np.concatenate((bd, leaf_d))
-            all_i = np.concatenate((np.arange(ns, n_all), leaf_i))
-        # every stored sample with distance <= wide (>= tight) is among (all_d, all_i): >= k of them
-        keep = all_d <= wide
-        cd, ci = all_d[keep], all_i[keep]
-        if self._ngroups and ci.min() < -1:
-            cd, ci = self._expand_groups(cd, ci, k)
-        if grow > 1.0:
-            self._fill_cache(q, cd, ci, wide, k)
-            kth = np.partition(cd, k - 1)[k - 1]
-            keep = cd <= kth
-            cd, ci = cd[keep], ci[keep]
-        return ci[np.lexsort((ci, cd))[:k]]
-
-    def _knn_approx(self, q: np.ndarray, k: int) -> np.ndarray | None:
-        """Approximate k nearest with a bounded number of scanned leaves (``checks``).
-
-        Best-bin-first in FLANN's sense, level by level so each height of all blocks is one set of
-        vectorised numpy calls: from the top box height down, the candidates are the children of the
-        nodes kept at the height above plus the root nodes at this height; a node is dropped when its
-        box distance exceeds the buffer's k-th distance (a true upper bound of the k-th distance),
-        and of the rest only the ceil(checks * beam_ratio**h) of smallest box distance are kept
-        (checks at the leaves; ties by candidate order, a stable sort). The buffer, the kept leaves
-        and the leaves holding exact copies of the query are scanned; the k best of those are
-        returned by (distance, index). No cap binding = every leaf that can hold a k-nearest sample
-        was scanned = the exact answer. Returns None when fewer than k samples were scanned.
-        """
-        n_all, ns = self._n, self._ns
-        nb = n_all - ns
-        bd = _sqdist_cols(self._buf_t[:, :nb], q) if nb else np.empty(0)
-        # nodes farther than an upper bound of the k-th distance cannot contribute; with no bound
-        # yet, the largest float still drops the empty (infinite) padding boxes
-        bound = np.partition(bd, k - 1)[k - 1] if nb >= k else np.finfo(np.float64).max
-        sel = None  # kept node ids at the height above (= their children's group ids here)
-        if self._height >= 0:
-            q4 = self._q3[:, :, :, None]  # (3, n, 1, 1)
-            q4[0, :, 0, 0] = q
-            np.negative(q, out=q4[1, :, 0, 0])
-            fan, leaf, n = self._fan, self._leaf, self._sd
-            for h in range(self._height, -1, -1):
-                # candidates: whole F-groups of slots (gathered as contiguous runs): the children
-                # of the kept nodes and the root groups at this height
-                roots = self._root_groups[h]
-                groups = roots if sel is None else np.concatenate((sel, roots)) if len(roots) else sel
-                if not len(groups):
-                    sel = None
-                    continue
-                boxes = self._boxes[h]
-                g = boxes.reshape(3, n, boxes.shape[2] // fan, fan).take(groups, axis=2)
-                g -= q4
-                lb = g.max(axis=0)
-                lb *= lb
-                lb = np.add.reduce(lb, axis=0).ravel()  # squared box distances, canonical order
-                keep = np.flatnonzero(lb <= bound)
-                cap = self._widths[h]
-                if len(keep) > cap:
-                    keep = keep[np.argsort(lb[keep], kind="stable")[:cap]]
-                sel = groups[keep // fan] * fan + keep % fan
-            if self._dupmap:
-                dups = self._dupmap.get((q + 0.0).tobytes())
-                if dups:
-                    extra = np.array([self._ginfo[g][1] for g in dups], dtype=np.int64)
-                    sel = extra if sel is None else np.union1d(sel, extra)
-        if sel is None or not len(sel):
-            cd, ci = bd, np.arange(ns, n_all)
-        else:
-            self.leaves_scanned += len(sel)
-            p = self._pts.reshape(n, self._pts.shape[1] // leaf, leaf).take(sel, axis=1)
-            p -= q[:, None, None]
-            p *= p
-            # canonical order, as every other path; empty leaf slots are NaN and never selected
-            cd = np.concatenate((bd, np.add.reduce(p, axis=0).ravel()))
-            ci = np.concatenate((np.arange(ns, n_all), self._pidx.reshape(-1, leaf).take(sel, axis=0).ravel()))
-        if len(cd) < k:
-            return None
-        # a group code stands for >= 1 sample at its distance, so this k-th value bounds the answer
-        kth = np.partition(cd, k - 1)[k - 1]
-        if not kth <= np.inf:  # NaN: fewer than k samples scanned
-            return None
-        keep = cd <= kth
-        cd, ci = cd[keep], ci[keep]
-        if self._ngroups and ci.min() < -1:
-            cd, ci = self._expand_groups(cd, ci, k)
-            kth = np.partition(cd, k - 1)[k - 1]
-            keep = cd <= kth
-            cd, ci = cd[keep], ci[keep]
-        return ci[np.lexsort((ci, cd))[:k]]
-
-    def _expand_groups(self, cd, ci, k):
-        """Replace group codes by their samples (the k smallest indices are all a top-k can use)."""
-        ci = ci.copy()
-        ds, js = [cd], [ci]
-        for j in np.flatnonzero(ci < -1):
-            g = -int(ci[j]) - 2
-            a, b = int(self._dup_off[g]), int(self._dup_off[g + 1])
-            mem = self._dup[a : min(b, a + k)]
-            ci[j] = mem[0]
-            js.append(mem[1:])
-            ds.append(np.full(len(mem) - 1, cd[j]))
-        return np.concatenate(ds), np.concatenate(js)
-
-    def _fill_cache(self, q, cd, ci, bound, k) -> None:
-        """Keep the samples within sqrt(r2) of q (all of them are in cd/ci when r2 <= bound)."""
-        r2 = bound
-        if len(cd) > self._cache_max:
-            r2 = np.partition(cd, self._cache_max - 1)[self._cache_max - 1]
-            keep = cd <= r2
-            cd, ci = cd[keep], ci[keep]
-        m = len(ci)
-        if not r2 < np.inf or m < k:
-            self._cache_m = -1
-            return
-        cap = self._cache_t.shape[1]
-        if cap < m + 64 or cap > 4 * (m + 64):
-            cap = 2 * (m + 64)
-            self._cache_t = np.empty((self._sd, cap))
-            self._cache_i = np.empty(cap, dtype=np.int64)
-        self._cache_t[:, :m] = self._alpha[ci].T
-        self._cache_i[:m] = ci
-        self._cache_c[:] = q
-        self._cache_r = math.sqrt(r2)
-        self._cache_m = m
-        self._cache_k = k  # duplicate groups were cut to k samples: answers only for k' <= k
-
-    @staticmethod
-    def _beam_key(g: np.ndarray, lb: np.ndarray) -> np.ndarray:
-        """Rank of nodes for the beam: box distance + distance to the farthest box corner.
-
-        The box distance alone ties at 0 for every box containing q (dense regions); the farthest
-        corner favours small boxes close to q, which hold q's nearest samples.
-        """
-        far = np.maximum(np.abs(g[0]), np.abs(g[1]))
-        far *= far
-        return np.add.reduce(far, axis=0) + lb
-
-    def _refine_bound(self, h, ids, g, lb, q, k, bd) -> float:
-        """Upper bound on the k-th distance from a greedy beam descent to the most promising leaves.
-
-        Keeps the ``width`` nodes of smallest _beam_key at each height, scans their leaves and
-        returns the k-th smallest distance among those points and the buffer: an upper bound of the
-        true k-th distance (any k stored samples give one). Speed only, never results.
-        """
-        fan = self._fan
-        width = max(self._refine_leaves, -(-k // self._leaf) + 1)
-        q3 = self._q3
-        nodes, flat = ids, self._beam_key(g, lb)
-        for hh in range(h, -1, -1):
-            if len(nodes) > width:
-                nodes = nodes[np.argpartition(flat, width - 1)[:width]]
-            if hh == 0:
-                break
-            nodes = (nodes[:, None] * fan + self._arange_f).ravel()
-            g = self._boxes[hh - 1].take(nodes, axis=2)
-            g -= q3
-            m = g.max(axis=0)
-            m *= m
-            flat = self._beam_key(g, np.add.reduce(m, axis=0))
-        idx = (nodes[:, None] * self._leaf + self._arange_b).ravel()
-        p = self._pts.take(idx, axis=1)
-        p -= q[:, None]
-        p *= p
-        d = np.concatenate((bd, np.add.reduce(p, axis=0)))
-        if len(d) < k:
-            return np.inf
-        kth = np.partition(d, k - 1)[k - 1]
-        return kth if kth == kth else np.inf  # NaN (empty leaf slots) -> no bound
-
     # ------------------------------------------------------------------ persistence
     def digest(self) -> str:
-        """sha256 hex over the dims, the length and the filled arrays (little-endian float64, C order)."""
-        h = hashlib.sha256(_DIGEST_TAG)
-        h.update(np.array([self._sd, self._ad, self._od, self._n], dtype="<i8").tobytes())
-        for arr in (self._alpha, self._dalpha, self._dy):
-            h.update(np.ascontiguousarray(arr[: self._n], dtype="<f8").data)
-        return h.hexdigest()
+        """sha256 hex over the dims, the length and the filled arrays (see memory_io.memory_digest)."""
+        return memory_digest(self)
 
     def _params(self) -> np.ndarray:
-        return np.array(
-            [
-                _FORMAT_VERSION,
-                self._sd,
-                self._ad,
-                self._od,
-                self._buf,
-                self._leaf,
-                self._fan,
-                self._max_roots,
-                self._split_sample,
-                self._refine_nodes,
-                self._refine_leaves,
-                _LEAF_ORDERS.index(self._leaf_order),
-                self._tune_k,
-                self._cache_max,
-                self._checks,
-            ],
-            dtype=np.int64,
-        )
+        return params_array(self)
 
     def save(self, path) -> None:
         """Atomically write an .npz (no pickle): <path>.tmp.npz, then os.replace onto ``path``."""
-        path = os.fspath(path)
-        tmp = path + ".tmp.npz"
-        with open(tmp, "wb") as fh:
-            np.savez(
-                fh,
-                params=self._params(),
-                float_params=np.array([self._cache_expand, self._cache_scan, self._beam_ratio]),
-                alpha=self._alpha[: self._n],
-                delta_alpha=self._dalpha[: self._n],
-                delta_y=self._dy[: self._n],
-                digest=np.array(self.digest()),
-            )
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        save_memory(self, path)
 
     @classmethod
     def load(cls, path) -> "SampleMemory":
         """Read a file written by :meth:`save`; the index is rebuilt exactly as it was."""
-        with np.load(os.fspath(path), allow_pickle=False) as z:
-            missing = {"params", "float_params", "alpha", "delta_alpha", "delta_y", "digest"} - set(z.files)
-            if missing:
-                raise ValueError(f"path is not a SampleMemory file: missing {sorted(missing)}")
-            params = z["params"]
-            fparams = z["float_params"]
-            alpha, dalpha, dy = z["alpha"], z["delta_alpha"], z["delta_y"]
-            digest = str(z["digest"])
-        version = int(params[0]) if params.ndim == 1 and len(params) else -1
-        if version == 1 and params.shape == (14,) and fparams.shape == (2,):
-            params = np.append(params, 0)  # version 1: exact search only
-            fparams = np.append(fparams, 0.5)
-        elif version != _FORMAT_VERSION or params.shape != (15,) or fparams.shape != (3,):
-            raise ValueError(f"path has an unsupported SampleMemory format (params {params.tolist()})")
-        _, sd, ad, od, buf, leaf, fan, roots, split, refine, rleaves, order, tune_k, cmax, checks = (
-            int(v) for v in params)
-        if not 0 <= order < len(_LEAF_ORDERS):
-            raise ValueError(f"path has an unknown leaf_order code {order}")
-        mem = cls(
-            sd, ad, od, capacity=max(1, alpha.shape[0]), buffer_size=buf, leaf_size=leaf, fanout=fan,
-            max_roots=roots, split_sample=split, refine_nodes=refine, refine_leaves=rleaves,
-            leaf_order=_LEAF_ORDERS[order], tune_k=tune_k, cache_expand=float(fparams[0]),
-            cache_scan=float(fparams[1]), cache_max=cmax, checks=checks, beam_ratio=float(fparams[2]),
-        )
-        n = alpha.shape[0]
-        for name, arr, dim in (("alpha", alpha, sd), ("delta_alpha", dalpha, ad), ("delta_y", dy, od)):
-            if arr.dtype != np.float64 or arr.shape != (n, dim):
-                raise ValueError(f"{name} in file must be float64 of shape ({n}, {dim}), got {arr.dtype} {arr.shape}")
-            if not np.isfinite(arr).all():
-                raise ValueError(f"{name} in file must be finite")
-        mem._alpha[:n], mem._dalpha[:n], mem._dy[:n] = alpha, dalpha, dy
-        mem._n = n
-        if mem.digest() != digest:
-            raise ValueError("file digest does not match its content (corrupted file)")
-        mem._rebuild_all()
-        return mem
+        return load_memory(cls, path)

@@ -14,6 +14,10 @@ It drives the :class:`~sagg_low_level.fixed_context.FixedContextLearner` corouti
   touched the water), which the learner discards and counts;
 - ``GoalRequest``: calls ``/sagg/next_goal`` (answered once the reports 1..after_report are processed).
 
+With ``synergy.kind`` 'posture' (the arm with ``context: fixed``) the node speaks the arm's position
+contract instead of the trajectory controller's: :class:`~sagg_low_level.position_link.PositionLink`
+(a rest command then θ on ``/<controller>/commands``, the settled tip back with ``/joint_states``).
+
 Every report goes to ``/sagg/competence``; every stored experiment to ``/sagg/sample`` as
 ``alpha = θ``, ``delta_alpha = []``, ``delta_y = y`` (the outcome itself: the context is fixed);
 ``/sagg/status`` at 2 Hz (``micro_actions`` = stored experiments). At ``max_experiments`` it stops
@@ -87,12 +91,18 @@ class SynergyLearnerNode(LearnerNodeBase):
         self.exit_code = 0
         self.done = False
 
-        self.traj_topic = f"/{p['controller'].strip('/')}/joint_trajectory"
-        self.traj_pub = self.create_publisher(JointTrajectory, self.traj_topic, reliable(HW_DEPTH))
-        self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
-        out_type = PoseStamped if self.m == 3 else PointStamped
-        self.create_subscription(out_type, p["task_topic"], self.on_outcome, reliable(HW_DEPTH))
         self.guard = InputGuard(self.get_logger().error)
+        self.link = None  # synergy.kind 'posture': the arm's position contract (PositionLink)
+        if p["synergy.kind"] == "posture":
+            from .position_link import PositionLink
+            self.link = PositionLink(self, self.synergy, self.advance, self._fail)
+            self.traj_topic = self.link.topic
+        else:
+            self.traj_topic = f"/{p['controller'].strip('/')}/joint_trajectory"
+            self.traj_pub = self.create_publisher(JointTrajectory, self.traj_topic, reliable(HW_DEPTH))
+            out_type = PoseStamped if self.m == 3 else PointStamped
+            self.create_subscription(out_type, p["task_topic"], self.on_outcome, reliable(HW_DEPTH))
+        self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         self.goal_retry_at: float | None = None
         self.create_timer(1.0, self.publish_diagnostics)
 
@@ -110,11 +120,18 @@ class SynergyLearnerNode(LearnerNodeBase):
         self.create_timer(0.05, self.on_poll)
         self.get_logger().info(
             f"strategy {core['strategy']}, synergy {p['synergy.kind']} (θ in R^{self.synergy.dim}), "
-            f"trajectories on {self.traj_topic}, outcomes on {p['task_topic']}"
+            f"{'position commands' if self.link else 'trajectories'} on {self.traj_topic}, outcomes on {p['task_topic']}"
             + (f", stops at {self.max_experiments} experiments" if self.max_experiments else ""))
 
     # ------------------------------------------------------------------ driving
+    def _fail(self, text: str) -> None:
+        self.get_logger().error(text)
+        self.exit_code = 1
+        self.done = True
+
     def _ready(self) -> bool:
+        if self.link is not None:
+            return self.link.ready() and self._peers_ready(self.link.pub, self.link.topic, match_reports=False)
         # the driver must be there: it publishes the outcome topic and listens to the trajectories
         # (a recorder subscribing to the trajectories alone does not count)
         if self.count_publishers(self.params["task_topic"]) < 1:
@@ -132,6 +149,9 @@ class SynergyLearnerNode(LearnerNodeBase):
                 self.t_started = time.monotonic()
                 self.get_logger().info("graph ready: starting")
                 self.dispatch(self.pending)
+            return
+        if self.link is not None:
+            self.link.poll()
             return
         if (self.waiting_stamp is not None and type(self.pending) is Observe
                 and time.monotonic() - self.sent_time > 1.0):
@@ -166,6 +186,14 @@ class SynergyLearnerNode(LearnerNodeBase):
             self.publish_status()
             return
         self.pending = req
+        if self.link is not None and type(req) is not GoalRequest:
+            if type(req) is Observe:
+                self.link.observe()
+            elif type(req) is Execute:
+                self.link.execute(req.theta)
+            else:
+                raise TypeError(f"unknown learner request {req!r}")
+            return
         if type(req) is Observe:
             def empty(stamp):
                 msg = JointTrajectory()

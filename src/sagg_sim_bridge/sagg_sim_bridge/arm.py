@@ -34,6 +34,7 @@ from sagg_common.diagnostics import all_finite
 GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
 MODES = ("kinematic", "dynamic")
 LINK_PROFILES = ("equal", "golden")
+REST_SHAPES = ("arc", "zigzag")
 MAX_DOF = 100
 # Grids larger than this are refused (memory guard for reachable_area): ~100 MB of bool.
 MAX_GRID_CELLS = 100_000_000
@@ -61,6 +62,13 @@ class ArmSpec:
     # decrease from the base and each link is φ times the next one (paper Sec. 3.8: "we use the
     # golden number to specify the relative size of each part"), normalised to total_length.
     link_profile: str = "equal"
+    # Ratio between consecutive links, generalising link_profile: l_i = l_{i-1}/link_ratio,
+    # normalised so that the links sum to total_length (1 = equal links, φ = 1.618... = golden,
+    # 1.5 = the 7-DOF arm of issue 10 / explauto's "mid_dimensional" arm; < 1 makes links grow
+    # from the base). 0 (default) = the ratio named by link_profile (equal: 1, golden: φ), so
+    # existing configs keep bit-identical link lengths; a nonzero link_ratio requires
+    # link_profile "equal" (one way of saying the geometry, never two that could disagree).
+    link_ratio: float = 0.0
     # Symmetric range ±joint_limit (rad) of joints 1..dof-1. The paper gives no ranges. Choice:
     # ±π/2, wide enough that a 7-30 DOF arm can curl back and reach almost the whole disk of
     # radius total_length (the paper's figures draw the reachable area as a full half-disk in
@@ -76,6 +84,17 @@ class ArmSpec:
     # rest tip at ~95% of the arm's length (47.7 units for a 50-unit equal-link arm).
     # With dof == 1 there is nothing to bend and the rest posture is [0].
     rest_bend: float = math.pi / 3
+    # Shape of the rest bend over joints 1..dof-1 (paper: "not straight and slightly bent", to
+    # avoid starting at the unfolded singularity). "arc" (default; the shape before 2026-11-23):
+    # every joint bent by rest_bend/(dof-1) the same way, a C. "zigzag": joints bent alternately
+    # by ±rest_bend/(dof-1) (+ first), an accordion: as far from straight per joint as the arc,
+    # but with no net curl. Why it matters with tight joint limits: a C-shaped rest commits the
+    # arm to curling its way when the tip must come in toward the base; goals beside the base
+    # beyond the base joint's limit on the other side need the opposite curl (every IK solution
+    # of (0.151, -0.42) on config/arm7_ratio15.yaml has joints 1-3 at -π/3), so from an arc rest
+    # no local reacher gets there along the straight task-space path. In both shapes the base
+    # angle then puts the rest tip on the +x axis.
+    rest_shape: str = "arc"
     # "kinematic" (qpos set + mj_kinematics) | "dynamic" (position actuators + physics).
     mode: str = "kinematic"
     # Multiplicative motor noise on each commanded joint displacement:
@@ -127,9 +146,19 @@ class ArmSpec:
         real("total_length", 0.0, 1.0e6, lo_open=True)
         if self.link_profile not in LINK_PROFILES:
             raise ValueError(f"ArmSpec.link_profile must be one of {LINK_PROFILES}, got {self.link_profile!r}")
+        if real("link_ratio", 0.0, 100.0) != 0.0:
+            if float(self.link_ratio) < 0.01:
+                raise ValueError(f"ArmSpec.link_ratio must be 0 (from link_profile) or in [0.01, 100], "
+                                 f"got {self.link_ratio!r}")
+            if self.link_profile != "equal":
+                raise ValueError(f"ArmSpec.link_ratio={self.link_ratio!r} and link_profile="
+                                 f"{self.link_profile!r} both set the link lengths; allowed: link_ratio 0 "
+                                 f"with any link_profile, or a link_ratio with link_profile 'equal'")
         real("joint_limit", 0.0, math.pi, lo_open=True)
         real("base_limit", 0.0, math.pi, lo_open=True)
         real("rest_bend", 0.0, 2.0 * math.pi)
+        if self.rest_shape not in REST_SHAPES:
+            raise ValueError(f"ArmSpec.rest_shape must be one of {REST_SHAPES}, got {self.rest_shape!r}")
         if self.mode not in MODES:
             raise ValueError(f"ArmSpec.mode must be one of {MODES}, got {self.mode!r}")
         real("motor_noise", 0.0, 2.0)
@@ -177,12 +206,19 @@ class ArmSpec:
         return dataclasses.asdict(self)
 
     # ------------------------------------------------------------------ geometry
+    def ratio(self) -> float:
+        """The ratio l_{i-1}/l_i between consecutive links: ``link_ratio`` when set, else the one
+        ``link_profile`` names (equal: 1, golden: φ)."""
+        if float(self.link_ratio) != 0.0:
+            return float(self.link_ratio)
+        return GOLDEN_RATIO if self.link_profile == "golden" else 1.0
+
     def link_lengths(self) -> np.ndarray:
+        """l_i ∝ ratio^-i (i = 0 at the base), normalised to ``total_length``. (ratio 1 gives
+        exact ones, ratio φ the same floats as the former golden formula φ^-i: existing arms'
+        lengths are bit-identical.)"""
         n = int(self.dof)
-        if self.link_profile == "golden":
-            w = GOLDEN_RATIO ** (-np.arange(n, dtype=float))
-        else:
-            w = np.ones(n)
+        w = self.ratio() ** (-np.arange(n, dtype=float))
         return w * (float(self.total_length) / w.sum())
 
     def limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -196,6 +232,8 @@ class ArmSpec:
         if n == 1:
             return a
         a[1:] = float(self.rest_bend) / (n - 1)
+        if self.rest_shape == "zigzag":
+            a[2::2] *= -1.0
         tip = forward_kinematics(a[None, :], self.link_lengths())[0]
         a[0] = -math.atan2(tip[1], tip[0])
         return a
@@ -212,6 +250,17 @@ def forward_kinematics(alphas: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """Batched planar FK, base at the origin: (N, n) relative joint angles -> (N, 2) tip positions."""
     c = np.cumsum(alphas, axis=1)
     return np.stack((np.cos(c) @ lengths, np.sin(c) @ lengths), axis=1)
+
+
+def tip_jacobian(alpha: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Analytic Jacobian ∂y/∂α (2, n) of :func:`forward_kinematics` at one posture: with
+    c_i = Σ_{j≤i} α_j, ∂y/∂α_j = Σ_{i≥j} l_i (−sin c_i, cos c_i). (A reference for tests and
+    checks of the reacher; the learner itself only ever uses its learned local Jacobian.)"""
+    c = np.cumsum(np.asarray(alpha, dtype=float))
+    lengths = np.asarray(lengths, dtype=float)
+    tail_x = np.cumsum((lengths * np.cos(c))[::-1])[::-1]
+    tail_y = np.cumsum((lengths * np.sin(c))[::-1])[::-1]
+    return np.stack((-tail_y, tail_x))
 
 
 def _f(x: float) -> str:

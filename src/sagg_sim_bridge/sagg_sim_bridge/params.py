@@ -11,9 +11,15 @@ _ARM_DOC = {
     "dof": "Number of joints of the planar arm (paper: 7, 15, 30; real arm 8).",
     "total_length": "Total arm length in task units (paper: 50).",
     "link_profile": "'equal' links or 'golden' (each link φ times the next, decreasing from the base).",
+    "link_ratio": "l_i = l_{i-1}/link_ratio, normalised to total_length (1 = equal, 1.618... = "
+                  "golden, 1.5 = config/arm7_ratio15.yaml). 0 = the ratio link_profile names; a "
+                  "nonzero value needs link_profile 'equal'.",
     "joint_limit": "Symmetric limit ±rad of joints 1..n-1 (paper: none given; ours ±π/2).",
     "base_limit": "Symmetric limit ±rad of the base joint (ours ±π/2: the arm faces x ≥ 0).",
     "rest_bend": "Total bend (rad) of the rest posture, spread over the joints; tip on +x.",
+    "rest_shape": "'arc': rest bend spread evenly one way (a C; default); 'zigzag': alternately "
+                  "±rest_bend/(dof-1), no net curl, so the rest does not commit the arm to curling one "
+                  "way (matters with tight joint limits; see arm.py ArmSpec).",
     "mode": "'kinematic' (ideal position control, kinematics only) or 'dynamic' (MuJoCo physics, "
             "position actuators, settle criterion).",
     "motor_noise": "Multiplicative motor noise: realised Δα = Δα·(1 + noise·N(0,1)) per joint "
@@ -37,6 +43,8 @@ def _arm_params() -> tuple[Param, ...]:
         choices = None
         if f.name == "link_profile":
             choices = ("equal", "golden")
+        elif f.name == "rest_shape":
+            choices = ("arc", "zigzag")
         elif f.name == "mode":
             choices = ("kinematic", "dynamic")
         out.append(Param(f"arm.{f.name}", kind, f.default, _ARM_DOC.get(f.name, f.name),

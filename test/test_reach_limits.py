@@ -1,0 +1,159 @@
+"""Issue 10: arm geometry by link ratio, reaching that respects joint limits (clamping and
+re-solving), the blocking timeout's scope, and where a run's micro-actions went."""
+import math
+
+import numpy as np
+import pytest
+
+from sagg_common.params import resolve
+from sagg_goal_generator.core import KIND_GOAL, KIND_SUBGOAL
+from sagg_low_level.evaluate import reach_frozen
+from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
+from sagg_low_level.local_model import clamped_step, pseudo_inverse_step
+from sagg_sim_bridge.arm import GOLDEN_RATIO, ArmSim, ArmSpec, forward_kinematics, tip_jacobian
+
+from test_learner import StuckRobot, drive, make_learner
+
+
+# ------------------------------------------------------------------------------ link_ratio
+def test_link_ratio_geometry_matches_hand_computed_tips():
+    # ratio 2, total 7: links 4, 2, 1
+    spec = ArmSpec(dof=3, total_length=7.0, link_ratio=2.0, joint_limit=math.pi, base_limit=math.pi,
+                   rest_bend=0.5)
+    assert np.allclose(spec.link_lengths(), [4.0, 2.0, 1.0])
+    sim = ArmSim(spec, seed=0)
+    h = math.pi / 2
+    cases = {(0.0, 0.0, 0.0): (7.0, 0.0),            # straight along +x
+             (h, 0.0, 0.0): (0.0, 7.0),              # straight along +y
+             (0.0, h, h): (4.0 - 1.0, 2.0),          # 4 along x, 2 along y, 1 along -x
+             (0.0, h, -h): (4.0 + 1.0, 2.0),         # 4 along x, 2 along y, 1 along +x
+             (h, -h, -h): (2.0, 4.0 - 1.0)}          # 4 along y, 2 along x, 1 along -y
+    for alpha, tip in cases.items():
+        _, y = sim.command(np.array(alpha))          # MuJoCo's kinematics
+        assert np.allclose(y, tip, atol=1e-9), (alpha, y, tip)
+        assert np.allclose(forward_kinematics(np.array([alpha]), spec.link_lengths())[0], tip, atol=1e-12)
+
+
+def test_link_ratio_generalises_link_profile_bit_for_bit():
+    for dof in (1, 7, 15, 30):
+        assert np.array_equal(ArmSpec(dof=dof, link_profile="golden").link_lengths(),
+                              ArmSpec(dof=dof, link_ratio=GOLDEN_RATIO).link_lengths())
+        assert np.array_equal(ArmSpec(dof=dof).link_lengths(), ArmSpec(dof=dof, link_ratio=1.0).link_lengths())
+    lengths = ArmSpec(dof=7, total_length=1.0, link_ratio=1.5).link_lengths()
+    assert lengths.sum() == pytest.approx(1.0)
+    assert np.allclose(lengths[:-1] / lengths[1:], 1.5)
+
+
+@pytest.mark.parametrize("bad", [{"link_ratio": -1.0}, {"link_ratio": 0.001}, {"link_ratio": 101.0},
+                                 {"link_ratio": 1.5, "link_profile": "golden"}])
+def test_link_ratio_rejects_bad_values(bad):
+    with pytest.raises(ValueError, match="link_ratio"):
+        ArmSpec(dof=7, **bad).validate()
+
+
+def test_tip_jacobian_matches_finite_differences():
+    spec = ArmSpec(dof=7, total_length=1.0, link_ratio=1.5)
+    rng = np.random.default_rng(3)
+    lengths = spec.link_lengths()
+    for _ in range(5):
+        a = rng.uniform(-1, 1, 7)
+        num = np.stack([(forward_kinematics((a + e)[None], lengths)[0]
+                         - forward_kinematics((a - e)[None], lengths)[0]) / 2e-6
+                        for e in np.eye(7) * 1e-6], axis=1)
+        assert np.allclose(tip_jacobian(a, lengths), num, atol=1e-7)
+
+
+def test_zigzag_rest_alternates_and_keeps_the_tip_on_x():
+    spec = ArmSpec(dof=7, total_length=1.0, link_ratio=1.5, joint_limit=math.pi / 3,
+                   base_limit=math.pi / 3, rest_shape="zigzag", rest_bend=0.6)
+    rest = spec.rest_posture()
+    assert np.allclose(rest[1:], 0.1 * np.array([1, -1, 1, -1, 1, -1]))
+    tip = forward_kinematics(rest[None], spec.link_lengths())[0]
+    assert abs(tip[1]) < 1e-12 and tip[0] > 0.99
+    with pytest.raises(ValueError, match="rest_shape"):
+        ArmSpec(rest_shape="spiral").validate()
+
+
+# ------------------------------------------------------------------------------ clamping
+def test_clamped_step_is_the_pseudo_inverse_step_when_no_limit_is_in_the_way():
+    rng = np.random.default_rng(0)
+    jac = rng.normal(size=(2, 5))
+    dy = np.array([0.01, -0.02])
+    a = np.zeros(5)
+    assert np.allclose(clamped_step(jac, dy, a, np.full(5, -1.0), np.full(5, 1.0), 1e-6),
+                       pseudo_inverse_step(jac, dy, 1e-6))
+
+
+def test_clamped_step_stops_a_joint_at_its_limit_and_redistributes():
+    rng = np.random.default_rng(1)
+    jac = rng.normal(size=(2, 5))
+    dy = np.array([0.3, 0.1])
+    plain = pseudo_inverse_step(jac, dy, 1e-6)
+    i = int(np.argmax(np.abs(plain)))
+    lower, upper = np.full(5, -10.0), np.full(5, 10.0)
+    a = np.zeros(5)
+    # put joint i's limit right where it is, in the direction the plain step moves it
+    (upper if plain[i] > 0 else lower)[i] = 0.0
+    step = clamped_step(jac, dy, a, lower, upper, 1e-6)
+    assert step[i] == 0.0                                  # the saturated joint stays at its limit
+    assert np.allclose(jac @ step, dy)                     # the others still make the whole move
+    clipped = np.clip(a + plain, lower, upper) - a         # the old reacher: clipped, not re-solved
+    assert np.linalg.norm(jac @ clipped - dy) > 1e-3
+
+
+def _limit_goals(sim, count, joint, seed):
+    """Tips of random postures with ``joint`` at its upper limit: goals that need it there."""
+    rng = np.random.default_rng(seed)
+    post = rng.uniform(sim.lower, sim.upper, (count, sim.n_joints))
+    post[:, joint] = sim.upper[joint]
+    return sim.tip_positions(post)
+
+
+@pytest.mark.parametrize("mode", ["clamp", "clip"])
+def test_reacher_with_analytic_jacobian_reaches_goals_that_need_a_joint_at_its_limit(mode):
+    spec = ArmSpec(dof=4, total_length=4.0, joint_limit=math.pi / 4, base_limit=math.pi / 2, rest_bend=0.6)
+    sim = ArmSim(spec, 0)
+    p = resolve(SCHEMA, {"reach_limits": mode, "v": 0.1, "task_space.lower": [-4.0, -4.0],
+                         "task_space.upper": [4.0, 4.0], "eval.tolerance": 1e-4,
+                         "eval.timeout_factor": 3.0})
+    learner = EvolvingContextLearner(p, Robot(sim.joint_names, sim.lower, sim.upper, sim.rest), 2)
+    learner.jacobian_at = lambda a: tip_jacobian(a, sim.link_lengths)  # the true Jacobian
+    errors = np.array([reach_frozen(learner, sim, g) for g in _limit_goals(sim, 100, 2, seed=1)])
+    if mode == "clamp":
+        assert errors.max() < 1e-3
+    else:  # the old reacher (clipped J⁺ steps) stalls against the limit on some of them
+        assert (errors > 1e-3).sum() >= 2
+
+
+# ------------------------------------------------------------------------------ blocking scope
+@pytest.mark.parametrize("scope", ["goal", "subgoal"])
+def test_blocking_declares_the_goal_or_only_the_subgoal_unreached(scope):
+    learner = make_learner(q=5, blocking_w=3, subgoals=3, timeout_factor=1000.0, eps_c=0.0, v=0.5,
+                           min_samples=2, blocking_scope=scope)
+    robot = StuckRobot([1, 1, 1], np.full(3, 0.3))
+    reports = []
+    goal = robot.fk(robot.rest) + np.array([1.5, 0.0])
+    drive(learner, robot, [goal], 300, reports)
+    ends = [r.micro_actions for r in reports if r.kind in (KIND_GOAL, KIND_SUBGOAL)]
+    per_point = np.diff(ends[3:9])  # second and third attempts: 3 points each
+    if scope == "goal":   # blocked on its first subgoal: the other two points cost nothing
+        assert list(per_point) == [0, 0, 18, 0, 0]
+    else:                 # every point is blocked on its own: 3 × (1 reach + 5 explore) each
+        assert list(per_point) == [18, 18, 18, 18, 18]
+
+
+# ------------------------------------------------------------------------------ phases
+def test_result_says_where_the_micro_actions_went(tmp_path):
+    from sagg_bringup.experiment import run_experiment
+    res = run_experiment("config/arm7_ratio15.yaml", "sagg-riac", 0, 600, 600, tmp_path, progress=False)
+    ph = res["phases"]
+    assert ph["reach"] + ph["explore"] + ph["babble"] == res["micro_actions"] == 600
+    assert ph["babble"] == 0 and ph["reach"] > 0 and ph["explore"] > 0
+    # reset_every 1: one return to rest per attempt; every attempt's micro-actions are split
+    # between goals inside and outside the reachable area
+    assert ph["rest_returns"] == len(res["goals"])
+    split = ph["reachable_goals"], ph["unreachable_goals"]
+    assert sum(s["goals"] for s in split) == len(res["goals"])
+    assert sum(s["reach"] + s["explore"] for s in split) == 600
+    cov = res["coverage"]
+    assert 0 <= cov["median"] <= cov["max"] and 0 <= cov["mean"] <= cov["max"]
