@@ -95,13 +95,10 @@ def scale_of(reg: dict, experiment: dict, scale: str) -> dict:
 def resolve_config(config: str) -> Path:
     """A registry config path (``config/<name>.yaml``): relative to the current directory, else the
     repository this package sits in, else the installed share directory."""
+    import sys
     here = Path(__file__).resolve()
-    candidates = [Path(config), here.parents[3] / config]
-    try:
-        from ament_index_python.packages import get_package_share_directory  # full ROS installs
-        candidates.append(Path(get_package_share_directory("sagg_bringup")) / config)
-    except Exception:  # noqa: BLE001 - no ament index: the other candidates only
-        pass
+    # setup.py installs config/*.yaml to <prefix>/share/sagg_bringup/config
+    candidates = [Path(config), here.parents[3] / config, Path(sys.prefix) / "share" / "sagg_bringup" / config]
     for c in candidates:
         if c.is_file():
             return c
