@@ -12,9 +12,11 @@ import rclpy
 from sagg_bringup.graph import pick_domain_id, write_params_file
 from sagg_bringup.synergy_experiment import load_synergy_config
 from sagg_bringup.synergy_graph import synergy_node_schemas
-from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array, encode_joint_state
+from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
 from sagg_low_level.position_link import PositionLink
 from sagg_low_level.synergy_node import SynergyLearnerNode
+
+from joint_state_bytes import encode_joint_state
 
 
 @pytest.fixture(scope="module")

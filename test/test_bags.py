@@ -14,10 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.bags import bag_messages, relearn
+from sagg_bringup.bag_reader import bag_messages
+from sagg_bringup.bags import relearn
 from sagg_bringup.graph import pick_domain_id
-from sagg_low_level.checkpoint import checkpoint_memory
 from sagg_low_level.memory import SampleMemory
+
+from learner_checkpoint import checkpoint_memory
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

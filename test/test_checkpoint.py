@@ -14,10 +14,11 @@ from sagg_bringup.experiment import InProcessRun, load_experiment_config
 from sagg_common.journal import Journal, read_journal
 from sagg_goal_generator.checkpoint import GeneratorCheckpointer
 from sagg_goal_generator.core import GoalGenerator
-from sagg_low_level.checkpoint import LearnerCheckpointer, checkpoint_memory
+from sagg_low_level.checkpoint import LearnerCheckpointer
 from sagg_low_level.memory import SampleMemory
 
 import test_nodes_graph
+from learner_checkpoint import checkpoint_memory
 from test_nodes_graph import (ROOT, RUN_TIMEOUT, STARTUP_TIMEOUT, Collector, graph_params, in_process, logs,
                               same_bits, start, stop)
 

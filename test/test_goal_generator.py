@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
+from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import resolve
-from sagg_goal_generator.competence import competence, gamma, is_reached
-from sagg_goal_generator.core import (KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, MODE_GLOBAL,
-                                      MODE_INITIAL, MODE_LOW_COMPETENCE, MODE_RANDOM, MODE_REGION,
+from sagg_common.regions import RegionTree, choose_split, interest, interest_probabilities, split_quality
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
+from sagg_goal_generator.core import (MODE_GLOBAL, MODE_INITIAL, MODE_LOW_COMPETENCE, MODE_RANDOM, MODE_REGION,
                                       SCHEMA, GoalGenerator)
-from sagg_goal_generator.regions import RegionTree, choose_split, interest, split_quality
 
 
 def params(**kw):
@@ -144,6 +144,13 @@ def test_region_probability_is_interest_minus_min():
     for r in gen.tree.leaves():
         r.interest = 0.2
     assert np.allclose(gen.region_probabilities(), 1 / k)
+
+
+def test_interest_probabilities_formula():
+    """Sec. 2.4.4 mode 1 on known numbers (also ACTUATOR-RIAC's region choice)."""
+    assert interest_probabilities(np.array([0.1, 0.3, 0.2])).tolist() == pytest.approx([0.0, 2 / 3, 1 / 3])
+    assert interest_probabilities(np.array([0.4, 0.4])).tolist() == [0.5, 0.5]
+    assert interest_probabilities(np.array([0.7])).tolist() == [1.0]
 
 
 def test_mode1_goals_fall_in_the_only_interesting_region():

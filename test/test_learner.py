@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from sagg_common.params import resolve
-from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_low_level.evaluate import evaluate
 from sagg_low_level.learner import (SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe,
                                     Robot, safe_target, subgoal_points, timeout_budget)

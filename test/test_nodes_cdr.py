@@ -14,6 +14,8 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from sagg_common import cdr
 from sagg_msgs.msg import CompetenceReport, RegionTree, Sample
 
+from joint_state_bytes import encode_joint_state
+
 floats = st.floats(allow_nan=False, width=64)
 arrays = st.lists(floats, max_size=9).map(lambda v: np.array(v, dtype=np.float64))
 # (no NUL inside strings: ROS strings are NUL-terminated, rclpy cuts them there)
@@ -49,7 +51,7 @@ def test_joint_state_both_ways(stamp, frame, joint_names, data):
     n = len(joint_names)
     pos = data.draw(st.lists(floats, min_size=n, max_size=n).map(np.array))
     vel = data.draw(st.lists(floats, min_size=n, max_size=n).map(np.array))
-    ours = deserialize_message(cdr.encode_joint_state(stamp, frame, joint_names, pos, vel), JointState)
+    ours = deserialize_message(encode_joint_state(stamp, frame, joint_names, pos, vel), JointState)
     assert stamp_of(ours) == stamp and ours.header.frame_id == frame
     assert list(ours.name) == joint_names and same(ours.position, pos) and same(ours.velocity, vel)
     assert len(ours.effort) == 0
@@ -74,8 +76,8 @@ def test_joint_state_both_ways(stamp, frame, joint_names, data):
 
 def test_joint_state_decoder_notices_new_names():
     dec = cdr.JointStateDecoder()
-    _, a, _, _ = dec.decode(cdr.encode_joint_state(0, "", ["a", "b"], [1.0, 2.0]))
-    _, b, _, _ = dec.decode(cdr.encode_joint_state(0, "", ["b", "a"], [1.0, 2.0]))
+    _, a, _, _ = dec.decode(encode_joint_state(0, "", ["a", "b"], [1.0, 2.0]))
+    _, b, _, _ = dec.decode(encode_joint_state(0, "", ["b", "a"], [1.0, 2.0]))
     assert a == ("a", "b") and b == ("b", "a")
 
 

@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+import yaml
 
 import rclpy
 from rcl_interfaces.msg import ParameterType
@@ -14,7 +15,7 @@ from rclpy.parameter import Parameter
 
 from sagg_bringup.graph import pick_domain_id
 from sagg_common.params import ConfigError, Param
-from sagg_common.ros_params import declare_schema, descriptor
+from sagg_common.ros_params import declare_schema, descriptor, file_parameters
 
 SCHEMA = (
     Param("v", "float", 2.0, "speed", low=0.0, high=10.0, low_open=True),
@@ -83,6 +84,30 @@ def test_bad_value_names_parameter_and_allowed(ctx, name, value, allowed):
         declare_schema(node, SCHEMA)
     msg = str(exc.value)
     assert f"'{name}'" in msg and allowed in msg and "\n" not in msg
+
+
+def test_overrides_from_a_parameter_file(tmp_path):
+    """Values of a ROS parameter file (own section and '/**', integers where floats are expected)
+    reach the schema through rclpy's public parameter API; '/**' entries for other nodes are
+    listed as unused and not declared."""
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"v": 3, "for_another_node": 1}},
+        "sagg_param_test": {"ros__parameters": {"q": 7, "task_space": {"lower": [0, -150]}}}}))
+    args = ["--ros-args", "--params-file", str(path)]
+    c = rclpy.Context()
+    rclpy.init(args=args, context=c, domain_id=pick_domain_id(),
+               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        node = Node("sagg_param_test", context=c)
+        values = declare_schema(node, SCHEMA, args)
+        assert values["v"] == 3.0 and isinstance(values["v"], float) and values["q"] == 7
+        assert values["task_space.lower"] == [0.0, -150.0] and values["strategy"] == "a"
+        assert node.get_parameter("q").value == 7
+        assert file_parameters(node, args) == ["for_another_node", "q", "task_space.lower", "v"]
+        assert not node.has_parameter("for_another_node")
+    finally:
+        c.try_shutdown()
 
 
 def test_declared_parameters_are_read_only(ctx):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sagg_common.params import resolve
-from sagg_goal_generator.core import KIND_GOAL, KIND_SUBGOAL
+from sagg_common.report_kinds import KIND_GOAL, KIND_SUBGOAL
 from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
 from sagg_low_level.local_model import clamped_step, pseudo_inverse_step

@@ -3,8 +3,8 @@ interests as the tree walk it replaced, and the same seeded runs bit for bit."""
 import numpy as np
 
 from sagg_bringup.lab.riac_speed import bench_riac, walk_compatible
-from sagg_goal_generator.checkpoint import restore_tree, tree_arrays
-from sagg_goal_generator.regions import RegionTree
+from sagg_common.region_arrays import restore_tree, tree_arrays
+from sagg_common.regions import RegionTree
 from sagg_low_level.riac_leaves import RiacLeaves
 
 N = 3  # context dims; the tree is over (context, action) = 2N dims

@@ -170,6 +170,19 @@ def test_constants():
             CompetenceReport.KIND_REACHED, CompetenceReport.KIND_EXPLORATION) == (0, 1, 2, 3)
 
 
+def test_python_constants_match_the_messages():
+    """The ROS-free copies of the message constants (sagg_common.report_kinds, the goal modes of
+    sagg_goal_generator.core) have the values of sagg_msgs' constants, name for name."""
+    from sagg_common import report_kinds
+    from sagg_goal_generator import core
+
+    for name in ("KIND_GOAL", "KIND_SUBGOAL", "KIND_REACHED", "KIND_EXPLORATION"):
+        assert getattr(report_kinds, name) == getattr(CompetenceReport, name)
+    assert set(report_kinds.KIND_NAMES) == {0, 1, 2, 3}
+    for name in ("MODE_INITIAL", "MODE_REGION", "MODE_GLOBAL", "MODE_LOW_COMPETENCE", "MODE_RANDOM"):
+        assert getattr(core, name) == getattr(Goal, name)
+
+
 def test_interface_definitions_installed_in_venv():
     # The .msg/.srv texts are installed next to the generated code (share/sagg_msgs), where
     # tools such as rosbags can read them; they must match the sources in the repo.

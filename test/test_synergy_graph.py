@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from sagg_bringup.experiment import run_experiment
-from sagg_bringup.graph import run_graph
 from sagg_bringup.recorder import make_typestore
 from sagg_bringup.synergy_experiment import load_synergy_config
+from sagg_bringup.synergy_graph import run_synergy_graph
 from sagg_low_level.fixed_context import synergy_from_params
 
 OVERRIDES = {"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0}
@@ -16,8 +16,8 @@ OVERRIDES = {"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0}
 
 def test_quadruped_graph_equals_in_process_and_records_trajectories(tmp_path):
     n = 16
-    graph = run_graph("config/quadruped.yaml", n, tmp_path / "graph", eval_every=8, overrides=OVERRIDES,
-                      progress=False, stall_timeout=120.0)
+    graph = run_synergy_graph("config/quadruped.yaml", n, tmp_path / "graph", eval_every=8, overrides=OVERRIDES,
+                              progress=False, stall_timeout=120.0)
     inproc = run_experiment("config/quadruped.yaml", None, None, n, 8, tmp_path / "inproc", progress=False,
                             overrides=OVERRIDES)
     # bit-identical samples (θ and outcomes), goals and test errors
@@ -67,8 +67,8 @@ def test_fixed_context_arm_graph_equals_in_process_and_speaks_the_position_contr
     and the bag holds one rest command then θ per experiment on the position controller's topic."""
     n = 20
     ov = {"context": "fixed", "eval.goals": 5}
-    graph = run_graph("config/arm8.yaml", n, tmp_path / "graph", eval_every=10, overrides=ov,
-                      progress=False, stall_timeout=120.0)
+    graph = run_synergy_graph("config/arm8.yaml", n, tmp_path / "graph", eval_every=10, overrides=ov,
+                              progress=False, stall_timeout=120.0)
     inproc = run_experiment("config/arm8.yaml", None, None, n, 10, tmp_path / "inproc", progress=False,
                             overrides=ov)
     assert graph["memory"]["samples"] == inproc["memory"]["samples"] == n

@@ -29,28 +29,16 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from sagg_common.params import ConfigError
+from sagg_common.cdr import decode_report, decode_sample
+from sagg_common.journal import write_json_atomic
+from sagg_common.params import ConfigError, flatten
+from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
+from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
 
-
-def _open(path: Path):
-    from rosbags.rosbag2 import Reader
-    if not (path / "metadata.yaml").is_file():
-        raise ConfigError(f"bag '{path}': no metadata.yaml; allowed: a rosbag2 directory written by `sagg run`")
-    reader = Reader(path)
-    reader.open()
-    return reader
-
-
-def bag_messages(paths: list[Path], topics: set[str] | None = None):
-    """``(topic, msgtype, timestamp_ns, raw)`` of the bags, in order (bag after bag)."""
-    for path in paths:
-        reader = _open(Path(path))
-        try:
-            conns = [c for c in reader.connections if topics is None or c.topic in topics]
-            for conn, ts, raw in reader.messages(connections=conns):
-                yield conn.topic, conn.msgtype, ts, raw
-        finally:
-            reader.close()
+from .bag_reader import bag_messages, open_bag
+from .graph import evaluate_frozen, evaluation_setup, node_schemas
+from .results import goal_share_stats
 
 
 # ------------------------------------------------------------------------------------ replay
@@ -87,7 +75,7 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
         raise ConfigError(f"--wait-subscribers: got {wait_subscribers}; allowed: an integer >= 0")
     out = out or (lambda s: print(s, file=sys.stderr, flush=True))
     path = Path(bag)
-    reader = _open(path)
+    reader = open_bag(path)
     try:
         conns = {c.topic: c for c in reader.connections}
         total = {c.topic: c.msgcount for c in reader.connections}
@@ -165,9 +153,6 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
 def _params_from(bag: Path, params_file: str | Path | None) -> dict[str, dict]:
     """The nodes' parameters: ``params_file``, else ``params.yaml`` next to the bag (``sagg run``'s
     DIR/params.yaml), resolved against the full node schemas."""
-    from sagg_common.params import flatten
-
-    from .graph import node_schemas
     path = Path(params_file) if params_file else bag.parent / "params.yaml"
     if not path.is_file():
         raise ConfigError(f"--params: '{path}' not found; allowed: the run's params.yaml (sagg run writes DIR/params.yaml)")
@@ -187,14 +172,6 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
             evaluate: bool = True, report: bool = True, out: Callable[[str], None] = print) -> dict:
     """Rebuild memory and region tree from ``bags``; write DIR/memory.npz, regions.json, summary.json
     (and, with ``report``, report.md + figures of the relearned run via :mod:`.report`)."""
-    from sagg_common.cdr import decode_report, decode_sample
-    from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
-    from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
-    from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
-
-    from .experiment import write_json_atomic
-    from .graph import evaluate_frozen, evaluation_setup
-
     paths = [Path(b) for b in bags]
     if not paths:
         raise ConfigError("relearn: no bag given")
@@ -316,7 +293,6 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         "test_goals": test_goals.tolist(), "seconds": time.perf_counter() - t0,
     }
     if report and curve:
-        from .experiment import goal_share_stats
         from .report import write_report
         goals_out = [{"seq": g.seq, "position": g.position.tolist(), "mode": g.mode, "competence": g.competence,
                       "micro_actions": report_ma.get(g.after_report, 0)} for g in gen.goals]

@@ -9,6 +9,8 @@ import yaml
 
 from sagg_common.params import STRATEGIES, ConfigError
 
+# Each command imports its modules when it runs (lazily): rclpy, mujoco and matplotlib take seconds
+# to import, and `sagg params` or `sagg bench table` need none of them.
 
 
 def parse_set(items: list[str] | None) -> dict:
@@ -260,6 +262,8 @@ def _run(args) -> int:
     import time
 
     from .graph import GraphError, run_graph
+    from .synergy_experiment import config_setup
+    from .synergy_graph import run_synergy_graph
     if args.resume:
         return _resume(args)
     if args.config is None:
@@ -271,6 +275,9 @@ def _run(args) -> int:
         seed = "" if args.seed is None else f"-seed{args.seed}"
         strategy = "" if args.strategy is None else f"-{args.strategy}"
         out = Path("runs") / f"{Path(args.config).stem}{strategy}{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
+    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
+    # and the arm with the learner parameter context: fixed (the fixed-context learner node)
+    run = run_graph if config_setup(args.config, parse_set(args.set)) is None else run_synergy_graph
     try:
         if args.driver == "external":
             from .external import run_external_graph
@@ -280,17 +287,15 @@ def _run(args) -> int:
                                    robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
                                    driver_timeout=args.driver_timeout)
         else:
-            s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
-                          timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
-                          progress=not args.quiet, domain_id=args.domain_id)
+            s = run(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
+                    timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
+                    progress=not args.quiet, domain_id=args.domain_id)
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
-        from .synergy_experiment import config_setup
-
         hint = (" (external-driver runs cannot be resumed: start a new run)" if args.driver == "external"
-                else f" (sagg run --resume {out} continues)" if config_setup(args.config, parse_set(args.set)) is None
+                else f" (sagg run --resume {out} continues)" if run is run_graph
                 else " (synergy runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
@@ -407,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(params_markdown(args.node))
             return 0
         if args.command == "bench" and args.bench == "graph":
-            from .bench import bench_graph
+            from .lab.bench import bench_graph
             bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
         if args.command == "bench" and args.bench == "riac":
@@ -415,7 +420,7 @@ def main(argv: list[str] | None = None) -> int:
             res = bench_riac(args.config, args.micro_actions, args.window, overrides=parse_set(args.set))
             return 0 if all(res["identical"].values()) else 1
         if args.command == "bench" and args.bench == "soak":
-            from .soak import main_soak
+            from .lab.soak import main_soak
             return main_soak(args, parse_set(args.set))
         if args.command == "bench" and args.bench == "table":
             from .compare import load_results, summary_markdown
@@ -440,7 +445,7 @@ def main(argv: list[str] | None = None) -> int:
                           analytic=not args.no_analytic)
             return 0
         if args.command == "bench" and args.bench == "speed":
-            from .bench import bench_speed
+            from .lab.bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,
                         graph=args.graph, graph_micro_actions=args.graph_micro_actions,
                         profile=args.profile, graph_config=args.graph_config,

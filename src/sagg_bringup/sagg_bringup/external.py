@@ -402,7 +402,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                        robot_eval_goals: int = 10, robot_eval_every: int = 0,
                        driver_timeout: float = 120.0) -> dict:
     """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
-    from .experiment import run_overrides
+    from .results import run_overrides
     from .synergy_experiment import config_setup
     from sagg_sim_bridge.arm import reachable_area, test_goals
     from sagg_sim_bridge.params import arm_spec_from_params

@@ -44,10 +44,13 @@ import yaml
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
-from sagg_goal_generator.core import KIND_GOAL, MODE_NAMES
+from sagg_common.report_kinds import KIND_GOAL
+from sagg_goal_generator.core import MODE_NAMES
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
+from .bag_reader import bag_messages
 from .recorder import BagWriter, TopicRecorder, TopicSpec
+from .results import goal_share_stats, run_overrides
 
 # node section -> (module holding the node's full SCHEMA, console script)
 NODES = {
@@ -398,12 +401,6 @@ def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, check
             item = inbox.get()
             if item[0] == "stop":
                 return
-            if item[0] == "checkpoint":
-                at = int(item[1])
-                if at < len(memory):
-                    raise RuntimeError(f"checkpoint {at} is behind the rebuilt memory ({len(memory)})")
-                pending = sorted({c for c in pending if c < at} | {at})
-                continue
             _, start, alpha, dalpha, dy = item
             if start != len(memory):
                 raise RuntimeError(f"sample batch starts at {start} but {len(memory)} samples were rebuilt")
@@ -464,11 +461,6 @@ class Evaluator:
             self.inbox.put(("samples", a, np.array(self.alpha[a:b]), np.array(self.delta_alpha[a:b]),
                             np.array(self.delta_y[a:b])))
             self._sent = b
-
-    def add_checkpoint(self, at: int) -> None:
-        """An extra, final checkpoint (the run stopped before the planned end)."""
-        self.checkpoints = sorted({c for c in self.checkpoints if c < at} | {at})
-        self.inbox.put(("checkpoint", at))
 
     def poll(self) -> list[tuple[int, np.ndarray]]:
         """Evaluations finished since the last call, as ``(micro_actions, errors)``."""
@@ -863,7 +855,6 @@ class GraphSession:
         """summary.json: the keys every graph run has, from what was recorded, plus ``specific``
         (in :data:`SUMMARY_KEYS` order). ``area`` (with ``contains`` / ``share``) gives the goal
         statistics ({} when None); ``prior_samples``: samples of earlier segments (not in the rate)."""
-        from .experiment import goal_share_stats
         st, lp = self.st, learner_params
         learn_seconds = (st.sample_t1 - st.sample_t0) if st.samples - prior_samples > 1 else 0.0
         goals = st.goal_list()
@@ -928,15 +919,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     bag (``bag2``, ``bag3``, ...; logs ``logs/<node>.<k>.log``), and the earlier bags are read first,
     so the evaluation, the summary and the report cover the whole run (samples, reports and goals
     republished by the resumed nodes are dropped by index / sequence number)."""
-    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5) and the arm with
-    # context: fixed: the fixed-context learner node
-    from .synergy_experiment import config_setup
-    if config_setup(config_path, overrides) is not None:
-        from .synergy_graph import run_synergy_graph
-        return run_synergy_graph(config_path, micro_actions, out_dir, seed=seed, strategy=strategy,
-                                 timing=timing, eval_every=eval_every, overrides=overrides, progress=progress,
-                                 domain_id=domain_id, stall_timeout=stall_timeout, report=report)
-    from .experiment import run_overrides
     from sagg_sim_bridge.arm import reachable_area
     from sagg_sim_bridge.params import arm_spec_from_params
 
@@ -980,7 +962,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         if prior_bags:
             from rclpy.serialization import deserialize_message
             from sagg_msgs.msg import Evaluation
-            from .bags import bag_messages
             prior = list(bag_messages(prior_bags, {"/sagg/sample", "/sagg/goal", "/sagg/competence",
                                                    "/sagg/regions", "/sagg/evaluation"}))
             for topic, _, _, raw in prior:

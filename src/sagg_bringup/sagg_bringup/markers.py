@@ -157,7 +157,7 @@ class MarkerView:
         self.dirty = True
 
     def on_report(self, m) -> None:
-        from sagg_goal_generator.core import KIND_GOAL
+        from sagg_common.report_kinds import KIND_GOAL
         if m.kind == KIND_GOAL and int(m.goal_seq) in self.goals:
             self.goals[int(m.goal_seq)]["competence"] = float(m.competence)
             self.dirty = True

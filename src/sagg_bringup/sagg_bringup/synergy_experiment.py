@@ -30,6 +30,8 @@ from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, SYNERGY_NODE_SCHE
                                           ThetaSpace, evaluate_fixed, spread_goals, synergy_from_params)
 from sagg_sim_bridge.synergy_params import NODE_SCHEMA as BRIDGE_NODE_SCHEMA, SCHEMA as SIM_SCHEMA, SETUPS, make_sim
 
+from .results import learning_curve, result_dict, run_overrides, write_result
+
 # the nodes' full schemas (what the synergy learner and bridge nodes declare)
 LEARNER_SCHEMA = FC_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
 SYN_BRIDGE_SCHEMA = SIM_SCHEMA + BRIDGE_NODE_SCHEMA
@@ -290,8 +292,6 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
                            progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
     """Run one (strategy, seed) synergy experiment in-process and write ``out_dir/result.json``.
     ``micro_actions`` is the number of experiments (synergy executions with an outcome)."""
-    from .experiment import learning_curve, result_dict, run_overrides, write_result
-
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     config = load_synergy_config(config_path, ov)
     run = SynergyRun(config)

@@ -24,14 +24,16 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.params import ConfigError
+from sagg_common.params import ConfigError, node_params, read_config
 from sagg_common.progress import Progress
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
 from .graph import (GraphSession, check_domain_id, node_processes, run_only_params, sagg_topics,
                     write_params_file)
 from .recorder import TopicSpec
-from .synergy_experiment import ARM_FIXED, SynergyRun, config_setup, load_synergy_config, outcome_extents
+from .results import run_overrides
+from .synergy_experiment import (ARM_FIXED, LEARNER_SCHEMA, SYN_BRIDGE_SCHEMA, SynergyRun, config_setup,
+                                 load_synergy_config, outcome_extents)
 
 SYNERGY_NODES = {
     "sagg_goal_generator": ("sagg_goal_generator", "goal_generator"),
@@ -47,7 +49,6 @@ ARM_FIXED_NODES = dict(SYNERGY_NODES, sagg_sim_bridge=("sagg_sim_bridge", "mujoc
 
 def synergy_node_schemas(arm: bool = False) -> dict[str, tuple]:
     from sagg_goal_generator.node import SCHEMA as GEN
-    from .synergy_experiment import LEARNER_SCHEMA, SYN_BRIDGE_SCHEMA
     if arm:
         from sagg_sim_bridge.node import SCHEMA as ARM_BRIDGE
         return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": ARM_BRIDGE}
@@ -85,8 +86,6 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
                       eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
                       domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True) -> dict:
     """Run the synergy graph for ``micro_actions`` experiments; returns the summary (also in DIR)."""
-    from .experiment import run_overrides
-
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     if timing != "lockstep":
         raise ConfigError(f"--timing: got {timing!r}; allowed: 'lockstep' (the synergy bridge answers each "
@@ -98,7 +97,6 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
                                bridge_schema=schemas["sagg_sim_bridge"])
     setup_name = full["sagg_sim_bridge"].get("setup", ARM_FIXED)
     # the goal generator's node-only parameters (load_synergy_config resolved its core schema)
-    from sagg_common.params import node_params, read_config
     full["sagg_goal_generator"] = node_params(read_config(config_path), "sagg_goal_generator",
                                               schemas["sagg_goal_generator"], ov)
     out = Path(out_dir)

@@ -159,12 +159,6 @@ class Reader:
         self.o += 8 * n
         return a
 
-    def skip_f64_seq(self) -> None:
-        n = self.u32()
-        if n:
-            self.o += -self.o % 8
-            self.o += 8 * n
-
 
 # ------------------------------------------------------------------ std_msgs/Float64MultiArray
 def encode_f64_array(values: np.ndarray) -> bytes:
@@ -216,16 +210,6 @@ class JointStateEncoder:
             v = np.zeros(self.n) if velocity is None else velocity
             b[self.vel_off:self.vel_off + n8] = np.ascontiguousarray(v, dtype="<f8").tobytes()
         return bytes(b)
-
-
-def encode_joint_state(stamp_ns: int, frame_id: str, names, position, velocity=(), effort=()) -> bytes:
-    w = Writer()
-    w.header(stamp_ns, frame_id)
-    w.strings(list(names))
-    w.f64_seq(position)
-    w.f64_seq(velocity)
-    w.f64_seq(effort)
-    return w.tobytes()
 
 
 class JointStateDecoder:

@@ -91,11 +91,8 @@ def params_files(args: list[str]) -> list[str]:
     return out
 
 
-def check_own_sections(node, schema: Schema, args: list[str]) -> None:
-    """Unknown parameters in this node's own section of a parameter file are an error (most
-    likely a typo), as for in-process configs; ``/**`` entries for other nodes are not."""
-    known = {p.name for p in schema}
-    name = node.get_name()
+def _file_sections(args: list[str], sections: tuple[str, ...]):
+    """``(path, section, parameters)`` of the given sections in the parameter files of ``args``."""
     for path in params_files(args):
         try:
             with open(path) as fh:
@@ -104,32 +101,30 @@ def check_own_sections(node, schema: Schema, args: list[str]) -> None:
             continue  # rclpy reports unreadable files itself
         if not isinstance(data, dict):
             continue
-        for section in (name, "/" + name):
+        for section in sections:
             body = data.get(section)
-            if not isinstance(body, dict) or not isinstance(body.get("ros__parameters"), dict):
-                continue
-            unknown = sorted(
-                n for n in flatten(body["ros__parameters"])
-                if n not in known and not node.has_parameter(n) and not n.startswith("qos_overrides."))
-            if unknown:
-                raise ConfigError(
-                    f"unknown parameter(s) {', '.join(unknown)} in section '{section}' of {path}; "
-                    f"allowed: {', '.join(sorted(known))}")
+            if isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
+                yield path, section, body["ros__parameters"]
+
+
+def check_own_sections(node, schema: Schema, args: list[str]) -> None:
+    """Unknown parameters in this node's own section of a parameter file are an error (most
+    likely a typo), as for in-process configs; ``/**`` entries for other nodes are not."""
+    known = {p.name for p in schema}
+    name = node.get_name()
+    for path, section, params in _file_sections(args, (name, "/" + name)):
+        unknown = sorted(
+            n for n in flatten(params)
+            if n not in known and not node.has_parameter(n) and not n.startswith("qos_overrides."))
+        if unknown:
+            raise ConfigError(
+                f"unknown parameter(s) {', '.join(unknown)} in section '{section}' of {path}; "
+                f"allowed: {', '.join(sorted(known))}")
 
 
 def wildcard_params(args: list[str]) -> set[str]:
     """The parameter names of the ``/**`` sections of the parameter files of ``args``."""
-    out: set[str] = set()
-    for path in params_files(args):
-        try:
-            with open(path) as fh:
-                data = yaml.safe_load(fh)
-        except (OSError, yaml.YAMLError):
-            continue
-        body = data.get("/**") if isinstance(data, dict) else None
-        if isinstance(body, dict) and isinstance(body.get("ros__parameters"), dict):
-            out.update(flatten(body["ros__parameters"]))
-    return out
+    return {n for _, _, params in _file_sections(args, ("/**",)) for n in flatten(params)}
 
 
 def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[str, Any]:
@@ -141,22 +136,41 @@ def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[
     node's own section in a parameter file of ``args`` (default: the command line of
     :func:`run_node`, else ``sys.argv``).
     """
-    check_own_sections(node, schema, args if args is not None else (_ARGS or sys.argv))
-    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps the raw overrides here
+    args = args if args is not None else (_ARGS or sys.argv)
+    check_own_sections(node, schema, args)
     values: dict[str, Any] = {}
     for p in schema:
-        raw = overrides[p.name].value if p.name in overrides else p.default
-        value = p.validate(_plain(raw))
+        value = p.validate(_plain(_override(node, p.name, p.default)))
         node.declare_parameter(p.name, value, descriptor(p), ignore_override=True)
         values[p.name] = value
     # '/**' parameters are meant for every node that declares them (seed, strategy, task_space.*):
     # not worth a line in the nodes that do not
-    shared = wildcard_params(args if args is not None else (_ARGS or sys.argv))
-    unused = sorted(n for n in overrides if not node.has_parameter(n) and n not in shared)
+    shared = wildcard_params(args)
+    unused = sorted(n for n in file_parameters(node, args) if not node.has_parameter(n) and n not in shared)
     if unused:
         # They may come from the '/**' section meant for other nodes: not an error (as in ROS).
         node.get_logger().info(f"parameters not used by this node: {', '.join(unused)}")
     return values
+
+
+def _override(node, name: str, default: Any) -> Any:
+    """The raw override of parameter ``name`` (parameter file, ``-p``, or the node's
+    ``parameter_overrides``), else ``default``; public rclpy API only: the parameter is declared
+    dynamically typed (so an integer where the schema wants a float is taken as given, for
+    :meth:`Param.validate` to coerce), read, and undeclared again."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.parameter import Parameter
+
+    declared = node.declare_parameter(name, None, ParameterDescriptor(dynamic_typing=True))
+    node.undeclare_parameter(name)
+    return default if declared.type_ == Parameter.Type.NOT_SET else declared.value
+
+
+def file_parameters(node, args: list[str]) -> list[str]:
+    """The parameter names that the parameter files of ``args`` give this node (its own section
+    and ``/**``)."""
+    name = node.get_name()
+    return sorted({n for _, _, params in _file_sections(args, ("/**", name, "/" + name)) for n in flatten(params)})
 
 
 def spin(node, executor=None, should_stop: Callable[[], bool] | None = None) -> None:

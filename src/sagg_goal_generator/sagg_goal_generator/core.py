@@ -11,18 +11,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
+from sagg_common.regions import RegionTree, interest_probabilities
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import stream
-
-from .regions import RegionTree
 
 # Goal modes (same values as sagg_msgs/Goal constants)
 MODE_INITIAL, MODE_REGION, MODE_GLOBAL, MODE_LOW_COMPETENCE, MODE_RANDOM = 0, 1, 2, 3, 4
 MODE_NAMES = {MODE_INITIAL: "initial", MODE_REGION: "region", MODE_GLOBAL: "global",
               MODE_LOW_COMPETENCE: "low-competence", MODE_RANDOM: "random"}
-# Report kinds (same values as sagg_msgs/CompetenceReport constants)
-KIND_GOAL, KIND_SUBGOAL, KIND_REACHED, KIND_EXPLORATION = 0, 1, 2, 3
-KIND_NAMES = {KIND_GOAL: "goal", KIND_SUBGOAL: "subgoal", KIND_REACHED: "reached",
-              KIND_EXPLORATION: "exploration"}
 
 
 SCHEMA: Schema = SHARED_SCHEMA + (
@@ -135,16 +131,8 @@ class GoalGenerator:
         return self.rng.uniform(lower, upper)
 
     def region_probabilities(self) -> np.ndarray:
-        """Region selection probabilities of paper Sec. 2.4.4 (mode 1):
-        ``P_n = (interest_n − min_i interest_i) / Σ_i (interest_i − min_i interest_i)``.
-
-        When every region has the same interest (the sum is 0) the choice is uniform (our choice:
-        the paper's formula is undefined there).
-        """
-        it = self.tree.interests()
-        w = it - it.min()
-        s = w.sum()
-        return np.full(len(it), 1.0 / len(it)) if s <= 0 else w / s
+        """Selection probabilities of the leaves (mode 1, Sec. 2.4.4): :func:`interest_probabilities`."""
+        return interest_probabilities(self.tree.interests())
 
     def _region_by_interest(self):
         leaves = self.tree.leaves()

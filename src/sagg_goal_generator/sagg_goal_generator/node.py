@@ -5,8 +5,8 @@ Wraps :class:`~sagg_goal_generator.core.GoalGenerator`:
 - subscribes ``/sagg/competence`` (every report of the learner, in order) and feeds each to the core;
 - serves ``/sagg/next_goal``: a request ``after_report = N`` is answered only once reports 1..N
   have been processed, so the goal is the same function of the report sequence as in-process
-  (deterministic lockstep). A request that arrives early is deferred (:class:`Deferred`) and
-  answered from the report subscription when report N has been processed;
+  (deterministic lockstep). A request that arrives early waits in the :class:`GoalServer`'s
+  thread until report N has been processed;
 - publishes every goal on ``/sagg/goal`` and the region tree on ``/sagg/regions`` (transient_local,
   depth 1) on every split and at most every 0.5 s otherwise.
 
@@ -19,22 +19,25 @@ import array
 import math
 import struct
 import sys
+import threading
 
 import numpy as np
 
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.service import Service
 
 from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import decode_report, encode_region_tree
 from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
-from sagg_common.ros_params import declare_schema, reliable, run_node
+from sagg_common.report_kinds import KIND_NAMES
+from sagg_common.ros_params import declare_schema, reliable, run_node, spin
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
 
-from .core import KIND_NAMES, SCHEMA as CORE_SCHEMA, GoalGenerator
+from .checkpoint import GeneratorCheckpointer
+from .core import SCHEMA as CORE_SCHEMA, GoalGenerator
 
 NODE_NAME = "sagg_goal_generator"
 NODE_SCHEMA: Schema = (
@@ -60,28 +63,48 @@ SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
-class Deferred:
-    """A service answer given later: returned by the callback instead of a response; the executor
-    hands it to :meth:`DeferrableService.send_response`, which keeps the request header so the
-    node can send the real response once the awaited reports are in. (Works with any executor,
-    unlike coroutine callbacks, which the EventsExecutor does not support.)"""
+class GoalServer:
+    """``/sagg/next_goal``, served by a node of its own that a second executor spins in a thread.
 
-    __slots__ = ("after_report", "response", "header", "service")
+    A request ``after_report = N`` must wait until reports 1..N are processed, and the reports keep
+    arriving on the generator node's executor meanwhile: the service callback therefore blocks, in
+    this thread, on the generator node's condition variable (which every processed report
+    notifies). This is how public rclpy answers a request late: it has no deferred response, and
+    the EventsExecutor does not run coroutine callbacks. The generator node's hot path (one report
+    per micro-action) stays on its own executor. The server node ignores the command line's
+    arguments (parameter files, remappings): it has neither parameters nor relative names."""
 
-    def __init__(self, after_report: int, response):
-        self.after_report = after_report
-        self.response = response
-        self.header = None
-        self.service = None
+    def __init__(self, owner: "GoalGeneratorNode"):
+        self.node = Node(NODE_NAME + "_goals", context=owner.context, use_global_arguments=False,
+                         start_parameter_services=False)
+        self.node.create_service(NextGoal, "/sagg/next_goal", owner.on_next_goal)
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._spin, args=(SingleThreadedExecutor(context=owner.context),),
+                                       name="goal_server", daemon=True)
+        self.thread.start()
+
+    def _spin(self, executor) -> None:
+        try:
+            spin(self.node, executor, should_stop=self.stopping.is_set)
+        except Exception:  # noqa: BLE001 - the context was shut down under the thread: nothing to serve
+            if self.node.context.ok():
+                raise
+
+    def close(self) -> None:
+        """Stop the thread (a request still waiting gets an empty response, which the learner
+        rejects as it would any goal outside Y), destroy the server node."""
+        self.stopping.set()
+        self.thread.join(timeout=5.0)
+        self.node.destroy_node()
 
 
-class DeferrableService(Service):
-    def send_response(self, response, header) -> None:
-        if isinstance(response, Deferred):
-            response.header, response.service = header, self
-            return
-        super().send_response(response, header)
-
+def _locked(cond: threading.Condition, callback):
+    """``callback`` run holding ``cond``, then waking the requests waiting on it."""
+    def run(*args):
+        with cond:
+            callback(*args)
+            cond.notify_all()
+    return run
 
 
 class GoalGeneratorNode(Node):
@@ -95,26 +118,26 @@ class GoalGeneratorNode(Node):
             raise ConfigError(str(exc)) from exc
         self.active = core["strategy"] in ACTIVE_STRATEGIES
         self.exit_code = 0
+        # the generator's state is shared with the goal server's thread: every callback holds this
+        self.cond = threading.Condition()
         self.guard = InputGuard(self.get_logger().error)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
-        self.create_timer(1.0, self.publish_diagnostics)
+        self.create_timer(1.0, _locked(self.cond, self.publish_diagnostics))
         self.goal_pub = self.create_publisher(Goal, "/sagg/goal", reliable(100))
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
         # transient_local: after a restart, the reports missed come again from the learner's history
-        self.create_subscription(CompetenceReport, "/sagg/competence", self.on_report,
+        self.create_subscription(CompetenceReport, "/sagg/competence", _locked(self.cond, self.on_report),
                                  reliable(10000, transient_local=True), raw=True)
-        srv = self.create_service(NextGoal, "/sagg/next_goal", self.on_next_goal)
-        srv.__class__ = DeferrableService
-        self.waiting: list[Deferred] = []   # requests waiting for their reports
         self.checkpointer = None
         self.replay_goals: list = []  # journaled goals to choose again after a resume
         self.goals_to_publish: list = []  # journaled goals to publish again after a resume
         self._setup_checkpoint()
         self.splits_published = -1
         self.regions_dirty = True
-        self.create_timer(self.params["regions_period"], self.on_regions_timer)
+        self.create_timer(self.params["regions_period"], _locked(self.cond, self.on_regions_timer))
         self.publish_regions()
+        self.server = GoalServer(self)  # last: requests are served once the node is complete
         self.get_logger().info(
             f"strategy {core['strategy']}: "
             + ("serving /sagg/next_goal" if self.active else "idle (actuator strategy: no goals)"))
@@ -152,8 +175,6 @@ class GoalGeneratorNode(Node):
         self.regions_dirty = True
         if len(gen.tree.splits) != self.splits_published:
             self.publish_regions()
-        if self.waiting:
-            self._release()
 
     def _report_problem(self, msg, target: np.ndarray) -> str:
         """What is wrong with a report's content ('' if nothing)."""
@@ -173,18 +194,6 @@ class GoalGeneratorNode(Node):
                  "goals": str(len(gen.goals)), "regions": str(len(gen.tree.leaves()))}
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
-    def _release(self) -> None:
-        done = self.gen.reports
-        keep = []
-        for d in self.waiting:
-            if d.after_report <= done and d.service is not None and self._goal_subscribers_ok():
-                # a request whose goal was already chosen (answered meanwhile through a repeated
-                # request, goal_retry) gets that goal, not a new one
-                d.service.send_response(self._fill(d.response, self._goal_for(d.after_report)), d.header)
-            else:
-                keep.append(d)
-        self.waiting = keep
-
     def _goal_subscribers_ok(self) -> bool:
         need = self.params["min_goal_subscribers"]
         ok = need == 0 or self.goal_pub.get_subscription_count() >= need
@@ -195,6 +204,12 @@ class GoalGeneratorNode(Node):
 
     # ------------------------------------------------------------ goals
     def on_next_goal(self, request: NextGoal.Request, response: NextGoal.Response):
+        """Runs in the :class:`GoalServer`'s thread, holding the generator's condition variable
+        except while it waits for the reports 1..after_report (or for /sagg/goal's subscribers)."""
+        with self.cond:
+            return self._answer(request, response)
+
+    def _answer(self, request: NextGoal.Request, response: NextGoal.Response):
         if not self.active:
             self.get_logger().error(
                 f"goal requested but strategy is {self.gen.strategy}: no goals for actuator strategies",
@@ -210,9 +225,14 @@ class GoalGeneratorNode(Node):
                 f"goal requested after report {after} but {self.gen.reports} reports were already "
                 "processed: the learner and the generator disagree")
         if after > self.gen.reports or not self._goal_subscribers_ok():
-            deferred = Deferred(after, response)
-            self.waiting.append(deferred)
-            return deferred  # answered by _release once reports 1..after are in
+            # woken by every report and regions tick (the subscriber count has no event of its own)
+            while after > self.gen.reports or not self._goal_subscribers_ok():
+                if self.server.stopping.is_set():
+                    return response  # shutting down: an empty response, no goal chosen
+                self.cond.wait(timeout=0.1)
+            # a request whose goal was already chosen (answered meanwhile through a repeated
+            # request, goal_retry) gets that goal, not a new one
+            return self._fill(response, self._goal_for(after))
         return self._fill(response)
 
     def _fill(self, response: NextGoal.Response, rec=None) -> NextGoal.Response:
@@ -252,7 +272,6 @@ class GoalGeneratorNode(Node):
         p = self.params
         if not p["checkpoint_dir"]:
             return
-        from .checkpoint import GeneratorCheckpointer
         try:
             ck = GeneratorCheckpointer(p["checkpoint_dir"], self.gen, p["checkpoint_every"], p["journal_fsync"])
             self.replay_goals = ck.resume()
@@ -296,6 +315,7 @@ class GoalGeneratorNode(Node):
     def close(self) -> None:
         """At shutdown: the final checkpoint (unless journaled goals still wait for their reports:
         the journal then keeps them for the next resume)."""
+        self.server.close()
         if self.checkpointer is not None:
             if self.replay_goals:
                 self.checkpointer.journal.close()
@@ -309,8 +329,6 @@ class GoalGeneratorNode(Node):
             for rec in self.goals_to_publish:
                 self._publish_goal(rec)
             self.goals_to_publish = []
-        if self.waiting and self._goal_subscribers_ok():
-            self._release()
         if self.regions_dirty:
             self.publish_regions()
 

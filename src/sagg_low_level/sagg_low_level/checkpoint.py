@@ -36,7 +36,6 @@ found (the last two checkpoint intervals); receivers drop indices / sequence num
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -44,8 +43,7 @@ import numpy as np
 
 from sagg_common.checkpointer import Checkpointer
 from sagg_common.journal import restore_rng, rng_state, save_npz_atomic, write_json_atomic
-
-from sagg_goal_generator.checkpoint import restore_tree, splits_arrays, splits_from_arrays, tree_arrays
+from sagg_common.region_arrays import restore_tree, splits_arrays, splits_from_arrays, tree_arrays
 
 from .learner import EvolvingContextLearner, Report
 from .memory import SampleMemory
@@ -78,14 +76,6 @@ def load_segments(directory: str | Path, meta: dict, memory: SampleMemory) -> Sa
         raise ValueError(f"checkpoint_dir: {len(memory)} samples in the segments, learner.json says "
                          f"{meta['memory_samples']}")
     return memory
-
-
-def checkpoint_memory(directory: str | Path) -> SampleMemory:
-    """The sample memory of the learner checkpoint in ``directory`` (exact search; the digest does
-    not depend on the search mode)."""
-    meta = json.loads((Path(directory) / "learner.json").read_text())
-    n, m = int(meta["joints"]), int(meta["task_dim"])
-    return load_segments(directory, meta, SampleMemory(n, n, m))
 
 
 class LearnerCheckpointer(Checkpointer):

@@ -23,13 +23,13 @@ from typing import Callable, Generator
 
 import numpy as np
 
+from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
+from sagg_common.regions import RegionTree, interest_probabilities
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import stream
 from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
-from sagg_goal_generator.competence import competence, gamma, is_reached
-from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
-from sagg_goal_generator.regions import RegionTree
 
 from .learner import CONTEXT, GoalRequest, Observe, Report
 from .local_model import local_jacobian, pseudo_inverse_step
@@ -505,8 +505,7 @@ class FixedContextLearner:
         if self.rng.random() < self.p["riac.p_random"] or len(leaves) < 2:
             return self._uniform_theta()
         it = self.riac_leaves.interests()  # = [r.interest for r in leaves], kept up to date
-        w = it - it.min()
-        probs = np.full(len(leaves), 1.0 / len(leaves)) if w.sum() <= 0 else w / w.sum()
+        probs = interest_probabilities(it)
         region = leaves[int(self.rng.choice(len(leaves), p=probs))]
         return self.denorm_theta(self.rng.uniform(region.lower, region.upper))
 

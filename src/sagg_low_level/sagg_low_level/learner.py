@@ -15,11 +15,11 @@ from typing import Callable, Generator
 
 import numpy as np
 
+from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
+from sagg_common.regions import RegionTree, interest_probabilities
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_common.rng import stream
-from sagg_goal_generator.competence import competence, gamma, is_reached
-from sagg_goal_generator.core import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
-from sagg_goal_generator.regions import RegionTree
 
 from .local_model import clamped_step, desired_displacement, local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
@@ -498,7 +498,6 @@ class EvolvingContextLearner:
         n = self.robot.n
         alpha = np.clip(self.alpha, self.robot.lower, self.robot.upper)
         rows, it = self._riac_leaves().compatible(alpha)
-        w = it - it.min()
-        probs = np.full(len(rows), 1.0 / len(rows)) if w.sum() <= 0 else w / w.sum()
+        probs = interest_probabilities(it)
         region = self.riac_tree.leaves()[int(rows[int(self.rng.choice(len(rows), p=probs))])]
         return self.rng.uniform(region.lower[n:], region.upper[n:])

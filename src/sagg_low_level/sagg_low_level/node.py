@@ -37,9 +37,10 @@ from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64
 from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.ros_params import HW_DEPTH, reliable, run_node
-from sagg_goal_generator.core import KIND_EXPLORATION
+from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
+from .checkpoint import LearnerCheckpointer
 from .learner import (SCHEMA as CORE_SCHEMA, Command, EvolvingContextLearner, GoalRequest, Observe, Report,
                       Robot)
 from .node_base import NODE_NAME, LearnerNodeBase
@@ -477,7 +478,6 @@ class LearnerNode(LearnerNodeBase):
         reports of the last checkpoint intervals (receivers drop those they have)."""
         if not p["checkpoint_dir"]:
             return
-        from .checkpoint import LearnerCheckpointer
         try:
             ck = LearnerCheckpointer(p["checkpoint_dir"], self.learner, p["checkpoint_every"], p["journal_fsync"])
             replay = ck.resume()

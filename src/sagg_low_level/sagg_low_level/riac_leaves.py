@@ -1,4 +1,4 @@
-"""ACTUATOR-RIAC's leaf table: the leaves of a :class:`~sagg_goal_generator.regions.RegionTree` over
+"""ACTUATOR-RIAC's leaf table: the leaves of a :class:`~sagg_common.regions.RegionTree` over
 (context, action) as numpy arrays (context bounds, interests), kept in step with the tree point by
 point, so that choosing a region compatible with the current context costs a few vectorised calls
 instead of a Python walk over the tree and one ``Region.interest`` read per compatible leaf.
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sagg_goal_generator.regions import Region, RegionTree
+from sagg_common.regions import Region, RegionTree
 
 
 class RiacLeaves:

@@ -61,7 +61,6 @@ class RestStateSim:
         self.n_joints = len(joint_names)
         jid = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in joint_names]
         self._qadr = np.array([self.model.jnt_qposadr[j] for j in jid])
-        self._dadr = np.array([self.model.jnt_dofadr[j] for j in jid])
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[self._qadr] = self.rest
         self.data.ctrl[:] = self.rest
@@ -79,9 +78,3 @@ class RestStateSim:
         self.data.qvel[:] = self._rest_qvel
         self.data.ctrl[:] = self.rest
         mujoco.mj_forward(self.model, self.data)
-
-    def joint_positions(self) -> np.ndarray:
-        return self.data.qpos[self._qadr].copy()
-
-    def joint_velocities(self) -> np.ndarray:
-        return self.data.qvel[self._dadr].copy()

@@ -1,4 +1,4 @@
-"""Pictures of the synergy robots for the README: ``MUJOCO_GL=egl python -m sagg_sim_bridge.render DIR``.
+"""Pictures of the synergy robots for the README: ``MUJOCO_GL=egl python -m sagg_bringup.lab.render DIR``.
 
 Writes ``DIR/quadruped.png`` (the quadruped half-way through a gait) and ``DIR/fishing.png`` (the
 fishing rod during a cast, float in flight). Headless rendering needs ``MUJOCO_GL=egl`` (or osmesa).
@@ -14,8 +14,8 @@ import numpy as np
 
 from sagg_common.synergy import SinusoidSynergy, VelocitySynergy
 
-from .fishing import FishingSim
-from .quadruped import QuadrupedSim
+from sagg_sim_bridge.fishing import FishingSim
+from sagg_sim_bridge.quadruped import QuadrupedSim
 
 
 def _render(model, data, camera: mujoco.MjvCamera, path: Path, width=640, height=480) -> None:

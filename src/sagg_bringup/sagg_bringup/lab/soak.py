@@ -94,7 +94,7 @@ def _mb(b: float) -> str:
 def soak_inprocess(config: str | Path, micro_actions: int, every: int,
                    overrides: dict[str, Any] | None = None, out: Callable[[str], None] = print) -> dict:
     """In-process soak; returns the rows and the verdict numbers."""
-    from .experiment import InProcessRun, load_experiment_config
+    from ..experiment import InProcessRun, load_experiment_config
 
     shm0 = shm_entries()
     fd0 = open_fds()
@@ -141,7 +141,7 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
                overrides: dict[str, Any] | None = None, stall_timeout: float = 120.0,
                out: Callable[[str], None] = print) -> dict:
     """Graph soak: the three nodes for ``micro_actions`` micro-actions (lockstep)."""
-    from .graph import (NODES, GraphError, NodeProcess, find_node_executable, graph_params,
+    from ..graph import (NODES, GraphError, NodeProcess, find_node_executable, graph_params,
                         load_graph_config, pick_domain_id, set_checkpoint_dirs, stop_processes,
                         write_params_file)
 
@@ -258,7 +258,7 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
 
 def main_soak(args, overrides: dict) -> int:
     """``sagg bench soak``: runs the modes asked for, writes ``OUT/soak.json``."""
-    from .experiment import write_json_atomic
+    from sagg_common.journal import write_json_atomic
 
     out = Path(args.out or f"runs/soak-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)

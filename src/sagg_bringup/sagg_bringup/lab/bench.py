@@ -12,7 +12,7 @@ import numpy as np
 
 from sagg_common.rng import stream
 
-from .experiment import InProcessRun, load_experiment_config
+from ..experiment import InProcessRun, load_experiment_config
 
 
 def babbling_samples(run: InProcessRun, size: int, seed: int = 0, period: int = 200):
@@ -149,7 +149,7 @@ def graph_rate(config: str | Path, micro_actions: int, overrides: dict | None = 
     import re
     import tempfile
 
-    from .graph import (NODES, NodeProcess, find_node_executable, graph_params, load_graph_config,
+    from ..graph import (NODES, NodeProcess, find_node_executable, graph_params, load_graph_config,
                         pick_domain_id, stop_processes, write_params_file)
 
     full = load_graph_config(config, overrides)

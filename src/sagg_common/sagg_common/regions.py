@@ -30,6 +30,19 @@ def interest(values: np.ndarray, zeta: int) -> float:
     return abs(float(older.sum()) - float(recent.sum())) / (2 * h)
 
 
+def interest_probabilities(interests: np.ndarray) -> np.ndarray:
+    """Region selection probabilities of SAGG-RIAC's goal mode 1: paper Sec. 2.4.4, equation
+    (tex line 238): ``P_n = (interest_n − min_i interest_i) / Σ_i (interest_i − min_i interest_i)``.
+
+    When every region has the same interest (the sum is 0) the choice is uniform (our choice: the
+    paper's formula is undefined there). ACTUATOR-RIAC chooses its regions with the same formula.
+    """
+    it = np.asarray(interests, dtype=float)
+    w = it - it.min()
+    s = w.sum()
+    return np.full(len(it), 1.0 / len(it)) if s <= 0 else w / s
+
+
 @dataclass(eq=False)
 class Region:
     """A node of the tree: an axis-aligned box and the points attempted inside it, in time order.
