@@ -35,6 +35,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    package_data={PACKAGE: ['claims.yaml']},  # `sagg reproduce`'s claim registry
     data_files=DATA_FILES,
     install_requires=['setuptools'],
     # Optional: `sagg bench compare --ray` (pinned with its dependencies in requirements-ray.txt).

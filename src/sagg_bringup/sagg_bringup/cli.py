@@ -140,6 +140,16 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--no-eval", action="store_true", help="skip the evaluation on the test goals")
     rl.add_argument("--no-report", action="store_true", help="no report.md / figures")
 
+    rq = sub.add_parser("reproduce", help="settle the paper's claims (registry sagg_bringup/claims.yaml) "
+                                          "through bench compare: claims.json, report.md; resumable")
+    rq.add_argument("claims", nargs="+", metavar="CLAIM", help="claim ids, experiment names, or all")
+    rq.add_argument("--scale", choices=["paper", "smoke"], default="paper")
+    rq.add_argument("--out", help="output directory (default runs/reproduce-<scale>; rerun to resume)")
+    rq.add_argument("--workers", type=positive_int, help="parallel runs (default: os.cpu_count())")
+    rq.add_argument("--ray", metavar="ADDRESS", help="run on Ray ('local' or a cluster address)")
+    rq.add_argument("--estimate", action="store_true",
+                    help="instead: one short probe run per strategy and experiment, and the "
+                         "extrapolated paper-scale core-hours (written to OUT/estimate.json)")
     pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
                                        "description) as Markdown tables")
     pp.add_argument("--node", choices=["sagg_goal_generator", "sagg_learner", "sagg_sim_bridge"],
@@ -379,6 +389,13 @@ def main(argv: list[str] | None = None) -> int:
             from .bags import relearn
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
+        if args.command == "reproduce":
+            from .reproduce import estimate, run_reproduce
+            if args.estimate:
+                estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
+                return 0
+            rows = run_reproduce(args.claims, args.scale, args.out, args.workers, args.ray)
+            return 0 if rows else 1
         if args.command == "params":
             if args.update_readme:
                 path = Path(args.update_readme)

@@ -56,6 +56,27 @@ def curve_stats(results: list[dict], key: str = "mean_error") -> dict:
             "median": np.median(ys, axis=0).tolist(), "n": int(len(ys))}
 
 
+def final_metrics(results: list[dict]) -> dict:
+    """The evaluation's other metrics at the last point (sagg_low_level.eval_metrics), per seed and
+    averaged over seeds: the median test error, the share of test goals within tolerance, and the
+    mean error per distance-from-base band (with the band edges). Runs written before these
+    metrics existed give None."""
+    last = [r["curve"][-1] for r in results]
+    med = [c.get("median_error") for c in last]
+    within = [c.get("within_share") for c in last]
+    bands = [c.get("band_mean_errors") for c in last]
+    frame = results[0].get("eval_metrics") if results else None
+    out = {"final_median_error": med, "final_within_share": within,
+           "mean_of_median_errors": float(np.mean(med)) if None not in med else None,
+           "mean_within_share": float(np.mean(within)) if None not in within else None,
+           "band_edges": frame["band_edges"] if frame else None,
+           "within": frame["within"] if frame else None, "band_mean_errors": None}
+    if bands and None not in bands:
+        cols = list(zip(*bands))
+        out["band_mean_errors"] = [None if None in c else float(np.mean(c)) for c in cols]
+    return out
+
+
 def summary_json(results: list[dict], order: list[str] | None = None) -> dict:
     """Per strategy: seeds, final errors, curve statistics; every pair: the tests above."""
     groups = by_strategy(results)
@@ -69,7 +90,8 @@ def summary_json(results: list[dict], order: list[str] | None = None) -> dict:
             "final_mean": float(f.mean()), "final_std": float(f.std(ddof=1)) if len(f) > 1 else 0.0,
             "final_median": float(np.median(f)), "curve": curve_stats(rs),
             "goal_share_reachable_second_half": [r["goal_stats"]["goal_share_reachable_second_half"]
-                                                 for r in rs]}
+                                                 for r in rs],
+            **final_metrics(rs)}
     for a, b in itertools.combinations(names, 2):
         t = pairwise_tests(out["strategies"][a]["final_mean_error"],
                            out["strategies"][b]["final_mean_error"])
@@ -107,13 +129,30 @@ def pairwise_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def _other_metrics(results: list[dict]) -> str:
+    """Table cells: mean over seeds of the final median error, of the share within tolerance, and
+    of the mean error per distance band (edges in task units); — for runs without these metrics."""
+    m = final_metrics(results)
+    med = "—" if m["mean_of_median_errors"] is None else f"{m['mean_of_median_errors']:.3f}"
+    within = ("—" if m["mean_within_share"] is None
+              else f"{m['mean_within_share']:.0%} (≤ {m['within']:.3g})")
+    if m["band_mean_errors"] is None:
+        bands = "—"
+    else:
+        e = m["band_edges"]
+        bands = ", ".join(f"[{e[i]:.3g}, {e[i + 1]:.3g}]: " + ("—" if v is None else f"{v:.3f}")
+                          for i, v in enumerate(m["band_mean_errors"]))
+    return f"{med} | {within} | {bands}"
+
+
 def summary_markdown(results: list[dict], tests: bool = True) -> str:
     """Final test error per strategy (mean ± std over seeds, per seed), goal shares, and
     (``tests``) pairwise tests, as Markdown."""
     groups = by_strategy(results)
     lines = ["| strategy | seeds | final mean error (mean ± std) | median of seeds | per seed | "
-             "goals in reachable area, 2nd half | reachable share of Y |",
-             "|---|---|---|---|---|---|---|"]
+             "goals in reachable area, 2nd half | reachable share of Y | median error | "
+             "within tolerance | mean error by distance band |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     finals = {}
     for name, rs in groups.items():
         f = np.array([r["final_mean_error"] for r in rs])
@@ -124,7 +163,7 @@ def summary_markdown(results: list[dict], tests: bool = True) -> str:
         lines.append(
             f"| {name} | {len(rs)} | {f.mean():.3f} ± {f.std(ddof=1) if len(f) > 1 else 0:.3f} | "
             f"{np.median(f):.3f} | {', '.join(f'{x:.2f}' for x in f)} | {share_txt} | "
-            f"{rs[0]['goal_stats']['reachable_share_of_Y']:.1%} |")
+            f"{rs[0]['goal_stats']['reachable_share_of_Y']:.1%} | {_other_metrics(rs)} |")
     if not tests:
         return "\n".join(lines)
     lines += ["", "| A | B | Mann-Whitney U p | Welch t p |", "|---|---|---|---|"]

@@ -15,6 +15,7 @@ from sagg_common.params import resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import substream_seed
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_low_level.eval_metrics import frame_summary, metric_frame
 from sagg_low_level.evaluate import evaluate
 from sagg_low_level.learner import (SCHEMA as LEARNER_SCHEMA, Command, EvolvingContextLearner,
                                     GoalRequest, Observe, Robot)
@@ -103,13 +104,15 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     lp = config["sagg_learner"]
     lower = np.asarray(lp["task_space.lower"])
     upper = np.asarray(lp["task_space.upper"])
-    area = reachable_area(run.spec, lower, upper, seed=lp["eval.seed"])
+    area = cached_reachable_area(run.spec, lower, upper, lp["eval.seed"])
     goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
 
     bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']}", enabled=progress)
-    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar)
+    frame = metric_frame(goals, np.zeros(goals.shape[1]))  # the arm's base is the origin
+    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar, frame)
 
     result = build_result(run, curve, area, micro_actions, eval_seconds)
+    result["eval_metrics"] = frame_summary(frame)
     result["test_goals"] = goals.tolist()
     result["final_errors"] = errors.tolist()
     mem = run.learner.memory
@@ -117,6 +120,20 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
     result["coverage"] = coverage(run.sim.tip_positions(mem.alpha[:n] + mem.delta_alpha[:n]), goals)
     write_result(out_dir, result)
     return result
+
+
+_AREAS: dict[str, Any] = {}
+
+
+def cached_reachable_area(spec, lower, upper, seed: int):
+    """:func:`reachable_area` of (arm, bounds, seed), kept for the next run in this process: the
+    runs of a comparison share it, and a worker process runs many of them (0.5-2.5 s each)."""
+    key = repr((spec, np.asarray(lower, float).tolist(), np.asarray(upper, float).tolist(), int(seed)))
+    if key not in _AREAS:
+        if len(_AREAS) >= 4:
+            _AREAS.pop(next(iter(_AREAS)))
+        _AREAS[key] = reachable_area(spec, lower, upper, seed=seed)
+    return _AREAS[key]
 
 
 def build_result(run: InProcessRun, curve: list[dict], area, total: int, eval_seconds: float) -> dict:

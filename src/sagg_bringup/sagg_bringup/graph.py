@@ -47,6 +47,7 @@ from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
 from sagg_goal_generator.core import MODE_NAMES
+from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
 from .bag_reader import bag_messages
 from .recorder import BagWriter, TopicRecorder, TopicSpec
@@ -427,6 +428,7 @@ class Evaluator:
                                       list(checkpoints), nice))
         self.area = None  # the ReachableArea of Y, once the worker has computed it
         self.test_goals: np.ndarray | None = None
+        self._frame: dict | None = None  # eval_metrics.metric_frame of the test goals, with them
         self.checkpoints = sorted(set(checkpoints))
         self.curve: list[dict] = []
         self.errors: dict[int, np.ndarray] = {}
@@ -478,12 +480,19 @@ class Evaluator:
                 from sagg_sim_bridge.arm import ReachableArea
                 self.area = ReachableArea(*item[1:6])
                 self.test_goals = item[6]
+                # the evaluation's metrics (eval_metrics, as in-process; base at the origin), also
+                # for points evaluated before (a resumed run's, from its bags)
+                self._frame = metric_frame(self.test_goals, np.zeros(np.asarray(self.test_goals).shape[1]))
+                for c in self.curve:
+                    c.update(error_metrics(self.errors[c["micro_actions"]], self._frame))
                 continue
             _, at, errors, secs = item
             self.eval_seconds += secs
             self.errors[at] = errors
             self.curve.append({"micro_actions": int(at), "mean_error": float(errors.mean()),
                                "median_error": float(np.median(errors))})
+            if self._frame is not None:
+                self.curve[-1].update(error_metrics(errors, self._frame))
             done.append((at, errors))
         if self.error is None and not self.proc.is_alive() and self.proc.exitcode not in (None, 0):
             self.error = f"evaluation process exited with code {self.proc.exitcode}"

@@ -13,6 +13,7 @@ from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError
 from sagg_common.progress import Progress
 from sagg_goal_generator.core import MODE_NAMES
+from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
 
 def run_overrides(micro_actions: int, eval_every: int, strategy: str | None, seed: int | None,
@@ -32,11 +33,14 @@ def run_overrides(micro_actions: int, eval_every: int, strategy: str | None, see
 
 
 def learning_curve(run, goals: np.ndarray, micro_actions: int, eval_every: int,
-                   bar: Progress) -> tuple[list[dict], float, np.ndarray]:
+                   bar: Progress, frame: dict | None = None) -> tuple[list[dict], float, np.ndarray]:
     """Step an in-process run (:class:`InProcessRun` or a synergy run) to every multiple of
     ``eval_every`` and to ``micro_actions``, evaluating the frozen model on ``goals`` at each
-    (never counted as learning). Returns the curve, the evaluation seconds and the final errors;
-    ``bar`` is closed."""
+    (never counted as learning). Each curve point holds the evaluation's metrics
+    (:func:`sagg_low_level.eval_metrics.error_metrics` against ``frame``; default: base at the
+    origin). Returns the curve, the evaluation seconds and the final errors; ``bar`` is closed."""
+    if frame is None:
+        frame = metric_frame(goals, np.zeros(np.asarray(goals).shape[1]))
     curve = []
     eval_seconds = 0.0
     for target in list(range(0, micro_actions, eval_every)) + [micro_actions]:
@@ -44,8 +48,7 @@ def learning_curve(run, goals: np.ndarray, micro_actions: int, eval_every: int,
         t0 = time.perf_counter()
         errors = run.evaluate(goals)
         eval_seconds += time.perf_counter() - t0
-        curve.append({"micro_actions": target, "mean_error": float(errors.mean()),
-                      "median_error": float(np.median(errors))})
+        curve.append({"micro_actions": target, **error_metrics(errors, frame)})
         bar.update(target, goals=len(run.generator.goals), regions=len(run.generator.tree.leaves()),
                    competence=run.learner.last_competence, error=float(errors.mean()))
     bar.close()

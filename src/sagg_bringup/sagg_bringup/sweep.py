@@ -208,6 +208,11 @@ class _RayPool:
             self.ray.shutdown()
 
 
+def make_pool(workers: int, ray_address: str | None = None):
+    """The worker pool of :func:`run_compare`: Ray at ``ray_address``, else local processes."""
+    return _RayPool(ray_address, workers) if ray_address else _LocalPool(workers)
+
+
 def _fmt_seconds(s: float) -> str:
     s = int(round(s))
     return f"{s // 3600}h{s % 3600 // 60:02d}m{s % 60:02d}s" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
@@ -216,8 +221,12 @@ def _fmt_seconds(s: float) -> str:
 def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_actions: int,
                 eval_every: int, out: str | Path, workers: int | None = None,
                 ray_address: str | None = None, overrides: dict | None = None,
-                base_seed: int | None = None, out_fn: Callable[[str], None] = print) -> dict:
+                base_seed: int | None = None, out_fn: Callable[[str], None] = print,
+                pool=None) -> dict:
     """Run every (strategy, seed) not finished yet, then write the summary; returns it.
+
+    ``pool``: an open :func:`make_pool` pool to run on (left open; its workers stay warm for the
+    next comparison, as ``sagg reproduce`` does); default: one made and closed here.
 
     Seeds are ``base_seed + i`` for i in 0..seeds-1; ``base_seed`` defaults to the config's
     ``seed``. Raises ConfigError for bad arguments or a fingerprint mismatch."""
@@ -266,7 +275,9 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
 
     failures: dict[str, str] = {}
     if todo:
-        pool = _RayPool(ray_address, workers) if ray_address else _LocalPool(workers)
+        own = pool is None
+        if own:
+            pool = make_pool(workers, ray_address)
         t0 = time.perf_counter()
         done_now = 0
         try:
@@ -295,7 +306,8 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
                     out_fn(f"[{skipped + done_now}/{total}] {spec.name}: {what}; elapsed "
                            f"{_fmt_seconds(elapsed)}, ETA {_fmt_seconds(eta)}")
         finally:
-            pool.close()
+            if own:
+                pool.close()
 
     summary = write_summary(out, fp, failures, out_fn)
     return summary

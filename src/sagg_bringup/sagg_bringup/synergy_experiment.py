@@ -11,6 +11,7 @@ how θ is executed on the simulator and the outcome read, the test goals, and th
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,9 @@ from sagg_common.progress import Progress
 from sagg_common.rng import stream, substream_seed
 from sagg_common.synergy import transported_outcome
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_low_level.eval_metrics import frame_summary, metric_frame
 from sagg_low_level.learner import CONTEXT
+from sagg_low_level.outcome_set import reachable_outcomes
 from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Driver, FixedContextLearner,
                                           ThetaSpace, evaluate_fixed, spread_goals, synergy_from_params)
 from sagg_sim_bridge.synergy_params import NODE_SCHEMA as BRIDGE_NODE_SCHEMA, SCHEMA as SIM_SCHEMA, SETUPS, make_sim
@@ -107,9 +110,13 @@ class BoxArea:
         return float(np.prod((self.hi - self.lo) / (self.upper_y - self.lower_y)))
 
 
+_POOLS: dict[str, np.ndarray] = {}
+
+
 class SynergySetup:
     """Quadruped / fishing rod: θ → a joint trajectory run by the synergy simulator from its rest state
-    (the synergy bridge's ``on_trajectory``); test goals spread over the outcomes of random synergies."""
+    (the synergy bridge's ``on_trajectory``); test goals spread over an estimate of the reachable
+    outcome set (:mod:`sagg_low_level.outcome_set`)."""
 
     def __init__(self, config: dict[str, dict]):
         lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
@@ -123,6 +130,7 @@ class SynergySetup:
                               f"{bp['setup']}'s joints {list(self.sim.joint_names)}")
         self.task_dim = self.sim.task_dim
         self.rest_outcome = self.sim.rest_outcome
+        self.metric_base = self.rest_outcome  # distance bands of the evaluation (eval_metrics)
 
     def execute(self, theta):
         # exactly what the learner node receives from the bridge (φ through the PoseStamped quaternion)
@@ -132,17 +140,33 @@ class SynergySetup:
         """θ → outcome on the evaluation simulator (deterministic: one for the whole run)."""
         return lambda theta: transported_outcome(self.eval_sim.execute(self.synergy.trajectory(theta)))
 
-    def test_goals(self):
-        """(test goals, reachable-area estimate, extra result keys): goals spread over the outcomes of
-        ``eval.pool`` uniformly random synergies (seeded by eval.seed), no-contact trials dropped."""
+    def test_pool(self) -> np.ndarray:
+        """``eval.pool`` synergy executions spread over the reachable outcome set by
+        :func:`sagg_low_level.outcome_set.reachable_outcomes` (``eval.pool_rounds`` rounds; 0 = plain
+        uniformly random synergies), seeded by eval.seed, no-contact trials dropped: the estimate of
+        the reachable outcome set the test goals are picked from (and the goal-share box). The same
+        for every strategy and seed of a set-up: kept for the next run in this process."""
         lp = self.config["sagg_learner"]
+        key = json.dumps([self.config["sagg_sim_bridge"], {k: v for k, v in lp.items()
+                                                           if k not in ("seed", "strategy")}],
+                         sort_keys=True, default=str)
+        if key in _POOLS:
+            return _POOLS[key].copy()
         rng = stream(lp["eval.seed"], "synergy_test_pool")
-        run = self.evaluator()
-        pool = [y for y in (run(rng.uniform(self.synergy.lower, self.synergy.upper))
-                            for _ in range(lp["eval.pool"])) if y is not None]
-        if not pool:
-            raise ConfigError("eval.pool: no random synergy produced an outcome")
-        pool = np.array(pool)
+        pool = reachable_outcomes(self.evaluator(), self.synergy.lower, self.synergy.upper,
+                                  lp["eval.pool"], lp["eval.pool_rounds"], rng)
+        if not len(pool):
+            raise ConfigError("eval.pool: no synergy of the test pool produced an outcome")
+        if len(_POOLS) >= 4:
+            _POOLS.pop(next(iter(_POOLS)))
+        _POOLS[key] = pool.copy()
+        return pool
+
+    def test_goals(self):
+        """(test goals, reachable-area estimate, extra result keys): goals spread cell by cell over
+        :meth:`test_pool`."""
+        lp = self.config["sagg_learner"]
+        pool = self.test_pool()
         goals = spread_goals(pool, lp["eval.goals"], stream(lp["eval.seed"], "synergy_test_goals"),
                              lp["task_space.lower"], lp["task_space.upper"])
         area = BoxArea(pool, lp["task_space.lower"], lp["task_space.upper"])
@@ -182,6 +206,7 @@ class ArmPostureSetup:
         self.rest = self.sim.rest.copy()
         self.task_dim = self.sim.task_dim
         self.rest_outcome = self.sim.command(self.rest)[1]  # the node's Observe: a rest command
+        self.metric_base = np.zeros(self.task_dim)  # the arm's base, as the evolving arm's evaluation
 
     def execute(self, theta):
         return posture_outcome(self.sim, self.rest, self.synergy.command(theta))
@@ -276,7 +301,8 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
     pool_seconds = time.perf_counter() - t0
 
     bar = Progress(micro_actions, f"{run.setup.name} {lp['strategy']} seed {lp['seed']}", enabled=progress)
-    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar)
+    frame = metric_frame(goals, run.setup.metric_base)  # distance bands (eval_metrics)
+    curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar, frame)
 
     learner = run.learner
     outcomes = learner.outcomes.copy()
@@ -284,6 +310,7 @@ def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: 
                          {"samples": len(learner), "digest": learner.by_theta.digest(),
                           "bytes": int(learner.by_theta.nbytes + learner.by_y.nbytes)})
     result.update({
+        "eval_metrics": frame_summary(frame),
         "test_goals": goals.tolist(),
         "final_errors": errors.tolist(),
         "synergy": {

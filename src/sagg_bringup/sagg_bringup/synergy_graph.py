@@ -26,6 +26,7 @@ import numpy as np
 
 from sagg_common.params import ConfigError, node_params, read_config
 from sagg_common.progress import Progress
+from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
 from .graph import (GraphSession, check_domain_id, node_processes, run_only_params, sagg_topics,
                     write_params_file)
@@ -150,6 +151,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
                               "sagg_sim_bridge": full["sagg_sim_bridge"]})
             goals_test, area, _ = run.test_goals()
             checkpoints = [c for c in list(range(0, micro_actions, eval_every)) + [micro_actions] if c <= len(samples)]
+            frame = metric_frame(goals_test, run.setup.metric_base)  # as in-process (eval_metrics)
             fed = 0
             for at in checkpoints:
                 while fed < at:
@@ -158,8 +160,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
                 t1 = time.perf_counter()
                 errors = run.evaluate(goals_test)
                 eval_seconds += time.perf_counter() - t1
-                curve.append({"micro_actions": int(at), "mean_error": float(errors.mean()),
-                              "median_error": float(np.median(errors))})
+                curve.append({"micro_actions": int(at), **error_metrics(errors, frame)})
                 session.publish_evaluation(at, errors)
             bar.update(st.samples, force=True, **st.progress())  # (error: the last evaluation's)
             session.final_drain()

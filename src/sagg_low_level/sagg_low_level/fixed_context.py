@@ -92,8 +92,13 @@ SCHEMA: Schema = SHARED_SCHEMA + (
     Param("eval.seed", "int", 0,
           "Seed of the test-goal set; independent of the run seed.", low=0),
     Param("eval.pool", "int", 1000,
-          "Test goals are picked spread over the outcomes of this many uniformly random synergies "
-          "(the reachable area is unknown beforehand, Sec. 4.2; our choice).", low=1, high=10_000_000),
+          "Synergy executions that estimate the reachable outcome set the test goals are picked "
+          "from (the reachable area is unknown beforehand, Sec. 4.2; our choice).", low=1, high=10_000_000),
+    Param("eval.pool_rounds", "int", 8,
+          "Rounds of the reachable-outcome-set estimate the test goals are spread over "
+          "(sagg_low_level.outcome_set: re-draw synergies from sparse outcome cells and perturb "
+          "them); 0 = plain uniformly random synergies (where ACTUATOR-RANDOM samples).",
+          low=0, high=1000),
 )
 
 

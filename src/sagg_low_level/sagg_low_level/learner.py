@@ -149,9 +149,11 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("eval.seed", "int", 0,
           "Seed of the test-goal set; independent of the run seed so every strategy and seed is "
           "scored on the same goals.", low=0),
-    Param("eval.timeout_factor", "float", 2.0,
+    Param("eval.timeout_factor", "float", 5.0,
           "Evaluation budget: ceil(factor × D(y_rest, goal) / v) micro-actions per test goal "
-          "(paper gives none; our choice).", low=0.0, high=1e6, low_open=True),
+          "(paper gives none; our choice: a budget that does not bind a reach still converging, "
+          "for every strategy; sagg_low_level/eval_metrics.py, docs/evaluation.md).",
+          low=0.0, high=1e6, low_open=True),
     Param("eval.tolerance", "float", 0.01,
           "Evaluation stops early when the effector is this close to the test goal (task units).",
           low=0.0, high=1e9),

@@ -1,0 +1,401 @@
+"""``sagg reproduce CLAIM|all``: settle the paper's claims, each at its own set-up and scale.
+
+The claims and the experiments they are decided on are data (``claims.yaml`` next to this module).
+Every experiment runs through ``sagg bench compare`` (:func:`sagg_bringup.sweep.run_compare`): the
+same runs, the same resumable layout and the same statistics (:mod:`sagg_bringup.compare`). This
+module only picks the experiments, reads their ``summary.json`` and writes the verdicts.
+
+Layout of ``--out DIR``::
+
+    DIR/experiments/<experiment>/...   one `sagg bench compare` directory each (resumable)
+    DIR/claims.json                    a list: one entry per claim (fields: CLAIM_FIELDS)
+    DIR/report.md, DIR/figures/*.png   verdict table, curves with seed spread, goal histograms
+
+Verdict rules (written in claims.yaml too): per pair [A, B] of a claim ("A is better than B"),
+*reproduced* when A is better in the mean over seeds and the claim's two-sided p < alpha, *not
+reproduced* when B is better and p < alpha, else *inconclusive*; a claim is reproduced when all its
+pairs are, not reproduced when any pair is, inconclusive otherwise. Its ``p_value`` is the largest p
+of its pairs (the weakest link) unless it is not reproduced, then the smallest p of its pairs that
+went the other way significantly.
+"""
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import yaml
+
+from sagg_common.journal import write_json_atomic
+from sagg_common.params import STRATEGIES, ConfigError
+
+REGISTRY = Path(__file__).with_name("claims.yaml")
+CLAIM_FIELDS = ("id", "section", "claim", "setup", "strategies", "seeds", "micro_actions", "paper",
+                "ours", "p_value", "verdict")
+VERDICTS = ("reproduced", "not reproduced", "inconclusive")
+METRICS = {"final_mean_error": "lower", "goal_share_reachable_second_half": "higher"}
+STATISTICS = ("mannwhitney_p", "welch_p")
+
+
+def load_registry(path: str | Path = REGISTRY) -> dict:
+    """The claim registry, checked: every claim names a known experiment, known strategies of that
+    experiment, a known metric and statistic; every experiment has a paper scale and a config."""
+    reg = yaml.safe_load(Path(path).read_text())
+    if not isinstance(reg, dict) or reg.get("format") != "sagg.claims/1":
+        raise ConfigError(f"{path}: not a sagg.claims/1 registry")
+    exps, claims = reg.get("experiments") or {}, reg.get("claims") or []
+    for name, e in exps.items():
+        for key in ("section", "config", "strategies", "paper"):
+            if key not in e:
+                raise ConfigError(f"{path}: experiment {name!r} has no {key!r}")
+        bad = [s for s in e["strategies"] if s not in STRATEGIES]
+        if bad:
+            raise ConfigError(f"{path}: experiment {name!r}: unknown strategies {bad}")
+        e.setdefault("set", {})
+        e.setdefault("kind", "arm")
+        if e["kind"] not in reg["scales"]["smoke"]:
+            raise ConfigError(f"{path}: experiment {name!r}: kind {e['kind']!r} has no smoke scale")
+    seen = set()
+    for c in claims:
+        if c.get("id") in seen:
+            raise ConfigError(f"{path}: claim id {c.get('id')!r} twice")
+        seen.add(c["id"])
+        if c.get("experiment") not in exps:
+            raise ConfigError(f"{path}: claim {c['id']!r}: unknown experiment {c.get('experiment')!r}")
+        c.setdefault("metric", "final_mean_error")
+        c.setdefault("statistic", reg.get("statistic", "mannwhitney_p"))
+        if c["metric"] not in METRICS:
+            raise ConfigError(f"{path}: claim {c['id']!r}: metric {c['metric']!r}; allowed: {list(METRICS)}")
+        if c["statistic"] not in STATISTICS:
+            raise ConfigError(f"{path}: claim {c['id']!r}: statistic {c['statistic']!r}; allowed: {STATISTICS}")
+        strategies = exps[c["experiment"]]["strategies"]
+        for pair in c.get("expect") or []:
+            if len(pair) != 2 or any(s not in strategies for s in pair):
+                raise ConfigError(f"{path}: claim {c['id']!r}: pair {pair} not two of {strategies}")
+        if not c.get("expect"):
+            raise ConfigError(f"{path}: claim {c['id']!r} expects nothing")
+    return reg
+
+
+def scale_of(reg: dict, experiment: dict, scale: str) -> dict:
+    """seeds, micro_actions, eval_every and extra parameter overrides of one experiment at ``scale``."""
+    if scale == "paper":
+        s = dict(experiment["paper"])
+        s.setdefault("set", {})
+        return s
+    if scale == "smoke":
+        return dict(reg["scales"]["smoke"][experiment["kind"]])
+    raise ConfigError(f"--scale: got {scale!r}; allowed: paper, smoke")
+
+
+def resolve_config(config: str) -> Path:
+    """A registry config path (``config/<name>.yaml``): relative to the current directory, else the
+    repository this package sits in, else the installed share directory."""
+    import sys
+    here = Path(__file__).resolve()
+    # setup.py installs config/*.yaml to <prefix>/share/sagg_bringup/config
+    candidates = [Path(config), here.parents[3] / config, Path(sys.prefix) / "share" / "sagg_bringup" / config]
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise ConfigError(f"config {config!r} not found (looked in: {', '.join(map(str, candidates))})")
+
+
+def select(reg: dict, which: list[str]) -> list[dict]:
+    """The claims named (ids, ``all``, or an experiment name: its claims), in registry order."""
+    claims = reg["claims"]
+    if "all" in which:
+        return list(claims)
+    ids = {c["id"] for c in claims}
+    bad = [w for w in which if w not in ids and w not in reg["experiments"]]
+    if bad:
+        raise ConfigError(f"CLAIM: unknown {bad}; allowed: all, or any of {', '.join(sorted(ids))}")
+    return [c for c in claims if c["id"] in which or c["experiment"] in which]
+
+
+def code_commit() -> str:
+    """The commit of the code that ran (with ``-dirty`` when the work tree has changes), or
+    ``unknown`` outside a git checkout."""
+    here = Path(__file__).resolve().parent
+    try:
+        rev = subprocess.run(["git", "-C", str(here), "rev-parse", "--short", "HEAD"],
+                             capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return rev + ("-dirty" if dirty else "")
+
+
+def significance_floor(n_a: int, n_b: int) -> float:
+    """The smallest two-sided Mann-Whitney p possible with n_a against n_b values (exact test, no
+    ties): 2 / C(n_a + n_b, n_a). Below alpha only with enough seeds."""
+    if n_a < 1 or n_b < 1:
+        return float("nan")
+    return min(1.0, 2.0 / math.comb(n_a + n_b, n_a))
+
+
+def pair_verdict(mean_a: float, mean_b: float, p: float, higher_is_better: bool, alpha: float) -> str:
+    """One pair [A, B] ("A better than B"), by the rule in the module docstring."""
+    if not (np.isfinite(mean_a) and np.isfinite(mean_b) and np.isfinite(p)) or mean_a == mean_b:
+        return "inconclusive"
+    a_better = mean_a > mean_b if higher_is_better else mean_a < mean_b
+    if p < alpha:
+        return "reproduced" if a_better else "not reproduced"
+    return "inconclusive"
+
+
+def claim_verdict(pairs: list[dict]) -> tuple[str, float]:
+    """A claim's verdict and p-value from its pairs (module docstring)."""
+    ps = [pr["p"] for pr in pairs]
+    against = [pr["p"] for pr in pairs if pr["verdict"] == "not reproduced"]
+    if against:
+        return "not reproduced", float(min(against))
+    p = float(max(ps)) if ps and all(np.isfinite(ps)) else float("nan")
+    if all(pr["verdict"] == "reproduced" for pr in pairs):
+        return "reproduced", p
+    return "inconclusive", p
+
+
+def decide(claim: dict, summary: dict, alpha: float) -> dict:
+    """The ``ours``, ``p_value``, ``verdict`` and per-pair details of one claim from its experiment's
+    ``summary.json`` (final values per seed; the tests of :func:`compare.pairwise_tests`)."""
+    from .compare import pairwise_tests
+    strat = summary["strategies"]
+    metric, stat = claim["metric"], claim["statistic"]
+    higher = METRICS[metric] == "higher"
+    key = "final_mean_error" if metric == "final_mean_error" else metric
+    values = {s: [float(v) for v in strat[s][key]] for s in strat}
+    ours = {s: {"mean": float(np.nanmean(v)) if len(v) else float("nan"),
+                "std": float(np.nanstd(v, ddof=1)) if len(v) > 1 else 0.0,
+                "median": float(np.nanmedian(v)) if len(v) else float("nan"),
+                "n": len(v), "per_seed": v} for s, v in values.items()}
+    pairs = []
+    for a, b in claim["expect"]:
+        if a not in values or b not in values:
+            pairs.append({"a": a, "b": b, "p": float("nan"), "verdict": "inconclusive",
+                          "why": "runs missing (failed or not run)"})
+            continue
+        t = pairwise_tests(values[a], values[b])
+        p = t[stat]
+        pairs.append({"a": a, "b": b, "mean_a": ours[a]["mean"], "mean_b": ours[b]["mean"], "p": p,
+                      "p_floor": significance_floor(len(values[a]), len(values[b])),
+                      "verdict": pair_verdict(ours[a]["mean"], ours[b]["mean"], p, higher, alpha)})
+    verdict, p = claim_verdict(pairs)
+    return {"ours": {"metric": metric, "better": METRICS[metric], "strategies": ours},
+            "p_value": p, "statistic": stat, "pairs": pairs, "verdict": verdict}
+
+
+def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None = None,
+                  workers: int | None = None, ray_address: str | None = None,
+                  registry: str | Path = REGISTRY, out_fn: Callable[[str], None] = print) -> list[dict]:
+    """Run (or resume) every experiment the selected claims need, then write claims.json and
+    report.md with figures. Returns the claims.json list."""
+    import os
+
+    reg = load_registry(registry)
+    claims = select(reg, which)
+    out = Path(out or f"runs/reproduce-{scale}")
+    commit = code_commit()
+    needed = list(dict.fromkeys(c["experiment"] for c in claims))
+    summaries, settings = {}, {}
+    workers = workers or os.cpu_count() or 1
+    pool = None  # one pool for every experiment, made when the first run is due (warm workers)
+    try:
+        for i, name in enumerate(needed, 1):
+            pool = _run_experiment(reg, name, i, len(needed), scale, out, workers, ray_address,
+                                   pool, summaries, settings, out_fn)
+    finally:
+        if pool is not None:
+            pool.close()
+
+    alpha = float(reg.get("alpha", 0.05))
+    rows = []
+    for c in claims:
+        e, st = reg["experiments"][c["experiment"]], settings[c["experiment"]]
+        d = decide(c, summaries[c["experiment"]], alpha)
+        rows.append({"id": c["id"], "section": e["section"], "claim": c["claim"],
+                     "setup": {"experiment": c["experiment"], "config": st["config"],
+                               "overrides": st["overrides"], "eval_every": st["eval_every"]},
+                     "strategies": list(e["strategies"]),
+                     "seeds": list(range(st["seeds"])), "micro_actions": st["micro_actions"],
+                     "paper": c["paper"], "ours": d["ours"], "p_value": d["p_value"],
+                     "verdict": d["verdict"], "statistic": d["statistic"], "pairs": d["pairs"],
+                     "alpha": alpha, "scale": scale, "commit": commit})
+    write_json_atomic(out / "claims.json", rows)
+    write_report(out, rows, reg, scale, commit)
+    counts = {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS}
+    out_fn(f"wrote {out / 'claims.json'}, {out / 'report.md'}: "
+           + ", ".join(f"{n} {v}" for v, n in counts.items()))
+    return rows
+
+
+def _run_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, summaries, settings,
+                    out_fn):
+    """One experiment through run_compare (on ``pool``, made here if None and runs are due);
+    fills ``summaries`` / ``settings``; returns the pool."""
+    from .sweep import make_pool, run_compare
+    e = reg["experiments"][name]
+    sc = scale_of(reg, e, scale)
+    overrides = {**e["set"], **sc.get("set", {})}
+    out_fn(f"== experiment {i}/{n}: {name} (Sec. {e['section']}, {e['config']}, "
+           f"{scale} scale: {sc['seeds']} seeds x {sc['micro_actions']})")
+    if pool is None:
+        pool = make_pool(workers, ray_address)
+    summaries[name] = run_compare(resolve_config(e["config"]), e["strategies"], sc["seeds"],
+                                  sc["micro_actions"], sc["eval_every"], out / "experiments" / name,
+                                  workers=workers, ray_address=ray_address, overrides=overrides,
+                                  base_seed=0, out_fn=out_fn, pool=pool)
+    settings[name] = {"config": e["config"], "overrides": overrides,
+                      **{k: sc[k] for k in ("seeds", "micro_actions", "eval_every")}}
+    return pool
+
+
+# --------------------------------------------------------------------------------------- report
+def _fmt(x, spec=".3g") -> str:
+    return "—" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
+
+
+def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str) -> Path:
+    """report.md: the verdict table, then per experiment its curves (mean ± std over seeds, like the
+    paper's Figs. 10-13, 17, 21) and a histogram of the self-generated goals of each goal-choosing
+    strategy (pooled over seeds; like Figs. 8, 15)."""
+    from .compare import load_results
+    figs = out / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    md = [f"# Reproduction of the paper's claims ({scale} scale)", "",
+          f"Code commit `{commit}`. Every number below comes from `DIR/experiments/<experiment>` "
+          f"(one `sagg bench compare` each; seeds 0..n-1). Verdict rules: see "
+          f"`sagg_bringup/reproduce.py` (alpha = {rows[0]['alpha'] if rows else '—'}).", ""]
+    if scale == "smoke":
+        md += ["**Smoke scale: a wiring check, not a result.** With 2 seeds no two-sided "
+               "Mann-Whitney p can fall below 0.33, so every verdict is inconclusive by design.", ""]
+    md += ["| claim | Sec. | paper | ours (mean over seeds) | p | verdict |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        s = r["ours"]["strategies"]
+        named = {n for pr in r["pairs"] for n in (pr["a"], pr["b"])}  # the claim's strategies only
+        ours = "; ".join(f"{n} {_fmt(v['mean'])}" for n, v in s.items() if n in named)
+        if r["ours"]["metric"] != "final_mean_error":
+            ours += f" ({r['ours']['metric']})"
+        md.append(f"| {r['id']} | {r['section']} | {r['paper']} | {ours} | {_fmt(r['p_value'])} | "
+                  f"**{r['verdict']}** |")
+    md.append("")
+    for exp in dict.fromkeys(r["setup"]["experiment"] for r in rows):
+        d = out / "experiments" / exp
+        results = load_results([d / "runs"]) if (d / "runs").is_dir() else []
+        first = next(r for r in rows if r["setup"]["experiment"] == exp)
+        md += [f"## {exp} (Sec. {first['section']})", "",
+               f"`{first['setup']['config']}`, overrides {first['setup']['overrides'] or 'none'}; "
+               f"{len(first['seeds'])} seeds × {first['micro_actions']:,} micro-actions; "
+               f"details: `experiments/{exp}/summary.md`.", ""]
+        for r in rows:
+            if r["setup"]["experiment"] != exp:
+                continue
+            md += [f"- **{r['id']}**: {r['claim']} — **{r['verdict']}** ({r['statistic']} "
+                   f"{_fmt(r['p_value'])}, on {r['ours']['metric']})"]
+            for pr in r["pairs"]:
+                md.append(f"  - {pr['a']} better than {pr['b']}: {_fmt(pr.get('mean_a'))} vs "
+                          f"{_fmt(pr.get('mean_b'))}, p = {_fmt(pr['p'])} (smallest possible "
+                          f"{_fmt(pr.get('p_floor'))}): {pr['verdict']}")
+        md.append("")
+        if results:
+            # the comparison's own figure (mean ± std over seeds, drawn by write_summary)
+            shutil.copyfile(d / "curves.png", figs / f"{exp}_curves.png")
+            md += [f"![{exp} curves](figures/{exp}_curves.png)", ""]
+            if plot_goal_histograms(results, figs / f"{exp}_goals.png", exp):
+                md += [f"![{exp} goals](figures/{exp}_goals.png)", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(md) + "\n")
+    return path
+
+
+def plot_goal_histograms(results: list[dict], path: Path, title: str, bins: int = 40) -> bool:
+    """2-D histograms of the self-generated goals (first two task dimensions, all seeds pooled), one
+    panel per strategy that chooses goals, with the test goals on top. False when no strategy has
+    goals (nothing drawn)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .compare import by_strategy
+    groups = {n: rs for n, rs in by_strategy(results).items()
+              if any(r.get("goals") for r in rs)}
+    if not groups:
+        return False
+    lp = results[0]["config"]["sagg_learner"]
+    lo, hi = lp["task_space.lower"], lp["task_space.upper"]
+    fig, axes = plt.subplots(1, len(groups), figsize=(4.2 * len(groups), 3.8), squeeze=False)
+    for ax, (name, rs) in zip(axes[0], groups.items()):
+        pos = np.array([g["position"][:2] for r in rs for g in r["goals"]]).reshape(-1, 2)
+        ax.hist2d(pos[:, 0], pos[:, 1], bins=bins, range=[[lo[0], hi[0]], [lo[1], hi[1]]], cmap="Blues")
+        tg = np.array(rs[0].get("test_goals") or []).reshape(-1, len(lo))
+        if len(tg):
+            ax.scatter(tg[:, 0], tg[:, 1], s=4, c="red", label="test goals")
+            ax.legend(fontsize=7, loc="upper right")
+        ax.set_title(f"{name}: {len(pos)} goals, {len(rs)} seeds", fontsize=9)
+        ax.set_xlabel("y1")
+        ax.set_ylabel("y2")
+    fig.suptitle(f"{title}: self-generated goals (all seeds)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+# ------------------------------------------------------------------------------------- estimate
+def estimate(which: list[str], out: str | Path, probe_micro_actions: dict | None = None,
+             workers: int | None = None, registry: str | Path = REGISTRY,
+             out_fn: Callable[[str], None] = print) -> list[dict]:
+    """Measure each needed experiment's speed per strategy with one short probe run (seed 0, through
+    ``run_compare``, resumable in ``out``) and extrapolate the paper-scale cost: learning time =
+    micro-actions / measured rate; evaluation time = evaluations × the probe's time per
+    evaluation of a trained model. Returns one row per experiment (core-hours per strategy and
+    total). Rates fall as the memory grows (the neighbour search), so this is a lower bound."""
+    from .sweep import run_compare
+    reg = load_registry(registry)
+    claims = select(reg, which)
+    probe = {"arm": 2000, "synergy": 100, **(probe_micro_actions or {})}
+    rows = []
+    for name in dict.fromkeys(c["experiment"] for c in claims):
+        e = reg["experiments"][name]
+        pa = scale_of(reg, e, "paper")
+        n = probe[e["kind"]]
+        summ = run_compare(resolve_config(e["config"]), e["strategies"], 1, n, n,
+                           Path(out) / name, workers=workers, overrides=dict(e["set"]), base_seed=0,
+                           out_fn=out_fn)
+        from .compare import load_results
+        res = {r["strategy"]: r for r in load_results([Path(out) / name / "runs"])}
+        evals = len(range(0, pa["micro_actions"], pa["eval_every"])) + 1
+        per = {}
+        for s in e["strategies"]:
+            if s not in res:
+                continue
+            r = res[s]
+            learn_h = pa["micro_actions"] / max(r["micro_actions_per_second"], 1e-9) / 3600
+            eval_h = evals * r["eval_seconds"] / 3600  # two evaluations in the probe; the one at 0 is ~free
+            per[s] = {"rate": r["micro_actions_per_second"], "eval_seconds": r["eval_seconds"],
+                      "core_hours_per_run": learn_h + eval_h}
+        total = sum(v["core_hours_per_run"] for v in per.values()) * pa["seeds"]
+        rows.append({"experiment": name, "section": e["section"], "seeds": pa["seeds"],
+                     "micro_actions": pa["micro_actions"], "evaluations": evals, "probe": n,
+                     "strategies": per, "core_hours": total, "failed": summ["failed_runs"]})
+    write_json_atomic(Path(out) / "estimate.json", rows)
+    out_fn(estimate_table(rows))
+    return rows
+
+
+def estimate_table(rows: list[dict]) -> str:
+    """Markdown: per experiment, the measured rate per strategy and the extrapolated core-hours."""
+    lines = ["| experiment | Sec. | seeds × micro-actions | micro-actions/s per strategy (probe) | "
+             "core-hours per run | core-hours |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        rates = ", ".join(f"{s} {v['rate']:,.0f}" for s, v in r["strategies"].items())
+        per = ", ".join(f"{s} {v['core_hours_per_run']:.2f}" for s, v in r["strategies"].items())
+        lines.append(f"| {r['experiment']} | {r['section']} | {r['seeds']} × {r['micro_actions']:,} | "
+                     f"{rates} | {per} | {r['core_hours']:.1f} |")
+    lines.append(f"| **total** | | | | | **{sum(r['core_hours'] for r in rows):.1f}** |")
+    return "\n".join(lines)

@@ -1,0 +1,225 @@
+"""``sagg reproduce``: the claim registry, the verdict rules on known inputs, every claim end to end at
+smoke scale (claims.json with every field), and resuming after a lost run.
+
+The smoke run is the whole registry at its tiny scale (2 seeds, a few hundred micro-actions or a few
+synergy experiments, 6 test goals): a wiring check, never a result.
+"""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sagg_bringup.reproduce import (CLAIM_FIELDS, VERDICTS, claim_verdict, decide, load_registry,
+                                    pair_verdict, resolve_config, select, significance_floor)
+from sagg_common.params import ConfigError
+
+SAGG = Path(sys.executable).parent / "sagg"
+
+
+def test_registry_has_every_claim_of_the_issue_and_valid_setups():
+    reg = load_registry()
+    exps = reg["experiments"]
+    sections = {exps[c["experiment"]]["section"] for c in reg["claims"]}
+    assert {"3.8.1", "3.8.2", "3.8.3", "3.9", "3.10", "4.6", "5.3"} <= sections
+    arms = {(exps[c["experiment"]]["set"]["arm.dof"], exps[c["experiment"]]["set"]["arm.link_profile"])
+            for c in reg["claims"] if exps[c["experiment"]]["section"] == "3.9"}
+    assert arms == {(d, p) for d in (7, 15, 30) for p in ("equal", "golden")}
+    sizes = sorted(exps[c["experiment"]]["set"]["task_space.upper"][0]
+                   for c in reg["claims"] if exps[c["experiment"]]["section"] == "3.8.3")
+    assert sizes == [50.0, 150.0, 500.0, 1000.0, 1500.0]
+    dof15 = exps["dof15_golden"]["paper"]
+    assert dof15["seeds"] >= 15 and dof15["micro_actions"] >= 200_000
+    for e in exps.values():
+        assert resolve_config(e["config"]).is_file()
+    assert [c["id"] for c in select(reg, ["y50"])] == ["y50-sagg-beats-actuator", "y50-riac-beats-random",
+                                                       "y50-actuator-random-beats-riac"]
+    with pytest.raises(ConfigError, match="no-such-claim"):
+        select(reg, ["no-such-claim"])
+
+
+def test_registry_errors_name_the_claim(tmp_path):
+    reg = (Path(__file__).resolve().parents[1] / "src/sagg_bringup/sagg_bringup/claims.yaml").read_text()
+    bad = tmp_path / "claims.yaml"
+    bad.write_text(reg.replace("expect: [[sagg-riac, actuator-random]]\n",
+                               "expect: [[sagg-riac, sagg-random]]\n", 1))
+    with pytest.raises(ConfigError, match="claim 'size-1x': pair"):
+        load_registry(bad)
+
+
+def test_verdict_rules_on_known_inputs():
+    assert significance_floor(2, 2) == pytest.approx(1 / 3)
+    assert significance_floor(15, 15) == pytest.approx(2 / math.comb(30, 15))
+    assert pair_verdict(1.0, 2.0, 0.01, False, 0.05) == "reproduced"
+    assert pair_verdict(2.0, 1.0, 0.01, False, 0.05) == "not reproduced"
+    assert pair_verdict(1.0, 2.0, 0.2, False, 0.05) == "inconclusive"
+    assert pair_verdict(0.6, 0.3, 0.01, True, 0.05) == "reproduced"  # a share: higher is better
+    assert pair_verdict(1.0, 2.0, float("nan"), False, 0.05) == "inconclusive"
+    ok = {"p": 0.01, "verdict": "reproduced"}
+    assert claim_verdict([ok, {"p": 0.03, "verdict": "reproduced"}]) == ("reproduced", 0.03)
+    assert claim_verdict([ok, {"p": 0.4, "verdict": "inconclusive"}]) == ("inconclusive", 0.4)
+    assert claim_verdict([ok, {"p": 0.02, "verdict": "not reproduced"}]) == ("not reproduced", 0.02)
+
+
+def test_decide_reads_the_compare_summary():
+    low, high = [0.1, 0.2, 0.3, 0.4, 0.5], [1.1, 1.2, 1.3, 1.4, 1.5]
+    summ = {"strategies": {"sagg-riac": {"final_mean_error": low, "goal_share_reachable_second_half": high},
+                           "actuator-random": {"final_mean_error": high,
+                                               "goal_share_reachable_second_half": low}}}
+    claim = {"expect": [["sagg-riac", "actuator-random"]], "metric": "final_mean_error",
+             "statistic": "mannwhitney_p"}
+    d = decide(claim, summ, 0.05)
+    assert d["verdict"] == "reproduced"
+    assert d["p_value"] == pytest.approx(2 / math.comb(10, 5))  # every A below every B
+    assert d["ours"]["strategies"]["sagg-riac"]["mean"] == pytest.approx(0.3)
+    d = decide({**claim, "expect": [["actuator-random", "sagg-riac"]]}, summ, 0.05)
+    assert d["verdict"] == "not reproduced"
+    d = decide({**claim, "metric": "goal_share_reachable_second_half"}, summ, 0.05)
+    assert d["verdict"] == "reproduced"  # sagg-riac's share is the higher one
+    d = decide({**claim, "statistic": "welch_p"}, summ, 0.05)
+    assert d["statistic"] == "welch_p" and d["p_value"] < 1e-4
+
+
+def reproduce(out: Path, *what: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([str(SAGG), "reproduce", *what, "--scale", "smoke", "--out", str(out),
+                           "--workers", "2"], capture_output=True, text=True, timeout=timeout)
+
+
+def test_smoke_all_writes_every_claim_with_every_field(tmp_path):
+    t0 = time.monotonic()
+    r = reproduce(tmp_path / "all", "all")
+    wall = time.monotonic() - t0
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    rows = json.loads((tmp_path / "all" / "claims.json").read_text())
+    reg = load_registry()
+    assert [row["id"] for row in rows] == [c["id"] for c in reg["claims"]]
+    for row in rows:
+        missing = [f for f in CLAIM_FIELDS if f not in row]
+        assert not missing, (row["id"], missing)
+        assert row["verdict"] in VERDICTS
+        assert row["seeds"] == [0, 1]
+        strategies = reg["experiments"][row["setup"]["experiment"]]["strategies"]
+        assert sorted(row["ours"]["strategies"]) == sorted(strategies), row["id"]
+        for s in strategies:
+            assert row["ours"]["strategies"][s]["n"] == 2
+            assert np.isfinite(row["ours"]["strategies"][s]["mean"])
+        # 2 seeds: the smallest two-sided Mann-Whitney p is 1/3, so nothing can be decided
+        # (p is NaN when all values tie, e.g. no goal in the second half of 100 micro-actions)
+        assert row["verdict"] == "inconclusive" and not row["p_value"] < 1 / 3 - 1e-12
+        assert row["commit"]
+    report = (tmp_path / "all" / "report.md").read_text()
+    for row in rows:
+        assert f"| {row['id']} |" in report
+    for exp in reg["experiments"]:
+        assert (tmp_path / "all" / "figures" / f"{exp}_curves.png").stat().st_size > 0
+    assert (tmp_path / "all" / "figures" / "quadruped_goals.png").is_file()
+    # every curve point carries the evaluation's metrics (defined once, eval_metrics.py)
+    res = json.loads(next((tmp_path / "all" / "experiments" / "fishing").rglob("result.json")).read_text())
+    assert {"mean_error", "median_error", "within_share", "band_mean_errors"} <= set(res["curve"][-1])
+    assert len(res["eval_metrics"]["band_edges"]) == 5
+    print(f"smoke wall {wall:.0f} s")
+
+
+def test_rerun_after_a_lost_run_redoes_only_that_run(tmp_path):
+    out = tmp_path / "r"
+    r = reproduce(out, "fishing-riac-beats-random")
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    files = sorted((out / "experiments" / "fishing" / "runs").rglob("result.json"))
+    assert len(files) == 4  # 2 strategies x 2 seeds
+    before = {f: f.stat().st_mtime_ns for f in files}
+    lost = files[0]
+    lost.unlink()  # as if the driver had been killed before this run finished
+    r = reproduce(out, "fishing-riac-beats-random")
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "3 finished run(s) kept and skipped, 1 to run" in r.stdout
+    assert lost.is_file()
+    assert all(f.stat().st_mtime_ns == t for f, t in before.items() if f != lost)
+    rows = json.loads((out / "claims.json").read_text())
+    assert [row["id"] for row in rows] == ["fishing-riac-beats-random"]
+    r = reproduce(out, "fishing-riac-beats-random")
+    assert "0 to run" in r.stdout
+
+
+# ------------------------------------------------------------ the evaluation's pieces, known inputs
+def test_error_metrics_on_known_inputs():
+    from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
+    goals = np.array([[1.0, 0.0], [0.0, 3.0], [5.0, 0.0], [0.0, 10.0], [8.0, 6.0]])  # |g| 1, 3, 5, 10, 10
+    f = metric_frame(goals, [0.0, 0.0])
+    assert f["radius"] == 10.0 and f["within"] == pytest.approx(0.2)
+    assert f["band_edges"] == [0.0, 2.5, 5.0, 7.5, 10.0]
+    assert f["band_of_goal"] == [0, 1, 2, 3, 3] and f["band_counts"] == [1, 1, 1, 2]
+    m = error_metrics([0.1, 0.3, 0.2, 4.0, 2.0], f)
+    assert m["mean_error"] == pytest.approx(1.32) and m["median_error"] == pytest.approx(0.3)
+    assert m["within_share"] == pytest.approx(0.4)  # 0.1 and 0.2 are within 0.2
+    assert m["band_mean_errors"] == pytest.approx([0.1, 0.3, 0.2, 3.0])
+    assert "band_of_goal" not in frame_summary(f)
+    f2 = metric_frame(np.array([[0.5, 0.0], [1.0, 0.0]]), [0.0, 0.0])  # bands 0 and 1 hold no goal
+    assert error_metrics([1.0, 2.0], f2)["band_mean_errors"] == [None, None, 1.0, 2.0]
+    with pytest.raises(ValueError, match="errors"):
+        error_metrics([1.0], f)
+
+
+def test_synergy_test_goals_do_not_follow_the_random_synergy_density():
+    """A synergy whose outcome is the mean of many parameters (like the quadruped's 12 amplitudes):
+    uniformly random synergies pile up near the centre and almost never reach the edges of the
+    reachable set [-1, 1]^2. The goals spread over the estimated reachable set must not."""
+    from sagg_low_level.fixed_context import spread_goals
+    from sagg_low_level.outcome_set import reachable_outcomes
+
+    def outcome(theta):
+        return np.array([theta[:6].mean(), theta[6:].mean()])
+
+    lo, hi = -np.ones(12), np.ones(12)
+    random_outcomes = np.array([outcome(t) for t in np.random.default_rng(3).uniform(lo, hi, (4000, 12))])
+    far = lambda p: float((np.abs(p).max(axis=1) > 0.5).mean())  # noqa: E731
+    uniform_share = 1.0 - 0.5 ** 2  # of a uniform density over [-1, 1]^2
+    for seed in (1, 2):
+        pool = reachable_outcomes(outcome, lo, hi, 1000, 8, np.random.default_rng(seed))
+        old = reachable_outcomes(outcome, lo, hi, 1000, 0, np.random.default_rng(seed))
+        goals = spread_goals(pool, 100, np.random.default_rng(7), [-1.0, -1.0], [1.0, 1.0])
+        old_goals = spread_goals(old, 100, np.random.default_rng(7), [-1.0, -1.0], [1.0, 1.0])
+        # the random-synergy density puts ~6 % of outcomes beyond 0.5; the goals ~ the uniform 75 %
+        assert far(random_outcomes) < 0.1
+        assert far(goals) > 0.45 > far(old_goals) and far(goals) > 0.6 * uniform_share
+        # and the goals reach further out than the random synergies' 99th percentile
+        assert np.abs(goals).max() > np.percentile(np.abs(random_outcomes).max(axis=1), 99) + 0.1
+        assert np.all(np.abs(pool) <= 1.0)  # only real outcomes: never outside the reachable set
+
+
+def test_estimate_table_sums_core_hours():
+    from sagg_bringup.reproduce import estimate_table
+    rows = [{"experiment": "a", "section": "3.9", "seeds": 15, "micro_actions": 200_000,
+             "strategies": {"sagg-riac": {"rate": 2000.0, "core_hours_per_run": 0.5}},
+             "core_hours": 7.5},
+            {"experiment": "b", "section": "5.3", "seeds": 10, "micro_actions": 10_000,
+             "strategies": {"sagg-riac": {"rate": 10.0, "core_hours_per_run": 0.25}},
+             "core_hours": 2.5}]
+    table = estimate_table(rows)
+    assert "| a | 3.9 | 15 × 200,000 | sagg-riac 2,000 | sagg-riac 0.50 | 7.5 |" in table
+    assert table.splitlines()[-1] == "| **total** | | | | | **10.0** |"
+
+
+def test_compare_summary_carries_the_other_metrics():
+    from sagg_bringup.compare import summary_json, summary_markdown
+
+    def run(seed, med, within, bands):
+        return {"strategy": "sagg-riac", "seed": seed, "final_mean_error": 1.0,
+                "curve": [{"micro_actions": 0, "mean_error": 2.0},
+                          {"micro_actions": 100, "mean_error": 1.0, "median_error": med,
+                           "within_share": within, "band_mean_errors": bands}],
+                "eval_metrics": {"band_edges": [0.0, 1.0, 2.0], "within": 0.04},
+                "goal_stats": {"goal_share_reachable_second_half": 0.5, "reachable_share_of_Y": 0.1}}
+
+    rs = [run(0, 0.2, 0.5, [1.0, None]), run(1, 0.4, 0.7, [3.0, None])]
+    s = summary_json(rs)["strategies"]["sagg-riac"]
+    assert s["final_median_error"] == [0.2, 0.4] and s["mean_of_median_errors"] == pytest.approx(0.3)
+    assert s["mean_within_share"] == pytest.approx(0.6)
+    assert s["band_mean_errors"] == [2.0, None]
+    row = summary_markdown(rs, tests=False).splitlines()[-1]
+    assert row.endswith("| 0.300 | 60% (≤ 0.04) | [0, 1]: 2.000, [1, 2]: — |")
