@@ -46,10 +46,15 @@ def nodes(tmp_path_factory):
                                              "rest_posture": [0.1, 0.2, 0.3]}},
         "sagg_sim_bridge": {"ros__parameters": {"arm": {"dof": 3, "mode": "kinematic"}}},
     }
+    yield from arm_nodes(params, tmp)
+
+
+def arm_nodes(params: dict, tmp: Path):
+    """Learner, goal generator and bridge built in this process from ``params`` (a parameter-file
+    dict) on a private domain, not spun; destroyed and the context shut down afterwards."""
     path = tmp / "params.yaml"
     path.write_text(yaml.safe_dump(params))
-    domain = pick_domain_id()
-    rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=domain)
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=pick_domain_id())
     try:
         built = {"learner": LearnerNode(), "generator": GoalGeneratorNode(), "bridge": BridgeNode()}
         yield built

@@ -14,18 +14,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-import yaml
 from rclpy.serialization import serialize_message
 
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 
-from sagg_bringup.graph import RunState, pick_domain_id
-from sagg_goal_generator.node import GoalGeneratorNode
+from sagg_bringup.graph import RunState
 from sagg_low_level.learner import Command
 from sagg_low_level.node import LearnerNode
 from sagg_msgs.msg import CompetenceReport, Goal
-from sagg_sim_bridge.node import BridgeNode
+from test_bad_input import arm_nodes
 
 JOINTS = ["j0", "j1", "j2"]
 LIMIT = 1.0
@@ -48,16 +46,7 @@ def nodes(tmp_path_factory):
             "plausibility": {"hold_after": HOLD_AFTER, "resync_after": RESYNC_AFTER, "future_tolerance": 5.0}}},
         "sagg_sim_bridge": {"ros__parameters": {"arm": {"dof": 3, "mode": "kinematic"}}},
     }
-    path = tmp / "params.yaml"
-    path.write_text(yaml.safe_dump(params))
-    rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=pick_domain_id())
-    try:
-        built = {"learner": LearnerNode(), "generator": GoalGeneratorNode(), "bridge": BridgeNode()}
-        yield built
-        for n in built.values():
-            n.destroy_node()
-    finally:
-        rclpy.try_shutdown()
+    yield from arm_nodes(params, tmp)
 
 
 def js_bytes(pos, vel=(), ns=SEC, names=JOINTS) -> bytes:
