@@ -17,6 +17,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sagg_msgs.msg import CompetenceReport, LearnerStatus
+from std_srvs.srv import SetBool
 
 import test_nodes_graph
 from test_nodes_graph import STARTUP_TIMEOUT, logs, start, stop
@@ -74,10 +75,22 @@ def test_sagg_record_alone_records_a_late_joined_graph_and_stops_cleanly(ros_env
 
     # the recorder joins late: learning has started
     assert spin_until(lambda: status and status[-1].micro_actions >= 20, STARTUP_TIMEOUT), logs(tmp_path)
+    # learning is paused while the recorder starts (on a loaded machine the learner could otherwise
+    # finish its budget first): then the recorder has joined late, and samples still come after it
+    pause = node.create_client(SetBool, "/sagg/pause")
+
+    def set_pause(on: bool) -> None:
+        assert pause.wait_for_service(timeout_sec=30.0)
+        fut = pause.call_async(SetBool.Request(data=on))
+        assert spin_until(fut.done, 30.0) and fut.result().success
+
+    set_pause(True)
     bag = tmp_path / "bag"
     rec = subprocess.Popen([SAGG, "record", "--out", str(bag), "--params", str(params)], env=ros_env["env"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     ros_env["procs"].append(rec)
+    assert spin_until(lambda: node.count_subscribers("/sagg/sample") >= 1, 60.0), "the recorder never subscribed"
+    set_pause(False)
     assert spin_until(lambda: status and status[-1].micro_actions >= steps and "max_micro_actions" in status[-1].pause_reason,
                       120), logs(tmp_path)
     spin_until(lambda: False, 2.0)  # the recorder takes the last messages
