@@ -217,7 +217,10 @@ def test_run_resume_continues_the_run(run_dir, tmp_path):
     ck = json.loads((run / "checkpoint" / "learner.json").read_text())
     r = relearn([run / "bag", run / "bag2"], tmp_path / "re", out=lambda _: None)
     assert r["memory"]["digest"] == s["memory"]["digest"] == ck["memory_digest"]
-    assert r["goals_match"] and r["regions_match"] and r["reports"] == s["reports"]
+    assert r["goals_match"] and r["regions_match"] and r["reports"] == s["reports"], {
+        k: r.get(k) for k in ("goals_match", "goal_mismatches", "regions_match", "regions_snapshots_checked",
+                              "regions_snapshots_differing", "last_regions_snapshot_reports", "reports", "goals", "rejected",
+                              "duplicates_dropped")}
     old = checkpoint_memory(run_dir / "checkpoint")
     new = SampleMemory.load(tmp_path / "re" / "memory.npz")
     assert new.alpha[:STEPS].tobytes() == old.alpha.tobytes() and new.delta_y[:STEPS].tobytes() == old.delta_y.tobytes()
