@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import rclpy
 
-from sagg_bringup.graph import pick_domain_id, write_params_file
+from sagg_bringup.params_files import write_params_file
+from sagg_bringup.processes import pick_domain_id
 from sagg_bringup.synergy_experiment import load_synergy_config
 from sagg_bringup.synergy_graph import synergy_node_schemas
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array

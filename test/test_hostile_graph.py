@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from sagg_bringup.bags import bag_messages
-from sagg_bringup.graph import pick_domain_id
+from sagg_bringup.processes import pick_domain_id
 
 ROOT = Path(__file__).resolve().parents[1]
 SAGG = str(Path(sys.executable).parent / "sagg")

@@ -28,7 +28,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from sagg_bringup.experiment import InProcessRun, load_experiment_config
-from sagg_bringup.graph import pick_domain_id
+from sagg_bringup.processes import pick_domain_id
 from sagg_common.params import node_params, read_config
 from sagg_common.rng import substream_seed
 from sagg_low_level.memory import SampleMemory

@@ -17,8 +17,8 @@ import yaml
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from sagg_bringup.graph import (graph_params, load_graph_config, run_only_params, set_checkpoint_dirs,
-                                write_params_file)
+from sagg_bringup.arm_params import graph_params, load_graph_config
+from sagg_bringup.params_files import run_only_params, set_checkpoint_dirs, write_params_file
 from sagg_bringup.launch_params import installed_configs, launch_plan, resolve_config, write_plan
 from sagg_common.params import read_config
 from sagg_msgs.msg import CompetenceReport, LearnerStatus

@@ -23,7 +23,7 @@ from launch_ros.actions import Node
 
 
 def _nodes(context):
-    from sagg_bringup.graph import find_node_executable
+    from sagg_bringup.processes import find_node_executable
     from sagg_bringup.launch_params import launch_plan, write_plan
 
     def arg(name):

@@ -36,10 +36,11 @@ from sagg_common.params import ConfigError, flatten
 from sagg_common.report_kinds import KIND_NAMES
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
-from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
+from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
 from .bag_reader import bag_messages, open_bag
-from .graph import evaluate_frozen, evaluation_setup, node_schemas
+from .arm_params import node_schemas
+from .evaluator import evaluate_frozen, evaluation_setup
 from .results import goal_share_stats
 
 
@@ -185,7 +186,8 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         raise ConfigError("relearn: the run's learner has context 'fixed'; allowed: evolving-context arm runs "
                           "(fixed-context runs are evaluated from their samples by `sagg run` itself)")
     t0 = time.perf_counter()
-    spec, area, test_goals, learner = evaluation_setup(lp, bp)
+    spec = arm_spec_from_params(bp)
+    area, test_goals, learner = evaluation_setup(lp, spec)
     mem = learner.memory
     gen = GoalGenerator(gp)
     reports: dict[int, tuple] = {}

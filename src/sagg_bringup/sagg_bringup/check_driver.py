@@ -32,7 +32,7 @@ from .external import DriverMonitor, explicit_joints, external_params
 
 
 def learner_params(config: str) -> dict:
-    from .graph import load_graph_config
+    from .arm_params import load_graph_config
     full = load_graph_config(config)
     return external_params(full, 0, explicit_joints(config, None))["sagg_learner"]
 

@@ -254,7 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _run(args) -> int:
     import time
 
-    from .graph import GraphError, run_graph
+    from .graph import run_graph
+    from .processes import GraphError
     from .synergy_experiment import config_setup
     from .synergy_graph import run_synergy_graph
     if args.resume:
@@ -310,7 +311,8 @@ def _resume(args) -> int:
     """``sagg run --resume DIR``: the same run, continued (timing and budget from DIR unless given)."""
     import json
 
-    from .graph import GraphError, run_graph
+    from .graph import run_graph
+    from .processes import GraphError
     out = Path(args.resume)
     params_file = out / "params.yaml"
     if args.config is not None or args.seed is not None or args.strategy is not None or args.set:

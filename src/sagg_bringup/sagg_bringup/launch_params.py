@@ -67,7 +67,7 @@ class LaunchPlan:
 
 def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) -> LaunchPlan:
     """The parameters ``sagg run`` would give the nodes for ``config`` (without its recorder waits:
-    :func:`~sagg_bringup.graph.run_only_params`), and the nodes for ``driver`` (``sim``: with the
+    :func:`~sagg_bringup.params_files.run_only_params`), and the nodes for ``driver`` (``sim``: with the
     MuJoCo bridge; ``external``: the goal generator and the learner only). ``max_micro_actions``:
     the learner's stop (0 = never)."""
     from .synergy_experiment import config_setup
@@ -89,7 +89,7 @@ def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) ->
         nodes = ARM_FIXED_NODES if arm else SYNERGY_NODES
     else:
         from .external import explicit_joints, external_params
-        from .graph import NODES, graph_params, load_graph_config
+        from .arm_params import NODES, graph_params, load_graph_config
         full = load_graph_config(path)
         if driver == "external":
             params = external_params(full, max_micro_actions, explicit_joints(path, None))
@@ -107,7 +107,7 @@ def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) ->
 
 def write_plan(plan: LaunchPlan, path: str | Path) -> Path:
     """The plan's parameter file (the ``params.yaml`` form ``sagg run`` writes)."""
-    from .graph import write_params_file
+    from .params_files import write_params_file
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_params_file(path, plan.params)

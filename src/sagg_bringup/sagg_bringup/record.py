@@ -26,7 +26,7 @@ from .recorder import BagWriter, TopicSpec, _msg_class
 def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
     """``sagg run``'s topics for the graph a parameter file (a config or a run's params.yaml)
     describes; the defaults (``/forward_position_controller/commands``, ``/tip_position``) without one."""
-    from .graph import graph_topics
+    from .topics import graph_topics
     from .markers import MARKER_TOPIC
     extra = [TopicSpec("/clock", "rosgraph_msgs/msg/Clock", depth=100),
              TopicSpec(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", depth=1, transient_local=True)]
@@ -36,7 +36,8 @@ def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
     from .synergy_experiment import config_setup
     sections = read_config(params_file)
     if config_setup(params_file) is not None:
-        from .synergy_graph import synergy_node_schemas, synergy_topics
+        from .synergy_graph import synergy_node_schemas
+        from .topics import synergy_topics
         lp = node_params(sections, "sagg_learner", synergy_node_schemas()["sagg_learner"])
         return synergy_topics(lp) + extra
     from sagg_low_level.node import SCHEMA

@@ -28,12 +28,13 @@ from sagg_common.params import ConfigError, node_params, read_config
 from sagg_common.progress import Progress
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
-from .graph import (GraphSession, check_domain_id, node_processes, run_only_params, sagg_topics,
-                    write_params_file)
-from .recorder import TopicSpec
+from .params_files import run_only_params, write_params_file
+from .processes import check_domain_id, node_processes
 from .results import run_overrides
+from .session import GraphSession
 from .synergy_experiment import (ARM_FIXED, LEARNER_SCHEMA, SYN_BRIDGE_SCHEMA, SynergyRun, config_setup,
                                  load_synergy_config, outcome_extents)
+from .topics import synergy_topics
 
 SYNERGY_NODES = {
     "sagg_goal_generator": ("sagg_goal_generator", "goal_generator"),
@@ -65,20 +66,8 @@ def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, d
         if bp[k] != lp[k]:
             raise ConfigError(f"parameter '{k}' differs between sagg_sim_bridge ({bp[k]!r}) and "
                               f"sagg_learner ({lp[k]!r}); set it once under '/**'")
-    # (the waits for the recorder are given on the command line: graph.run_only_params)
+    # (the waits for the recorder are given on the command line: params_files.run_only_params)
     return params
-
-
-def synergy_topics(lp: dict) -> list[TopicSpec]:
-    if lp["synergy.kind"] == "posture":  # the arm's position contract
-        from .graph import graph_topics
-        return graph_topics(lp, "lockstep")
-    task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
-    out_type = "geometry_msgs/msg/PoseStamped" if len(lp["task_space.lower"]) == 3 else "geometry_msgs/msg/PointStamped"
-    return sagg_topics() + [
-        TopicSpec(f"/{lp['controller'].strip('/')}/joint_trajectory", "trajectory_msgs/msg/JointTrajectory"),
-        TopicSpec(task, out_type),
-    ]
 
 
 def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,

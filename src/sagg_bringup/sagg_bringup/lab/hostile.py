@@ -45,7 +45,8 @@ from sagg_low_level.checkpoint import checkpoint_memory
 from sagg_common.params import parse_set
 
 from ..bag_reader import bag_messages
-from ..graph import graph_params, load_graph_config, pick_domain_id
+from ..arm_params import graph_params, load_graph_config
+from ..processes import pick_domain_id
 
 SEC = 1_000_000_000
 FUZZ = "fuzz"  # frame_id of the fuzzer's stamped messages

@@ -177,7 +177,7 @@ def measure(count: int = 3000, warmup: int = 300, executor: str = "events", size
         raise ValueError(f"work: got {work!r} s; allowed: 0 to 1 s, with pattern 'lockstep' only")
     env = dict(os.environ)
     if domain_id is None:
-        from ..graph import pick_domain_id
+        from ..processes import pick_domain_id
 
         domain_id = pick_domain_id()
     env["ROS_DOMAIN_ID"] = str(domain_id)

@@ -141,9 +141,9 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
                overrides: dict[str, Any] | None = None, stall_timeout: float = 120.0,
                out: Callable[[str], None] = print) -> dict:
     """Graph soak: the three nodes for ``micro_actions`` micro-actions (lockstep)."""
-    from ..graph import (NODES, GraphError, NodeProcess, find_node_executable, graph_params,
-                        load_graph_config, pick_domain_id, set_checkpoint_dirs, stop_processes,
-                        write_params_file)
+    from ..arm_params import NODES, graph_params, load_graph_config
+    from ..params_files import set_checkpoint_dirs, write_params_file
+    from ..processes import GraphError, NodeGroup, node_processes
 
     full = load_graph_config(config, overrides or {})
     params = graph_params(full, micro_actions, "lockstep")
@@ -156,12 +156,8 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
     set_checkpoint_dirs(params, outp)
     params_file = outp / "params.yaml"
     write_params_file(params_file, params)
-    procs = [NodeProcess(name, find_node_executable(mod.split(".")[0], script), outp / "logs" / f"{script}.log")
-             for name, (mod, script) in NODES.items()]
-    domain = pick_domain_id()
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    nodes = NodeGroup(node_processes(NODES, outp / "logs"))
+    procs, domain = nodes.procs, nodes.domain
     shm0 = shm_entries()
     import rclpy
     from rclpy.context import Context
@@ -195,15 +191,12 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
     error = None
     fds0: dict[str, int] = {}
     try:
-        for p in procs:
-            p.start(params_file, env)
+        nodes.start(params_file)
         last = (0, time.monotonic())
         while True:
             ex.spin_once(timeout_sec=0.1)
+            nodes.check()
             for p in procs:
-                code = p.poll()
-                if code is not None:
-                    raise GraphError(f"node {p.name} exited with code {code}:\n{p.log_tail()}")
                 if p.name not in fds0 and status:
                     fds0[p.name] = open_fds(p.popen.pid)
             done = status.get("micro_actions", 0)
@@ -228,7 +221,7 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
     except GraphError as exc:
         error = str(exc)
     finally:
-        stop_processes(procs)
+        nodes.stop()
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
