@@ -112,7 +112,7 @@ def test_launch_plan_fills_every_derived_parameter(name, driver, tmp_path):
         want = sections.get("/**", {}).get(key, sections.get("sagg_learner", {}).get(key))
         if want is not None:
             assert lp[key] == [float(v) for v in want] == gp[key]
-    if plan.setup is None:  # arm: joints / limits / rest from the config's arm (its DOF)
+    if plan.setup == "arm":  # arm: joints / limits / rest from the config's arm (its DOF)
         spec = arm_spec_from_params(plan.params["sagg_sim_bridge"])
         assert lp["joints"] == spec.joint_names() and len(lp["joints"]) == spec.dof
         assert lp["rest_posture"] == spec.rest_posture().tolist()

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sagg_bringup.experiment import InProcessRun, load_experiment_config
+from sagg_bringup.experiment import InProcessRun
+from sagg_bringup.setups import load_experiment_config
 from sagg_bringup.arm_params import graph_params, load_graph_config
 from sagg_bringup.params_files import run_only_params, write_params_file
 from sagg_bringup.processes import pick_domain_id

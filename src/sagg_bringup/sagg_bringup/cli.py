@@ -25,13 +25,8 @@ def positive_int(text: str) -> int:
 
 def node_schemas() -> dict:
     """Every node's full parameter schema (core parameters + node-only ones: topics, timing...)."""
-    from sagg_goal_generator.node import SCHEMA as GEN
-    from sagg_low_level.node import SCHEMA as LEARNER
-    from sagg_sim_bridge.node import SCHEMA as BRIDGE
-    from sagg_bringup.synergy_experiment import LEARNER_SCHEMA as SYN_LEARNER, SYN_BRIDGE_SCHEMA as SYN_BRIDGE
-    return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER, "sagg_sim_bridge": BRIDGE,
-            # synergy setups (config `setup: quadruped|fishing`): same node names, other executables
-            "sagg_learner (synergy_learner)": SYN_LEARNER, "sagg_sim_bridge (synergy_bridge)": SYN_BRIDGE}
+    from .setups import node_tables
+    return node_tables()  # (the set-ups' nodes; another set-up's node of a section: "section (script)")
 
 
 def params_markdown(node: str | None = None) -> str:
@@ -254,10 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _run(args) -> int:
     import time
 
-    from .graph import run_graph
     from .processes import GraphError
-    from .synergy_experiment import config_setup
-    from .synergy_graph import run_synergy_graph
+    from .setups import run_graph, setup_of
     if args.resume:
         return _resume(args)
     if args.config is None:
@@ -269,28 +262,25 @@ def _run(args) -> int:
         seed = "" if args.seed is None else f"-seed{args.seed}"
         strategy = "" if args.strategy is None else f"-{args.strategy}"
         out = Path("runs") / f"{Path(args.config).stem}{strategy}{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
-    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
-    # and the arm with the learner parameter context: fixed (the fixed-context learner node)
-    run = run_graph if config_setup(args.config, parse_set(args.set)) is None else run_synergy_graph
+    setup = setup_of(args.config, parse_set(args.set))
     try:
         if args.driver == "external":
-            from .external import run_external_graph
-            s = run_external_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
-                                   eval_every=args.eval_every, overrides=parse_set(args.set),
-                                   progress=not args.quiet, domain_id=args.domain_id,
-                                   robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
-                                   driver_timeout=args.driver_timeout)
+            s = run_graph(args.config, args.micro_actions, out, driver="external", seed=args.seed,
+                          strategy=args.strategy, eval_every=args.eval_every, overrides=parse_set(args.set),
+                          progress=not args.quiet, domain_id=args.domain_id,
+                          robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
+                          driver_timeout=args.driver_timeout)
         else:
-            s = run(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
-                    timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
-                    progress=not args.quiet, domain_id=args.domain_id)
+            s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
+                          timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
+                          progress=not args.quiet, domain_id=args.domain_id)
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
         hint = (" (external-driver runs cannot be resumed: start a new run)" if args.driver == "external"
-                else f" (sagg run --resume {out} continues)" if run is run_graph
-                else " (synergy runs cannot be resumed: start a new run)")
+                else f" (sagg run --resume {out} continues)" if setup.resumable
+                else f" ({setup.name} runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
     print(f"{s['strategy']} seed {s['seed']} (graph, {s['timing']}): final mean test error "
@@ -311,8 +301,8 @@ def _resume(args) -> int:
     """``sagg run --resume DIR``: the same run, continued (timing and budget from DIR unless given)."""
     import json
 
-    from .graph import run_graph
     from .processes import GraphError
+    from .setups import run_graph
     out = Path(args.resume)
     params_file = out / "params.yaml"
     if args.config is not None or args.seed is not None or args.strategy is not None or args.set:
@@ -322,11 +312,6 @@ def _resume(args) -> int:
     doc = yaml.safe_load(params_file.read_text()) or {}
     learner = doc.get("sagg_learner", {}).get("ros__parameters", {})
     bridge = doc.get("sagg_sim_bridge", {}).get("ros__parameters", {})
-    from .synergy_experiment import config_setup
-    setup = config_setup(params_file)
-    if setup is not None:
-        raise ConfigError(f"--resume: '{out}' is a synergy run (setup {setup!r}); allowed: the directory "
-                          "of an arm run (the synergy learner keeps no checkpoints: start a new run)")
     old = {}
     if (out / "summary.json").is_file():
         old = json.loads((out / "summary.json").read_text())
@@ -357,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "experiment":
-            from .experiment import run_experiment
+            from .setups import run_experiment
             res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions,
                                  args.eval_every, args.out, progress=not args.quiet,
                                  overrides=parse_set(args.set))
@@ -367,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{len(res['goals'])} goals, {len(res['regions'])} regions -> "
                   f"{Path(args.out) / 'result.json'}")
             if args.report:
-                from .report import write_report
+                from .setups import write_report
                 print(f"report: {write_report(res, args.out)}")
             return 0
         if args.command == "run":
@@ -388,7 +373,7 @@ def main(argv: list[str] | None = None) -> int:
             from .check_driver import main_check_driver
             return main_check_driver(args)
         if args.command == "relearn":
-            from .bags import relearn
+            from .setups import relearn
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "reproduce":

@@ -408,12 +408,8 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                        driver_timeout: float = 120.0) -> dict:
     """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
     from .results import run_overrides
-    from .synergy_experiment import config_setup
     from sagg_sim_bridge.arm import reachable_area, test_goals
 
-    if config_setup(config_path) is not None:
-        raise ConfigError("--driver external: synergy set-ups (config parameter 'setup') and the arm with "
-                          "context: fixed are not supported; allowed: an arm config (context: evolving)")
     if robot_eval_goals < 1 or robot_eval_every < 0:
         raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every}; "
                           "allowed: goals >= 1, every >= 0")
@@ -593,8 +589,8 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     write_json_atomic(out / "robot_evaluation.json", {"summary": robot_summary, "trace": robot.trace})
 
     def write_report() -> None:
-        from .report import write_report
-        path = write_report(summary, out, area=area)
+        from .report import arm_rows, write_report
+        path = write_report(summary, out, area=area, setup_rows=arm_rows(config.get("sagg_sim_bridge") or {}))
         path.write_text(path.read_text() + robot_report_section(summary))
 
     return session.finish(summary, write_report if report and summary["curve"] else None)

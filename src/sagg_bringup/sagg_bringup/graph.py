@@ -1,4 +1,7 @@
-"""``sagg run``: the three nodes as processes, recorded, evaluated and reported.
+"""``sagg run`` of the evolving-context arm (the set-up registry :mod:`.setups` chooses it): the three
+nodes as processes, recorded, evaluated and reported. The jobs it composes live in their own modules:
+:mod:`.arm_params` and :mod:`.params_files` (parameters), :mod:`.processes` (node processes, domains),
+:mod:`.evaluator`, :mod:`.split_tracker`, :mod:`.run_state`, :mod:`.session` (the ROS session).
 
 One run:
 
@@ -220,7 +223,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
 
     def write_report() -> None:
-        from .report import write_report
-        write_report(summary, out, area=area)
+        from .report import arm_rows, write_report
+        write_report(summary, out, area=area, setup_rows=arm_rows(config["sagg_sim_bridge"]))
 
     return session.finish(summary, write_report if report and curve else None)

@@ -32,16 +32,8 @@ def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
              TopicSpec(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", depth=1, transient_local=True)]
     if params_file is None:
         return graph_topics({}) + extra
-    from sagg_common.params import node_params, read_config
-    from .synergy_experiment import config_setup
-    sections = read_config(params_file)
-    if config_setup(params_file) is not None:
-        from .synergy_graph import synergy_node_schemas
-        from .topics import synergy_topics
-        lp = node_params(sections, "sagg_learner", synergy_node_schemas()["sagg_learner"])
-        return synergy_topics(lp) + extra
-    from sagg_low_level.node import SCHEMA
-    return graph_topics(node_params(sections, "sagg_learner", SCHEMA)) + extra
+    from .setups import recorded_topics as setup_topics
+    return setup_topics(params_file) + extra
 
 
 def publishers_qos(infos, spec: TopicSpec) -> TopicSpec:

@@ -33,9 +33,9 @@ def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSp
     ] + ([TopicSpec("/clock", "rosgraph_msgs/msg/Clock", depth=100)] if timing == "realtime" else [])
 
 
-def synergy_topics(lp: dict) -> list[TopicSpec]:
-    if lp["synergy.kind"] == "posture":  # the arm's position contract
-        return graph_topics(lp, "lockstep")
+def trajectory_topics(lp: dict) -> list[TopicSpec]:
+    """The synergy set-ups' topics: trajectories on ``/<controller>/joint_trajectory`` and the outcome
+    (PoseStamped for a 3-D task space (u, v, φ), else PointStamped) on ``task_topic``."""
     task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
     out_type = "geometry_msgs/msg/PoseStamped" if len(lp["task_space.lower"]) == 3 else "geometry_msgs/msg/PointStamped"
     return sagg_topics() + [

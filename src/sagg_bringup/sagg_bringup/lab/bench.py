@@ -12,7 +12,8 @@ import numpy as np
 
 from sagg_common.rng import stream
 
-from ..experiment import InProcessRun, load_experiment_config
+from ..experiment import InProcessRun
+from ..setups import load_experiment_config
 
 
 def babbling_samples(run: InProcessRun, size: int, seed: int = 0, period: int = 200):

@@ -22,7 +22,8 @@ import numpy as np
 from sagg_common.params import ConfigError
 
 from ..compare import pairwise_tests
-from ..experiment import InProcessRun, load_experiment_config, run_experiment
+from ..experiment import InProcessRun
+from ..setups import load_experiment_config, run_experiment
 
 CONTEXTS = ("evolving", "fixed")
 # Issue 10's targets for SAGG-RIAC on config/arm7_ratio15.yaml (20 % below the peer's tree):

@@ -94,7 +94,8 @@ def _mb(b: float) -> str:
 def soak_inprocess(config: str | Path, micro_actions: int, every: int,
                    overrides: dict[str, Any] | None = None, out: Callable[[str], None] = print) -> dict:
     """In-process soak; returns the rows and the verdict numbers."""
-    from ..experiment import InProcessRun, load_experiment_config
+    from ..experiment import InProcessRun
+    from ..setups import load_experiment_config
 
     shm0 = shm_entries()
     fd0 = open_fds()
