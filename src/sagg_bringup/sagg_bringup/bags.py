@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from sagg_common.cdr import decode_report, decode_sample
+from sagg_common.msg_codecs import decode_report, decode_sample
 from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, flatten

@@ -14,17 +14,16 @@ Timestamps are the receive times (ns since the epoch), as ``ros2 bag record`` do
 """
 from __future__ import annotations
 
-import os
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from sagg_common.msg_codecs import MESSAGES, find_msg_dir
+
 # topics whose publisher keeps only the latest message by design (a reader may skip snapshots):
 # not counted as dropped
 NO_DROP_COUNT = ("/sagg/regions",)
-SAGG_MSGS = ("Goal", "CompetenceReport", "Region", "RegionTree", "Sample", "LearnerStatus", "Evaluation")
 
 
 @dataclass(frozen=True)
@@ -42,20 +41,6 @@ class TopicSpec:
     publisher: str | None = None  # the node whose messages the handler accepts (None: any single publisher)
 
 
-def find_msg_dir() -> Path:
-    """The sagg_msgs ``msg`` folder: the installed share dir (venv prefix, AMENT_PREFIX_PATH) first,
-    then the source tree (src/sagg_msgs/msg)."""
-    candidates = [Path(sys.prefix) / "share" / "sagg_msgs" / "msg"]
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            candidates.append(Path(prefix) / "share" / "sagg_msgs" / "msg")
-    candidates.append(Path(__file__).resolve().parents[2] / "sagg_msgs" / "msg")
-    for c in candidates:
-        if all((c / f"{name}.msg").is_file() for name in SAGG_MSGS):
-            return c
-    raise FileNotFoundError("sagg_msgs .msg files not found in: " + ", ".join(str(c) for c in candidates))
-
-
 def make_typestore(msg_dir: Path | None = None):
     """A rosbags typestore with the ROS 2 Jazzy types plus sagg_msgs (parsed from .msg text)."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -63,7 +48,7 @@ def make_typestore(msg_dir: Path | None = None):
     store = get_typestore(Stores.ROS2_JAZZY)
     msg_dir = msg_dir or find_msg_dir()
     types = {}
-    for name in SAGG_MSGS:
+    for name in MESSAGES:
         types.update(get_types_from_msg((msg_dir / f"{name}.msg").read_text(), f"sagg_msgs/msg/{name}"))
     store.register(types)
     return store

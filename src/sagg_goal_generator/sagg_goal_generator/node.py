@@ -29,7 +29,7 @@ from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticArray
 
-from sagg_common.cdr import decode_report, encode_region_tree
+from sagg_common.msg_codecs import decode_report, encode_region_tree
 from sagg_common.diagnostics import InputGuard, diagnostic_array, report_problem
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.publishers import PublisherWatch
@@ -421,10 +421,10 @@ class GoalGeneratorNode(Node):
         leaves = gen.tree.leaves()
         counts = [r.count for r in leaves]
         raw = encode_region_tree(
-            self.get_clock().now().nanoseconds, "task_space", len(gen.goals), gen.reports, len(gen.tree.splits),
-            [r.id for r in leaves], np.array([r.lower for r in leaves]), np.array([r.upper for r in leaves]),
-            [r.interest for r in leaves], counts,
-            [r.mean_value() if c else math.nan for r, c in zip(leaves, counts)])
+            self.get_clock().now().nanoseconds, len(gen.goals), gen.reports, len(gen.tree.splits),
+            ([r.id for r in leaves], np.array([r.lower for r in leaves]), np.array([r.upper for r in leaves]),
+             [r.interest for r in leaves], counts,
+             [r.mean_value() if c else math.nan for r, c in zip(leaves, counts)]), frame_id="task_space")
         self.region_pub.publish(raw)
         self.splits_published = len(gen.tree.splits)
         self.regions_dirty = False

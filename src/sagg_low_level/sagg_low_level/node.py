@@ -32,10 +32,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
 
-from sagg_common.cdr import (JointStateDecoder, decode_point_stamped, encode_f64_array, encode_report,
-                             encode_sample)
+from sagg_common.cdr import JointStateDecoder, decode_point_stamped, encode_f64_array
 from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
 from sagg_common.envelope import ACCEPT, FUTURE, OUT_OF_ORDER, RejectRun, StampTracker
+from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.publishers import PublisherWatch
 from sagg_common.ros_params import HW_DEPTH, reliable, run_node

@@ -34,7 +34,7 @@ from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import PointStamped, PoseStamped
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from sagg_common.cdr import encode_report, encode_sample
+from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.params import Schema
 from sagg_common.ros_params import HW_DEPTH, reliable, run_node

@@ -39,7 +39,8 @@ from typing import Callable
 import numpy as np
 
 from sagg_common.cdr import (JointStateDecoder, PointStampedEncoder, decode_f64_array, decode_point_stamped,
-                             encode_f64_array, encode_joint_state, encode_report, encode_sample)
+                             encode_f64_array, encode_joint_state)
+from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_low_level.checkpoint import checkpoint_memory
 
 from sagg_common.params import parse_set
@@ -166,13 +167,13 @@ class Fuzzer:
 
     def report(self, seq: int, kind: int = 2, reached=(10.0, 0.0), competence: float = 0.0) -> None:
         self.publish("/sagg/competence", "sagg_msgs/msg/CompetenceReport",
-                     encode_report(time.time_ns(), seq, 0, kind, (), reached, (0.0, 0.0), competence, 0, FUZZ),
+                     encode_report(time.time_ns(), seq, 0, kind, (), reached, (0.0, 0.0), competence, 0, frame_id=FUZZ),
                      transient_local=True)
 
     def sample(self, index: int, alpha=None) -> None:
         a = np.zeros(self.n) if alpha is None else np.asarray(alpha, float)
         self.publish("/sagg/sample", "sagg_msgs/msg/Sample",
-                     encode_sample(time.time_ns(), index, a, np.zeros(self.n), np.zeros(2), FUZZ))
+                     encode_sample(time.time_ns(), index, a, np.zeros(self.n), np.zeros(2), frame_id=FUZZ))
 
     def goal(self, seq: int, position) -> None:
         from sagg_msgs.msg import Goal
