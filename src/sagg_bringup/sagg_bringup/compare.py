@@ -176,8 +176,10 @@ def summary_markdown(results: list[dict], tests: bool = True) -> str:
 def plot_curves(results: list[dict], path, title: str = "", key: str = "mean_error") -> None:
     """Test error against micro-actions, one line per strategy: mean over seeds with a shaded
     ±1 std band (ddof 1; like the paper's Figs. 10-12)."""
+    # lazy (heavy): matplotlib
     import matplotlib
     matplotlib.use("Agg")
+    # lazy (heavy): matplotlib
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.2))
@@ -201,8 +203,10 @@ def plot_competence_over_time(result: dict, path, windows: int = 6) -> None:
     """Competence of every self-generated goal, in ``windows`` equal windows of micro-actions
     (paper Fig. 6: competence values over time), coloured by Γ (0 = reached, −1 = moved away).
     The circle is the arm's length around its base (the reachable area's outer contour)."""
+    # lazy (heavy): matplotlib
     import matplotlib
     matplotlib.use("Agg")
+    # lazy (heavy): matplotlib
     import matplotlib.pyplot as plt
 
     goals = [g for g in result["goals"] if g.get("competence") is not None]

@@ -144,33 +144,6 @@ SYNERGY_SCHEMA: Schema = (
           low=-100.0, high=100.0),
 )
 
-# Parameters of the synergy learner node (ROS-free here so that `sagg experiment` accepts the same
-# config files as `sagg run`).
-SYNERGY_NODE_SCHEMA: Schema = (
-    Param("controller", "str", "joint_trajectory_controller",
-          "Trajectory controller name: synergies go to /<controller>/joint_trajectory "
-          "(trajectory_msgs/JointTrajectory, the joint_trajectory_controller contract)."),
-    Param("task_topic", "str", "/body_pose",
-          "Outcome topic: geometry_msgs/PoseStamped (3-D task space: u, v and the yaw φ) or "
-          "PointStamped (2-D: x, y; NaN coordinates = no outcome, e.g. the float missed the water). "
-          "Its header.stamp echoes the trajectory's header.stamp."),
-    Param("response_timeout", "float", 60.0,
-          "Seconds to wait for the outcome of one trajectory before the node gives up with an error.",
-          low=0.0, high=86400.0, low_open=True),
-    Param("max_experiments", "int", 0,
-          "Stop after this many stored experiments (0 = unlimited).", low=0),
-    Param("min_sample_subscribers", "int", 0,
-          "Start only once /sagg/sample has at least this many matched subscribers. 0 = do not wait.",
-          low=0, high=1000),
-    Param("settle_timeout", "float", 2.0,
-          "synergy.kind 'posture': seconds after a command after which the latest fresh joint state is "
-          "taken even if not settled.", low=0.0, high=3600.0, low_open=True),
-    Param("settle_velocity", "float", 0.05,
-          "synergy.kind 'posture': a joint state answers a position command once every |velocity| is "
-          "below this (rad/s); joint states without velocities count as settled.",
-          low=0.0, high=1e6, low_open=True),
-    CONTEXT,
-)
 
 
 def synergy_from_params(p: dict):
