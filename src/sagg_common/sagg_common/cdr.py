@@ -25,8 +25,6 @@ import numpy as np
 ENCAP = b"\x00\x01\x00\x00"
 _U32 = struct.Struct("<I")
 _I32U32 = struct.Struct("<iI")
-_U64 = struct.Struct("<Q")
-_F64 = struct.Struct("<d")
 _3F64 = struct.Struct("<3d")
 _NS = 1_000_000_000
 _F8 = np.dtype("<f8")
@@ -51,9 +49,6 @@ class Writer:
         if pad:
             self.b += bytes(pad)
 
-    def u8(self, v: int) -> None:
-        self.b.append(v)
-
     def u32(self, v: int) -> None:
         self.align(4)
         self.b += _U32.pack(v)
@@ -61,14 +56,6 @@ class Writer:
     def stamp(self, ns: int) -> None:
         self.align(4)
         self.b += _I32U32.pack(*split_ns(ns))
-
-    def u64(self, v: int) -> None:
-        self.align(8)
-        self.b += _U64.pack(v)
-
-    def f64(self, v: float) -> None:
-        self.align(8)
-        self.b += _F64.pack(v)
 
     def string(self, s: str) -> None:
         data = s.encode()
@@ -111,11 +98,6 @@ class Reader:
     def align(self, n: int) -> None:
         self.o += -self.o % n
 
-    def u8(self) -> int:
-        v = self.d[self.o]
-        self.o += 1
-        return v
-
     def u32(self) -> int:
         self.o += -self.o % 4
         (v,) = _U32.unpack_from(self.d, self.o)
@@ -127,18 +109,6 @@ class Reader:
         sec, nsec = _I32U32.unpack_from(self.d, self.o)
         self.o += 8
         return sec * _NS + nsec
-
-    def u64(self) -> int:
-        self.o += -self.o % 8
-        (v,) = _U64.unpack_from(self.d, self.o)
-        self.o += 8
-        return v
-
-    def f64(self) -> float:
-        self.o += -self.o % 8
-        (v,) = _F64.unpack_from(self.d, self.o)
-        self.o += 8
-        return v
 
     def string(self) -> str:
         n = self.u32()

@@ -175,9 +175,6 @@ class FishingSim(RestStateSim):
         """The float's (x, y) at rest (task units): y_start of the competence (Sec. 3.5)."""
         return self.rest_float[:2] * self.spec.position_scale
 
-    def float_position(self) -> np.ndarray:
-        return self.data.xpos[self._float].copy()
-
     def _velocities(self, traj: Trajectory) -> np.ndarray:
         if traj.velocities is None:
             raise ValueError("fishing trajectory: allowed: velocities (velocity-tracked joints)")

@@ -175,16 +175,6 @@ class QuadrupedSim(RestStateSim):
         """The outcome of doing nothing: (0, 0, 0) by construction of the start frame."""
         return np.zeros(3)
 
-    def set_rest_state(self, qpos, qvel) -> None:
-        """Replace the rest state every experiment starts from (tests: a known start pose/motion)."""
-        qpos = np.asarray(qpos, dtype=float)
-        qvel = np.asarray(qvel, dtype=float)
-        if qpos.shape != self._rest_qpos.shape or qvel.shape != self._rest_qvel.shape:
-            raise ValueError(f"rest state: allowed: qpos shape {self._rest_qpos.shape}, qvel shape "
-                             f"{self._rest_qvel.shape}")
-        self._rest_qpos, self._rest_qvel = qpos.copy(), qvel.copy()
-        self.reset()
-
     def body_pose(self) -> tuple[np.ndarray, float]:
         return self.data.xpos[self._torso].copy(), yaw_of(self.data.xquat[self._torso])
 
