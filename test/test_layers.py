@@ -265,6 +265,18 @@ def test_imports_inside_functions_are_heavy_and_say_so():
     assert bad == []
 
 
+def test_no_imports_inside_functions_of_launch_and_setup_files():
+    """The Python files of src/ outside the packages (launch files, setup.py) import at the top."""
+    packages = set(source_modules().values())
+    bad = []
+    for path in sorted(set(SRC.rglob("*.py")) - packages):
+        for f in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                bad += [f"{path.relative_to(SRC)}:{n.lineno}" for n in ast.walk(f)
+                        if isinstance(n, (ast.Import, ast.ImportFrom))]
+    assert bad == []
+
+
 def test_the_lazy_import_check_sees_what_it_must(tmp_path):
     files = {
         "sagg_common/sagg_common/__init__.py": "",
