@@ -3,14 +3,17 @@
 A message is edited in one place, its .msg file: this module reads the field list of every
 ``sagg_msgs/msg/*.msg`` (the installed share folder, as the ROS type support was built from it) and
 builds an encoder and a decoder that follow it field by field with the primitives of
-:mod:`sagg_common.cdr` (same byte layout as rclpy's serializer, float64 copied byte for byte).
+:mod:`sagg_common.cdr` (same byte layout as rclpy's serializer, float64 copied byte for byte),
+written out as one function per message and direction at import time (one call per field, no loop:
+the cost of the hand-written codecs they replace).
 
 - ``CODECS[name].encode(stamp_ns, <fields in .msg order>, frame_id="")`` -> CDR bytes. A
   ``std_msgs/Header`` field takes the stamp in nanoseconds (its frame_id is the keyword); a float
   sequence takes any array-like; a field that is a sequence of one of our messages (``Region[]``)
   takes a tuple of per-field columns (k values; for a sequence field a (k, m) array, or k
-  sequences of any lengths), laid out with one numpy structured array instead of k message objects. The argument count is checked, so
-  a field added to a .msg fails loudly at every caller that does not pass it.
+  sequences of any lengths), laid out with one numpy structured array instead of k message
+  objects. The encoder's signature is the field list, so a field added to a .msg fails loudly at
+  every caller that does not pass it.
 - ``CODECS[name].decode(raw)`` -> a named tuple of the fields in .msg order, the Header as
   ``stamp`` (ns; the frame_id is skipped: no reader needs it); float64 sequences are read-only
   arrays viewing the received bytes (see :meth:`sagg_common.cdr.Reader.f64_seq`).
@@ -158,6 +161,7 @@ class MsgCodec:
         self.Decoded = namedtuple(name, ["stamp" if t == HEADER else n for t, n in fields])
         self._make = self.Decoded._make
         self._arity = len(fields)
+        self.encode, self.decode = self._compile()
 
     def _add(self, typ: str, fname: str, codecs: dict[str, "MsgCodec"]) -> None:
         where = f"{self.name}.{fname} ({typ})"
@@ -205,13 +209,30 @@ class MsgCodec:
         return self._make([get(r) for get in self.gets])
 
     # ------------------------------------------------------------------------- messages
-    def encode(self, *values, frame_id: str = "") -> bytes:
-        w = Writer()
-        self.write_fields(w, values, frame_id)
-        return ENCAP + bytes(w.b)
-
-    def decode(self, data: bytes):
-        return self.read_fields(Reader(data))
+    def _compile(self):
+        """``encode`` and ``decode`` as functions written for this field list (as dataclasses and
+        rosbags do): one call per field and no loop, so they cost what hand-written codecs cost,
+        and ``encode`` has the real signature (a missing field is a TypeError naming it)."""
+        names = ["stamp_ns" if t == HEADER else n for t, n in self.fields]
+        if any(not n.isidentifier() or n.startswith("_") or n == "frame_id" for n in names):
+            raise NotImplementedError(f"{self.name}: field names {names} not usable as arguments")
+        ns: dict[str, Any] = {"_Writer": Writer, "_Reader": Reader, "_ENCAP": ENCAP, "_Decoded": self.Decoded}
+        enc = ["    _w = _Writer()"]
+        for i, (arg, put) in enumerate(zip(names, self.puts)):
+            if put is None:
+                enc.append(f"    _w.header({arg}, frame_id)")
+            else:
+                ns[f"_put{i}"] = put
+                enc.append(f"    _put{i}(_w, {arg})")
+        enc.append("    return _ENCAP + bytes(_w.b)")
+        kw = ", *, frame_id=''" if self.has_header else ""
+        for i, get in enumerate(self.gets):
+            ns[f"_get{i}"] = get
+        src = (f"def encode({', '.join(names)}{kw}):\n" + "\n".join(enc) + "\n\n"
+               f"def decode(data):\n    _r = _Reader(data)\n"
+               f"    return _Decoded({', '.join(f'_get{i}(_r)' for i in range(len(names)))})\n")
+        exec(compile(src, f"<sagg_common.msg_codecs: {self.name}>", "exec"), ns)
+        return ns["encode"], ns["decode"]
 
 
 class _MsgSeqPut:

@@ -136,8 +136,8 @@ def timed(f, n: int) -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--baseline", default=BASELINE_REV)
-    ap.add_argument("--n", type=int, default=5000)
-    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--n", type=int, default=2000)
+    ap.add_argument("--rounds", type=int, default=25)
     args = ap.parse_args(argv)
     old = load_baseline(args.baseline)
     store = rosbags_store()
