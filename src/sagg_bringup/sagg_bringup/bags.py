@@ -212,7 +212,8 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     for topic, _, _, raw in bag_messages(paths, wanted):
         try:
             if topic == "/sagg/sample":
-                _, idx, a, da, dy = decode_sample(raw)
+                sample = decode_sample(raw)
+                idx, a, da, dy = sample.index, sample.alpha, sample.delta_alpha, sample.delta_y
                 if idx < len(mem):
                     dup["samples"] += 1
                     continue
