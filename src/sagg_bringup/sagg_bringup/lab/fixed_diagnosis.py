@@ -10,7 +10,10 @@ For each (strategy, seed, point) on the config's test goals:
   * ``coverage`` / ``coverage_max``: distance from each test goal to the nearest stored outcome;
   * ``explore``: share of the experiments that were exploration (Alg. 4) rather than reaching;
   * ``goals``, ``goals_inside``: goals chosen, and the share of them inside the reachable-area
-    estimate of the evaluation (``sagg_sim_bridge.arm.reachable_area``).
+    estimate of the evaluation (``sagg_sim_bridge.arm.reachable_area``);
+  * ``interest_in`` / ``interest_out``: mean interest of the goal generator's leaves whose centre is
+    inside / outside that area, and ``mass_in``: the share of mode 1's selection probability
+    (Sec. 2.4.4) on the inside leaves.
 Means over seeds are printed as a markdown table.
 """
 from __future__ import annotations
@@ -20,6 +23,8 @@ import collections
 import json
 
 import numpy as np
+
+from sagg_common.regions import interest_probabilities
 
 from ..synergy_experiment import SynergyRun, load_synergy_config
 
@@ -44,10 +49,17 @@ def diagnose(config: str, strategy: str, seed: int, points: list[int], overrides
         cov = np.array([np.linalg.norm(g - learner.outcomes[k]) for g, k in zip(goals, nearest)])
         nn = np.array([np.linalg.norm(g - replay(learner.thetas[k])) for g, k in zip(goals, nearest)])
         chosen = np.array([r.position for r in run.generator.goals])
+        leaves = run.generator.tree.leaves()
+        interests = np.array([r.interest for r in leaves])
+        inside = area.contains(np.array([(r.lower + r.upper) / 2 for r in leaves]))
+        inner = interests[inside] if inside.any() else np.zeros(1)
+        outer = interests[~inside] if (~inside).any() else np.zeros(1)
         rows.append({"queries": n, "inverse": float(run.evaluate(goals).mean()), "nn": float(nn.mean()),
                      "coverage": float(cov.mean()), "coverage_max": float(cov.max()),
                      "explore": kinds["explore"] / max(1, sum(kinds.values())),
-                     "goals": len(chosen), "goals_inside": float(area.contains(chosen).mean())})
+                     "goals": len(chosen), "goals_inside": float(area.contains(chosen).mean()),
+                     "interest_in": float(inner.mean()), "interest_out": float(outer.mean()),
+                     "mass_in": float(interest_probabilities(interests)[inside].sum())})
     return rows
 
 
@@ -66,7 +78,8 @@ def main(argv=None) -> int:
             overrides[k] = json.loads(v)
         except json.JSONDecodeError:
             overrides[k] = v
-    keys = ("inverse", "nn", "coverage", "coverage_max", "explore", "goals", "goals_inside")
+    keys = ("inverse", "nn", "coverage", "coverage_max", "explore", "goals", "goals_inside",
+            "interest_in", "interest_out", "mass_in")
     print(f"{a.config}, fixed context, overrides {overrides}, seeds 0-{a.seeds - 1} (mean over seeds)")
     print("| strategy | queries | " + " | ".join(keys) + " |")
     print("|---" * (len(keys) + 2) + "|")
