@@ -8,11 +8,9 @@ from typing import Any
 
 from sagg_common.params import ConfigError, resolve_nodes
 from sagg_goal_generator.core import SCHEMA as GEN_CORE
-from sagg_goal_generator.node import SCHEMA as GEN_NODE
+from sagg_goal_generator.schema import SCHEMA as GEN_NODE
 from sagg_low_level.learner import SCHEMA as LEARNER_CORE
-from sagg_low_level.node import SCHEMA as LEARNER_NODE
-from sagg_sim_bridge.node import SCHEMA as BRIDGE_NODE
-from sagg_sim_bridge.params import SCHEMA as BRIDGE_CORE, ArmSpec, arm_spec_from_params
+from sagg_low_level.schema import LEARNER_SCHEMA as LEARNER_NODE
 
 # node section -> (package, console script)
 NODES = {
@@ -25,10 +23,14 @@ TIMINGS = ("lockstep", "realtime")
 
 def node_schemas() -> dict[str, tuple]:
     """Full parameter schemas (core + node-only) of the three nodes, from the node modules."""
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.schema import BRIDGE_SCHEMA as BRIDGE_NODE
     return {"sagg_sim_bridge": BRIDGE_NODE, "sagg_goal_generator": GEN_NODE, "sagg_learner": LEARNER_NODE}
 
 
 def core_schemas() -> dict[str, tuple]:
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.params import SCHEMA as BRIDGE_CORE
     return {"sagg_goal_generator": GEN_CORE, "sagg_learner": LEARNER_CORE, "sagg_sim_bridge": BRIDGE_CORE}
 
 
@@ -37,6 +39,8 @@ def resolve_arm(path: str | Path, overrides: dict[str, Any] | None = None) -> tu
     overrides, and the simulated arm they describe (the one :func:`arm_spec_from_params` of a run:
     it validates the arm, naming the bad parameter). Same checks as the in-process loader; an
     override no node declares is an error."""
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.params import arm_spec_from_params
     out = resolve_nodes(path, node_schemas(), overrides)
     return out, arm_spec_from_params(out["sagg_sim_bridge"])
 
@@ -55,6 +59,8 @@ def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str,
                  spec: ArmSpec | None = None) -> dict[str, dict]:
     """The parameters the nodes get: the resolved config plus what ``sagg run`` fills in; ``spec``:
     the arm of ``full`` when the caller has it (:func:`resolve_arm`)."""
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.params import arm_spec_from_params
     params = {name: dict(values) for name, values in full.items()}
     spec = spec if spec is not None else arm_spec_from_params(full["sagg_sim_bridge"])
     lower, upper = spec.limits()

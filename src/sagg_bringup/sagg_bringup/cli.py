@@ -2,15 +2,26 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import time
 from pathlib import Path
 
 import yaml
 
-from sagg_common.params import STRATEGIES, ConfigError, parse_set
+from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
 
-# Each command imports its modules when it runs (lazily): rclpy, mujoco and matplotlib take seconds
-# to import, and `sagg params` or `sagg bench table` need none of them.
+from .check_driver import main_check_driver
+from .processes import GraphError
+from .lab.hostile import bench_hostile
+from .lab.soak import main_soak
+from .record import default_out, record
+from .report import write_report
+from .reproduce import estimate, run_reproduce
+
+# A command whose modules load rclpy, mujoco or matplotlib imports them when it runs (`# lazy (heavy)`:
+# they take seconds to import, and `sagg params` or `sagg bench table` need none of them); light
+# modules are imported above (test_layers checks both).
 
 
 def positive_int(text: str) -> int:
@@ -25,12 +36,12 @@ def positive_int(text: str) -> int:
 
 def node_schemas() -> dict:
     """Every node's full parameter schema (core parameters + node-only ones: topics, timing...)."""
+    # lazy (heavy): ROS, mujoco
     from .setups import node_tables
     return node_tables()  # (the set-ups' nodes; another set-up's node of a section: "section (script)")
 
 
 def params_markdown(node: str | None = None) -> str:
-    from sagg_common.params import schema_markdown
     parts = []
     for name, schema in node_schemas().items():
         if node is None or node == name:
@@ -247,9 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args) -> int:
-    import time
-
-    from .processes import GraphError
+    # lazy (heavy): ROS, mujoco
     from .setups import run_graph, setup_of
     if args.resume:
         return _resume(args)
@@ -299,9 +308,8 @@ def _run(args) -> int:
 
 def _resume(args) -> int:
     """``sagg run --resume DIR``: the same run, continued (timing and budget from DIR unless given)."""
-    import json
 
-    from .processes import GraphError
+    # lazy (heavy): ROS, mujoco
     from .setups import run_graph
     out = Path(args.resume)
     params_file = out / "params.yaml"
@@ -342,6 +350,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "experiment":
+            # lazy (heavy): ROS, mujoco
             from .setups import run_experiment
             res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions,
                                  args.eval_every, args.out, progress=not args.quiet,
@@ -352,32 +361,32 @@ def main(argv: list[str] | None = None) -> int:
                   f"{len(res['goals'])} goals, {len(res['regions'])} regions -> "
                   f"{Path(args.out) / 'result.json'}")
             if args.report:
+                # lazy (heavy): ROS, mujoco
                 from .setups import write_report
                 print(f"report: {write_report(res, args.out)}")
             return 0
         if args.command == "run":
             return _run(args)
         if args.command == "replay":
+            # lazy (heavy): mujoco
             from .bags import replay
             res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
                          domain_id=args.domain_id, progress=not args.quiet)
             return 130 if res["interrupted"] else 0
         if args.command == "record":
-            from .record import default_out, record
             res = record(args.out or default_out(), args.params, args.domain_id, args.duration,
                          progress=not args.quiet, markers=not args.no_markers)
             if args.quiet:
                 print(f"bag closed: {res['path']}")
             return 0
         if args.command == "check-driver":
-            from .check_driver import main_check_driver
             return main_check_driver(args)
         if args.command == "relearn":
+            # lazy (heavy): ROS, mujoco
             from .setups import relearn
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "reproduce":
-            from .reproduce import estimate, run_reproduce
             if args.estimate:
                 estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
                 return 0
@@ -392,43 +401,48 @@ def main(argv: list[str] | None = None) -> int:
                 print(params_markdown(args.node))
             return 0
         if args.command == "bench" and args.bench == "graph":
+            # lazy (heavy): mujoco
             from .lab.bench import bench_graph
             bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
         if args.command == "bench" and args.bench == "riac":
+            # lazy (heavy): mujoco
             from .lab.riac_speed import bench_riac
             res = bench_riac(args.config, args.micro_actions, args.window, overrides=parse_set(args.set))
             return 0 if all(res["identical"].values()) else 1
         if args.command == "bench" and args.bench == "soak":
-            from .lab.soak import main_soak
             return main_soak(args, parse_set(args.set))
         if args.command == "bench" and args.bench == "hostile":
-            from .lab.hostile import bench_hostile
             res = bench_hostile(args.config, args.minutes, args.out, args.set or [], args.quiet)
             return 0 if res["ok"] else 1
         if args.command == "bench" and args.bench == "table":
+            # lazy (heavy): scipy
             from .compare import load_results, summary_markdown
             results = load_results(args.results)
             if not results:
                 raise ConfigError(f"no result.json found under {', '.join(args.results)}")
             print(summary_markdown(results))
             if args.plot:
+                # lazy (heavy): scipy
                 from .compare import plot_curves
                 plot_curves(results, args.plot, args.title)
             return 0
         if args.command == "bench" and args.bench == "compare":
+            # lazy (heavy): mujoco
             from .sweep import run_compare
             summ = run_compare(args.config, args.strategies, args.seeds, args.micro_actions,
                                args.eval_every, args.out, workers=args.workers, ray_address=args.ray,
                                overrides=parse_set(args.set), base_seed=args.base_seed)
             return 1 if summ["failed_runs"] else 0
         if args.command == "bench" and args.bench == "quality":
+            # lazy (heavy): mujoco, scipy
             from .lab.quality import bench_quality
             bench_quality(args.config, args.strategies, args.seeds, args.points, args.contexts,
                           args.wide, parse_set(args.set), args.base_seed, args.out,
                           analytic=not args.no_analytic)
             return 0
         if args.command == "bench" and args.bench == "speed":
+            # lazy (heavy): mujoco
             from .lab.bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,
                         graph=args.graph, graph_micro_actions=args.graph_micro_actions,

@@ -16,7 +16,6 @@ from sagg_low_level.eval_metrics import error_metrics, metric_frame
 from sagg_low_level.evaluate import evaluate
 from sagg_low_level.learner import EvolvingContextLearner, Robot
 from sagg_low_level.memory import SampleMemory
-from sagg_sim_bridge.arm import ArmSim, ArmSpec, ReachableArea, reachable_area, test_goals
 
 # Niceness of the evaluation process: a mild preference for the graph (the nodes, and this
 # process's DDS threads receiving the recorded topics). Evaluation first ran in a thread of this
@@ -32,6 +31,8 @@ def evaluation_setup(learner_params: dict, spec: ArmSpec):
     ``run_experiment`` computes them (``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``); the
     learner (empty memory) is built exactly as the learner node builds its own (same neighbour
     search). Used by ``sagg run``'s evaluator and by ``sagg relearn``."""
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.arm import reachable_area, test_goals
     lp = learner_params
     area = reachable_area(spec, lp["task_space.lower"], lp["task_space.upper"], seed=lp["eval.seed"])
     goals = test_goals(spec, lp["task_space.lower"], lp["task_space.upper"], n=lp["eval.goals"],
@@ -45,6 +46,8 @@ def evaluation_setup(learner_params: dict, spec: ArmSpec):
 def evaluate_frozen(learner, spec, learner_params: dict, goals: np.ndarray) -> np.ndarray:
     """Test errors of the frozen model, as ``InProcessRun.evaluate``: a fresh
     ``ArmSim(spec, substream_seed(seed, "eval_sim"))``."""
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.arm import ArmSim
     return evaluate(learner, ArmSim(spec, seed=substream_seed(learner_params["seed"], "eval_sim")), goals)
 
 
@@ -151,6 +154,8 @@ class Evaluator:
                 self.error = item[1]
                 continue
             if item[0] == "area":
+                # lazy (heavy): mujoco
+                from sagg_sim_bridge.arm import ReachableArea
                 self.area = ReachableArea(*item[1:6])
                 self.test_goals = item[6]
                 # the evaluation's metrics (eval_metrics, as in-process; base at the origin), also

@@ -33,10 +33,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rclpy.serialization import deserialize_message
 
 from sagg_common.diagnostics import sample_problem
 from sagg_common.params import ConfigError
 from sagg_common.progress import Progress
+from sagg_msgs.msg import Evaluation
 
 from sagg_sim_bridge.arm import reachable_area
 
@@ -45,6 +47,8 @@ from .bag_reader import bag_messages
 from .evaluator import Evaluator
 from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file
 from .processes import GraphError, check_domain_id, node_processes
+from .recorder import _msg_class
+from .report import arm_rows, write_report
 from .results import run_overrides
 from .session import GraphSession
 from .split_tracker import SplitTracker
@@ -100,8 +104,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         prior = []
         done_evals: dict[int, np.ndarray] = {}
         if prior_bags:
-            from rclpy.serialization import deserialize_message
-            from sagg_msgs.msg import Evaluation
             prior = list(bag_messages(prior_bags, {"/sagg/sample", "/sagg/goal", "/sagg/competence",
                                                    "/sagg/regions", "/sagg/evaluation"}))
             for topic, _, _, raw in prior:
@@ -141,7 +143,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
             tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
 
         if prior:
-            from .recorder import _msg_class
             handlers = {"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions}
             for topic, msgtype, _, raw in prior:
@@ -222,8 +223,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
              "dropped": dict(recorder.dropped), "dropped_not_estimated": sorted(recorder.drops_unknown)},
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
 
-    def write_report() -> None:
-        from .report import arm_rows, write_report
+    def report_now() -> None:
         write_report(summary, out, area=area, setup_rows=arm_rows(config["sagg_sim_bridge"]))
 
-    return session.finish(summary, write_report if report and curve else None)
+    return session.finish(summary, report_now if report and curve else None)

@@ -16,6 +16,9 @@ from pathlib import Path
 
 from sagg_common.params import ConfigError
 
+from .params_files import write_params_file
+from .setups import setup_of
+
 DRIVERS = ("sim", "external")
 DEFAULT_CONFIG = "arm8"
 
@@ -70,7 +73,6 @@ def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) ->
     :func:`~sagg_bringup.params_files.run_only_params`), and the nodes for ``driver`` (``sim``: with the
     MuJoCo bridge; ``external``: the goal generator and the learner only). ``max_micro_actions``:
     the learner's stop (0 = never)."""
-    from .setups import setup_of
     if driver not in DRIVERS:
         raise ConfigError(f"driver:={driver!r}; allowed: one of {', '.join(DRIVERS)}")
     path = resolve_config(config)
@@ -88,7 +90,6 @@ def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) ->
 
 def write_plan(plan: LaunchPlan, path: str | Path) -> Path:
     """The plan's parameter file (the ``params.yaml`` form ``sagg run`` writes)."""
-    from .params_files import write_params_file
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_params_file(path, plan.params)

@@ -20,18 +20,19 @@ from pathlib import Path
 
 from sagg_common.params import ConfigError
 
+from .markers import MarkerView, MARKER_TOPIC
 from .recorder import BagWriter, TopicSpec, _msg_class
+from .topics import graph_topics
 
 
 def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
     """``sagg run``'s topics for the graph a parameter file (a config or a run's params.yaml)
     describes; the defaults (``/forward_position_controller/commands``, ``/tip_position``) without one."""
-    from .topics import graph_topics
-    from .markers import MARKER_TOPIC
     extra = [TopicSpec("/clock", "rosgraph_msgs/msg/Clock", depth=100),
              TopicSpec(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", depth=1, transient_local=True)]
     if params_file is None:
         return graph_topics({}) + extra
+    # lazy (heavy): ROS, mujoco (the set-up registry loads every runner)
     from .setups import recorded_topics as setup_topics
     return setup_topics(params_file) + extra
 
@@ -39,6 +40,7 @@ def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
 def publishers_qos(infos, spec: TopicSpec) -> TopicSpec:
     """``spec`` with the reliability and durability every publisher of ``infos`` offers (a reliable
     or transient_local subscription would not match a best-effort or volatile publisher)."""
+    # lazy (heavy): ROS
     from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
     best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
     latched = bool(infos) and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
@@ -65,6 +67,7 @@ class LiveRecorder:
             self._subscribe(publishers_qos(infos, spec))
 
     def _subscribe(self, t: TopicSpec) -> None:
+        # lazy (heavy): ROS
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
         cls = _msg_class(t.msgtype)
@@ -93,6 +96,7 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
            duration: float | None = None, progress: bool = True, markers: bool = True) -> dict:
     """Record until Ctrl-C / SIGTERM (or ``duration`` s); returns ``{"path", "topics", "interrupted"}``.
     ``markers``: also publish the live view on /sagg/markers (:mod:`.markers`) from what is recorded."""
+    # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -117,7 +121,6 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
     view = None
     handlers = {}
     if markers:
-        from .markers import MarkerView
         view = MarkerView(node, topics)
         handlers = view.handlers()
     rec = LiveRecorder(node, bag, topics, handlers)

@@ -9,15 +9,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.signals import SignalHandlerOptions
-from std_srvs.srv import SetBool
 
 from sagg_common.journal import write_json_atomic
 from sagg_common.progress import Progress
-from sagg_msgs.msg import Evaluation
 
 from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
 from .processes import GraphError, NodeGroup, NodeProcess
@@ -56,6 +50,13 @@ class GraphSession:
         self.procs, self.topics, self.out, self.drain = procs, topics, out, drain
         self.nodes = NodeGroup(procs, domain_id, localhost)
         self.domain, self.env = self.nodes.domain, self.nodes.env
+        # lazy (heavy): ROS
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from sagg_msgs.msg import Evaluation
+
         self._rclpy, self._evaluation = rclpy, Evaluation
         self.ctx = Context()
         rclpy.init(context=self.ctx, domain_id=self.domain, signal_handler_options=SignalHandlerOptions.NO)
@@ -163,6 +164,8 @@ class GraphSession:
         otherwise loses its backlog)."""
         if self.recorder is None or self.bag.closed:
             return
+        # lazy (heavy): ROS
+        from std_srvs.srv import SetBool
         self.stop_signal.clear()
         cli = self.node.create_client(SetBool, "/sagg/pause")
         try:

@@ -28,9 +28,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from sagg_common.params import ConfigError, node_params, read_config
-from sagg_goal_generator.node import SCHEMA as GEN_NODE_SCHEMA
+from sagg_goal_generator.schema import SCHEMA as GEN_NODE_SCHEMA
 from sagg_low_level.learner import CONTEXT
-from sagg_sim_bridge.node import SCHEMA as ARM_BRIDGE_SCHEMA
+from sagg_sim_bridge.schema import BRIDGE_SCHEMA as ARM_BRIDGE_SCHEMA
 from sagg_sim_bridge.synergy_params import SETUPS as SYNERGY_SIMS
 
 from . import arm_params, bags, experiment, external, graph, report, synergy_experiment, synergy_graph, topics

@@ -24,20 +24,17 @@ from sagg_common.rng import stream, substream_seed
 from sagg_common.synergy import transported_outcome
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import frame_summary, metric_frame
+from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, Driver, FixedContextLearner, ThetaSpace,
+                                          evaluate_fixed, spread_goals, synergy_from_params)
 from sagg_low_level.learner import SCHEMA as EVOLVING_SCHEMA
 from sagg_low_level.outcome_set import reachable_outcomes
-from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Driver, FixedContextLearner,
-                                          ThetaSpace, evaluate_fixed, spread_goals, synergy_from_params)
-from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
-from sagg_sim_bridge.params import SCHEMA as ARM_SCHEMA, arm_spec_from_params
-from sagg_sim_bridge.synergy_params import NODE_SCHEMA as BRIDGE_NODE_SCHEMA, SCHEMA as SIM_SCHEMA, make_sim
+from sagg_low_level.schema import SYNERGY_LEARNER_SCHEMA as LEARNER_SCHEMA
+from sagg_sim_bridge.arm import reachable_area, test_goals, ArmSim
+from sagg_sim_bridge.params import arm_spec_from_params, SCHEMA as ARM_SCHEMA
+from sagg_sim_bridge.schema import SYNERGY_BRIDGE_SCHEMA as SYN_BRIDGE_SCHEMA
+from sagg_sim_bridge.synergy_params import make_sim
 
 from .results import learning_curve, result_dict, run_overrides, write_result
-
-# the nodes' full schemas (what the synergy learner and bridge nodes declare)
-LEARNER_SCHEMA = FC_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
-SYN_BRIDGE_SCHEMA = SIM_SCHEMA + BRIDGE_NODE_SCHEMA
-
 
 ARM_FIXED = "arm-fixed"  # the set-up name of the arm in the fixed context (context: fixed)
 

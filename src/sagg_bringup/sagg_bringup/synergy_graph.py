@@ -35,6 +35,7 @@ from .results import run_overrides
 from .session import GraphSession
 from .synergy_experiment import SynergyRun, load_synergy_config, outcome_extents
 
+
 def resolve_fixed_graph(setup, config_path: str | Path, overrides: dict[str, Any] | None) -> dict[str, dict]:
     """The nodes' parameters (full node schemas) of a fixed-context config for the registry's set-up
     ``setup`` (its ``adapter`` and ``node_schemas()``)."""
