@@ -54,9 +54,16 @@ def bag_counts(bag: Path) -> dict[str, int]:
 
 
 def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
+    """With the recorder's backpressure made to bite (recorder_max_lag 16: the learner waits for
+    sagg run's acknowledgements on /sagg/recorded many times), the bag still equals the nodes'
+    published counts, and its metadata is rosbag2's: ros_distro jazzy, the publishers' offered QoS
+    (/sagg/competence transient_local, as its publisher), topic_type_hash on every mcap channel
+    equal to metadata.yaml's type_description_hash."""
+    import yaml
+    from sagg_bringup.bag_channels import channel_metadata
     out = tmp_path / "run"
     p = subprocess.run([SAGG, "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", str(N),
-                        "--eval-every", str(N), "--out", str(out), "--quiet"],
+                        "--eval-every", str(N), "--out", str(out), "--quiet", "--set", "recorder_max_lag=16"],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     s = json.loads((out / "summary.json").read_text())
@@ -67,6 +74,19 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
     counts = bag_counts(out / "bag")
     assert {t: counts.get(t, 0) for t in published} == published
     assert s["bag"]["dropped"] == {} and s["bag"]["rejected"] == {}
+    waits = re.search(r"recorder backpressure: (\d+) waits", (out / "logs" / "learner.log").read_text())
+    assert waits and int(waits.group(1)) > 0
+    meta = yaml.safe_load((out / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["ros_distro"] == "jazzy"
+    topics = {t["topic_metadata"]["name"]: t["topic_metadata"] for t in meta["topics_with_message_count"]}
+    competence_qos = yaml.safe_load(topics["/sagg/competence"]["offered_qos_profiles"]) \
+        if isinstance(topics["/sagg/competence"]["offered_qos_profiles"], str) else topics["/sagg/competence"]["offered_qos_profiles"]
+    assert competence_qos[0]["durability"] == "transient_local"
+    channels = channel_metadata(out / "bag" / meta["relative_file_paths"][0])
+    assert set(channels) == set(topics)
+    for topic, md in channels.items():
+        assert md["topic_type_hash"] == topics[topic]["type_description_hash"]
+        assert md["topic_type_hash"].startswith("RIHS01_")
 
 
 def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):

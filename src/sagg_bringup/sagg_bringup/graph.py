@@ -741,6 +741,13 @@ class GraphSession:
         self.st = RunState(status_rate=status_rate)
         self.eval_pub = self.node.create_publisher(Evaluation, "/sagg/evaluation", 100)
         self.recorder: TopicRecorder | None = None
+        # backpressure: /sagg/recorded tells the learner how many samples (from index 0) are recorded
+        # and accepted (its recorder_max_lag); ack_source() gives that number (None: no acknowledgements)
+        from std_msgs.msg import UInt64
+        self._uint64 = UInt64
+        self.ack_source: Callable[[], int] | None = None
+        self.ack_pub = self.node.create_publisher(UInt64, "/sagg/recorded", 10)
+        self._acked = -1
         self.view = None  # markers.MarkerView, from record()
         self.stop_signal: list[int] = []
         self.interrupted = False
@@ -803,6 +810,11 @@ class GraphSession:
             self.executor.spin_once(timeout_sec=0)
             if bag.written == before:
                 break
+        if self.ack_source is not None:
+            n = self.ack_source()
+            if n != self._acked:
+                self._acked = n
+                self.ack_pub.publish(self._uint64(data=n))
         if self.stop_signal:
             raise KeyboardInterrupt
 
@@ -1098,6 +1110,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         st.task_lower, st.task_upper = t_lower, t_upper
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions, "/sagg/status": st.on_status})
+        session.ack_source = lambda: st.samples  # the samples recorded and accepted, from index 0
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
         t_first = None
         waiting_note = False

@@ -165,15 +165,25 @@ class BagWriter:
                 if topic not in self._conn:
                     self._connect(topic)
             self._writer.close()
-            self._set_distro()
+            doc = self._set_distro()
+            self._set_type_hashes(doc)
 
-    def _set_distro(self) -> None:
-        """metadata.yaml's ``ros_distro`` (rosbags writes its own name there)."""
+    def _set_distro(self) -> dict:
+        """metadata.yaml's ``ros_distro`` (rosbags writes its own name there); returns the document."""
         import yaml
         meta = self.path / "metadata.yaml"
         doc = yaml.safe_load(meta.read_text())
         doc["rosbag2_bagfile_information"]["ros_distro"] = self.ROS_DISTRO
         meta.write_text(yaml.safe_dump(doc, sort_keys=False))
+        return doc
+
+    def _set_type_hashes(self, doc: dict) -> None:
+        """``topic_type_hash`` (RIHS01) on every mcap channel, as rosbag2 writes it (rosbags does
+        not: :mod:`.bag_channels`)."""
+        from .bag_channels import add_type_hashes
+        hashes = {t: self.typestore.hash_rihs01(ty) for t, ty in self.types.items()}
+        for rel in doc["rosbag2_bagfile_information"]["relative_file_paths"]:
+            add_type_hashes(self.path / rel, hashes)
 
     def abort(self) -> None:
         self.closed = True
