@@ -649,11 +649,13 @@ class RunState:
             self.last_competence = float(m.competence)
         return True
 
-    def on_regions(self, m) -> None:
+    def on_regions(self, m) -> bool:
         self.last_regions = m
+        return True
 
-    def on_status(self, m) -> None:
+    def on_status(self, m) -> bool:
         self.status = _status_dict(m, self.status_rate)
+        return True
 
     def progress(self) -> dict:
         """The progress bar's fields."""
@@ -700,9 +702,13 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
 
 
 def _both(first: Callable, second: Callable) -> Callable:
-    def handler(msg) -> None:
-        first(msg)
+    """Both handlers; the first one's answer (truthy: message used) is the recorder's, which
+    advances the expected publisher's stream with it (dropping it left the stream at 0: while a
+    second publisher was on the topic, every real message was then rejected as foreign)."""
+    def handler(msg):
+        used = first(msg)
         second(msg)
+        return used
     return handler
 
 
@@ -1093,9 +1099,10 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
 
         tracker = SplitTracker(t_lower, t_upper)
 
-        def on_regions(m) -> None:
+        def on_regions(m) -> bool:
             st.last_regions = m
             tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
+            return True
 
         if prior:
             from .recorder import _msg_class

@@ -107,6 +107,7 @@ class BagWriter:
     ``ros_distro: jazzy`` (the distribution whose types and QoS the bag holds)."""
 
     ROS_DISTRO = "jazzy"
+    FOREIGN_FILE = "foreign_messages.json"
 
     def __init__(self, path: str | Path, topics: list[TopicSpec], typestore=None):
         from rosbags.rosbag2 import StoragePlugin, Writer
@@ -122,6 +123,9 @@ class BagWriter:
         self._offered: dict[str, list] = {}
         self.counts: dict[str, int] = {}
         self.written = 0  # messages written, all topics
+        # recorded messages attributed to a publisher other than their topic's expected one
+        # (TopicRecorder's publisher streams): written to FOREIGN_FILE at close, for relearn
+        self.foreign: list[tuple[str, int, str]] = []
         self.types: dict[str, str] = {}
         try:
             for t in topics:
@@ -167,6 +171,20 @@ class BagWriter:
             self._writer.close()
             doc = self._set_distro()
             self._set_type_hashes(doc)
+            if self.foreign:
+                self._write_foreign()
+
+    def _write_foreign(self) -> None:
+        """``FOREIGN_FILE`` in the bag directory: (topic, bag timestamp, why) of every recorded
+        message the recorder attributed to another publisher than the topic's expected node (rclpy
+        gives no publisher GID per message in Jazzy: the attribution is the recorder's publisher
+        stream, :class:`~sagg_common.publishers.PublisherStream`). ``sagg relearn`` skips them, so
+        a forged message never displaces the real one with the same index or seq."""
+        from sagg_common.journal import write_json_atomic
+        write_json_atomic(self.path / self.FOREIGN_FILE, {
+            "format": "sagg.foreign/1",
+            "doc": "messages of this bag not from their topic's expected publisher (sagg run's recorder)",
+            "messages": [list(m) for m in self.foreign]})
 
     def _set_distro(self) -> dict:
         """metadata.yaml's ``ros_distro`` (rosbags writes its own name there); returns the document."""
@@ -333,6 +351,8 @@ class TopicRecorder:
                     why = stream.check(seq)
                     if why:
                         self._drop(topic, "publishers", why)
+                        if not self.bag.closed:
+                            self.bag.foreign.append((topic, now, why))
                         return
                 try:
                     accepted = handler(deserialize_message(data, cls))
