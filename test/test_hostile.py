@@ -464,3 +464,37 @@ def _status_reason(n) -> str:
     finally:
         del n.status_pub.publish
     return got[-1].pause_reason
+
+
+def test_a_forged_message_queued_after_its_publisher_left_never_moves_the_stream():
+    """The soak's wedge (publishers phase): forged samples numbered far beyond ours, still queued at
+    the recorder after the forger had left (the topic looked fine again), were taken as a gap; the
+    stream then stood at the forger's number and every real sample was rejected. A gap is taken
+    only from a message sent after another publisher was last seen on the topic."""
+    from types import SimpleNamespace
+    from sagg_common.publishers import PublisherStream, PublisherWatch
+
+    def info(node, gid):
+        return SimpleNamespace(node_name=node, node_namespace="/", endpoint_gid=bytes([gid] * 16))
+
+    graph = {"/sagg/sample": [info("sagg_learner", 1)]}
+    node = SimpleNamespace(get_publishers_info_by_topic=lambda t: list(graph[t]),
+                           count_publishers=lambda t: len(graph[t]))
+    watch = PublisherWatch(node)
+    watch.watch("/sagg/sample", None, "sagg_learner")
+    stream = PublisherStream(watch, "/sagg/sample", "sagg_learner")
+    for seq in range(1, 101):
+        assert stream.check(seq, time.time_ns()) == ""
+        stream.commit(seq)
+    t_forged = time.time_ns()                  # the forger publishes (numbers up to 27,312) ...
+    graph["/sagg/sample"].append(info("sagg_fuzzer", 2))
+    assert "2 publishers" in watch.refresh("/sagg/sample")
+    assert "while the topic has" in stream.check(27312, t_forged)
+    graph["/sagg/sample"].pop()                # ... and leaves; its messages are still queued
+    assert watch.refresh("/sagg/sample") == ""
+    assert "before another publisher" in stream.check(27312, t_forged)
+    assert stream.last == 100
+    assert stream.check(101, time.time_ns()) == ""   # the real stream goes on
+    stream.commit(101)
+    time.sleep(0.001)
+    assert stream.check(105, time.time_ns()) == ""   # a real gap (messages missed), sent afterwards

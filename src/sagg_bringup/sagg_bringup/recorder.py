@@ -348,7 +348,7 @@ class TopicRecorder:
             if handler is not None:
                 stream = self.streams.get(topic)
                 if stream is not None:
-                    why = stream.check(seq)
+                    why = stream.check(seq, info["source_timestamp"])
                     if why:
                         self._drop(topic, "publishers", why)
                         if not self.bag.closed:
@@ -362,13 +362,23 @@ class TopicRecorder:
                 if accepted and stream is not None:
                     stream.commit(seq)
 
-        sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True)
+        events = None
+        if watched:  # every publisher (un)match re-reads the topic's publishers at once (PublisherWatch)
+            from rclpy.event_handler import SubscriptionEventCallbacks
+            events = SubscriptionEventCallbacks(matched=lambda _info, topic=t.name: self._matched(topic))
+        sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True, event_callbacks=events)
         holder["sub"] = sub
         if watched:
             self.watch.watch(t.name, sub, t.publisher)
             self.streams[t.name] = PublisherStream(self.watch, t.name, t.publisher)
         self._subs.append(sub)
         return sub
+
+    def _matched(self, topic: str) -> None:
+        """A publisher of ``topic`` matched or left: its publishers are read now, so a second one is
+        known (PublisherWatch.foreign_ns) even if it came and went between two messages."""
+        if topic in self.watch.rules:
+            self.watch.refresh(topic)
 
     def _drop(self, topic: str, why: str, detail: str) -> None:
         """Count a message not handed to its handler; logged at the first and then at most every 5 s."""
