@@ -322,6 +322,11 @@ def test_a_second_publisher_on_joint_states_is_named_and_the_learner_holds(nodes
         assert state(n) == before
         assert "node /intruder" in n.holds["publishers"] and "gid " in n.holds["publishers"]
         assert "allowed: one" in n.guard.last_message["joint_states.publishers"]
+        # the stale-driver hold that follows names the second publisher, not a stopped driver
+        n.js_rx -= 10 * n.params["joint_state_timeout"]
+        n._check_driver()
+        assert "node /intruder" in n.holds["driver"] and "driver stopped" not in n.holds["driver"]
+        n.js_rx = time.monotonic()
         # no command goes out, nothing is published while it is there
         n.outbox.append(0)
         n.flush()

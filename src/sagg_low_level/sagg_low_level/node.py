@@ -498,8 +498,10 @@ class LearnerNode(LearnerNodeBase):
         limit = self.params["joint_state_timeout"]
         stale = [name for name, t in (("joint_states", self.js_rx), ("task point", self.tip_rx)) if now - t > limit]
         if stale:
-            self._set_hold("driver", f"no valid {' or '.join(stale)} for more than {limit} s "
-                                     "(driver stopped or disconnected?)")
+            # (while a topic has a second publisher every message of it is rejected: name that cause)
+            why = (f"rejected: {self.holds['publishers']}" if "publishers" in self.holds
+                   else "driver stopped or disconnected?")
+            self._set_hold("driver", f"no valid {' or '.join(stale)} for more than {limit} s ({why})")
         elif self.count_publishers("/joint_states") == 0:
             self._set_hold("driver", "/joint_states has no publisher (driver gone)")
         elif self.holds.get("driver"):
