@@ -23,7 +23,7 @@ from typing import Callable
 
 # topics whose publisher keeps only the latest message by design (a reader may skip snapshots):
 # not counted as dropped
-NO_DROP_COUNT = ("/sagg/regions",)
+NO_DROP_COUNT = ("/sagg/regions", "/sagg/markers")
 SAGG_MSGS = ("Goal", "CompetenceReport", "Region", "RegionTree", "Sample", "LearnerStatus", "Evaluation")
 
 
