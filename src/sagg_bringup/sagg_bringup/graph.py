@@ -747,13 +747,10 @@ class GraphSession:
         self.st = RunState(status_rate=status_rate)
         self.eval_pub = self.node.create_publisher(Evaluation, "/sagg/evaluation", 100)
         self.recorder: TopicRecorder | None = None
-        # backpressure: /sagg/recorded tells the learner how many samples (from index 0) are recorded
-        # and accepted (its recorder_max_lag); ack_source() gives that number (None: no acknowledgements)
-        from std_msgs.msg import UInt64
-        self._uint64 = UInt64
+        # backpressure (acknowledge): ack_source() = the samples recorded and accepted from index 0
         self.ack_source: Callable[[], int] | None = None
-        self.ack_pub = self.node.create_publisher(UInt64, "/sagg/recorded", 10)
-        self._acked = -1
+        self.ack_pub = None
+        self._acked, self._ack_t = -1, 0.0
         self.view = None  # markers.MarkerView, from record()
         self.stop_signal: list[int] = []
         self.interrupted = False
@@ -775,6 +772,15 @@ class GraphSession:
             handlers[topic] = h if topic not in handlers else _both(handlers[topic], h)
         self.recorder = TopicRecorder(self.node, self.bag, self.topics, handlers,
                                       gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+
+    def acknowledge(self, source: Callable[[], int]) -> None:
+        """Publish ``source()`` (how many samples, from index 0, are recorded and accepted) on
+        /sagg/recorded, the learner's backpressure (``recorder_max_lag``). Only a session that calls
+        this has the publisher: the learner waits only while an acknowledging recorder exists."""
+        from std_msgs.msg import UInt64
+        self._uint64 = UInt64
+        self.ack_pub = self.node.create_publisher(UInt64, "/sagg/recorded", 10)
+        self.ack_source = source
 
     def publish_evaluation(self, at: int, errors: np.ndarray) -> None:
         """/sagg/evaluation (published from here, the executor's thread; recorded like the rest)."""
@@ -817,9 +823,11 @@ class GraphSession:
             if bag.written == before:
                 break
         if self.ack_source is not None:
-            n = self.ack_source()
-            if n != self._acked:
-                self._acked = n
+            # on every change, and at least every 0.5 s (a learner subscribing later, e.g. a
+            # resumed one whose count starts where the earlier bags end, gets it too)
+            n, now = self.ack_source(), time.monotonic()
+            if n != self._acked or now - self._ack_t >= 0.5:
+                self._acked, self._ack_t = n, now
                 self.ack_pub.publish(self._uint64(data=n))
         if self.stop_signal:
             raise KeyboardInterrupt
@@ -1117,7 +1125,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         st.task_lower, st.task_upper = t_lower, t_upper
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions, "/sagg/status": st.on_status})
-        session.ack_source = lambda: st.samples  # the samples recorded and accepted, from index 0
+        session.acknowledge(lambda: st.samples)  # the samples recorded and accepted, from index 0
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
         t_first = None
         waiting_note = False

@@ -332,12 +332,13 @@ class TopicRecorder:
                     self.bag.offer(topic, publishers_qos(self.node.get_publishers_info_by_topic(topic)))
                 self.bag.write(topic, now, data)
             # messages the recorder missed: gaps in the publisher's sequence numbers (the rmw's
-            # message info), counted while the topic has exactly one publisher (numbers are per
+            # message info), counted while the topic has at most one publisher (numbers are per
             # publisher; the count starts again whenever the set of publishers changed)
             seq = info["publication_sequence_number"]
             if count_drops and seq is not None and topic not in unsure:
-                if holder["sub"].get_publisher_count() != 1:
+                if holder["sub"].get_publisher_count() > 1:
                     # numbers of several publishers interleave: no estimate for this topic from now on
+                    # (none left: the last publisher stopped and its queued messages are taken now)
                     unsure.add(topic)
                 else:
                     gap = _follow(last_seq.setdefault(topic, []), seq)
