@@ -15,15 +15,16 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from mcap.reader import make_reader
+from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
 
 def add_type_hashes(mcap_path: str | Path, hashes: dict[str, str]) -> int:
     """Rewrite ``mcap_path`` with ``topic_type_hash = hashes[topic]`` on each channel whose topic
     is in ``hashes`` (others unchanged). Returns the number of channels given a hash. The file is
     replaced atomically (written next to it, then renamed)."""
-    from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
-    from mcap.stream_reader import StreamReader
-    from mcap.writer import CompressionType, Writer
-
     src = Path(mcap_path)
     tmp = src.with_name(src.name + ".tmp")
     schema_ids: dict[int, int] = {}
@@ -62,7 +63,6 @@ def add_type_hashes(mcap_path: str | Path, hashes: dict[str, str]) -> int:
 
 def channel_metadata(mcap_path: str | Path) -> dict[str, dict[str, str]]:
     """Each channel's metadata by topic (what ``ros2 bag info``-like tools read)."""
-    from mcap.reader import make_reader
     with open(mcap_path, "rb") as f:
         summary = make_reader(f).get_summary()
     return {c.topic: dict(c.metadata) for c in summary.channels.values()}

@@ -14,17 +14,23 @@ Timestamps are the receive times (ns since the epoch), as ``ros2 bag record`` do
 """
 from __future__ import annotations
 
-import os
-import sys
+import importlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import yaml
+
+from sagg_common.journal import write_json_atomic
+from sagg_common.msg_codecs import MESSAGES, find_msg_dir
+from sagg_common.publishers import PublisherStream, PublisherWatch
+
+from .bag_channels import add_type_hashes
+
 # topics whose publisher keeps only the latest message by design (a reader may skip snapshots):
 # not counted as dropped
 NO_DROP_COUNT = ("/sagg/regions", "/sagg/markers")
-SAGG_MSGS = ("Goal", "CompetenceReport", "Region", "RegionTree", "Sample", "LearnerStatus", "Evaluation")
 
 
 @dataclass(frozen=True)
@@ -42,34 +48,22 @@ class TopicSpec:
     publisher: str | None = None  # the node whose messages the handler accepts (None: any single publisher)
 
 
-def find_msg_dir() -> Path:
-    """The sagg_msgs ``msg`` folder: the installed share dir (venv prefix, AMENT_PREFIX_PATH) first,
-    then the source tree (src/sagg_msgs/msg)."""
-    candidates = [Path(sys.prefix) / "share" / "sagg_msgs" / "msg"]
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            candidates.append(Path(prefix) / "share" / "sagg_msgs" / "msg")
-    candidates.append(Path(__file__).resolve().parents[2] / "sagg_msgs" / "msg")
-    for c in candidates:
-        if all((c / f"{name}.msg").is_file() for name in SAGG_MSGS):
-            return c
-    raise FileNotFoundError("sagg_msgs .msg files not found in: " + ", ".join(str(c) for c in candidates))
-
-
 def make_typestore(msg_dir: Path | None = None):
     """A rosbags typestore with the ROS 2 Jazzy types plus sagg_msgs (parsed from .msg text)."""
+    # lazy (heavy): rosbags
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     msg_dir = msg_dir or find_msg_dir()
     types = {}
-    for name in SAGG_MSGS:
+    for name in MESSAGES:
         types.update(get_types_from_msg((msg_dir / f"{name}.msg").read_text(), f"sagg_msgs/msg/{name}"))
     store.register(types)
     return store
 
 
 def _qos(spec: TopicSpec):
+    # lazy (heavy): rosbags
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                     QosTime)
     zero = QosTime(0, 0)  # rosbag2's "unspecified" (the rmw default)
@@ -82,6 +76,7 @@ def publishers_qos(infos) -> list:
     """The offered QoS of the publishers ``infos`` (``Node.get_publishers_info_by_topic``) as
     rosbags ``Qos``, as ``ros2 bag record`` writes them (history unknown, depth 0: DDS does not
     tell the reader; infinite durations as INT64_MAX ns)."""
+    # lazy (heavy): rosbags
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                     QosTime)
 
@@ -110,6 +105,7 @@ class BagWriter:
     FOREIGN_FILE = "foreign_messages.json"
 
     def __init__(self, path: str | Path, topics: list[TopicSpec], typestore=None):
+        # lazy (heavy): rosbags
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         self.path = Path(path)
@@ -180,7 +176,6 @@ class BagWriter:
         gives no publisher GID per message in Jazzy: the attribution is the recorder's publisher
         stream, :class:`~sagg_common.publishers.PublisherStream`). ``sagg relearn`` skips them, so
         a forged message never displaces the real one with the same index or seq."""
-        from sagg_common.journal import write_json_atomic
         write_json_atomic(self.path / self.FOREIGN_FILE, {
             "format": "sagg.foreign/1",
             "doc": "messages of this bag not from their topic's expected publisher (sagg run's recorder)",
@@ -188,7 +183,6 @@ class BagWriter:
 
     def _set_distro(self) -> dict:
         """metadata.yaml's ``ros_distro`` (rosbags writes its own name there); returns the document."""
-        import yaml
         meta = self.path / "metadata.yaml"
         doc = yaml.safe_load(meta.read_text())
         doc["rosbag2_bagfile_information"]["ros_distro"] = self.ROS_DISTRO
@@ -198,7 +192,6 @@ class BagWriter:
     def _set_type_hashes(self, doc: dict) -> None:
         """``topic_type_hash`` (RIHS01) on every mcap channel, as rosbag2 writes it (rosbags does
         not: :mod:`.bag_channels`)."""
-        from .bag_channels import add_type_hashes
         hashes = {t: self.typestore.hash_rihs01(ty) for t, ty in self.types.items()}
         for rel in doc["rosbag2_bagfile_information"]["relative_file_paths"]:
             add_type_hashes(self.path / rel, hashes)
@@ -215,7 +208,6 @@ class BagWriter:
 
 
 def _msg_class(msgtype: str):
-    import importlib
     pkg, kind, name = msgtype.split("/")
     return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
@@ -268,7 +260,6 @@ class TopicRecorder:
         self._subs = []
         # handlers take messages only from the expected publisher (DESIGN §8): while a topic has
         # another, its messages are recorded (the bag is what happened) but not handled; counted
-        from sagg_common.publishers import PublisherWatch
         self.watch = PublisherWatch(node)
         self.streams: dict = {}              # topic -> PublisherStream (topics with an expected publisher)
         self.rejected: dict[str, int] = {}   # "<topic> <why>" -> messages not handed to the handler
@@ -304,9 +295,10 @@ class TopicRecorder:
         return not self._gated
 
     def _subscribe(self, t: TopicSpec):
+        # lazy (heavy): ROS
+        from rclpy.event_handler import SubscriptionEventCallbacks
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
-        from sagg_common.publishers import PublisherStream
 
         cls = _msg_class(t.msgtype)
         qos = QoSProfile(
@@ -365,7 +357,6 @@ class TopicRecorder:
 
         events = None
         if watched:  # every publisher (un)match re-reads the topic's publishers at once (PublisherWatch)
-            from rclpy.event_handler import SubscriptionEventCallbacks
             events = SubscriptionEventCallbacks(matched=lambda _info, topic=t.name: self._matched(topic))
         sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True, event_callbacks=events)
         holder["sub"] = sub
