@@ -138,9 +138,10 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
 
         tracker = SplitTracker(t_lower, t_upper)
 
-        def on_regions(m) -> None:
+        def on_regions(m) -> bool:
             st.last_regions = m
             tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
+            return True
 
         if prior:
             handlers = {"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
@@ -154,6 +155,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         st.task_lower, st.task_upper = t_lower, t_upper
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions, "/sagg/status": st.on_status})
+        session.acknowledge(lambda: st.samples)  # the samples recorded and accepted, from index 0
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
         t_first = None
         waiting_note = False

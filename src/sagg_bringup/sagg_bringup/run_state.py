@@ -76,11 +76,13 @@ class RunState:
             self.last_competence = float(m.competence)
         return True
 
-    def on_regions(self, m) -> None:
+    def on_regions(self, m) -> bool:
         self.last_regions = m
+        return True
 
-    def on_status(self, m) -> None:
+    def on_status(self, m) -> bool:
         self.status = _status_dict(m, self.status_rate)
+        return True
 
     def progress(self) -> dict:
         """The progress bar's fields."""
