@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from sagg_common.diagnostics import sample_problem
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, read_config
 from sagg_common.progress import Progress
@@ -459,9 +460,19 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         samples: tuple[list, list, list] = ([], [], [])
         reached: list[np.ndarray] = []
 
-        def on_sample(m) -> None:
-            if int(m.index) != st.samples:
-                st.gaps["/sagg/sample"] += 1
+        j_lo, j_hi = lp["joint_limits.lower"], lp["joint_limits.upper"]
+        j_tol = lp["plausibility.joint_tolerance"]
+
+        def on_sample(m) -> bool | None:
+            # the checks of `sagg run`'s own recorder: the next index and a plausible content, else
+            # dropped and counted (a forged sample never takes the real one's index); True = used,
+            # which moves the topic's publisher stream on
+            if int(m.index) < st.samples:
+                return None  # republished (same values)
+            if sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha, m.delta_y, j_lo, j_hi,
+                              len(t_lower), j_tol):
+                st.reject("/sagg/sample", "index or content rejected")
+                return None
             now = time.perf_counter()
             st.sample_t0 = st.sample_t0 or now
             st.sample_t1 = now
@@ -471,6 +482,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                 lst.append(v)
             if evaluator is not None:
                 evaluator.add(int(m.index), a, da, dy)
+            return True
 
         def on_tip(m) -> None:
             monitor.on_task_point(m)
