@@ -364,12 +364,9 @@ def evaluation_setup(learner_params: dict, bridge_params: dict):
 
 
 def evaluate_frozen(learner, spec, learner_params: dict, goals: np.ndarray) -> np.ndarray:
-    """Test errors of the frozen model, as ``InProcessRun.evaluate``: a fresh
-    ``ArmSim(spec, substream_seed(seed, "eval_sim"))``."""
-    from sagg_common.rng import substream_seed
-    from sagg_low_level.evaluate import evaluate
-    from sagg_sim_bridge.arm import ArmSim
-    return evaluate(learner, ArmSim(spec, seed=substream_seed(learner_params["seed"], "eval_sim")), goals)
+    """Test errors of the frozen model, as ``InProcessRun.evaluate`` (``arm_eval.evaluate_arm``)."""
+    from .arm_eval import evaluate_arm
+    return evaluate_arm(learner, spec, learner_params["seed"], goals)
 
 
 def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, checkpoints: list[int],
@@ -377,8 +374,7 @@ def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, check
     """Evaluation process: computes the reachable area and the test goals (as ``run_experiment``
     does: ``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``), then rebuilds the memory from the
     sample batches in ``inbox`` and, whenever it holds exactly a checkpoint's number of samples,
-    evaluates the frozen model as ``InProcessRun.evaluate`` does (fresh
-    ``ArmSim(spec, substream_seed(seed, "eval_sim"))``). Sends ``("area", ...)``, then
+    evaluates the frozen model as ``InProcessRun.evaluate`` does (``arm_eval.evaluate_arm``). Sends ``("area", ...)``, then
     ``("eval", at, errors, seconds)`` per checkpoint, or ``("error", text)``, to ``outbox``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # `sagg run` stops us (a terminal Ctrl-C reaches us too)
     try:
