@@ -12,8 +12,9 @@ they are bit-identical), the same bound, the same cap with the same tie order (a
 candidates in order), the same k-th distance and the same final order by (distance, index). Rows
 that leave that common case are answered by the memory's own one-query search: exact mode
 (``checks = 0``), k not below the memory size, a query with exact stored copies (the rest posture:
-duplicate groups), fewer than k samples scanned, or a duplicate group among the answer's candidates.
-Identical query rows are searched once.
+duplicate groups) or fewer than k samples scanned. Rows with a duplicate group among the answer's
+candidates finish with the one-query search's last step on their own candidates. Identical query
+rows are searched once.
 """
 from __future__ import annotations
 
@@ -182,9 +183,17 @@ def _approx_many(mem, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     kth = np.partition(cd, k - 1, axis=1)[:, k - 1]
     ok &= kth < np.inf  # fewer than k samples scanned: the one-query search decides
     keep = cd <= kth[:, None]
-    ok &= ~np.any(keep & (ci < -1), axis=1)  # duplicate groups among the candidates
     kd, kc = _compact(keep, cd, np.inf)
     ki, _ = _compact(keep, np.ascontiguousarray(ci), _PAD)
     order = np.lexsort((ki, kd), axis=-1)[:, :k]
     got = np.take_along_axis(ki, order, axis=1)
+    # rows with a duplicate group among the candidates: the one-query tail on the row's candidates
+    # (the group's samples replace its code, then the k-th distance and the order again)
+    for i in np.flatnonzero(ok & np.any(ki < -1, axis=1)):
+        rd, ri = kd[i, : kc[i]], ki[i, : kc[i]]
+        rd, ri = mem._expand_groups(rd, ri, k)
+        rk = np.partition(rd, k - 1)[k - 1]
+        sel_i = rd <= rk
+        rd, ri = rd[sel_i], ri[sel_i]
+        got[i] = ri[np.lexsort((ri, rd))[:k]]
     return got, ok
