@@ -93,3 +93,35 @@ def test_reach_steps_match_reach_step_rows():
                       for a, d in zip(alphas, dys)])
     differs = np.any(plain != want, axis=1)
     assert differs.any() and not differs.all()
+
+
+@pytest.mark.parametrize("cfg,ov,n", [
+    ("config/arm15.yaml", {"context": "fixed", "strategy": "sagg-riac"}, 600),   # arm, fixed context
+    ("config/arm8.yaml", {"context": "fixed", "strategy": "sagg-random"}, 300),  # noisy arm
+    ("config/fishing.yaml", {"strategy": "sagg-riac", "eval.pool": 150}, 150),
+])
+def test_batched_fixed_context_evaluation_equals_per_goal(cfg, ov, n):
+    from sagg_bringup.synergy_experiment import SynergyRun, load_synergy_config
+    from sagg_low_level.fixed_context import evaluate_fixed
+    from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch, inverses
+    run = SynergyRun(load_synergy_config(cfg, dict(ov, **{"eval.goals": 30})))
+    goals = run.test_goals()[0]
+    run.step_until(n)
+    want = evaluate_fixed(run.learner, run.setup.evaluator(), goals)
+    got = evaluate_fixed_batch(run.learner, run.setup.evaluator(), goals)
+    assert got.tobytes() == want.tobytes()
+    assert np.array_equal(run.evaluate(goals), want)
+    thetas = inverses(run.learner, goals)
+    assert all(t.tobytes() == run.learner.inverse(g).tobytes() for t, g in zip(thetas, goals))
+    assert len({t.tobytes() for t in thetas}) > 1  # the goals got different synergies
+
+
+def test_exact_mode_batch_scan_equals_the_index():
+    rng = np.random.default_rng(5)
+    mem = SampleMemory(4, 4, 2, buffer_size=32)  # exact mode (checks 0)
+    pts = rng.integers(0, 6, (2000, 4)) / 5.0    # a coarse grid: many exact ties
+    for p in pts:
+        mem.add(p, np.zeros(4), np.zeros(2))
+    q = np.vstack([pts[:40], rng.uniform(0, 1, (40, 4))])
+    for k in (1, 7, 33):
+        assert np.array_equal(neighbours_many(mem, q, k), np.stack([mem.neighbours(x, k) for x in q]))
