@@ -12,7 +12,9 @@ alternating (a burst of load on this shared machine hits both alike; the minimum
   arm8's per-goal noise streams, same cost), *after* = all goals together
   (:func:`~sagg_low_level.evaluate.evaluate_batch`). Both must give the same floats (checked, printed);
 * fixed-context set-ups (quadruped, fishing, arm15_fixed = config/arm15.yaml with context fixed): one
-  synergy execution per goal (``evaluate_fixed``), not batched: before = after.
+  synergy execution per goal; *before* = ``evaluate_fixed`` (goal by goal), *after* =
+  :func:`~sagg_low_level.fixed_eval_batch.evaluate_fixed_batch` (the inverse model's searches
+  batched; the executions stay one per goal). Same floats (checked, printed).
 
 Prints one table (wall seconds and ratios to the learning phase) and the load average.
 """
@@ -41,6 +43,8 @@ def _timed(f):
 def measure(name: str, strategy: str, micro_actions: int, seed: int, repeat: int) -> dict:
     """Learning-phase and evaluation seconds of one set-up (see the module docstring)."""
     from sagg_low_level.evaluate import evaluate_batch, evaluate_per_goal
+    from sagg_low_level.fixed_context import evaluate_fixed
+    from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
     from sagg_sim_bridge.arm import test_goals
 
     from ..arm_eval import eval_arms
@@ -61,7 +65,8 @@ def measure(name: str, strategy: str, micro_actions: int, seed: int, repeat: int
     else:
         run = SynergyRun(config)
         goals = run.test_goals()[0]
-        before = after = lambda: run.evaluate(goals)  # noqa: E731
+        before = lambda: evaluate_fixed(run.learner, run.setup.evaluator(), goals)  # noqa: E731
+        after = lambda: evaluate_fixed_batch(run.learner, run.setup.evaluator(), goals)  # noqa: E731
     learn, _ = _timed(lambda: run.step_until(micro_actions))
     tb, ta, same = [], [], True
     for _ in range(repeat):
@@ -92,7 +97,7 @@ def main(argv=None) -> list[dict]:
     for name in args.setups:
         r = measure(name, args.strategy, args.micro_actions, args.seed, args.repeat)
         rows.append(r)
-        note = "" if r["batched"] else " (not batched)"
+        note = "" if r["batched"] else " (fixed context)"
         print(f"| {name}{note} | {r['learn']:.2f} | {r['before']:.2f} | {r['after']:.2f} | "
               f"{r['before'] / r['learn']:.2f} | {r['after'] / r['learn']:.2f} | "
               f"{r['before'] / r['after']:.2f} | {r['same']} | {r['mean_error']:.4g} |", flush=True)
