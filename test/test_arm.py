@@ -1,4 +1,5 @@
 """Tests of the MuJoCo planar arm core (sagg_sim_bridge.arm)."""
+import dataclasses
 import json
 import math
 
@@ -357,7 +358,7 @@ def test_from_dict():
     spec = ArmSpec.from_dict({"dof": 15, "link_profile": "golden", "kp": 20000, "motor_noise": 0.2})
     assert spec == ArmSpec(dof=15, link_profile="golden", kp=20000.0, motor_noise=0.2)
     assert isinstance(spec.kp, float)
-    assert ArmSpec.from_dict(spec.to_dict()) == spec
+    assert ArmSpec.from_dict(dataclasses.asdict(spec)) == spec
     with pytest.raises(ValueError, match="lenght"):
         ArmSpec.from_dict({"total_lenght": 50.0})
 

@@ -90,7 +90,7 @@ def test_relearn_drops_hostile_messages_and_rebuilds_the_real_memory(run_dir, tm
     10^12, a NaN goal and undecodable bytes in a bag: relearn never crashes, counts what it drops,
     and rebuilds exactly the run's memory, goals and tree (no forged message took a real index)."""
     from sagg_bringup.recorder import BagWriter, TopicSpec
-    from sagg_common.cdr import encode_report, encode_sample
+    from sagg_common.msg_codecs import encode_report, encode_sample
     from rclpy.serialization import serialize_message
     from sagg_msgs.msg import Goal
     summary = json.loads((run_dir / "summary.json").read_text())

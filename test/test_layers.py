@@ -3,7 +3,10 @@
 Layers: sagg_msgs <- sagg_common <- {sagg_goal_generator, sagg_low_level, sagg_sim_bridge} <-
 sagg_bringup; the three middle packages do not import each other. Every ``import`` statement
 counts, at module level or inside a function: an import hidden in a function still makes the
-dependency (lazy imports are only for start-up cost, never to dodge a cycle).
+dependency (lazy imports are only for start-up cost, never to dodge a cycle). An import inside a
+function must be of a heavy module (:data:`HEAVY_ROOTS`, ROS interface packages, or a project module
+that imports one at module level) and say so with a ``# lazy (heavy)`` comment on the line above
+its block of imports; everything else is imported at the top of the module.
 
 ``python test/test_layers.py`` prints the import graph of src/ (module -> modules it imports).
 """
@@ -116,6 +119,103 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return sorted(out)
 
 
+# ------------------------------------------------------------------ imports inside functions
+# Third-party packages worth loading only on the paths that use them (import times measured here at
+# load ~3: rclpy 0.45 s, mujoco 0.64 s, matplotlib 0.49 s, scipy 0.17-0.47 s, rosbags.highlevel
+# 0.09 s), and ROS interface packages (their type support is loaded with rclpy).
+HEAVY_ROOTS = frozenset({"rclpy", "mujoco", "matplotlib", "scipy", "rosbags", "ray"})
+LAZY_MARK = "# lazy (heavy)"
+
+
+def _heavy_root(name: str) -> bool:
+    root = name.split(".")[0]
+    return root in HEAVY_ROOTS or root.endswith(("_msgs", "_srvs", "_interfaces"))
+
+
+def _top_level_imports(tree: ast.Module) -> list:
+    """The import statements run when the module is imported (module body, incl. if/try blocks)."""
+    out = []
+
+    def walk(nodes):
+        for n in nodes:
+            if isinstance(n, (ast.Import, ast.ImportFrom)):
+                out.append(n)
+            elif isinstance(n, (ast.If, ast.Try)):
+                walk(n.body)
+                walk(n.orelse)
+                walk(getattr(n, "finalbody", []))
+                for h in getattr(n, "handlers", []):
+                    walk(h.body)
+    walk(tree.body)
+    return out
+
+
+def _external_names(node) -> list[str]:
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names]
+    return [node.module] if node.module and not node.level else []
+
+
+def heavy_roots(src: Path = SRC) -> dict[str, frozenset[str]]:
+    """Project module -> the heavy packages its import loads (directly or through project modules,
+    module-level imports only); ROS interface packages count as one root, "ROS", with rclpy."""
+    mods = source_modules(src)
+    direct, deps = {}, {}
+    for name, path in mods.items():
+        tl = _top_level_imports(ast.parse(path.read_text(), str(path)))
+        direct[name] = {_root(x) for n in tl for x in _external_names(n) if _heavy_root(x)}
+        deps[name] = set().union(set(), *(_imported_modules(n, name, path.name == "__init__.py", mods) for n in tl))
+    roots = {name: set(r) for name, r in direct.items()}
+    roots["sagg_msgs"] = {"ROS"}
+    changed = True
+    while changed:
+        changed = False
+        for name in mods:
+            new = set().union(roots[name], *(roots.get(d, set()) for d in deps[name]))
+            if new != roots[name]:
+                roots[name] = new
+                changed = True
+    return {name: frozenset(r) for name, r in roots.items()}
+
+
+def _root(name: str) -> str:
+    root = name.split(".")[0]
+    return "ROS" if root == "rclpy" or root.endswith(("_msgs", "_srvs", "_interfaces")) else root
+
+
+def function_imports(src: Path = SRC) -> list[tuple[str, int, str, bool, bool]]:
+    """Every import statement inside a function: (file, line, statement, marked with
+    :data:`LAZY_MARK` on the line above its block, heavy: each module it imports loads a heavy
+    package that the importing module does not already load at module level)."""
+    mods = source_modules(src)
+    roots = heavy_roots(src)
+    project = {m.split(".")[0] for m in mods}
+    out = []
+    for name, path in mods.items():
+        text = path.read_text()
+        lines = text.splitlines()
+        own = roots[name]
+        for f in ast.walk(ast.parse(text, str(path))):
+            if not isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for body in (getattr(n, field) for n in ast.walk(f) for field in ("body", "orelse", "finalbody")
+                         if isinstance(getattr(n, field, None), list)):
+                block_start = None
+                for st in body:
+                    if not isinstance(st, (ast.Import, ast.ImportFrom)):
+                        block_start = None
+                        continue
+                    if block_start is None:
+                        block_start = st.lineno
+                    marked = block_start >= 2 and lines[block_start - 2].strip().startswith(LAZY_MARK)
+                    proj = _imported_modules(st, name, path.name == "__init__.py", mods)
+                    ext = [x for x in _external_names(st) if x.split(".")[0] not in project]
+                    is_heavy = (all(roots[m] - own for m in proj)
+                                and all(_heavy_root(x) and _root(x) not in own for x in ext))
+                    out.append((str(path.relative_to(src)), st.lineno, ast.unparse(st), marked, is_heavy))
+    return sorted(set(out))
+
+
 # ------------------------------------------------------------------------------ the checks
 def test_imports_point_down():
     assert layer_violations(import_graph()) == []
@@ -156,6 +256,55 @@ def test_the_checks_see_what_they_must(tmp_path):
     assert cycles(g) == [["sagg_common.a", "sagg_low_level.b", "sagg_low_level.c", "sagg_sim_bridge.d"]]
 
 
+def test_imports_inside_functions_are_heavy_and_say_so():
+    """No import hides in a function unless it loads a heavy package and carries the lazy comment
+    (a light one, or one that dodges a cycle, belongs at the top of the module)."""
+    bad = [f"{f}:{line}: {st}" + ("" if heavy else "  (light: import it at the top)")
+           + ("" if marked else f"  (no '{LAZY_MARK}' comment above its block)")
+           for f, line, st, marked, heavy in function_imports() if not (marked and heavy)]
+    assert bad == []
+
+
+def test_no_imports_inside_functions_of_launch_and_setup_files():
+    """The Python files of src/ outside the packages (launch files, setup.py) import at the top."""
+    packages = set(source_modules().values())
+    bad = []
+    for path in sorted(set(SRC.rglob("*.py")) - packages):
+        for f in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                bad += [f"{path.relative_to(SRC)}:{n.lineno}" for n in ast.walk(f)
+                        if isinstance(n, (ast.Import, ast.ImportFrom))]
+    assert bad == []
+
+
+def test_the_lazy_import_check_sees_what_it_must(tmp_path):
+    files = {
+        "sagg_common/sagg_common/__init__.py": "",
+        "sagg_common/sagg_common/light.py": "import json\n",
+        "sagg_common/sagg_common/heavyish.py": "from . import light\nimport rclpy.node\n",
+        "sagg_common/sagg_common/user.py": (
+            "def a():\n    # lazy (heavy): rclpy\n    import rclpy\n    from . import heavyish\n"
+            "def b():\n    from . import light\n"
+            "def c():\n    import mujoco\n"
+            "def d():\n    # lazy (heavy)\n    import json\n"
+            "def e():\n    x = 1\n    if x:\n        # lazy (heavy)\n        from sagg_msgs.msg import Goal\n"),
+        # already loads ROS at module level: a lazy ROS import buys nothing
+        "sagg_common/sagg_common/rosuser.py": "import rclpy\ndef f():\n    # lazy (heavy)\n    from . import heavyish\n",
+    }
+    for rel, text in files.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    roots = heavy_roots(tmp_path)
+    assert {m for m, r in roots.items() if r} == {"sagg_msgs", "sagg_common.heavyish", "sagg_common.rosuser"}
+    assert roots["sagg_common.heavyish"] == {"ROS"}
+    found = {(line, marked, heavy) for f, line, st, marked, heavy in function_imports(tmp_path)
+             if f.endswith("/user.py")}
+    assert found == {(3, True, True), (4, True, True), (6, False, False), (8, False, True), (11, True, False),
+                     (16, True, True)}
+    assert [(line, heavy) for f, line, st, marked, heavy in function_imports(tmp_path)
+            if f.endswith("/rosuser.py")] == [(4, False)]
+
+
 # ----------------------------------------------------------------------- private rclpy API
 def rclpy_private_names() -> set[str]:
     """Names of rclpy's private attributes and methods (``_x``, not dunder): every ``self._x``
@@ -174,9 +323,18 @@ def rclpy_private_names() -> set[str]:
 
 def private_uses(tree: ast.AST, private: set[str]) -> list[str]:
     """Uses of ``private`` names on objects other than ``self``/``cls`` (attribute access or a
-    ``getattr``/``setattr``/``hasattr`` string), and any assignment to ``__class__``."""
+    ``getattr``/``setattr``/``hasattr`` string), any assignment to ``__class__``, and imports of
+    rclpy's private modules (``rclpy._rclpy_pybind11``, ``rclpy.impl``)."""
     found = []
     for node in ast.walk(tree):
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+            for name in names:
+                parts = name.split(".")
+                if parts[0] == "rclpy" and any(p.startswith("_") or p == "impl" for p in parts[1:]):
+                    found.append(f"line {node.lineno}: import of {name}")
+                    break
         if isinstance(node, ast.Attribute):
             owner = node.value.id if isinstance(node.value, ast.Name) else None
             if node.attr == "__class__" and isinstance(node.ctx, ast.Store):
@@ -187,20 +345,31 @@ def private_uses(tree: ast.AST, private: set[str]) -> list[str]:
               and node.func.id in ("getattr", "setattr", "hasattr") and len(node.args) >= 2
               and isinstance(node.args[1], ast.Constant) and node.args[1].value in private):
             found.append(f"line {node.lineno}: {node.func.id}(..., {node.args[1].value!r})")
-    return found
+    return sorted(found, key=lambda f: int(f.split()[1].rstrip(":")))
 
 
-def test_no_private_rclpy_api_in_src():
-    """No module of src/ reaches into rclpy's private attributes (e.g. ``node._parameter_overrides``)
-    or swaps an rclpy object's class: both break silently on an rclpy update. Our own classes'
-    private names count only where they coincide with an rclpy one and are used on another object."""
+def checked_python_files() -> list[Path]:
+    """Every Python file of the project: all of src/ (the packages, launch files, setup.py) and the
+    test helpers and tests."""
+    root = SRC.parent
+    return sorted(set(SRC.rglob("*.py")) | set((root / "test").rglob("*.py")))
+
+
+def test_no_private_rclpy_api_anywhere():
+    """No Python file of src/ or test/ reaches into rclpy's private attributes (e.g.
+    ``node._parameter_overrides``), imports its private modules or swaps an rclpy object's class:
+    all break silently on an rclpy update. Our own classes' private names count only where they
+    coincide with an rclpy one and are used on another object."""
     private = rclpy_private_names()
     assert {"_parameter_overrides", "_parameters"} <= private  # the scan sees rclpy's internals
+    files = checked_python_files()
+    assert set(source_modules().values()) < set(files)  # every package module, and more
+    assert any(f.name.endswith(".launch.py") for f in files) and any(f.name == "fake_driver.py" for f in files)
     bad = {}
-    for name, path in source_modules().items():
+    for path in files:
         found = private_uses(ast.parse(path.read_text(), str(path)), private)
         if found:
-            bad[name] = found
+            bad[str(path.relative_to(SRC.parent))] = found
     assert bad == {}
 
 
@@ -208,10 +377,15 @@ def test_private_use_checker_finds_the_old_patterns():
     old = ("overrides = getattr(node, '_parameter_overrides', {})\n"
            "srv.__class__ = DeferrableService\n"
            "x = node._parameters\n"
-           "self._parameters = {}\n")
+           "self._parameters = {}\n"
+           "from rclpy.impl.implementation_singleton import rclpy_implementation\n"
+           "import rclpy._rclpy_pybind11\n"
+           "from rclpy import _rclpy_pybind11\n"
+           "from rclpy.node import Node\n")
     found = private_uses(ast.parse(old), rclpy_private_names())
     assert found == ["line 1: getattr(..., '_parameter_overrides')", "line 2: assignment to __class__",
-                     "line 3: ._parameters"]
+                     "line 3: ._parameters", "line 5: import of rclpy.impl.implementation_singleton",
+                     "line 6: import of rclpy._rclpy_pybind11", "line 7: import of rclpy._rclpy_pybind11"]
 
 
 if __name__ == "__main__":

@@ -26,10 +26,13 @@ def test_sinusoid_synergy_to_trajectory():
         t = traj.times[k]
         np.testing.assert_allclose(traj.positions[k], rest + theta[:12] * np.sin(2 * math.pi * t + theta[12:]),
                                    atol=1e-12)
-    # between points the controller interpolates linearly
-    mid = 0.5 * (traj.times[10] + traj.times[11])
-    np.testing.assert_allclose(traj.sample_positions(mid), 0.5 * (traj.positions[10] + traj.positions[11]))
-    np.testing.assert_allclose(traj.sample_positions(99.0), traj.positions[-1])
+    # between points the simulated controller interpolates linearly (control period 8 ms, points every 20 ms)
+    sim = QuadrupedSim()
+    targets = sim._targets(traj)
+    k = int(round(traj.times[10] / sim.dt_control)) + 1            # 8 ms after point 10
+    w = (k * sim.dt_control - traj.times[10]) / (traj.times[11] - traj.times[10])
+    assert 0.0 < w < 1.0
+    np.testing.assert_allclose(targets[k], (1 - w) * traj.positions[10] + w * traj.positions[11], atol=1e-12)
     with pytest.raises(ValueError, match="theta"):
         syn.trajectory(np.zeros(23))
 
@@ -76,6 +79,13 @@ def _floating_quadruped():
     return sim
 
 
+def set_rest_state(sim, qpos, qvel) -> None:
+    """Replace the rest state every experiment of ``sim`` starts from (a known start pose/motion)."""
+    assert qpos.shape == sim._rest_qpos.shape and qvel.shape == sim._rest_qvel.shape
+    sim._rest_qpos, sim._rest_qvel = np.array(qpos, dtype=float), np.array(qvel, dtype=float)
+    sim.reset()
+
+
 def _still(sim, duration=2.0):
     syn = SinusoidSynergy(quadruped.JOINT_NAMES, sim.rest, [0.1] * 12, 2 * math.pi, duration, 50.0)
     return syn.trajectory(np.zeros(24))
@@ -88,7 +98,7 @@ def test_quadruped_known_translation_in_a_rotated_start_frame():
     qpos[0:3] = [0.4, -0.3, 1.0]
     qpos[3:7] = [math.cos(yaw0 / 2), 0.0, 0.0, math.sin(yaw0 / 2)]
     qvel[0:2] = [0.3, 0.1]                      # world-frame linear velocity (m/s)
-    sim.set_rest_state(qpos, qvel)
+    set_rest_state(sim, qpos, qvel)
     y = sim.execute(_still(sim, 2.0))
     d = np.array([0.6, 0.2])                    # 2 s at (0.3, 0.1)
     c, s = math.cos(yaw0), math.sin(yaw0)
@@ -102,7 +112,7 @@ def test_quadruped_yaw_is_unwrapped_beyond_half_a_turn():
     qpos, qvel = sim._rest_qpos.copy(), np.zeros_like(sim._rest_qvel)
     qpos[2] = 1.0
     qvel[5] = 0.75 * math.pi                    # body-frame yaw rate: 1.5π in 2 s
-    sim.set_rest_state(qpos, qvel)
+    set_rest_state(sim, qpos, qvel)
     y = sim.execute(_still(sim, 2.0))
     assert y[2] == pytest.approx(1.5 * math.pi, rel=0.02)    # not wrapped to -π/2
     assert np.all(np.abs(y[:2]) < 0.05)
@@ -142,7 +152,7 @@ def test_fishing_contact_detection():
         if y is None:
             continue
         landed += 1
-        f = sim.float_position()
+        f = sim.data.xpos[sim._float]  # the float's position (m) after the experiment
         assert f[2] <= sim.spec.float_radius
         step = 0.2 * sim.spec.timestep * sim.spec.check_every * 50   # < one check of travel
         assert np.linalg.norm(f[:2] * sim.spec.position_scale - y) < step

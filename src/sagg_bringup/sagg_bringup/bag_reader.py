@@ -7,6 +7,7 @@ from sagg_common.params import ConfigError
 
 
 def open_bag(path: Path):
+    # lazy (heavy): rosbags
     from rosbags.rosbag2 import Reader
     if not (path / "metadata.yaml").is_file():
         raise ConfigError(f"bag '{path}': no metadata.yaml; allowed: a rosbag2 directory written by `sagg run`")

@@ -29,9 +29,9 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from sagg_common.cdr import decode_report, decode_sample
 from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.journal import write_json_atomic
+from sagg_common.msg_codecs import decode_report, decode_sample
 from sagg_common.params import ConfigError, flatten
 from sagg_common.report_kinds import KIND_NAMES
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
@@ -41,6 +41,8 @@ from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
 
 from .bag_reader import bag_messages, open_bag
 from .graph import evaluate_frozen, evaluation_setup, node_schemas
+from .recorder import _msg_class
+from .report import write_report
 from .results import goal_share_stats
 
 
@@ -48,6 +50,7 @@ from .results import goal_share_stats
 def _rclpy_qos(conn):
     """The recorded offered QoS of a connection as an rclpy profile (reliable, depth 1000,
     volatile where nothing usable was recorded)."""
+    # lazy (heavy): ROS, rosbags
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rosbags.interfaces import QosDurability, QosReliability
     profiles = getattr(conn.ext, "offered_qos_profiles", None) or []
@@ -65,12 +68,12 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
            progress: bool = True, out: Callable[[str], None] | None = None) -> dict:
     """Republish ``bag``; returns per-topic counts and bytes published. Stops cleanly on SIGINT
     (the current message is finished, publishers are flushed)."""
+    # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
     from rclpy.duration import Duration
     from rclpy.signals import SignalHandlerOptions
 
-    from .recorder import _msg_class
 
     if not rate >= 0 or rate == float("inf"):
         raise ConfigError(f"--rate: got {rate}; allowed: a number >= 0 (0 = as fast as possible)")
@@ -210,7 +213,8 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     for topic, _, _, raw in bag_messages(paths, wanted):
         try:
             if topic == "/sagg/sample":
-                _, idx, a, da, dy = decode_sample(raw)
+                sample = decode_sample(raw)
+                idx, a, da, dy = sample.index, sample.alpha, sample.delta_alpha, sample.delta_y
                 if idx < len(mem):
                     dup["samples"] += 1
                     continue
@@ -231,6 +235,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
                     dup["reports"] += 1
                 reports.setdefault(int(r.seq), r)
             elif topic == "/sagg/goal":
+                # lazy (heavy): ROS
                 from rclpy.serialization import deserialize_message
                 from sagg_msgs.msg import Goal
                 g = deserialize_message(bytes(raw), Goal)
@@ -244,6 +249,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
                         raise ConfigError(f"bag: goal {g.seq} recorded twice with different values")
                 goals.setdefault(int(g.seq), key)
             else:
+                # lazy (heavy): ROS
                 from rclpy.serialization import deserialize_message
                 from sagg_msgs.msg import RegionTree
                 snapshots[int(deserialize_message(bytes(raw), RegionTree).reports)] = bytes(raw)
@@ -265,6 +271,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         by_after.setdefault(after, []).append((seq, mode, pos))
     mismatches = []
     report_ma: dict[int, int] = {}
+    # lazy (heavy): ROS
     from rclpy.serialization import deserialize_message
     from sagg_msgs.msg import RegionTree
     checked: list[int] = []
@@ -331,7 +338,6 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         "test_goals": test_goals.tolist(), "seconds": time.perf_counter() - t0,
     }
     if report and curve:
-        from .report import write_report
         goals_out = [{"seq": g.seq, "position": g.position.tolist(), "mode": g.mode, "competence": g.competence,
                       "micro_actions": report_ma.get(g.after_report, 0)} for g in gen.goals]
         pos = np.array([g["position"] for g in goals_out], float).reshape(-1, gen.dim)

@@ -27,12 +27,13 @@ import time
 import numpy as np
 
 from sagg_common.params import ConfigError
+from sagg_common.ros_params import HW_DEPTH, reliable
 
 from .external import DriverMonitor, explicit_joints, external_params
+from .graph import load_graph_config
 
 
 def learner_params(config: str) -> dict:
-    from .graph import load_graph_config
     full = load_graph_config(config)
     return external_params(full, 0, explicit_joints(config, None))["sagg_learner"]
 
@@ -63,6 +64,7 @@ class _Probe:
 def check_driver(config: str, joint: str | None = None, step: float = 0.05, seconds: float = 2.0,
                  domain_id: int | None = None, timeout: float = 30.0, out=sys.stdout) -> dict:
     """Run the check; returns the measurements and ``problems`` (empty = fine)."""
+    # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -70,7 +72,6 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     from geometry_msgs.msg import PointStamped
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
-    from sagg_common.ros_params import HW_DEPTH, reliable
 
     lp = learner_params(config)
     joints = list(lp["joints"])

@@ -2,15 +2,29 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import time
 from pathlib import Path
 
 import yaml
 
-from sagg_common.params import STRATEGIES, ConfigError, parse_set
+from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
+from sagg_goal_generator.schema import SCHEMA as GEN_SCHEMA
+from sagg_low_level.schema import LEARNER_SCHEMA, SYNERGY_LEARNER_SCHEMA
 
-# Each command imports its modules when it runs (lazily): rclpy, mujoco and matplotlib take seconds
-# to import, and `sagg params` or `sagg bench table` need none of them.
+from .check_driver import main_check_driver
+from .external import run_external_graph
+from .graph import GraphError, run_graph
+from .lab.hostile import bench_hostile
+from .lab.soak import main_soak
+from .record import default_out, record
+from .report import write_report
+from .reproduce import estimate, run_reproduce
+
+# A command whose modules load rclpy, mujoco or matplotlib imports them when it runs (`# lazy (heavy)`:
+# they take seconds to import, and `sagg params` or `sagg bench table` need none of them); light
+# modules are imported above (test_layers checks both).
 
 
 def positive_int(text: str) -> int:
@@ -24,18 +38,17 @@ def positive_int(text: str) -> int:
 
 
 def node_schemas() -> dict:
-    """Every node's full parameter schema (core parameters + node-only ones: topics, timing...)."""
-    from sagg_goal_generator.node import SCHEMA as GEN
-    from sagg_low_level.node import SCHEMA as LEARNER
-    from sagg_sim_bridge.node import SCHEMA as BRIDGE
-    from sagg_bringup.synergy_experiment import LEARNER_SCHEMA as SYN_LEARNER, SYN_BRIDGE_SCHEMA as SYN_BRIDGE
-    return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER, "sagg_sim_bridge": BRIDGE,
+    """Every node's full parameter schema (core parameters + node-only ones: topics, timing...), from
+    the node packages' schema modules."""
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.schema import BRIDGE_SCHEMA, SYNERGY_BRIDGE_SCHEMA
+    return {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": BRIDGE_SCHEMA,
             # synergy setups (config `setup: quadruped|fishing`): same node names, other executables
-            "sagg_learner (synergy_learner)": SYN_LEARNER, "sagg_sim_bridge (synergy_bridge)": SYN_BRIDGE}
+            "sagg_learner (synergy_learner)": SYNERGY_LEARNER_SCHEMA,
+            "sagg_sim_bridge (synergy_bridge)": SYNERGY_BRIDGE_SCHEMA}
 
 
 def params_markdown(node: str | None = None) -> str:
-    from sagg_common.params import schema_markdown
     parts = []
     for name, schema in node_schemas().items():
         if node is None or node == name:
@@ -252,9 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args) -> int:
-    import time
-
-    from .graph import GraphError, run_graph
+    # lazy (heavy): mujoco
     from .synergy_experiment import config_setup
     from .synergy_graph import run_synergy_graph
     if args.resume:
@@ -273,7 +284,6 @@ def _run(args) -> int:
     run = run_graph if config_setup(args.config, parse_set(args.set)) is None else run_synergy_graph
     try:
         if args.driver == "external":
-            from .external import run_external_graph
             s = run_external_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
                                    eval_every=args.eval_every, overrides=parse_set(args.set),
                                    progress=not args.quiet, domain_id=args.domain_id,
@@ -308,9 +318,7 @@ def _run(args) -> int:
 
 def _resume(args) -> int:
     """``sagg run --resume DIR``: the same run, continued (timing and budget from DIR unless given)."""
-    import json
 
-    from .graph import GraphError, run_graph
     out = Path(args.resume)
     params_file = out / "params.yaml"
     if args.config is not None or args.seed is not None or args.strategy is not None or args.set:
@@ -320,6 +328,7 @@ def _resume(args) -> int:
     doc = yaml.safe_load(params_file.read_text()) or {}
     learner = doc.get("sagg_learner", {}).get("ros__parameters", {})
     bridge = doc.get("sagg_sim_bridge", {}).get("ros__parameters", {})
+    # lazy (heavy): mujoco
     from .synergy_experiment import config_setup
     setup = config_setup(params_file)
     if setup is not None:
@@ -355,6 +364,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "experiment":
+            # lazy (heavy): mujoco
             from .experiment import run_experiment
             res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions,
                                  args.eval_every, args.out, progress=not args.quiet,
@@ -365,32 +375,30 @@ def main(argv: list[str] | None = None) -> int:
                   f"{len(res['goals'])} goals, {len(res['regions'])} regions -> "
                   f"{Path(args.out) / 'result.json'}")
             if args.report:
-                from .report import write_report
                 print(f"report: {write_report(res, args.out)}")
             return 0
         if args.command == "run":
             return _run(args)
         if args.command == "replay":
+            # lazy (heavy): mujoco
             from .bags import replay
             res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
                          domain_id=args.domain_id, progress=not args.quiet)
             return 130 if res["interrupted"] else 0
         if args.command == "record":
-            from .record import default_out, record
             res = record(args.out or default_out(), args.params, args.domain_id, args.duration,
                          progress=not args.quiet, markers=not args.no_markers)
             if args.quiet:
                 print(f"bag closed: {res['path']}")
             return 0
         if args.command == "check-driver":
-            from .check_driver import main_check_driver
             return main_check_driver(args)
         if args.command == "relearn":
+            # lazy (heavy): mujoco
             from .bags import relearn
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "reproduce":
-            from .reproduce import estimate, run_reproduce
             if args.estimate:
                 estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
                 return 0
@@ -405,43 +413,48 @@ def main(argv: list[str] | None = None) -> int:
                 print(params_markdown(args.node))
             return 0
         if args.command == "bench" and args.bench == "graph":
+            # lazy (heavy): mujoco
             from .lab.bench import bench_graph
             bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
         if args.command == "bench" and args.bench == "riac":
+            # lazy (heavy): mujoco
             from .lab.riac_speed import bench_riac
             res = bench_riac(args.config, args.micro_actions, args.window, overrides=parse_set(args.set))
             return 0 if all(res["identical"].values()) else 1
         if args.command == "bench" and args.bench == "soak":
-            from .lab.soak import main_soak
             return main_soak(args, parse_set(args.set))
         if args.command == "bench" and args.bench == "hostile":
-            from .lab.hostile import bench_hostile
             res = bench_hostile(args.config, args.minutes, args.out, args.set or [], args.quiet)
             return 0 if res["ok"] else 1
         if args.command == "bench" and args.bench == "table":
+            # lazy (heavy): scipy
             from .compare import load_results, summary_markdown
             results = load_results(args.results)
             if not results:
                 raise ConfigError(f"no result.json found under {', '.join(args.results)}")
             print(summary_markdown(results))
             if args.plot:
+                # lazy (heavy): scipy
                 from .compare import plot_curves
                 plot_curves(results, args.plot, args.title)
             return 0
         if args.command == "bench" and args.bench == "compare":
+            # lazy (heavy): mujoco
             from .sweep import run_compare
             summ = run_compare(args.config, args.strategies, args.seeds, args.micro_actions,
                                args.eval_every, args.out, workers=args.workers, ray_address=args.ray,
                                overrides=parse_set(args.set), base_seed=args.base_seed)
             return 1 if summ["failed_runs"] else 0
         if args.command == "bench" and args.bench == "quality":
+            # lazy (heavy): mujoco, scipy
             from .lab.quality import bench_quality
             bench_quality(args.config, args.strategies, args.seeds, args.points, args.contexts,
                           args.wide, parse_set(args.set), args.base_seed, args.out,
                           analytic=not args.no_analytic)
             return 0
         if args.command == "bench" and args.bench == "speed":
+            # lazy (heavy): mujoco
             from .lab.bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,
                         graph=args.graph, graph_micro_actions=args.graph_micro_actions,

@@ -27,19 +27,28 @@ reachable but not independent of the exploration.
 """
 from __future__ import annotations
 
+import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, read_config
 from sagg_common.progress import Progress
+from sagg_common.ros_params import HW_DEPTH, reliable
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
+from sagg_low_level.evaluate import reach_frozen
+from sagg_low_level.learner import EvolvingContextLearner, SCHEMA
+from sagg_low_level.memory import SampleMemory
 
-from .graph import (GraphError, GraphSession, NODES, Evaluator, SplitTracker, check_domain_id,
-                    core_config, graph_params, graph_topics, load_graph_config, node_processes,
-                    run_only_params, set_checkpoint_dirs, write_params_file)
+from .graph import (GraphError, GraphSession, NODES, Evaluator, SplitTracker, check_domain_id, core_config,
+                    graph_params, graph_topics, load_graph_config, node_processes, run_only_params,
+                    set_checkpoint_dirs, write_params_file)
+from .report import write_report
+from .results import run_overrides
 
 JS_TYPE = "sensor_msgs/msg/JointState"
 TIP_TYPE = "geometry_msgs/msg/PointStamped"
@@ -64,6 +73,7 @@ def external_params(full: dict[str, dict], micro_actions: int, own_joints: bool)
     """The nodes' parameters for an external driver: :func:`~sagg_bringup.graph.graph_params`, but
     the learner keeps the config's ``joints`` / ``joint_limits`` / ``rest_posture`` when
     ``own_joints`` (they are checked here, before anything starts)."""
+    # lazy (heavy): ROS
     from sagg_low_level.node import robot_from_params
     params = graph_params(full, micro_actions, "lockstep")
     if own_joints:
@@ -177,7 +187,6 @@ class DriverMonitor:
 def wait_for_driver(session: GraphSession, monitor: DriverMonitor, timeout: float, progress: bool) -> float:
     """Spin until the driver meets the contract; print what is missing every
     :data:`WAIT_REPORT_EVERY` s; GraphError naming it after ``timeout`` s. Returns the seconds waited."""
-    import sys
     t0 = time.monotonic()
     last = None
     while True:
@@ -207,8 +216,8 @@ class ContractRobot:
 
     def __init__(self, session: GraphSession, monitor: DriverMonitor, learner_params: dict,
                  answer_timeout: float = 30.0):
+        # lazy (heavy): ROS
         from std_msgs.msg import Float64MultiArray
-        from sagg_common.ros_params import HW_DEPTH, reliable
         lp = learner_params
         self.session, self.monitor = session, monitor
         self.lower = np.asarray(lp["joint_limits.lower"], float)
@@ -324,7 +333,7 @@ class RobotEvaluation:
 
     def learner(self, alpha, dalpha, dy):
         """A frozen learner (``EvolvingContextLearner`` with the run's parameters) on the samples."""
-        from sagg_low_level.learner import EvolvingContextLearner, SCHEMA
+        # lazy (heavy): ROS
         from sagg_low_level.node import robot_from_params
         core = {p.name: self.lp[p.name] for p in SCHEMA}
         learner = EvolvingContextLearner(core, robot_from_params(self.lp), len(self.lp["task_space.lower"]))
@@ -334,7 +343,6 @@ class RobotEvaluation:
 
     def run(self, at: int, alpha, dalpha, dy, reached: list[np.ndarray]) -> np.ndarray:
         """Evaluate the model of the first ``at`` samples on the robot (learning must be paused)."""
-        from sagg_low_level.evaluate import reach_frozen
         self.choose_goals(reached)
         t0 = time.perf_counter()
         learner = self.learner(alpha[:at], dalpha[:at], dy[:at])
@@ -378,6 +386,7 @@ class Pauser:
     elsewhere; measured under load before this wait)."""
 
     def __init__(self, session: GraphSession, monitor: DriverMonitor, quiet: float):
+        # lazy (heavy): ROS
         from std_srvs.srv import SetBool
         self.session, self.monitor, self.quiet, self._req = session, monitor, quiet, SetBool.Request
         self.client = session.node.create_client(SetBool, "/sagg/pause")
@@ -413,7 +422,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                        robot_eval_goals: int = 10, robot_eval_every: int = 0,
                        driver_timeout: float = 120.0) -> dict:
     """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
-    from .results import run_overrides
+    # lazy (heavy): mujoco
     from .synergy_experiment import config_setup
     from sagg_sim_bridge.arm import reachable_area, test_goals
     from sagg_sim_bridge.params import arm_spec_from_params
@@ -449,7 +458,6 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     task_topic = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
 
     # the driver runs in the environment's domain and discovery range (not a private one)
-    import os
     if domain_id is None:
         domain_id = int(os.environ.get("ROS_DOMAIN_ID") or 0)
     session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False)
@@ -502,7 +510,6 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
 
         def evaluate_on_robot(at: int, final: bool) -> None:
             if progress:
-                import sys
                 print(f"\nevaluating on the robot at {at} micro-actions ({robot_eval_goals} goals from rest"
                       + (", learning paused)" if not final else ")"), file=sys.stderr, flush=True)
             if not final:
@@ -597,19 +604,16 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     if simulated:
         summary["test_goals"] = evaluator.test_goals.tolist() if evaluator.test_goals is not None else None
 
-    from sagg_common.journal import write_json_atomic
     write_json_atomic(out / "robot_evaluation.json", {"summary": robot_summary, "trace": robot.trace})
 
-    def write_report() -> None:
-        from .report import write_report
+    def report_now() -> None:
         path = write_report(summary, out, area=area)
         path.write_text(path.read_text() + robot_report_section(summary))
 
-    return session.finish(summary, write_report if report and summary["curve"] else None)
+    return session.finish(summary, report_now if report and summary["curve"] else None)
 
 
 def _memory_info(samples) -> dict:
-    from sagg_low_level.memory import SampleMemory
     alpha, dalpha, dy = samples
     if not alpha:
         return {"samples": 0}

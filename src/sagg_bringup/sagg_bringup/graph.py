@@ -25,9 +25,10 @@ One run:
 from __future__ import annotations
 
 import ctypes
-import importlib
 import json
+import multiprocessing
 import os
+import queue
 import shutil
 import signal
 import socket
@@ -46,11 +47,17 @@ from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
-from sagg_goal_generator.core import MODE_NAMES
+from sagg_goal_generator.core import MODE_NAMES, SCHEMA as GEN
+from sagg_goal_generator.schema import SCHEMA as GEN_NODE_SCHEMA
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
+from sagg_low_level.learner import EvolvingContextLearner, Robot, SCHEMA as LEARNER
+from sagg_low_level.memory import SampleMemory
+from sagg_low_level.schema import LEARNER_SCHEMA as LEARNER_NODE_SCHEMA
 
 from .bag_reader import bag_messages
-from .recorder import BagWriter, TopicRecorder, TopicSpec
+from .markers import MarkerView
+from .recorder import BagWriter, TopicRecorder, TopicSpec, _msg_class
+from .report import write_report
 from .results import goal_share_stats, run_overrides
 
 # node section -> (module holding the node's full SCHEMA, console script)
@@ -99,13 +106,15 @@ class GraphError(RuntimeError):
 
 # ------------------------------------------------------------------------------------ config
 def node_schemas() -> dict[str, tuple]:
-    """Full parameter schemas (core + node-only) of the three nodes, from the node modules."""
-    return {name: importlib.import_module(mod).SCHEMA for name, (mod, _) in NODES.items()}
+    """Full parameter schemas (core + node-only) of the three nodes, from their packages' schema
+    modules."""
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.schema import BRIDGE_SCHEMA
+    return {"sagg_sim_bridge": BRIDGE_SCHEMA, "sagg_goal_generator": GEN_NODE_SCHEMA, "sagg_learner": LEARNER_NODE_SCHEMA}
 
 
 def core_schemas() -> dict[str, tuple]:
-    from sagg_goal_generator.core import SCHEMA as GEN
-    from sagg_low_level.learner import SCHEMA as LEARNER
+    # lazy (heavy): mujoco
     from sagg_sim_bridge.params import SCHEMA as BRIDGE
     return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER, "sagg_sim_bridge": BRIDGE}
 
@@ -115,6 +124,7 @@ def load_graph_config(path: str | Path, overrides: dict[str, Any] | None = None)
     overrides. Same checks as the in-process loader; an override no node declares is an error."""
     schemas = node_schemas()
     out = resolve_nodes(path, {name: schemas[name] for name in NODES}, overrides)
+    # lazy (heavy): mujoco
     from sagg_sim_bridge.params import arm_spec_from_params
     arm_spec_from_params(out["sagg_sim_bridge"])
     return out
@@ -139,6 +149,7 @@ def _nest(flat: dict[str, Any]) -> dict:
 
 def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str) -> dict[str, dict]:
     """The parameters the nodes get: the resolved config plus what ``sagg run`` fills in."""
+    # lazy (heavy): mujoco
     from sagg_sim_bridge.params import arm_spec_from_params
     params = {name: dict(values) for name, values in full.items()}
     spec = arm_spec_from_params(full["sagg_sim_bridge"])
@@ -349,7 +360,7 @@ def evaluation_setup(learner_params: dict, bridge_params: dict):
     them (``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``); the learner (empty memory) is
     built exactly as the learner node builds its own (same neighbour search). Used by ``sagg run``'s
     evaluator and by ``sagg relearn``."""
-    from sagg_low_level.learner import EvolvingContextLearner, Robot
+    # lazy (heavy): mujoco
     from sagg_sim_bridge.arm import reachable_area, test_goals
     from sagg_sim_bridge.params import arm_spec_from_params
     spec = arm_spec_from_params(bridge_params)
@@ -365,6 +376,7 @@ def evaluation_setup(learner_params: dict, bridge_params: dict):
 
 def evaluate_frozen(learner, spec, learner_params: dict, goals: np.ndarray) -> np.ndarray:
     """Test errors of the frozen model, as ``InProcessRun.evaluate`` (``arm_eval.evaluate_arm``)."""
+    # lazy (heavy): mujoco
     from .arm_eval import evaluate_arm
     return evaluate_arm(learner, spec, learner_params["seed"], goals)
 
@@ -374,8 +386,8 @@ def _eval_worker(inbox, outbox, learner_params: dict, bridge_params: dict, check
     """Evaluation process: computes the reachable area and the test goals (as ``run_experiment``
     does: ``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``), then rebuilds the memory from the
     sample batches in ``inbox`` and, whenever it holds exactly a checkpoint's number of samples,
-    evaluates the frozen model as ``InProcessRun.evaluate`` does (``arm_eval.evaluate_arm``). Sends ``("area", ...)``, then
-    ``("eval", at, errors, seconds)`` per checkpoint, or ``("error", text)``, to ``outbox``."""
+    evaluates the frozen model as ``InProcessRun.evaluate`` does (``arm_eval.evaluate_arm``).
+    Sends ``("area", ...)``, then ``("eval", at, errors, seconds)`` per checkpoint, or ``("error", text)``, to ``outbox``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # `sagg run` stops us (a terminal Ctrl-C reaches us too)
     try:
         os.nice(nice)
@@ -416,7 +428,6 @@ class Evaluator:
 
     def __init__(self, learner_params: dict, bridge_params: dict, checkpoints: list[int],
                  nice: int = EVAL_NICE):
-        import multiprocessing
         ctx = multiprocessing.get_context("spawn")  # never fork a process that runs DDS threads
         self.inbox, self.outbox = ctx.Queue(), ctx.Queue()
         self.proc = ctx.Process(target=_eval_worker, name="sagg-evaluator", daemon=True,
@@ -462,7 +473,6 @@ class Evaluator:
 
     def poll(self) -> list[tuple[int, np.ndarray]]:
         """Evaluations finished since the last call, as ``(micro_actions, errors)``."""
-        import queue
         done = []
         while True:
             try:
@@ -473,6 +483,7 @@ class Evaluator:
                 self.error = item[1]
                 continue
             if item[0] == "area":
+                # lazy (heavy): mujoco
                 from sagg_sim_bridge.arm import ReachableArea
                 self.area = ReachableArea(*item[1:6])
                 self.test_goals = item[6]
@@ -513,7 +524,6 @@ class Evaluator:
 
     def memory(self):
         """A SampleMemory of the received samples (for the digest; same class as the learner's)."""
-        from sagg_low_level.memory import SampleMemory
         n = len(self.alpha[0]) if self.alpha else 1
         m = len(self.delta_y[0]) if self.delta_y else 1
         mem = SampleMemory(n, n, m, capacity=max(1, len(self.alpha)))
@@ -721,6 +731,7 @@ class GraphSession:
             self.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
             # this process joins the same private domain (the rmw reads the discovery range at init)
             os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        # lazy (heavy): ROS
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -751,7 +762,6 @@ class GraphSession:
         learner waits for that subscriber before its first command, so the bag misses no command
         or answer of the driver."""
         hw = tuple(t.name for t in self.topics if not t.name.startswith("/sagg/") and t.name != "/clock")
-        from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
         self.view = MarkerView(self.node, self.topics)
         handlers = dict(handlers)
         for topic, h in self.view.handlers().items():
@@ -840,6 +850,7 @@ class GraphSession:
         otherwise loses its backlog)."""
         if self.recorder is None or self.bag.closed:
             return
+        # lazy (heavy): ROS
         from std_srvs.srv import SetBool
         self.stop_signal.clear()
         cli = self.node.create_client(SetBool, "/sagg/pause")
@@ -1000,6 +1011,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     bag (``bag2``, ``bag3``, ...; logs ``logs/<node>.<k>.log``), and the earlier bags are read first,
     so the evaluation, the summary and the report cover the whole run (samples, reports and goals
     republished by the resumed nodes are dropped by index / sequence number)."""
+    # lazy (heavy): mujoco
     from sagg_sim_bridge.arm import reachable_area
     from sagg_sim_bridge.params import arm_spec_from_params
 
@@ -1041,6 +1053,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         prior = []
         done_evals: dict[int, np.ndarray] = {}
         if prior_bags:
+            # lazy (heavy): ROS
             from rclpy.serialization import deserialize_message
             from sagg_msgs.msg import Evaluation
             prior = list(bag_messages(prior_bags, {"/sagg/sample", "/sagg/goal", "/sagg/competence",
@@ -1082,7 +1095,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
             tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
 
         if prior:
-            from .recorder import _msg_class
             handlers = {"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions}
             for topic, msgtype, _, raw in prior:
@@ -1163,8 +1175,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
              "dropped": dict(recorder.dropped), "dropped_not_estimated": sorted(recorder.drops_unknown)},
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
 
-    def write_report() -> None:
-        from .report import write_report
+    def report_now() -> None:
         write_report(summary, out, area=area)
 
-    return session.finish(summary, write_report if report and curve else None)
+    return session.finish(summary, report_now if report and curve else None)

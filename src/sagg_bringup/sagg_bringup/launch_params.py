@@ -14,7 +14,10 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sagg_common.params import ConfigError
+from sagg_common.params import ConfigError, node_params, read_config
+
+from .external import explicit_joints, external_params
+from .graph import NODES, graph_params, load_graph_config, write_params_file
 
 DRIVERS = ("sim", "external")
 DEFAULT_CONFIG = "arm8"
@@ -70,13 +73,14 @@ def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) ->
     :func:`~sagg_bringup.graph.run_only_params`), and the nodes for ``driver`` (``sim``: with the
     MuJoCo bridge; ``external``: the goal generator and the learner only). ``max_micro_actions``:
     the learner's stop (0 = never)."""
+    # lazy (heavy): mujoco
     from .synergy_experiment import config_setup
     if driver not in DRIVERS:
         raise ConfigError(f"driver:={driver!r}; allowed: one of {', '.join(DRIVERS)}")
     path = resolve_config(config)
     setup = config_setup(path)
     if setup is not None:
-        from sagg_common.params import node_params, read_config
+        # lazy (heavy): mujoco
         from .synergy_experiment import load_synergy_config
         from .synergy_experiment import ARM_FIXED
         from .synergy_graph import ARM_FIXED_NODES, SYNERGY_NODES, synergy_graph_params, synergy_node_schemas
@@ -88,8 +92,6 @@ def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) ->
         params = synergy_graph_params(full, max_micro_actions)
         nodes = ARM_FIXED_NODES if arm else SYNERGY_NODES
     else:
-        from .external import explicit_joints, external_params
-        from .graph import NODES, graph_params, load_graph_config
         full = load_graph_config(path)
         if driver == "external":
             params = external_params(full, max_micro_actions, explicit_joints(path, None))
@@ -107,7 +109,6 @@ def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) ->
 
 def write_plan(plan: LaunchPlan, path: str | Path) -> Path:
     """The plan's parameter file (the ``params.yaml`` form ``sagg run`` writes)."""
-    from .graph import write_params_file
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_params_file(path, plan.params)

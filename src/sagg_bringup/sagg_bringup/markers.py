@@ -27,6 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
+from sagg_common.report_kinds import KIND_GOAL
+from sagg_common.ros_params import reliable
+
+from .recorder import make_typestore
+
 MARKER_TOPIC = "/sagg/markers"
 FRAME = "world"
 RECENT_GOALS = 50
@@ -95,6 +100,7 @@ def view_markers(regions: list[dict], goals: list[dict], test_goals, path, scale
 
 def to_msg(markers: list[dict], stamp, frame: str = FRAME):
     """A ``visualization_msgs/MarkerArray`` of :func:`view_markers`' dicts."""
+    # lazy (heavy): ROS
     from geometry_msgs.msg import Point
     from std_msgs.msg import ColorRGBA
     from visualization_msgs.msg import Marker, MarkerArray
@@ -124,7 +130,7 @@ class MarkerView:
     ``/sagg/markers`` (reliable, transient_local, depth 1) at most every ``period`` s when it changed."""
 
     def __init__(self, node, topics, period: float = 0.5, task_lower=None, task_upper=None):
-        from sagg_common.ros_params import reliable
+        # lazy (heavy): ROS
         from visualization_msgs.msg import MarkerArray
         self.node, self.period = node, period
         self.pub = node.create_publisher(MarkerArray, MARKER_TOPIC, reliable(1, transient_local=True))
@@ -157,7 +163,6 @@ class MarkerView:
         self.dirty = True
 
     def on_report(self, m) -> None:
-        from sagg_common.report_kinds import KIND_GOAL
         if m.kind == KIND_GOAL and int(m.goal_seq) in self.goals:
             self.goals[int(m.goal_seq)]["competence"] = float(m.competence)
             self.dirty = True
@@ -191,8 +196,8 @@ class MarkerView:
 # ------------------------------------------------------------------------------ from a bag
 def marker_arrays_from_bag(bag: str | Path) -> list:
     """Every recorded ``/sagg/markers`` message of a bag (rosbags-deserialized), in order."""
+    # lazy (heavy): rosbags
     from rosbags.highlevel import AnyReader
-    from .recorder import make_typestore
     out = []
     with AnyReader([Path(bag)], default_typestore=make_typestore()) as reader:
         conns = [c for c in reader.connections if c.topic == MARKER_TOPIC]
@@ -203,8 +208,10 @@ def marker_arrays_from_bag(bag: str | Path) -> list:
 
 def render_markers(arr, png: str | Path, title: str = "") -> Path:
     """Draw one recorded MarkerArray as RViz would see it from above (matplotlib, headless)."""
+    # lazy (heavy): matplotlib
     import matplotlib
     matplotlib.use("Agg")
+    # lazy (heavy): matplotlib
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 

@@ -52,6 +52,7 @@ def phase_breakdown(counter: PhaseCounter, goal_seqs, goal_positions: np.ndarray
 def coverage(tips: np.ndarray, test_goals: np.ndarray) -> dict:
     """Distance from each test goal to the nearest tip position the run ever reached (issue 10:
     does exploration cover the reachable set?): max, mean and median over the test goals."""
+    # lazy (heavy): scipy
     from scipy.spatial import cKDTree
 
     if len(tips) == 0:

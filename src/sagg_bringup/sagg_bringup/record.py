@@ -18,34 +18,36 @@ import sys
 import time
 from pathlib import Path
 
-from sagg_common.params import ConfigError
+from sagg_common.params import ConfigError, node_params, read_config
+from sagg_low_level.schema import LEARNER_SCHEMA
 
+from .graph import graph_topics
+from .markers import MarkerView, MARKER_TOPIC
 from .recorder import BagWriter, TopicSpec, _msg_class
 
 
 def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
     """``sagg run``'s topics for the graph a parameter file (a config or a run's params.yaml)
     describes; the defaults (``/forward_position_controller/commands``, ``/tip_position``) without one."""
-    from .graph import graph_topics
-    from .markers import MARKER_TOPIC
     extra = [TopicSpec("/clock", "rosgraph_msgs/msg/Clock", depth=100),
              TopicSpec(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", depth=1, transient_local=True)]
     if params_file is None:
         return graph_topics({}) + extra
-    from sagg_common.params import node_params, read_config
+    # lazy (heavy): mujoco
     from .synergy_experiment import config_setup
     sections = read_config(params_file)
     if config_setup(params_file) is not None:
+        # lazy (heavy): mujoco
         from .synergy_graph import synergy_node_schemas, synergy_topics
         lp = node_params(sections, "sagg_learner", synergy_node_schemas()["sagg_learner"])
         return synergy_topics(lp) + extra
-    from sagg_low_level.node import SCHEMA
-    return graph_topics(node_params(sections, "sagg_learner", SCHEMA)) + extra
+    return graph_topics(node_params(sections, "sagg_learner", LEARNER_SCHEMA)) + extra
 
 
 def publishers_qos(infos, spec: TopicSpec) -> TopicSpec:
     """``spec`` with the reliability and durability every publisher of ``infos`` offers (a reliable
     or transient_local subscription would not match a best-effort or volatile publisher)."""
+    # lazy (heavy): ROS
     from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
     best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
     latched = bool(infos) and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
@@ -72,6 +74,7 @@ class LiveRecorder:
             self._subscribe(publishers_qos(infos, spec))
 
     def _subscribe(self, t: TopicSpec) -> None:
+        # lazy (heavy): ROS
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
         cls = _msg_class(t.msgtype)
@@ -100,6 +103,7 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
            duration: float | None = None, progress: bool = True, markers: bool = True) -> dict:
     """Record until Ctrl-C / SIGTERM (or ``duration`` s); returns ``{"path", "topics", "interrupted"}``.
     ``markers``: also publish the live view on /sagg/markers (:mod:`.markers`) from what is recorded."""
+    # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -124,7 +128,6 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
     view = None
     handlers = {}
     if markers:
-        from .markers import MarkerView
         view = MarkerView(node, topics)
         handlers = view.handlers()
     rec = LiveRecorder(node, bag, topics, handlers)

@@ -14,17 +14,20 @@ Timestamps are the receive times (ns since the epoch), as ``ros2 bag record`` do
 """
 from __future__ import annotations
 
-import os
-import sys
+import importlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import yaml
+
+from sagg_common.msg_codecs import MESSAGES, find_msg_dir
+from sagg_common.publishers import PublisherStream, PublisherWatch
+
 # topics whose publisher keeps only the latest message by design (a reader may skip snapshots):
 # not counted as dropped
 NO_DROP_COUNT = ("/sagg/regions",)
-SAGG_MSGS = ("Goal", "CompetenceReport", "Region", "RegionTree", "Sample", "LearnerStatus", "Evaluation")
 
 
 @dataclass(frozen=True)
@@ -42,34 +45,22 @@ class TopicSpec:
     publisher: str | None = None  # the node whose messages the handler accepts (None: any single publisher)
 
 
-def find_msg_dir() -> Path:
-    """The sagg_msgs ``msg`` folder: the installed share dir (venv prefix, AMENT_PREFIX_PATH) first,
-    then the source tree (src/sagg_msgs/msg)."""
-    candidates = [Path(sys.prefix) / "share" / "sagg_msgs" / "msg"]
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            candidates.append(Path(prefix) / "share" / "sagg_msgs" / "msg")
-    candidates.append(Path(__file__).resolve().parents[2] / "sagg_msgs" / "msg")
-    for c in candidates:
-        if all((c / f"{name}.msg").is_file() for name in SAGG_MSGS):
-            return c
-    raise FileNotFoundError("sagg_msgs .msg files not found in: " + ", ".join(str(c) for c in candidates))
-
-
 def make_typestore(msg_dir: Path | None = None):
     """A rosbags typestore with the ROS 2 Jazzy types plus sagg_msgs (parsed from .msg text)."""
+    # lazy (heavy): rosbags
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     msg_dir = msg_dir or find_msg_dir()
     types = {}
-    for name in SAGG_MSGS:
+    for name in MESSAGES:
         types.update(get_types_from_msg((msg_dir / f"{name}.msg").read_text(), f"sagg_msgs/msg/{name}"))
     store.register(types)
     return store
 
 
 def _qos(spec: TopicSpec):
+    # lazy (heavy): rosbags
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                     QosTime)
     zero = QosTime(0, 0)  # rosbag2's "unspecified" (the rmw default)
@@ -82,6 +73,7 @@ def publishers_qos(infos) -> list:
     """The offered QoS of the publishers ``infos`` (``Node.get_publishers_info_by_topic``) as
     rosbags ``Qos``, as ``ros2 bag record`` writes them (history unknown, depth 0: DDS does not
     tell the reader; infinite durations as INT64_MAX ns)."""
+    # lazy (heavy): rosbags
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                     QosTime)
 
@@ -109,6 +101,7 @@ class BagWriter:
     ROS_DISTRO = "jazzy"
 
     def __init__(self, path: str | Path, topics: list[TopicSpec], typestore=None):
+        # lazy (heavy): rosbags
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         self.path = Path(path)
@@ -169,7 +162,6 @@ class BagWriter:
 
     def _set_distro(self) -> None:
         """metadata.yaml's ``ros_distro`` (rosbags writes its own name there)."""
-        import yaml
         meta = self.path / "metadata.yaml"
         doc = yaml.safe_load(meta.read_text())
         doc["rosbag2_bagfile_information"]["ros_distro"] = self.ROS_DISTRO
@@ -187,7 +179,6 @@ class BagWriter:
 
 
 def _msg_class(msgtype: str):
-    import importlib
     pkg, kind, name = msgtype.split("/")
     return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
@@ -240,7 +231,6 @@ class TopicRecorder:
         self._subs = []
         # handlers take messages only from the expected publisher (DESIGN §8): while a topic has
         # another, its messages are recorded (the bag is what happened) but not handled; counted
-        from sagg_common.publishers import PublisherWatch
         self.watch = PublisherWatch(node)
         self.streams: dict = {}              # topic -> PublisherStream (topics with an expected publisher)
         self.rejected: dict[str, int] = {}   # "<topic> <why>" -> messages not handed to the handler
@@ -276,9 +266,9 @@ class TopicRecorder:
         return not self._gated
 
     def _subscribe(self, t: TopicSpec):
+        # lazy (heavy): ROS
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
-        from sagg_common.publishers import PublisherStream
 
         cls = _msg_class(t.msgtype)
         qos = QoSProfile(

@@ -40,6 +40,7 @@ def reachable_mask(result: dict):
     """The reachable area of the run's arm inside Y (a ReachableArea), or None when the config
     has no simulated arm (e.g. a real-arm run) or Y is not 2-D."""
     try:
+        # lazy (heavy): mujoco
         from sagg_sim_bridge.arm import reachable_area
         from sagg_sim_bridge.params import arm_spec_from_params
         lower, upper = _task_box(result)
@@ -107,8 +108,10 @@ def leaves_after(splits: list[dict], lower, upper, stamp: float) -> list[tuple[n
 
 # ----------------------------------------------------------------------------------- figures
 def _plt():
+    # lazy (heavy): matplotlib
     import matplotlib
     matplotlib.use("Agg")
+    # lazy (heavy): matplotlib
     import matplotlib.pyplot as plt
     return plt
 
@@ -188,6 +191,7 @@ def fig_regions_over_time(result: dict, path: Path, area) -> Path | None:
         return None
     splits = result.get("splits") or []
     plt = _plt()
+    # lazy (heavy): matplotlib
     from matplotlib.collections import PatchCollection
     from matplotlib.patches import Rectangle
     _, ma, _ = _goal_arrays(result)

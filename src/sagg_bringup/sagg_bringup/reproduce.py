@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 from typing import Callable
 
@@ -95,7 +97,6 @@ def scale_of(reg: dict, experiment: dict, scale: str) -> dict:
 def resolve_config(config: str) -> Path:
     """A registry config path (``config/<name>.yaml``): relative to the current directory, else the
     repository this package sits in, else the installed share directory."""
-    import sys
     here = Path(__file__).resolve()
     # setup.py installs config/*.yaml to <prefix>/share/sagg_bringup/config
     candidates = [Path(config), here.parents[3] / config, Path(sys.prefix) / "share" / "sagg_bringup" / config]
@@ -164,6 +165,7 @@ def claim_verdict(pairs: list[dict]) -> tuple[str, float]:
 def decide(claim: dict, summary: dict, alpha: float) -> dict:
     """The ``ours``, ``p_value``, ``verdict`` and per-pair details of one claim from its experiment's
     ``summary.json`` (final values per seed; the tests of :func:`compare.pairwise_tests`)."""
+    # lazy (heavy): scipy
     from .compare import pairwise_tests
     strat = summary["strategies"]
     metric, stat = claim["metric"], claim["statistic"]
@@ -195,7 +197,6 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
                   registry: str | Path = REGISTRY, out_fn: Callable[[str], None] = print) -> list[dict]:
     """Run (or resume) every experiment the selected claims need, then write claims.json and
     report.md with figures. Returns the claims.json list."""
-    import os
 
     reg = load_registry(registry)
     claims = select(reg, which)
@@ -238,6 +239,7 @@ def _run_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, sum
                     out_fn):
     """One experiment through run_compare (on ``pool``, made here if None and runs are due);
     fills ``summaries`` / ``settings``; returns the pool."""
+    # lazy (heavy): mujoco
     from .sweep import make_pool, run_compare
     e = reg["experiments"][name]
     sc = scale_of(reg, e, scale)
@@ -264,6 +266,7 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
     """report.md: the verdict table, then per experiment its curves (mean ± std over seeds, like the
     paper's Figs. 10-13, 17, 21) and a histogram of the self-generated goals of each goal-choosing
     strategy (pooled over seeds; like Figs. 8, 15)."""
+    # lazy (heavy): scipy
     from .compare import load_results
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
@@ -317,8 +320,10 @@ def plot_goal_histograms(results: list[dict], path: Path, title: str, bins: int 
     """2-D histograms of the self-generated goals (first two task dimensions, all seeds pooled), one
     panel per strategy that chooses goals, with the test goals on top. False when no strategy has
     goals (nothing drawn)."""
+    # lazy (heavy): matplotlib
     import matplotlib
     matplotlib.use("Agg")
+    # lazy (heavy): matplotlib, scipy
     import matplotlib.pyplot as plt
 
     from .compare import by_strategy
@@ -355,6 +360,7 @@ def estimate(which: list[str], out: str | Path, probe_micro_actions: dict | None
     micro-actions / measured rate; evaluation time = evaluations × the probe's time per
     evaluation of a trained model. Returns one row per experiment (core-hours per strategy and
     total). Rates fall as the memory grows (the neighbour search), so this is a lower bound."""
+    # lazy (heavy): mujoco
     from .sweep import run_compare
     reg = load_registry(registry)
     claims = select(reg, which)
@@ -367,6 +373,7 @@ def estimate(which: list[str], out: str | Path, probe_micro_actions: dict | None
         summ = run_compare(resolve_config(e["config"]), e["strategies"], 1, n, n,
                            Path(out) / name, workers=workers, overrides=dict(e["set"]), base_seed=0,
                            out_fn=out_fn)
+        # lazy (heavy): scipy
         from .compare import load_results
         res = {r["strategy"]: r for r in load_results([Path(out) / name / "runs"])}
         evals = len(range(0, pa["micro_actions"], pa["eval_every"])) + 1

@@ -15,9 +15,11 @@ the runs that have no valid ``result.json``.
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import time
 import traceback
+from concurrent.futures import FIRST_COMPLETED, wait, ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -143,8 +145,6 @@ def execute_run(config: str, strategy: str, seed: int, micro_actions: int, eval_
 
 class _LocalPool:
     def __init__(self, workers: int):
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
         self.ex = ProcessPoolExecutor(max_workers=workers,
                                       mp_context=multiprocessing.get_context("spawn"))
 
@@ -152,7 +152,6 @@ class _LocalPool:
         return self.ex.submit(execute_run, *args)
 
     def wait_any(self, pending: dict) -> list:
-        from concurrent.futures import FIRST_COMPLETED, wait
         done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
         return list(done)
 
@@ -175,6 +174,7 @@ class _RayPool:
 
     def __init__(self, address: str, workers: int):
         try:
+            # lazy (heavy): ray
             import ray
         except ImportError as exc:
             raise ConfigError("--ray needs the optional Ray extra: `make ray` (or pip install "
@@ -315,6 +315,7 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
 
 def write_summary(out: Path, fp: dict, failures: dict[str, str], out_fn=print) -> dict:
     """summary.md, summary.json and curves.png from the finished results in ``out``."""
+    # lazy (heavy): scipy
     from .compare import (curve_table, load_results, pairwise_table, plot_curves, summary_json,
                           summary_markdown)
     results = []

@@ -24,19 +24,18 @@ from sagg_common.rng import stream, substream_seed
 from sagg_common.synergy import transported_outcome
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import frame_summary, metric_frame
+from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, Driver, FixedContextLearner, ThetaSpace,
+                                          spread_goals, synergy_from_params)
 from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
-from sagg_low_level.learner import CONTEXT
+from sagg_low_level.learner import CONTEXT, SCHEMA as EVOLVING_SCHEMA
 from sagg_low_level.outcome_set import reachable_outcomes
-from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Driver, FixedContextLearner,
-                                          ThetaSpace, spread_goals, synergy_from_params)
-from sagg_sim_bridge.synergy_params import NODE_SCHEMA as BRIDGE_NODE_SCHEMA, SCHEMA as SIM_SCHEMA, SETUPS, make_sim
+from sagg_low_level.schema import SYNERGY_LEARNER_SCHEMA as LEARNER_SCHEMA
+from sagg_sim_bridge.arm import reachable_area, test_goals, ArmSim
+from sagg_sim_bridge.params import arm_spec_from_params, SCHEMA as ARM_SCHEMA
+from sagg_sim_bridge.schema import SYNERGY_BRIDGE_SCHEMA as SYN_BRIDGE_SCHEMA
+from sagg_sim_bridge.synergy_params import SETUPS, make_sim
 
 from .results import learning_curve, result_dict, run_overrides, write_result
-
-# the nodes' full schemas (what the synergy learner and bridge nodes declare)
-LEARNER_SCHEMA = FC_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
-SYN_BRIDGE_SCHEMA = SIM_SCHEMA + BRIDGE_NODE_SCHEMA
-
 
 ARM_FIXED = "arm-fixed"  # config_setup of an arm config with context: fixed
 
@@ -75,8 +74,6 @@ def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None = Non
     are accepted there and dropped (unused in the fixed context); ``joints``, ``joint_limits.*`` and
     ``rest_posture`` come from the simulated arm."""
     if config_setup(path, overrides) == ARM_FIXED:
-        from sagg_low_level.learner import SCHEMA as EVOLVING_SCHEMA
-        from sagg_sim_bridge.params import SCHEMA as ARM_SCHEMA, arm_spec_from_params
         fixed = fixed_arm_learner_schema(learner_schema)
         names = {p.name for p in fixed}
         tolerated = tuple(p for p in EVOLVING_SCHEMA if p.name not in names)
@@ -193,8 +190,6 @@ class ArmPostureSetup:
     name = ARM_FIXED
 
     def __init__(self, config: dict[str, dict]):
-        from sagg_sim_bridge.arm import ArmSim
-        from sagg_sim_bridge.params import arm_spec_from_params
         lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
         self.config = config
         self.spec = arm_spec_from_params(bp)
@@ -213,12 +208,10 @@ class ArmPostureSetup:
         return posture_outcome(self.sim, self.rest, self.synergy.command(theta))
 
     def evaluator(self):
-        from sagg_sim_bridge.arm import ArmSim
         sim = ArmSim(self.spec, seed=substream_seed(self.seed, "eval_sim"))
         return lambda theta: posture_outcome(sim, self.rest, self.synergy.command(theta))
 
     def test_goals(self):
-        from sagg_sim_bridge.arm import reachable_area, test_goals
         lp = self.config["sagg_learner"]
         lower, upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
         area = reachable_area(self.spec, lower, upper, seed=lp["eval.seed"])

@@ -26,10 +26,12 @@ import numpy as np
 
 from sagg_common.params import ConfigError, node_params, read_config
 from sagg_common.progress import Progress
+from sagg_goal_generator.schema import SCHEMA as GEN
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
+from sagg_sim_bridge.schema import BRIDGE_SCHEMA as ARM_BRIDGE
 
 from .graph import (GraphSession, check_domain_id, node_processes, run_only_params, sagg_topics,
-                    write_params_file)
+                    write_params_file, graph_topics)
 from .recorder import TopicSpec
 from .results import run_overrides
 from .synergy_experiment import (ARM_FIXED, LEARNER_SCHEMA, SYN_BRIDGE_SCHEMA, SynergyRun, config_setup,
@@ -48,9 +50,7 @@ ARM_FIXED_NODES = dict(SYNERGY_NODES, sagg_sim_bridge=("sagg_sim_bridge", "mujoc
 
 
 def synergy_node_schemas(arm: bool = False) -> dict[str, tuple]:
-    from sagg_goal_generator.node import SCHEMA as GEN
     if arm:
-        from sagg_sim_bridge.node import SCHEMA as ARM_BRIDGE
         return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": ARM_BRIDGE}
     return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": SYN_BRIDGE_SCHEMA}
 
@@ -71,7 +71,6 @@ def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, d
 
 def synergy_topics(lp: dict) -> list[TopicSpec]:
     if lp["synergy.kind"] == "posture":  # the arm's position contract
-        from .graph import graph_topics
         return graph_topics(lp, "lockstep")
     task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
     out_type = "geometry_msgs/msg/PoseStamped" if len(lp["task_space.lower"]) == 3 else "geometry_msgs/msg/PointStamped"

@@ -1,4 +1,4 @@
-"""Hand-written CDR codecs for the messages on the nodes' hot path (no rclpy import).
+"""CDR primitives and the codecs of the standard ROS messages on the nodes' hot path (no rclpy import).
 
 Why: converting a message between its Python object and C (rclpy's publish and take) costs about
 as much as the transport itself (measured: a raw-bytes ping-pong has half the round-trip time of a
@@ -11,6 +11,10 @@ header ``00 01 00 00``, then the fields in order, each primitive aligned to its 
 relative to the start of the payload; strings as uint32 length (with the terminating NUL) +
 bytes + NUL; sequences as uint32 count + elements. Padding bytes are written as zeros and ignored
 when reading; trailing bytes are ignored. ``test_nodes_cdr`` checks every codec against rclpy.
+
+Here: the :class:`Writer`/:class:`Reader` primitives and templates for the hardware contract's
+standard messages (Float64MultiArray, JointState, PointStamped: fixed by ROS, never edited by us).
+The sagg_msgs codecs are built from the .msg files by :mod:`sagg_common.msg_codecs`.
 """
 from __future__ import annotations
 
@@ -21,8 +25,6 @@ import numpy as np
 ENCAP = b"\x00\x01\x00\x00"
 _U32 = struct.Struct("<I")
 _I32U32 = struct.Struct("<iI")
-_U64 = struct.Struct("<Q")
-_F64 = struct.Struct("<d")
 _3F64 = struct.Struct("<3d")
 _NS = 1_000_000_000
 _F8 = np.dtype("<f8")
@@ -47,9 +49,6 @@ class Writer:
         if pad:
             self.b += bytes(pad)
 
-    def u8(self, v: int) -> None:
-        self.b.append(v)
-
     def u32(self, v: int) -> None:
         self.align(4)
         self.b += _U32.pack(v)
@@ -57,14 +56,6 @@ class Writer:
     def stamp(self, ns: int) -> None:
         self.align(4)
         self.b += _I32U32.pack(*split_ns(ns))
-
-    def u64(self, v: int) -> None:
-        self.align(8)
-        self.b += _U64.pack(v)
-
-    def f64(self, v: float) -> None:
-        self.align(8)
-        self.b += _F64.pack(v)
 
     def string(self, s: str) -> None:
         data = s.encode()
@@ -107,11 +98,6 @@ class Reader:
     def align(self, n: int) -> None:
         self.o += -self.o % n
 
-    def u8(self) -> int:
-        v = self.d[self.o]
-        self.o += 1
-        return v
-
     def u32(self) -> int:
         self.o += -self.o % 4
         (v,) = _U32.unpack_from(self.d, self.o)
@@ -123,18 +109,6 @@ class Reader:
         sec, nsec = _I32U32.unpack_from(self.d, self.o)
         self.o += 8
         return sec * _NS + nsec
-
-    def u64(self) -> int:
-        self.o += -self.o % 8
-        (v,) = _U64.unpack_from(self.d, self.o)
-        self.o += 8
-        return v
-
-    def f64(self) -> float:
-        self.o += -self.o % 8
-        (v,) = _F64.unpack_from(self.d, self.o)
-        self.o += 8
-        return v
 
     def string(self) -> str:
         n = self.u32()
@@ -279,103 +253,3 @@ def decode_point_stamped(data: bytes) -> tuple[int, tuple[float, float, float]]:
     r.skip_string()
     r.align(8)
     return stamp, _3F64.unpack_from(r.d, r.o)
-
-
-# ------------------------------------------------------------------ sagg_msgs/Sample
-def encode_sample(stamp_ns: int, index: int, alpha, delta_alpha, delta_y, frame_id: str = "") -> bytes:
-    w = Writer()
-    w.header(stamp_ns, frame_id)
-    w.u64(index)
-    w.f64_seq(alpha)
-    w.f64_seq(delta_alpha)
-    w.f64_seq(delta_y)
-    return w.tobytes()
-
-
-def decode_sample(data: bytes) -> tuple[int, int, np.ndarray, np.ndarray, np.ndarray]:
-    r = Reader(data)
-    stamp = r.stamp()
-    r.skip_string()
-    index = r.u64()
-    return stamp, index, r.f64_seq(), r.f64_seq(), r.f64_seq()
-
-
-# ------------------------------------------------------------------ sagg_msgs/CompetenceReport
-def encode_report(stamp_ns: int, seq: int, goal_seq: int, kind: int, target, reached, start,
-                  competence: float, micro_actions: int, frame_id: str = "") -> bytes:
-    w = Writer()
-    w.header(stamp_ns, frame_id)
-    w.u64(seq)
-    w.u64(goal_seq)
-    w.u8(kind)
-    w.f64_seq(target)
-    w.f64_seq(reached)
-    w.f64_seq(start)
-    w.f64(competence)
-    w.u64(micro_actions)
-    return w.tobytes()
-
-
-class DecodedReport:
-    __slots__ = ("stamp", "seq", "goal_seq", "kind", "target", "reached", "start", "competence",
-                 "micro_actions")
-
-
-def decode_report(data: bytes) -> DecodedReport:
-    r = Reader(data)
-    out = DecodedReport()
-    out.stamp = r.stamp()
-    r.skip_string()
-    out.seq = r.u64()
-    out.goal_seq = r.u64()
-    out.kind = r.u8()
-    out.target = r.f64_seq()
-    out.reached = r.f64_seq()
-    out.start = r.f64_seq()
-    out.competence = r.f64()
-    out.micro_actions = r.u64()
-    return out
-
-
-# ------------------------------------------------------------------ sagg_msgs/RegionTree
-def _region_dtype(m: int) -> np.dtype:
-    """Layout of one sagg_msgs/Region with m-dimensional bounds, starting 8-aligned: id u32,
-    lower (u32 count, f64×m at 8), upper (u32 count at 8+8m, f64×m at 16+8m), interest f64,
-    count u32, mean_competence f64. Its size 40+16m is a multiple of 8, so every region of the
-    array starts 8-aligned and shares this layout."""
-    return np.dtype({
-        "names": ["id", "nlo", "lower", "nup", "upper", "interest", "count", "mean"],
-        "formats": ["<u4", "<u4", ("<f8", (m,)), "<u4", ("<f8", (m,)), "<f8", "<u4", "<f8"],
-        "offsets": [0, 4, 8, 8 + 8 * m, 16 + 8 * m, 16 + 16 * m, 24 + 16 * m, 32 + 16 * m],
-        "itemsize": 40 + 16 * m,
-    })
-
-
-def encode_region_tree(stamp_ns: int, frame_id: str, goals: int, reports: int, splits: int,
-                       ids, lowers, uppers, interests, counts, means) -> bytes:
-    """sagg_msgs/RegionTree from per-region arrays (k regions, bounds of shape (k, m)); the
-    regions are laid out with one numpy structured array instead of k message objects."""
-    lowers = np.asarray(lowers, dtype=np.float64)
-    k = len(ids)
-    m = lowers.shape[1] if k else 0
-    w = Writer()
-    w.header(stamp_ns, frame_id)
-    w.u64(goals)
-    w.u64(reports)
-    w.u32(splits)
-    w.u32(k)
-    if not k:
-        return w.tobytes()
-    if m == 0:
-        raise ValueError("regions need at least one dimension")
-    w.align(8)  # (already aligned: the u64s put the two u32s at an 8-aligned pair)
-    arr = np.zeros(k, dtype=_region_dtype(m))
-    arr["id"] = ids
-    arr["nlo"] = m
-    arr["lower"] = lowers
-    arr["nup"] = m
-    arr["upper"] = uppers
-    arr["interest"] = interests
-    arr["count"] = counts
-    arr["mean"] = means
-    return ENCAP + bytes(w.b) + arr.tobytes()

@@ -80,6 +80,7 @@ def diagnostic_array(stamp, node_name: str, guard: InputGuard, state: dict[str, 
     """A ``diagnostic_msgs/DiagnosticArray`` with one status for ``node_name``: level ERROR if
     ``fault`` (e.g. a safety pause) else WARN if inputs were rejected since the last status, else
     OK; values: every rejection counter (``rejected.<kind>``) and the ``state`` entries."""
+    # lazy (heavy): ROS
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
     new = guard.new_since_last_status()

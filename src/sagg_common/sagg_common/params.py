@@ -18,10 +18,11 @@ Nested mappings under ``ros__parameters`` are flattened with dots, as ROS does
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import yaml
 
@@ -138,6 +139,20 @@ SHARED_SCHEMA: Schema = (
     Param("task_space.lower", "float_list", [0.0, -150.0], "Lower corner of the task space Y."),
     Param("task_space.upper", "float_list", [150.0, 150.0], "Upper corner of the task space Y."),
 )
+
+
+def dataclass_schema(prefix: str, cls, doc: Mapping[str, str] | Callable[[str], str],
+                     choices: Mapping[str, tuple[str, ...]] | None = None) -> Schema:
+    """The parameters of a simulator's spec dataclass ``cls``: one ``<prefix>.<field>`` per field,
+    its kind from the default's type, its description ``doc[field]`` (or ``doc(field)``),
+    ``choices[field]`` restricting a string. No ranges: the spec's own ``validate`` checks the
+    values, naming the parameter (the spec is the one place its fields are defined)."""
+    kinds = {bool: "bool", int: "int", float: "float", str: "str"}
+    choices = choices or {}
+    return tuple(
+        Param(f"{prefix}.{f.name}", kinds[type(f.default)], f.default,
+              doc(f.name) if callable(doc) else doc.get(f.name, f.name), choices=choices.get(f.name))
+        for f in dataclasses.fields(cls))
 
 
 def schema_defaults(schema: Schema) -> dict[str, Any]:

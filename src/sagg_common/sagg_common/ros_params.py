@@ -15,6 +15,7 @@ Spinning: :func:`spin` runs a node until shutdown with a manual ``spin_once`` lo
 from __future__ import annotations
 
 import array
+import json
 import signal
 import sys
 from typing import Any, Callable
@@ -28,6 +29,7 @@ INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
 
 
 def _types():
+    # lazy (heavy): ROS
     from rcl_interfaces.msg import ParameterType
 
     return {
@@ -43,6 +45,7 @@ def _types():
 
 def descriptor(param: Param):
     """The ``ParameterDescriptor`` of one schema parameter."""
+    # lazy (heavy): ROS
     from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
     d = ParameterDescriptor(
@@ -158,6 +161,7 @@ def _override(node, name: str, default: Any) -> Any:
     ``parameter_overrides``), else ``default``; public rclpy API only: the parameter is declared
     dynamically typed (so an integer where the schema wants a float is taken as given, for
     :meth:`Param.validate` to coerce), read, and undeclared again."""
+    # lazy (heavy): ROS
     from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.parameter import Parameter
 
@@ -191,9 +195,11 @@ def spin(node, executor=None, should_stop: Callable[[], bool] | None = None) -> 
 
 def make_executor(kind: str = "events"):
     """``events`` (rclpy.experimental.EventsExecutor, driven by spin_once) or ``single``."""
+    # lazy (heavy): ROS
     import rclpy.executors
 
     if kind == "events":
+        # lazy (heavy): ROS
         from rclpy.experimental import EventsExecutor
 
         return EventsExecutor()
@@ -206,6 +212,7 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
              executor: str = "events") -> int:
     """Init rclpy, build the node with ``factory()``, spin it, shut down. Returns the exit code:
     0 normally, 2 for a bad parameter (one log line naming it and the allowed values)."""
+    # lazy (heavy): ROS
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
@@ -231,6 +238,7 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
         try:
             node = factory()
         except (ConfigError, ValueError) as exc:
+            # lazy (heavy): ROS
             import rclpy.logging
 
             rclpy.logging.get_logger(name).error(str(exc).replace("\n", " "))
@@ -246,7 +254,6 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
                 if hasattr(node, "close"):
                     node.close()
                 if getattr(node, "published", None) is not None:  # (what a bag must hold; issue 11)
-                    import json
                     node.get_logger().info("published counts: " + json.dumps(node.published, sort_keys=True))
                 node.destroy_node()
             except Exception:  # noqa: BLE001
@@ -264,6 +271,7 @@ HW_DEPTH = 10000  # (1000 still lost 6-8 % of them to a recorder falling behind 
 
 def reliable(depth: int, transient_local: bool = False):
     """Reliable, keep-last ``depth`` QoS (transient_local for latched topics such as /sagg/regions)."""
+    # lazy (heavy): ROS
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE,

@@ -83,12 +83,6 @@ class Trajectory:
         if self.positions is None and self.velocities is None:
             raise ValueError("trajectory: allowed: positions or velocities (or both)")
 
-    def sample_positions(self, t: float) -> np.ndarray:
-        """Position targets at time ``t``: linear interpolation between points, held after the last
-        (the joint_trajectory_controller's behaviour for position interfaces)."""
-        return np.array([np.interp(t, self.times, self.positions[:, j])
-                         for j in range(self.positions.shape[1])])
-
     def sample_velocities(self, t: float) -> np.ndarray:
         """Velocity targets at time ``t``: the value of the last point at or before ``t`` (held)."""
         i = int(np.searchsorted(self.times, t, side="right")) - 1

@@ -29,9 +29,9 @@ from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticArray
 
-from sagg_common.cdr import decode_report, encode_region_tree
+from sagg_common.msg_codecs import decode_report, encode_region_tree
 from sagg_common.diagnostics import InputGuard, diagnostic_array, report_problem
-from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.params import ConfigError
 from sagg_common.publishers import PublisherWatch
 from sagg_common.report_kinds import KIND_NAMES
 from sagg_common.ros_params import declare_schema, reliable, run_node, spin
@@ -39,38 +39,10 @@ from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
 from sagg_msgs.srv import NextGoal
 
 from .checkpoint import GeneratorCheckpointer
-from .core import SCHEMA as CORE_SCHEMA, GoalGenerator
+from .core import GoalGenerator
+from .schema import CORE_SCHEMA, SCHEMA
 
 NODE_NAME = "sagg_goal_generator"
-NODE_SCHEMA: Schema = (
-    Param("regions_period", "float", 0.5,
-          "Seconds between two /sagg/regions snapshots when nothing split (a split publishes at once).",
-          low=0.01, high=3600.0),
-    Param("min_goal_subscribers", "int", 0,
-          "Answer goal requests only once /sagg/goal has at least this many matched subscribers "
-          "(e.g. 1 when a recorder must see every goal). 0 = do not wait.", low=0, high=1000),
-    # checkpoint / resume (sagg_goal_generator.checkpoint)
-    Param("checkpoint_dir", "str", "",
-          "Directory of the generator's checkpoints and goal journal (generator_*). Empty = off. If "
-          "it holds a checkpoint the generator resumes from it exactly (reports it missed come again "
-          "from the learner's transient_local /sagg/competence history)."),
-    Param("checkpoint_every", "int", 1000,
-          "Checkpoint every this many reports (and at shutdown). At most the learner's "
-          "/sagg/competence history (10000 reports), which re-sends the reports since the last "
-          "checkpoint after a crash. Our choice.", low=1, high=10000),
-    Param("journal_fsync", "bool", False,
-          "fsync the goal journal after every goal (survives a power cut, not only a killed process)."),
-    Param("report_reorder_wait", "float", 10.0,
-          "A report ahead of the next one expected is kept this long (s) for the ones before it "
-          "(reordered, or re-delivered from the learner's history after a re-subscription) before "
-          "those are counted as lost and skipped (2 s lost 36 reports in the 10-minute soak at load 16: "
-          "the history after a re-subscription came later). Our choice.", low=0.0, high=3600.0),
-    Param("report_window", "int", 10000,
-          "A competence report whose seq lies more than this beyond the last one processed is rejected "
-          "(its gap is not skipped; DESIGN §8). The learner's /sagg/competence history (10000) bounds a "
-          "real gap. Our choice.", low=1, high=1_000_000),
-)
-SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
@@ -421,10 +393,10 @@ class GoalGeneratorNode(Node):
         leaves = gen.tree.leaves()
         counts = [r.count for r in leaves]
         raw = encode_region_tree(
-            self.get_clock().now().nanoseconds, "task_space", len(gen.goals), gen.reports, len(gen.tree.splits),
-            [r.id for r in leaves], np.array([r.lower for r in leaves]), np.array([r.upper for r in leaves]),
-            [r.interest for r in leaves], counts,
-            [r.mean_value() if c else math.nan for r, c in zip(leaves, counts)])
+            self.get_clock().now().nanoseconds, len(gen.goals), gen.reports, len(gen.tree.splits),
+            ([r.id for r in leaves], np.array([r.lower for r in leaves]), np.array([r.upper for r in leaves]),
+             [r.interest for r in leaves], counts,
+             [r.mean_value() if c else math.nan for r, c in zip(leaves, counts)]), frame_id="task_space")
         self.region_pub.publish(raw)
         self.splits_published = len(gen.tree.splits)
         self.regions_dirty = False

@@ -36,6 +36,7 @@ found (the last two checkpoint intervals); receivers drop indices / sequence num
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from pathlib import Path
@@ -55,7 +56,6 @@ FORMAT = "sagg.learner_checkpoint/2"
 
 
 def _sha(*arrays) -> str:
-    import hashlib
     h = hashlib.sha256()
     for a in arrays:
         h.update(np.ascontiguousarray(a, dtype="<f8").data)

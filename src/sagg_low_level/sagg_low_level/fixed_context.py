@@ -31,7 +31,7 @@ from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import stream
 from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 
-from .learner import CONTEXT, GoalRequest, Observe, Report
+from .learner import CONTEXT, EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
 from .local_model import local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
 from .riac_leaves import RiacLeaves
@@ -71,17 +71,12 @@ SCHEMA: Schema = SHARED_SCHEMA + (
     Param("eps_c", "float", 0.01,
           "ε_C: a goal closer than this to the rest outcome has competence 0 (rescaled units when "
           "competence_rescale).", low=0.0, high=1e9),
-    Param("eps_sim", "float", -0.05,
-          "ε_sim < 0: a goal counts as reached when C > ε_sim (Sec. 2.4.1). Paper gives no value.",
-          low=-1.0, high=0.0),
+    EPS_SIM,
     Param("competence_rescale", "bool", True,
           "Rescale each task dimension to [0, 1] by Y's extent before distances (Sec. 4.3)."),
     Param("riac.g_max", "int", 30, "ACTUATOR-RIAC: points per θ region before a split.",
           low=2, high=1_000_000),
-    Param("riac.zeta", "int", 20, "ACTUATOR-RIAC: interest window over prediction errors.",
-          low=2, high=1_000_000),
-    Param("riac.split_candidates", "int", 20, "ACTUATOR-RIAC: random split candidates.",
-          low=1, high=10_000),
+    *RIAC_SPLITTING,
     Param("riac.p_random", "float", 0.2,
           "ACTUATOR-RIAC: share of experiments with θ drawn uniformly instead of by region interest.",
           low=0.0, high=1.0),
@@ -144,33 +139,6 @@ SYNERGY_SCHEMA: Schema = (
           low=-100.0, high=100.0),
 )
 
-# Parameters of the synergy learner node (ROS-free here so that `sagg experiment` accepts the same
-# config files as `sagg run`).
-SYNERGY_NODE_SCHEMA: Schema = (
-    Param("controller", "str", "joint_trajectory_controller",
-          "Trajectory controller name: synergies go to /<controller>/joint_trajectory "
-          "(trajectory_msgs/JointTrajectory, the joint_trajectory_controller contract)."),
-    Param("task_topic", "str", "/body_pose",
-          "Outcome topic: geometry_msgs/PoseStamped (3-D task space: u, v and the yaw φ) or "
-          "PointStamped (2-D: x, y; NaN coordinates = no outcome, e.g. the float missed the water). "
-          "Its header.stamp echoes the trajectory's header.stamp."),
-    Param("response_timeout", "float", 60.0,
-          "Seconds to wait for the outcome of one trajectory before the node gives up with an error.",
-          low=0.0, high=86400.0, low_open=True),
-    Param("max_experiments", "int", 0,
-          "Stop after this many stored experiments (0 = unlimited).", low=0),
-    Param("min_sample_subscribers", "int", 0,
-          "Start only once /sagg/sample has at least this many matched subscribers. 0 = do not wait.",
-          low=0, high=1000),
-    Param("settle_timeout", "float", 2.0,
-          "synergy.kind 'posture': seconds after a command after which the latest fresh joint state is "
-          "taken even if not settled.", low=0.0, high=3600.0, low_open=True),
-    Param("settle_velocity", "float", 0.05,
-          "synergy.kind 'posture': a joint state answers a position command once every |velocity| is "
-          "below this (rad/s); joint states without velocities count as settled.",
-          low=0.0, high=1e6, low_open=True),
-    CONTEXT,
-)
 
 
 def synergy_from_params(p: dict):

@@ -34,6 +34,17 @@ CONTEXT = Param(
     "'posture'). `sagg experiment` / `sagg run` choose the learner and node from it.",
     choices=("evolving", "fixed"))
 
+# Parameters both learners (this one and the fixed-context one) declare alike
+EPS_SIM = Param("eps_sim", "float", -0.05,
+                "ε_sim < 0: a goal counts as reached when C > ε_sim (Sec. 2.4.1). Paper gives no value.",
+                low=-1.0, high=0.0)
+RIAC_SPLITTING = (
+    Param("riac.zeta", "int", 20, "ACTUATOR-RIAC: interest window over prediction errors.",
+          low=2, high=1_000_000),
+    Param("riac.split_candidates", "int", 20, "ACTUATOR-RIAC: random split candidates.",
+          low=1, high=10_000),
+)
+
 SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("v", "float", 2.0, "Desired effector speed, task units per micro-action (Sec. 3.6.1).",
           low=0.0, high=1e9, low_open=True),
@@ -127,9 +138,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("eps_c", "float", 0.1,
           "ε_C: a goal closer than this to the start has competence 0 (Sec. 3.5), task units "
           "(rescaled units when competence_rescale).", low=0.0, high=1e9),
-    Param("eps_sim", "float", -0.05,
-          "ε_sim < 0: a goal counts as reached when C > ε_sim (Sec. 2.4.1). Paper gives no value.",
-          low=-1.0, high=0.0),
+    EPS_SIM,
     Param("competence_rescale", "bool", False,
           "Rescale each task dimension to [0, 1] by Y's extent before distances (Sec. 4.3)."),
     Param("actuator_reset_every", "int", 0,
@@ -138,10 +147,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "rest position.", low=0, high=1_000_000_000),
     Param("riac.g_max", "int", 50, "ACTUATOR-RIAC: points per (α, Δα) region before a split.",
           low=2, high=1_000_000),
-    Param("riac.zeta", "int", 20, "ACTUATOR-RIAC: interest window over prediction errors.",
-          low=2, high=1_000_000),
-    Param("riac.split_candidates", "int", 20, "ACTUATOR-RIAC: random split candidates.",
-          low=1, high=10_000),
+    *RIAC_SPLITTING,
     Param("riac.p_random", "float", 0.2,
           "ACTUATOR-RIAC: share of micro-actions drawn uniformly instead of by region interest.",
           low=0.0, high=1.0),

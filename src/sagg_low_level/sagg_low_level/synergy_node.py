@@ -29,24 +29,21 @@ import sys
 import time
 
 import numpy as np
-
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import PointStamped, PoseStamped
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from sagg_common.cdr import encode_report, encode_sample
 from sagg_common.diagnostics import InputGuard, diagnostic_array
-from sagg_common.params import Schema
+from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_common.ros_params import HW_DEPTH, reliable, run_node
 from sagg_common.synergy import quaternion_yaw
 from sagg_msgs.srv import NextGoal
 
-from .fixed_context import (SCHEMA as CORE_SCHEMA, SYNERGY_NODE_SCHEMA, SYNERGY_SCHEMA, Execute,
-                            FixedContextLearner, ThetaSpace, synergy_from_params)
+from .fixed_context import Execute, FixedContextLearner, ThetaSpace, synergy_from_params
 from .learner import GoalRequest, Observe, Report
 from .node_base import NODE_NAME, LearnerNodeBase
-
-SCHEMA: Schema = CORE_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
+from .position_link import PositionLink
+from .schema import FIXED_CORE_SCHEMA as CORE_SCHEMA, SYNERGY_LEARNER_SCHEMA as SCHEMA
 
 
 def trajectory_msg(traj, stamp_ns: int) -> JointTrajectory:
@@ -94,7 +91,6 @@ class SynergyLearnerNode(LearnerNodeBase):
         self.guard = InputGuard(self.get_logger().error)
         self.link = None  # synergy.kind 'posture': the arm's position contract (PositionLink)
         if p["synergy.kind"] == "posture":
-            from .position_link import PositionLink
             self.link = PositionLink(self, self.synergy, self.advance, self._fail)
             self.traj_topic = self.link.topic
         else:

@@ -202,9 +202,6 @@ class ArmSpec:
         spec.validate()
         return spec
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
     # ------------------------------------------------------------------ geometry
     def ratio(self) -> float:
         """The ratio l_{i-1}/l_i between consecutive links: ``link_ratio`` when set, else the one

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from sagg_common.params import Schema
+from sagg_common.params import Schema, dataclass_schema
 from sagg_common.synergy import Trajectory
 
-from .model_spec import RestStateSim, spec_from_params as _spec_from_params, spec_schema, validate_fields
+from .model_spec import RestStateSim, model_doc, spec_from_params as _spec_from_params, validate_fields
 
 JOINT_NAMES = ["base_yaw", "shoulder", "elbow", "wrist"]
 # rest: facing +x turned by 0.3 rad (an asymmetric rest, like the paper's), upper arm up, forearm and
@@ -67,8 +67,7 @@ class FishingSpec:
         validate_fields(self, "fishing", ("line_segments", "check_every"), ("line_damping", "settle_time"), 0.01)
 
 
-SCHEMA: Schema = spec_schema("fishing", FishingSpec, ("line_segments", "check_every"), "Fishing-rod model",
-                             "sagg_sim_bridge/fishing.py")
+SCHEMA: Schema = dataclass_schema("fishing", FishingSpec, model_doc("Fishing-rod model", "sagg_sim_bridge/fishing.py"))
 
 
 def spec_from_params(params: dict) -> FishingSpec:
@@ -175,9 +174,6 @@ class FishingSim(RestStateSim):
     def rest_outcome(self) -> np.ndarray:
         """The float's (x, y) at rest (task units): y_start of the competence (Sec. 3.5)."""
         return self.rest_float[:2] * self.spec.position_scale
-
-    def float_position(self) -> np.ndarray:
-        return self.data.xpos[self._float].copy()
 
     def _velocities(self, traj: Trajectory) -> np.ndarray:
         if traj.velocities is None:

@@ -1,6 +1,6 @@
 """Shared plumbing of the generated MuJoCo models (quadruped, fishing rod): spec field checks, the
-parameter schema (``<prefix>.<field>``), a spec from resolved parameters, and the rest-state
-simulator base."""
+parameter descriptions (``<prefix>.<field>``; the schema by :func:`sagg_common.params.dataclass_schema`),
+a spec from resolved parameters, and the rest-state simulator base."""
 from __future__ import annotations
 
 import dataclasses
@@ -9,7 +9,7 @@ import math
 import mujoco
 import numpy as np
 
-from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.params import ConfigError
 
 
 def validate_fields(spec, prefix: str, ints: tuple[str, ...], non_negative: tuple[str, ...],
@@ -30,12 +30,9 @@ def validate_fields(spec, prefix: str, ints: tuple[str, ...], non_negative: tupl
         raise ValueError(f"{prefix}.timestep: got {spec.timestep}; allowed: (0, {max_timestep}]")
 
 
-def spec_schema(prefix: str, cls, ints: tuple[str, ...], what: str, module: str) -> Schema:
-    """One parameter per field of the spec dataclass ``cls`` (``<prefix>.<field>``)."""
-    return tuple(
-        Param(f"{prefix}.{f.name}", "int" if f.name in ints else "float", f.default,
-              f"{what}: {f.name.replace('_', ' ')} (see {module}; our choice).")
-        for f in dataclasses.fields(cls))
+def model_doc(what: str, module: str):
+    """The description of a generated model's spec field (no per-field text: see the module)."""
+    return lambda name: f"{what}: {name.replace('_', ' ')} (see {module}; our choice)."
 
 
 def spec_from_params(params: dict, prefix: str, cls):

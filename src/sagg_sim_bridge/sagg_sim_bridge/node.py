@@ -41,30 +41,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
 from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
-from sagg_common.params import Param, Schema
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.rng import substream_seed
 
 from .arm import ArmSim
-from .params import SCHEMA as CORE_SCHEMA, arm_spec_from_params
+from .params import arm_spec_from_params
+from .schema import BRIDGE_SCHEMA as SCHEMA
 
 NODE_NAME = "sagg_sim_bridge"
-NODE_SCHEMA: Schema = (
-    Param("timing", "str", "lockstep",
-          "'lockstep': physics advances only on a command, state published once settled (deterministic); "
-          "'realtime': physics at real-time rate, state published at publish_rate Hz, /clock.",
-          choices=("lockstep", "realtime")),
-    Param("publish_rate", "float", 100.0, "Real-time mode: joint_states + tip publication rate (Hz).",
-          low=0.0, high=10_000.0, low_open=True),
-    Param("controller", "str", "forward_position_controller",
-          "Position controller name: commands are read from /<controller>/commands."),
-    Param("task_topic", "str", "/tip_position", "Topic of the tip position (geometry_msgs/PointStamped)."),
-    Param("frame_id", "str", "world", "frame_id of the published tip position and joint states."),
-    Param("idle_publish_period", "float", 0.5,
-          "Lockstep mode: re-publish the current state (same stamp) this often (s).",
-          low=0.01, high=3600.0),
-)
-SCHEMA: Schema = CORE_SCHEMA + NODE_SCHEMA
 
 
 

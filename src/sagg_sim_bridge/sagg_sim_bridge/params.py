@@ -1,9 +1,7 @@
 """Parameters of the MuJoCo bridge (ROS-free schema; the node declares them with descriptors)."""
 from __future__ import annotations
 
-import dataclasses
-
-from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.params import ConfigError, Param, Schema, dataclass_schema
 
 from .arm import ArmSpec
 
@@ -36,25 +34,10 @@ _ARM_DOC = {
 }
 
 
-def _arm_params() -> tuple[Param, ...]:
-    out = []
-    for f in dataclasses.fields(ArmSpec):
-        kind = {bool: "bool", int: "int", float: "float", str: "str"}[type(f.default)]
-        choices = None
-        if f.name == "link_profile":
-            choices = ("equal", "golden")
-        elif f.name == "rest_shape":
-            choices = ("arc", "zigzag")
-        elif f.name == "mode":
-            choices = ("kinematic", "dynamic")
-        out.append(Param(f"arm.{f.name}", kind, f.default, _ARM_DOC.get(f.name, f.name),
-                         choices=choices))
-    return tuple(out)
-
-
 SCHEMA: Schema = (
     Param("seed", "int", 0, "Run seed; the simulator's motor-noise stream is derived from it.", low=0),
-) + _arm_params()
+) + dataclass_schema("arm", ArmSpec, _ARM_DOC, {"link_profile": ("equal", "golden"), "rest_shape": ("arc", "zigzag"),
+                                               "mode": ("kinematic", "dynamic")})
 
 
 def arm_spec_from_params(params: dict) -> ArmSpec:

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from sagg_common.params import Schema
+from sagg_common.params import Schema, dataclass_schema
 from sagg_common.synergy import Trajectory
 
-from .model_spec import RestStateSim, spec_from_params as _spec_from_params, spec_schema, validate_fields
+from .model_spec import RestStateSim, model_doc, spec_from_params as _spec_from_params, validate_fields
 
 LEGS = ("fl", "fr", "hl", "hr")  # front/hind, left/right
 JOINTS_PER_LEG = ("hip_abd", "hip_flex", "knee")
@@ -68,8 +68,7 @@ class QuadrupedSpec:
                         ("head_offset", "joint_damping", "head_mass", "settle_time"), 0.02)
 
 
-SCHEMA: Schema = spec_schema("quadruped", QuadrupedSpec, ("control_every",), "Quadruped model",
-                             "sagg_sim_bridge/quadruped.py")
+SCHEMA: Schema = dataclass_schema("quadruped", QuadrupedSpec, model_doc("Quadruped model", "sagg_sim_bridge/quadruped.py"))
 
 
 def spec_from_params(params: dict) -> QuadrupedSpec:
@@ -175,16 +174,6 @@ class QuadrupedSim(RestStateSim):
     def rest_outcome(self) -> np.ndarray:
         """The outcome of doing nothing: (0, 0, 0) by construction of the start frame."""
         return np.zeros(3)
-
-    def set_rest_state(self, qpos, qvel) -> None:
-        """Replace the rest state every experiment starts from (tests: a known start pose/motion)."""
-        qpos = np.asarray(qpos, dtype=float)
-        qvel = np.asarray(qvel, dtype=float)
-        if qpos.shape != self._rest_qpos.shape or qvel.shape != self._rest_qvel.shape:
-            raise ValueError(f"rest state: allowed: qpos shape {self._rest_qpos.shape}, qvel shape "
-                             f"{self._rest_qvel.shape}")
-        self._rest_qpos, self._rest_qvel = qpos.copy(), qvel.copy()
-        self.reset()
 
     def body_pose(self) -> tuple[np.ndarray, float]:
         return self.data.xpos[self._torso].copy(), yaw_of(self.data.xquat[self._torso])

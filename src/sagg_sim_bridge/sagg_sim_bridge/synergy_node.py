@@ -35,10 +35,10 @@ from sagg_common.diagnostics import InputGuard, diagnostic_array
 from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
 from sagg_common.synergy import Trajectory, duration_seconds, yaw_quaternion
 
-from .synergy_params import NODE_SCHEMA, SCHEMA as CORE_SCHEMA, make_sim
+from .schema import SYNERGY_BRIDGE_SCHEMA as SCHEMA
+from .synergy_params import make_sim
 
 NODE_NAME = "sagg_sim_bridge"
-SCHEMA = CORE_SCHEMA + NODE_SCHEMA
 
 
 def trajectory_from_msg(msg) -> Trajectory | None:

@@ -15,16 +15,6 @@ SCHEMA: Schema = (
           choices=SETUPS),
 ) + quadruped.SCHEMA + fishing.SCHEMA
 
-# Parameters of the synergy bridge node (ROS-free here so that `sagg experiment` accepts them too).
-NODE_SCHEMA: Schema = (
-    Param("controller", "str", "joint_trajectory_controller",
-          "Trajectory controller name: trajectories are read from /<controller>/joint_trajectory."),
-    Param("task_topic", "str", "/body_pose",
-          "Outcome topic: PoseStamped (quadruped body: u, v and yaw φ; the quaternion's sign keeps "
-          "φ in (-2π, 2π]) or PointStamped (fishing float x, y; NaN = no water contact)."),
-    Param("frame_id", "str", "start",
-          "frame_id of the published outcomes (the robot's start frame / the water plane)."),
-)
 
 
 def make_sim(params: dict):

@@ -5,14 +5,24 @@ numbers from another run: these machines are noisy.
 """
 from __future__ import annotations
 
+import cProfile
+import io
+import os
+import pstats
+import re
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from sagg_common.rng import stream
+from sagg_low_level.memory import SampleMemory
 
 from ..experiment import InProcessRun, load_experiment_config
+from ..graph import (NODES, NodeProcess, find_node_executable, graph_params, load_graph_config,
+                     pick_domain_id, stop_processes, write_params_file)
+from .pingpong import measure
 
 
 def babbling_samples(run: InProcessRun, size: int, seed: int = 0, period: int = 200):
@@ -68,12 +78,7 @@ def bench_speed(config: str | Path, dofs=(7, 15, 30), modes=("kinematic",),
     one by one (a loaded memory holds no spare capacity). With ``graph``, also the graph vs
     in-process vs bare rclpy ping-pong line (``bench_graph``). With ``profile`` > 0, the top
     functions (by own time) of an extra, untimed window of the last row: where the time goes."""
-    import cProfile
-    import io
-    import pstats
-    import tempfile
 
-    from sagg_low_level.memory import SampleMemory
 
     sizes = sorted(sizes)
     rows = []
@@ -145,12 +150,7 @@ def graph_rate(config: str | Path, micro_actions: int, overrides: dict | None = 
     """Micro-actions/s of the three node processes in lockstep, from the learner's own log line
     ("N micro-actions in T s", timed from its first command to its last observation); nothing
     else runs (no recorder, no evaluation)."""
-    import os
-    import re
-    import tempfile
 
-    from ..graph import (NODES, NodeProcess, find_node_executable, graph_params, load_graph_config,
-                        pick_domain_id, stop_processes, write_params_file)
 
     full = load_graph_config(config, overrides)
     params = graph_params(full, micro_actions, "lockstep")
@@ -203,9 +203,7 @@ def bench_graph(config: str | Path, micro_actions: int = 3000, repeats: int = 2,
     in-process run's whole time per micro-action (a busy loop) before it answers: nodes with no
     overhead at all doing the same work, serialized as lockstep serializes it (a little
     pessimistic: in the graph the goal generator's share runs on another core)."""
-    import os
 
-    from .pingpong import measure
 
     load, cores = os.getloadavg()[0], os.cpu_count() or 1
     out(f"load average {load:.2f} on {cores} cores" + (

@@ -26,7 +26,14 @@ import time
 
 import numpy as np
 
+from sagg_low_level.evaluate import evaluate_batch, evaluate_per_goal
+from sagg_low_level.fixed_context import evaluate_fixed
+from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
+from sagg_sim_bridge.arm import test_goals
+
+from ..arm_eval import eval_arms
 from ..experiment import InProcessRun, cached_reachable_area, load_experiment_config
+from ..synergy_experiment import SynergyRun
 
 SETUPS = {"arm8": ("config/arm8.yaml", {}), "arm15": ("config/arm15.yaml", {}),
           "arm7_ratio15": ("config/arm7_ratio15.yaml", {}),
@@ -44,14 +51,6 @@ def _timed(f):
 
 def measure(name: str, strategy: str, micro_actions: int, seed: int, repeat: int) -> dict:
     """Learning-phase and evaluation seconds of one set-up (see the module docstring)."""
-    from sagg_low_level.evaluate import evaluate_batch, evaluate_per_goal
-    from sagg_low_level.fixed_context import evaluate_fixed
-    from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
-    from sagg_sim_bridge.arm import test_goals
-
-    from ..arm_eval import eval_arms
-    from ..synergy_experiment import SynergyRun
-
     cfg, ov = SETUPS[name]
     config = load_experiment_config(cfg, dict(ov, strategy=strategy, seed=seed))
     evolving = "setup" not in config["sagg_sim_bridge"] and config["sagg_learner"].get("context", "evolving") == "evolving"

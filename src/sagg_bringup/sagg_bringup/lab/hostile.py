@@ -37,12 +37,15 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import yaml
 
+from sagg_bringup.recorder import _msg_class
 from sagg_common.cdr import (JointStateDecoder, PointStampedEncoder, decode_f64_array, decode_point_stamped,
-                             encode_f64_array, encode_joint_state, encode_report, encode_sample)
-from sagg_low_level.checkpoint import checkpoint_memory
-
+                             encode_f64_array, encode_joint_state)
+from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_common.params import parse_set
+from sagg_common.ros_params import reliable
+from sagg_low_level.checkpoint import checkpoint_memory
 
 from ..bag_reader import bag_messages
 from ..graph import graph_params, load_graph_config, pick_domain_id
@@ -77,6 +80,7 @@ class Fuzzer:
     watches (/diagnostics counters, /sagg/status, the bridge's newest stamp)."""
 
     def __init__(self, domain: int, learner: dict):
+        # lazy (heavy): ROS
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -140,8 +144,6 @@ class Fuzzer:
     # ------------------------------------------------------------------ publishing
     def _pub(self, topic: str, cls_name: str, transient_local: bool = False):
         if topic not in self.pubs:
-            from sagg_bringup.recorder import _msg_class
-            from sagg_common.ros_params import reliable
             self.pubs[topic] = self.node.create_publisher(_msg_class(cls_name), topic,
                                                           reliable(1000, transient_local=transient_local))
         return self.pubs[topic]
@@ -166,15 +168,16 @@ class Fuzzer:
 
     def report(self, seq: int, kind: int = 2, reached=(10.0, 0.0), competence: float = 0.0) -> None:
         self.publish("/sagg/competence", "sagg_msgs/msg/CompetenceReport",
-                     encode_report(time.time_ns(), seq, 0, kind, (), reached, (0.0, 0.0), competence, 0, FUZZ),
+                     encode_report(time.time_ns(), seq, 0, kind, (), reached, (0.0, 0.0), competence, 0, frame_id=FUZZ),
                      transient_local=True)
 
     def sample(self, index: int, alpha=None) -> None:
         a = np.zeros(self.n) if alpha is None else np.asarray(alpha, float)
         self.publish("/sagg/sample", "sagg_msgs/msg/Sample",
-                     encode_sample(time.time_ns(), index, a, np.zeros(self.n), np.zeros(2), FUZZ))
+                     encode_sample(time.time_ns(), index, a, np.zeros(self.n), np.zeros(2), frame_id=FUZZ))
 
     def goal(self, seq: int, position) -> None:
+        # lazy (heavy): ROS
         from sagg_msgs.msg import Goal
         from rclpy.serialization import serialize_message
         g = Goal()
@@ -186,6 +189,7 @@ class Fuzzer:
 
     def pause(self, on: bool) -> None:
         """/sagg/pause (std_srvs/SetBool), waiting up to 10 s for the answer."""
+        # lazy (heavy): ROS
         from std_srvs.srv import SetBool
         cli = self.node.create_client(SetBool, "/sagg/pause")
         if cli.wait_for_service(timeout_sec=5.0):
@@ -302,7 +306,6 @@ def _published_counts(logs: Path) -> dict[str, int]:
 
 def invariants(run_dir: Path, sent: dict[str, int]) -> dict[str, object]:
     """The end-of-phase invariants, from the run's summary, checkpoint, bag and logs."""
-    import yaml
 
     s = json.loads((run_dir / "summary.json").read_text())
     lp = yaml.safe_load((run_dir / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]

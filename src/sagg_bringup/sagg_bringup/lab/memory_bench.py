@@ -35,6 +35,7 @@ import time
 
 import numpy as np
 from scipy.signal import lfilter
+from scipy.spatial import cKDTree
 
 from sagg_low_level.memory import SampleMemory, _sqdist_cols
 
@@ -188,7 +189,6 @@ def bench_ckdtree_forest(dim: int, sizes, k: int | None = None, queries: int = 3
     Query cost only (its rebuild cost is of the same order as SampleMemory's). Also times one static
     cKDTree over all N samples (no inserts possible: a lower bound for any cKDTree-based design).
     """
-    from scipy.spatial import cKDTree
 
     sizes = sorted(int(s) for s in sizes)
     k = default_k(dim) if k is None else int(k)

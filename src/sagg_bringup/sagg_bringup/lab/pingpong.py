@@ -27,6 +27,10 @@ import subprocess
 import sys
 import time
 
+from sagg_common.ros_params import make_executor
+
+from ..graph import pick_domain_id
+
 PING, PONG = "/sagg_pingpong/ping", "/sagg_pingpong/pong"
 JS, TIP = "/sagg_pingpong/joint_states", "/sagg_pingpong/tip"
 PATTERNS = ("pingpong", "lockstep")
@@ -35,6 +39,7 @@ PATTERNS = ("pingpong", "lockstep")
 def _answers(size: int, raw: bool):
     """The lockstep pattern's prebuilt answers: a JointState of ``size`` joints and a PointStamped
     (serialized when ``raw``)."""
+    # lazy (heavy): ROS
     from geometry_msgs.msg import PointStamped
     from sensor_msgs.msg import JointState
 
@@ -45,6 +50,7 @@ def _answers(size: int, raw: bool):
     tip = PointStamped()
     tip.point.x = 1.0
     if raw:
+        # lazy (heavy): ROS
         from rclpy.serialization import serialize_message
 
         return serialize_message(js), serialize_message(tip)
@@ -60,13 +66,13 @@ def _busy(seconds: float) -> None:
 
 def _echo(executor_kind: str, raw: bool = False, pattern: str = "pingpong", size: int = 8,
           work: float = 0.0) -> None:
+    # lazy (heavy): ROS
     import rclpy
     from geometry_msgs.msg import PointStamped
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
 
-    from sagg_common.ros_params import make_executor
 
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = Node("sagg_pingpong_echo")
@@ -98,13 +104,13 @@ def _echo(executor_kind: str, raw: bool = False, pattern: str = "pingpong", size
 
 def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float, raw: bool = False,
           pattern: str = "pingpong") -> dict:
+    # lazy (heavy): ROS
     import rclpy
     from geometry_msgs.msg import PointStamped
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
 
-    from sagg_common.ros_params import make_executor
 
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = Node("sagg_pingpong_ping")
@@ -113,6 +119,7 @@ def _ping(executor_kind: str, count: int, warmup: int, size: int, timeout: float
     msg = Float64MultiArray()
     msg.data = [0.0] * size
     if raw:
+        # lazy (heavy): ROS
         from rclpy.serialization import serialize_message
 
         msg = serialize_message(msg)
@@ -177,7 +184,6 @@ def measure(count: int = 3000, warmup: int = 300, executor: str = "events", size
         raise ValueError(f"work: got {work!r} s; allowed: 0 to 1 s, with pattern 'lockstep' only")
     env = dict(os.environ)
     if domain_id is None:
-        from ..graph import pick_domain_id
 
         domain_id = pick_domain_id()
     env["ROS_DOMAIN_ID"] = str(domain_id)

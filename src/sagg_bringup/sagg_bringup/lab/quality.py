@@ -20,9 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from sagg_common.params import ConfigError
+from sagg_sim_bridge.arm import reachable_area, test_goals, tip_jacobian
 
 from ..compare import pairwise_tests
 from ..experiment import InProcessRun, load_experiment_config, run_experiment
+from ..sweep import RunSpec, expected_config, validate_result
 
 CONTEXTS = ("evolving", "fixed")
 # Issue 10's targets for SAGG-RIAC on config/arm7_ratio15.yaml (20 % below the peer's tree):
@@ -62,7 +64,6 @@ def analytic_reach(config: str | Path, overrides: dict | None = None,
     """The evaluation's reaching from rest (the learner's own reach_step and reach_frozen) with
     the arm's true Jacobian in place of the learned one, on the config's test goals, for each
     ``reach_limits`` value: what the reacher can do when the model is perfect."""
-    from sagg_sim_bridge.arm import reachable_area, test_goals, tip_jacobian
 
     out = {}
     for mode in modes:
@@ -190,7 +191,6 @@ def _finished(d: Path | None, config, strategy: str, seed: int, micro_actions: i
     """The result.json already in ``d`` when it is exactly this run (``sagg bench compare``'s
     validation: same resolved parameters, budget and evaluation points), so an interrupted
     benchmark continues where it stopped; else None."""
-    from ..sweep import RunSpec, expected_config, validate_result
 
     if d is None:
         return None

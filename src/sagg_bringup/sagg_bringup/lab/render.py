@@ -19,6 +19,7 @@ from sagg_sim_bridge.quadruped import QuadrupedSim
 
 
 def _render(model, data, camera: mujoco.MjvCamera, path: Path, width=640, height=480) -> None:
+    # lazy (heavy): matplotlib
     import matplotlib.pyplot as plt
     with mujoco.Renderer(model, height, width) as r:
         r.update_scene(data, camera)

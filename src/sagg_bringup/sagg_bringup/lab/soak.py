@@ -33,6 +33,12 @@ from typing import Any, Callable
 
 import numpy as np
 
+from sagg_common.journal import write_json_atomic
+from sagg_common.ros_params import reliable
+
+from ..graph import (NODES, GraphError, NodeProcess, find_node_executable, graph_params, load_graph_config,
+                     pick_domain_id, set_checkpoint_dirs, stop_processes, write_params_file)
+
 
 def rss_bytes(pid: int | str = "self") -> int:
     """Resident set size of a process (``VmRSS`` of ``/proc/<pid>/status``), bytes; 0 if gone."""
@@ -94,6 +100,7 @@ def _mb(b: float) -> str:
 def soak_inprocess(config: str | Path, micro_actions: int, every: int,
                    overrides: dict[str, Any] | None = None, out: Callable[[str], None] = print) -> dict:
     """In-process soak; returns the rows and the verdict numbers."""
+    # lazy (heavy): mujoco
     from ..experiment import InProcessRun, load_experiment_config
 
     shm0 = shm_entries()
@@ -141,9 +148,6 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
                overrides: dict[str, Any] | None = None, stall_timeout: float = 120.0,
                out: Callable[[str], None] = print) -> dict:
     """Graph soak: the three nodes for ``micro_actions`` micro-actions (lockstep)."""
-    from ..graph import (NODES, GraphError, NodeProcess, find_node_executable, graph_params,
-                        load_graph_config, pick_domain_id, set_checkpoint_dirs, stop_processes,
-                        write_params_file)
 
     full = load_graph_config(config, overrides or {})
     params = graph_params(full, micro_actions, "lockstep")
@@ -163,6 +167,7 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
                PYTHONUNBUFFERED="1")
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     shm0 = shm_entries()
+    # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
@@ -170,7 +175,6 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
 
     from sagg_msgs.msg import LearnerStatus
 
-    from sagg_common.ros_params import reliable
 
     ctx = Context()
     rclpy.init(context=ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
@@ -258,7 +262,6 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
 
 def main_soak(args, overrides: dict) -> int:
     """``sagg bench soak``: runs the modes asked for, writes ``OUT/soak.json``."""
-    from sagg_common.journal import write_json_atomic
 
     out = Path(args.out or f"runs/soak-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)

@@ -88,8 +88,10 @@ def tests_table(groups, at_indices=None) -> str:
 
 
 def plot_quadruped(groups, path: Path) -> None:
+    # lazy (heavy): matplotlib
     import matplotlib
     matplotlib.use("Agg")
+    # lazy (heavy): matplotlib
     import matplotlib.pyplot as plt
     strategies = [s for s in ORDER if s in groups]
     fig, axes = plt.subplots(1, len(strategies) + 1, figsize=(4 * (len(strategies) + 1), 4))
@@ -115,8 +117,10 @@ def plot_quadruped(groups, path: Path) -> None:
 
 
 def plot_fishing(groups, path: Path) -> None:
+    # lazy (heavy): matplotlib
     import matplotlib
     matplotlib.use("Agg")
+    # lazy (heavy): matplotlib
     import matplotlib.pyplot as plt
     strategies = [s for s in ORDER if s in groups]
     fig, axes = plt.subplots(1, len(strategies) + 1, figsize=(4.2 * (len(strategies) + 1), 4))

@@ -1,0 +1,138 @@
+"""The learner nodes' parameter schemas (ROS-free, so that ``sagg experiment`` and ``sagg params``
+read them without rclpy): each node's schema is its core's parameters (:data:`.learner.SCHEMA`,
+:data:`.fixed_context.SCHEMA` + :data:`.fixed_context.SYNERGY_SCHEMA`) and the node's own (hardware
+contract topics, waits, plausibility envelope)."""
+from __future__ import annotations
+
+import math
+
+from sagg_common.params import Param, Schema
+
+from .fixed_context import SCHEMA as FIXED_CORE_SCHEMA, SYNERGY_SCHEMA
+from .learner import CONTEXT, SCHEMA as LEARNER_CORE_SCHEMA
+
+HALF_PI = math.pi / 2
+# Defaults = the default simulated arm (sagg_sim_bridge ArmSpec(): 8 DOF, limits ±π/2, rest bent by
+# π/3 with the tip on +x); test_nodes_params checks they agree. A real arm sets its own.
+DEFAULT_JOINTS = [f"joint_{i}" for i in range(8)]
+DEFAULT_REST = [-0.5235987755982987] + [0.1495996501709425] * 7
+
+LEARNER_NODE_SCHEMA: Schema = (
+    Param("joints", "str_list", DEFAULT_JOINTS,
+          "Joint names, in the order of the controller's commands; joint_states are matched by name."),
+    Param("joint_limits.lower", "float_list", [-HALF_PI] * 8, "Lower joint limits (rad), one per joint."),
+    Param("joint_limits.upper", "float_list", [HALF_PI] * 8, "Upper joint limits (rad), one per joint."),
+    Param("rest_posture", "float_list", DEFAULT_REST, "Rest posture α_rest (rad), one per joint."),
+    Param("controller", "str", "forward_position_controller",
+          "Position controller name: commands go to /<controller>/commands."),
+    Param("task_topic", "str", "/tip_position",
+          "geometry_msgs/PointStamped topic of the effector position in Y (the paper's camera)."),
+    Param("settle_velocity", "float", 0.05,
+          "An observation counts as settled when every |joint velocity| is below this (rad/s). "
+          "Joint states without velocities count as settled.", low=0.0, high=1e6, low_open=True),
+    Param("settle_timeout", "float", 2.0,
+          "Seconds after a command after which the latest fresh observation is taken even if not "
+          "settled.", low=0.0, high=3600.0, low_open=True),
+    Param("observation_delay", "float", 0.0,
+          "An observation answers a command only if its stamp is later than the newest one received "
+          "before the command by more than this (s). 0 for a lockstep bridge; about two publish "
+          "periods for real-time drivers, so that a state sampled before the command arrived is "
+          "not taken for the settled result.", low=0.0, high=3600.0),
+    Param("max_micro_actions", "int", 0,
+          "Stop acting after this many micro-actions (0 = unlimited).", low=0),
+    Param("publish_batch", "int", 64,
+          "Reports and samples are queued and published in bursts: when this many are queued, "
+          "before every goal request (the generator needs the reports so far), at a stop, and at "
+          "least every publish_period. Bursts cost the receivers one wake-up instead of one per "
+          "message; 1 = publish after every micro-action. Our choice (transport only: the run is "
+          "the same).", low=1, high=1_000_000),
+    Param("publish_period", "float", 0.1,
+          "Longest time (s) a queued report or sample waits before it is published (live views).",
+          low=0.0, high=3600.0, low_open=True),
+    Param("min_sample_subscribers", "int", 0,
+          "Start only once /sagg/sample has at least this many matched subscribers (e.g. 1 when a "
+          "recorder must see every sample). 0 = do not wait.", low=0, high=1000),
+    # checkpoint / resume (sagg_low_level.checkpoint)
+    Param("checkpoint_dir", "str", "",
+          "Directory of the learner's checkpoints and write-ahead journal (learner_*). Empty = off. "
+          "If it holds a checkpoint the learner resumes from it (memory, counters, random state; the "
+          "interrupted reaching attempt is abandoned)."),
+    Param("checkpoint_every", "int", 10000,
+          "Checkpoint every this many micro-actions (and at shutdown). Every sample and report is "
+          "journaled before it is published, so nothing is lost between checkpoints; this only "
+          "bounds the journal's length. Our choice.", low=1, high=1_000_000_000),
+    Param("journal_fsync", "bool", False,
+          "fsync the journal after every record: survives a power cut, not only a killed process "
+          "(one disk flush per micro-action)."),
+    Param("joint_state_timeout", "float", 2.0,
+          "Safety: pause (and say so in /sagg/status and /diagnostics) when no valid joint_states or "
+          "task point arrived for this long, or when /joint_states has no publisher; resume when they "
+          "return. Above the driver's publish period (the lockstep bridge re-publishes every 0.5 s "
+          "when idle).", low=0.0, high=3600.0, low_open=True),
+    Param("goal_retry", "float", 5.0,
+          "Seconds without an answer after which a goal request is sent again (e.g. the goal "
+          "generator was restarted and lost it). The generator answers a repeated request "
+          "(same after_report) with the same goal, so a retry never changes the run. Our choice.",
+          low=0.0, high=3600.0, low_open=True),
+    # the plausibility envelope of the measurements (DESIGN §8; sagg_common.envelope)
+    Param("plausibility.joint_tolerance", "float", 0.1,
+          "A joint state is rejected when a position lies outside the joint limits by more than this "
+          "(rad): encoders may read slightly past a limit, never far. Our choice.", low=0.0, high=100.0),
+    Param("plausibility.task_margin", "float", 1.0,
+          "A task point is rejected when it lies outside Y enlarged on every side by this fraction of "
+          "Y's extent (1 = a box 3x Y per axis: the paper's camera field is ~3x the reachable area). "
+          "Our choice.", low=0.0, high=1e6),
+    Param("plausibility.max_joint_velocity", "float", 1000.0,
+          "A joint state is rejected when a |velocity| exceeds this (rad/s): a sanity bound, far above "
+          "any motor (the simulated arm's fastest return to rest stays below ~150 rad/s).",
+          low=0.0, high=1e12, low_open=True),
+    Param("plausibility.hold_after", "int", 10,
+          "After this many rejected joint states (or task points) in a row the learner holds (no "
+          "command goes out) naming the last rejection; it resumes at the next valid one.",
+          low=1, high=1_000_000),
+    Param("plausibility.future_tolerance", "float", 30.0,
+          "A stamp further ahead of the newest accepted one than the receive time elapsed since it "
+          "arrived plus this (s) is rejected as 'in the future' (the newest stamp stays). Above the "
+          "longest settle in simulation time of a lockstep bridge (1000 steps x 0.01 s).",
+          low=0.0, high=1e9, low_open=True),
+    Param("plausibility.single_publisher", "bool", True,
+          "Hold (no command, no report or sample published) while /joint_states or the task topic has "
+          "more than one publisher, or a /sagg topic a publisher other than its node, naming them "
+          "(node and GID); their messages are rejected meanwhile. False for a robot whose joint "
+          "states come from several drivers."),
+    Param("plausibility.resync_after", "int", 5,
+          "This many messages in a row older than the newest accepted stamp are a clock jump back "
+          "(driver or sim-time restart): logged, and the stream re-synchronised on them.",
+          low=1, high=1_000_000),
+)
+# the node `learner` (evolving context)
+LEARNER_SCHEMA: Schema = LEARNER_CORE_SCHEMA + LEARNER_NODE_SCHEMA
+
+
+SYNERGY_NODE_SCHEMA: Schema = (
+    Param("controller", "str", "joint_trajectory_controller",
+          "Trajectory controller name: synergies go to /<controller>/joint_trajectory "
+          "(trajectory_msgs/JointTrajectory, the joint_trajectory_controller contract)."),
+    Param("task_topic", "str", "/body_pose",
+          "Outcome topic: geometry_msgs/PoseStamped (3-D task space: u, v and the yaw φ) or "
+          "PointStamped (2-D: x, y; NaN coordinates = no outcome, e.g. the float missed the water). "
+          "Its header.stamp echoes the trajectory's header.stamp."),
+    Param("response_timeout", "float", 60.0,
+          "Seconds to wait for the outcome of one trajectory before the node gives up with an error.",
+          low=0.0, high=86400.0, low_open=True),
+    Param("max_experiments", "int", 0,
+          "Stop after this many stored experiments (0 = unlimited).", low=0),
+    Param("min_sample_subscribers", "int", 0,
+          "Start only once /sagg/sample has at least this many matched subscribers. 0 = do not wait.",
+          low=0, high=1000),
+    Param("settle_timeout", "float", 2.0,
+          "synergy.kind 'posture': seconds after a command after which the latest fresh joint state is "
+          "taken even if not settled.", low=0.0, high=3600.0, low_open=True),
+    Param("settle_velocity", "float", 0.05,
+          "synergy.kind 'posture': a joint state answers a position command once every |velocity| is "
+          "below this (rad/s); joint states without velocities count as settled.",
+          low=0.0, high=1e6, low_open=True),
+    CONTEXT,
+)
+# the node `synergy_learner` (fixed context: quadruped, fishing rod, the arm with context: fixed)
+SYNERGY_LEARNER_SCHEMA: Schema = FIXED_CORE_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
