@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sagg_bringup.graph import (graph_params, load_graph_config, run_only_params, set_checkpoint_dirs,
                                 write_params_file)
@@ -61,7 +61,11 @@ def test_three_executables_learn_from_a_run_params_file(ros_env, tmp_path):
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     # (no /sagg/sample or /sagg/goal subscriber: nothing records here)
     node.create_subscription(LearnerStatus, "/sagg/status", status.append, qos)
-    node.create_subscription(CompetenceReport, "/sagg/competence", reports.append, qos)
+    # transient_local as the learner offers it: on a loaded machine the learner can finish its 150
+    # micro-actions before this subscription matches; the late-joiner still gets every report
+    latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    node.create_subscription(CompetenceReport, "/sagg/competence", reports.append, latched)
     import rclpy.executors
     ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
     ex.add_node(node)

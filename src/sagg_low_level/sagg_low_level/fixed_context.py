@@ -34,6 +34,8 @@ from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 from .learner import CONTEXT, EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
 from .local_model import local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
+from .memory_distance import squared_distances
+from .neighbour_sets import NeighbourSets
 from .riac_leaves import RiacLeaves
 
 SCHEMA: Schema = SHARED_SCHEMA + (
@@ -42,7 +44,10 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "Not given in the paper; our choice.", low=1, high=10_000),
     Param("m", "int", 0,
           "m: nearest neighbours in θ of each of the l samples; the set of least θ spread is used for "
-          "the local model (Sec. 4.4.1). 0 = dim(θ) + 1 (our choice; the paper gives none).",
+          "the local model (Sec. 4.4.1). The paper gives none. 0 = 2·(dim(θ) + 1): twice the "
+          "parameters of the affine model per task dimension, so the least-squares fit is "
+          "over-determined (with dim(θ) + 1 it interpolates the set exactly and its conditioning "
+          "decides the step; docs/issue10_fixed_arm_riac_speed.md).",
           low=0, high=100_000),
     Param("q", "int", 10,
           "q: budget of exploratory experiments per exploration phase (Alg. 4). Not given for the "
@@ -204,7 +209,13 @@ def set_spread(theta_norm: np.ndarray) -> float:
 
 def least_spread_set(candidate_sets: list[np.ndarray], theta_norm: np.ndarray) -> int:
     """``M_k = argmin_i σ(M_i)`` (Sec. 4.4.1, equation M_k); ties: the first (closest goal neighbour)."""
-    spreads = [set_spread(theta_norm[s]) for s in candidate_sets]
+    sizes = {len(s) for s in candidate_sets}
+    if len(sizes) != 1:
+        return int(np.argmin([set_spread(theta_norm[s]) for s in candidate_sets]))
+    # equal-sized sets (always, in the learner): all spreads in one call; the same sums in the same
+    # order as set_spread per set (numpy reduces a non-last axis row after row)
+    stacked = theta_norm[np.stack(candidate_sets)]                       # (l, m, n)
+    spreads = np.sqrt(np.mean(np.var(stacked, axis=1), axis=1))
     return int(np.argmin(spreads))
 
 
@@ -249,13 +260,14 @@ class FixedContextLearner:
         n = theta_space.n
         self.scale = (self.task_upper - self.task_lower) if params["competence_rescale"] else np.ones(self.mdim)
         self.l_nb = params["l"]
-        self.m_nb = params["m"] or n + 1
+        self.m_nb = params["m"] or 2 * (n + 1)
         self.min_samples = params["min_samples"] or n + 1
         # two indexes over the same samples (same insertion order, so index i is one experiment):
         # by normalised θ (m-neighbour sets, ACTUATOR-RIAC's forward model) and by rescaled y
         # (l neighbours of the goal, closest reached outcome y_c); both exact k-NN (checks = 0)
         self.by_theta = SampleMemory(n, n, self.mdim)
         self.by_y = SampleMemory(self.mdim, n, self.mdim)
+        self.theta_sets = NeighbourSets(self.by_theta, self.m_nb)  # the sets M_i, cached (exact)
         self.rng = stream(params["seed"], "fixed_context_learner")
         self.y_rest = np.zeros(self.mdim)
         self.experiments = 0       # stored experiments (with an outcome): the learning clock
@@ -319,13 +331,23 @@ class FixedContextLearner:
         if len(self) < self.min_samples:
             return None
         g = self.scale_y(goal)
-        seeds = self.by_y.neighbours(g, self.l_nb)                       # L: l neighbours of y_g in Y
+        return self._inverse_from(g, self.by_y.neighbours(g, self.l_nb))
+
+    def _inverse_from(self, g: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+        """:meth:`inverse` for the rescaled goal ``g`` given L, its l nearest outcomes ``seeds``."""
         tn = self.by_theta.alpha                                        # normalised θ of every sample
-        sets = [self.by_theta.neighbours(tn[i], self.m_nb) for i in seeds]  # M_i: m neighbours in θ
+        sets = [self.theta_sets.get(int(i)) for i in seeds]              # M_i: m neighbours in θ
         best = sets[least_spread_set(sets, tn)]
         ys = self.by_y.alpha[best]
         return self.denorm_theta(local_inverse(tn[best], ys, g, self.p["jacobian_rcond"],
                                                self.p["pinv_rcond"]))
+
+    def _closer(self, g: np.ndarray, c: int, j: int) -> int:
+        """Of stored outcomes c < j, the one closer to the rescaled goal ``g`` in the memory's
+        canonical distance, ties to the older: ``closest`` after sample j was added, when c was the
+        closest before (the 1-nearest of all = the nearer of the old 1-nearest and the new one)."""
+        d = squared_distances(self.by_y.alpha[[c, j]], g)
+        return j if d[1] < d[0] else c
 
     def predict(self, theta) -> np.ndarray | None:
         """Forward prediction of y at θ from the local linear model of the nearest samples in θ
@@ -393,45 +415,58 @@ class FixedContextLearner:
         goal = np.asarray(goal, dtype=float)
         best_y = None
         last_y = None
+        g = self.scale_y(goal)
+        d_best = math.inf  # distance of best_y to the goal
         for _ in range(self.p["rounds"]):
-            c_before = self.closest(goal)
-            d_before = math.inf if c_before is None else self.distance(goal, self.outcomes[c_before])
-            theta = self.inverse(goal)
-            if theta is None:
+            # y_c, the closest known outcome (its index), and θ from the inverse model (Sec. 4.4.1);
+            # L's first member is y_c (same search, same order)
+            if len(self) >= self.min_samples:
+                seeds = self.by_y.neighbours(g, self.l_nb)
+                c_before = int(seeds[0])
+                theta = self._inverse_from(g, seeds)
+            else:
+                c_before = self.closest(goal)
                 theta = self._uniform_theta()
+            d_before = math.inf if c_before is None else self.distance(goal, self.outcomes[c_before])
             y = yield from self._execute(theta, "reach")
+            d_y = math.inf
             if y is not None:
                 last_y = y
-                if best_y is None or self.distance(goal, y) < self.distance(goal, best_y):
-                    best_y = y
+                d_y = self.distance(goal, y)
+                if best_y is None or d_y < d_best:
+                    best_y, d_best = y, d_y
                 self._report(KIND_REACHED, goal_seq, y, 0.0, y)
                 if is_reached(self.competence_of(goal, y), self.p["eps_sim"]):
                     break
             # Inefficient(M⁻¹, ỹ_j, y_j): the reach did not beat the closest known outcome
-            if y is not None and self.distance(goal, y) <= d_before:
+            if y is not None and d_y <= d_before:
                 continue
             self.exploration_phases += 1
-            k = self.closest(goal)
+            if y is None or c_before is None:
+                k = self.closest(goal)
+            else:
+                k = self._closer(g, c_before, len(self) - 1)
             if k is None:  # nothing stored yet: bootstrap with uniform draws
-                theta_k, y_k = None, None
+                theta_k, y_k, d_k = None, None, math.inf
             else:
                 theta_k, y_k = self.thetas[k].copy(), self.outcomes[k].copy()
+                d_k = self.distance(goal, y_k)
             for _ in range(self.p["q"]):
                 if theta_k is None:
                     theta_i = self._uniform_theta()
                 else:
-                    tn = exploration_theta(self.norm_theta(theta_k), self.distance(goal, y_k),
-                                           self.p["lambda"], self.rng)
+                    tn = exploration_theta(self.norm_theta(theta_k), d_k, self.p["lambda"], self.rng)
                     theta_i = self.denorm_theta(tn)
                 y_i = yield from self._execute(theta_i, "explore")
                 if y_i is None:
                     continue
                 last_y = y_i
                 self._report(KIND_EXPLORATION, goal_seq, y_i, 0.0, y_i)
-                if y_k is None or self.distance(goal, y_i) < self.distance(goal, y_k):
-                    theta_k, y_k = self.thetas[len(self) - 1].copy(), y_i
-                if best_y is None or self.distance(goal, y_i) < self.distance(goal, best_y):
-                    best_y = y_i
+                d_i = self.distance(goal, y_i)
+                if y_k is None or d_i < d_k:
+                    theta_k, y_k, d_k = self.thetas[len(self) - 1].copy(), y_i, d_i
+                if best_y is None or d_i < d_best:
+                    best_y, d_best = y_i, d_i
             if best_y is not None and is_reached(self.competence_of(goal, best_y), self.p["eps_sim"]):
                 break
         final = best_y if self.p["goal_competence"] == "best" else last_y

@@ -1,0 +1,95 @@
+"""Learning speed of the fixed-context learner (issue 10), this tree against an older commit, in one
+command: ``python -m sagg_bringup.lab.fixed_speed --base <commit>``.
+
+The base commit's ``src/`` is exported with ``git archive`` into a temporary directory and run in a
+subprocess whose ``PYTHONPATH`` puts it before the installed (editable) packages; this tree runs in
+the same way from its own sources. Runs alternate (base, new, base, new, ...) so both see the same
+machine load. Each run learns ``--queries`` experiments in-process (``SynergyRun``, no evaluation)
+and reports queries per CPU second of the process (``time.process_time``, less sensitive to other
+processes than wall time), queries per wall second, and the memory digest: with the same parameter
+values the two must learn bit-identical memories (``--set`` applies to both, e.g. ``m=8`` = the
+base's old default of m).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+_CHILD = r"""
+import json, sys, time
+from sagg_bringup.synergy_experiment import load_synergy_config, SynergyRun
+cfg, strategy, seed, n, ov = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), json.loads(sys.argv[5])
+run = SynergyRun(load_synergy_config(cfg, dict(ov, context="fixed", strategy=strategy, seed=seed)))
+c0, w0 = time.process_time(), time.perf_counter()
+run.step_until(n)
+cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+import sagg_low_level
+print(json.dumps({"cpu_rate": n / cpu, "wall_rate": n / wall, "digest": run.learner.by_theta.digest(),
+                  "source": sagg_low_level.__file__}))
+"""
+
+
+def _pythonpath(src: Path) -> str:
+    return os.pathsep.join(str(p) for p in sorted(src.iterdir()) if p.is_dir())
+
+
+def _run(src: Path, config: str, strategy: str, seed: int, n: int, overrides: dict) -> dict:
+    env = dict(os.environ, PYTHONPATH=_pythonpath(src))
+    out = subprocess.run([sys.executable, "-c", _CHILD, config, strategy, str(seed), str(n), json.dumps(overrides)],
+                         env=env, capture_output=True, text=True, check=True)
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    if not res["source"].startswith(str(src)):
+        raise RuntimeError(f"the run imported {res['source']}, not the sources under {src}")
+    return res
+
+
+def _value(text: str):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--base", required=True, help="git commit of the old code")
+    ap.add_argument("--config", default="config/arm7_ratio15.yaml")
+    ap.add_argument("--strategies", nargs="+", default=["sagg-riac", "sagg-random"])
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--queries", type=int, default=20000)
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="parameter override for both (e.g. m=8 for bit-identity with the old default)")
+    a = ap.parse_args(argv)
+    overrides = dict((k, _value(v)) for k, v in (s.split("=", 1) for s in a.set))
+    repo = Path(subprocess.run(["git", "rev-parse", "--show-toplevel"], capture_output=True, text=True,
+                               check=True).stdout.strip())
+    with tempfile.TemporaryDirectory(prefix="sagg_fixed_speed_") as tmp:
+        base = Path(tmp)
+        archive = subprocess.run(["git", "-C", str(repo), "archive", a.base, "src"], capture_output=True, check=True)
+        subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
+        print(f"base {a.base} vs this tree ({repo}), {a.config}, {a.queries} queries, overrides {overrides}, "
+              f"load {os.getloadavg()[0]:.1f}")
+        print("| strategy | seed | base /CPU-s | new /CPU-s | ratio | base /s | new /s | ratio | same memory |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        tot = {"base": 0.0, "new": 0.0}
+        for strategy in a.strategies:
+            for seed in range(a.seeds):
+                b = _run(base / "src", a.config, strategy, seed, a.queries, overrides)
+                n = _run(repo / "src", a.config, strategy, seed, a.queries, overrides)
+                tot["base"] += a.queries / b["cpu_rate"]
+                tot["new"] += a.queries / n["cpu_rate"]
+                print(f"| {strategy} | {seed} | {b['cpu_rate']:,.0f} | {n['cpu_rate']:,.0f} | "
+                      f"{n['cpu_rate'] / b['cpu_rate']:.2f} | {b['wall_rate']:,.0f} | {n['wall_rate']:,.0f} | "
+                      f"{n['wall_rate'] / b['wall_rate']:.2f} | {b['digest'] == n['digest']} |", flush=True)
+        print(f"whole: CPU seconds base {tot['base']:.1f}, new {tot['new']:.1f}, ratio {tot['base'] / tot['new']:.2f}; "
+              f"load {os.getloadavg()[0]:.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
