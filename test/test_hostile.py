@@ -322,6 +322,11 @@ def test_a_second_publisher_on_joint_states_is_named_and_the_learner_holds(nodes
         assert state(n) == before
         assert "node /intruder" in n.holds["publishers"] and "gid " in n.holds["publishers"]
         assert "allowed: one" in n.guard.last_message["joint_states.publishers"]
+        # the stale-driver hold that follows names the second publisher, not a stopped driver
+        n.js_rx -= 10 * n.params["joint_state_timeout"]
+        n._check_driver()
+        assert "node /intruder" in n.holds["driver"] and "driver stopped" not in n.holds["driver"]
+        n.js_rx = time.monotonic()
         # no command goes out, nothing is published while it is there
         n.outbox.append(0)
         n.flush()
@@ -401,3 +406,100 @@ def test_recorder_counts_the_messages_it_missed_from_publisher_sequence_numbers(
     assert [_follow(tails, s) for s in (1, 2, 5, 6, 10)] == [0, 0, 2, 0, 3]
     # a restarted publisher (numbers start again) is a new stream, not a loss
     assert [_follow(tails, s) for s in (1, 2, 3, 11)] == [0, 0, 0, 0]
+
+
+# ------------------------------------------------------------------ bags: recorder backpressure
+def test_the_learner_waits_for_a_lagging_recorder_and_an_impossible_ack_changes_nothing(nodes):
+    """Issue 11 item 5 (lockstep bag complete under overload): with a recorder acknowledging on
+    /sagg/recorded, no command goes out while more than recorder_max_lag published samples are
+    unacknowledged; it goes out once the recorder caught up (to half the lag). An acknowledgement
+    beyond what was published is rejected and counted; without an acknowledging recorder the learner
+    never waits."""
+    from std_msgs.msg import UInt64
+    from sagg_common.ros_params import reliable
+    n = nodes["learner"]
+    fresh_streams(n)
+    lag = n.rec_max_lag
+    assert lag == 500  # the default
+    n.js_alpha, n.tip = np.array([0.1, 0.2, 0.3]), np.array([1.0, 1.0])
+    cmd = Command(np.array([0.1, 0.2, 0.35]), "reach")
+    sent = n.published[n.cmd_topic]
+    n.samples_published, n.rec_acked = 1000, 0
+    # no recorder acknowledges: no wait
+    n.state = None
+    n.dispatch(cmd)
+    assert n.state is n.RUNNING_COMMAND and n.published[n.cmd_topic] == sent + 1 and not n.rec_waiting
+    recorder = rclpy.create_node("sagg_run")
+    try:
+        pub = recorder.create_publisher(UInt64, "/sagg/recorded", reliable(10))
+        assert wait_for(lambda: n.rec_sub.get_publisher_count() == 1)
+        n.state = None
+        n.dispatch(cmd)
+        assert n.state is n.PAUSED and n.rec_waiting and n.published[n.cmd_topic] == sent + 1
+        assert "waiting for the recorder" in _status_reason(n)
+        count = n.guard.counts.get("recorded.ahead", 0)
+        n.on_recorded(UInt64(data=10**12))     # impossible: more than was published
+        assert n.guard.counts["recorded.ahead"] == count + 1 and n.rec_acked == 0 and n.rec_waiting
+        n.on_recorded(UInt64(data=400))        # still 600 behind
+        assert n.rec_waiting and n.state is n.PAUSED and n.published[n.cmd_topic] == sent + 1
+        n.on_recorded(UInt64(data=100))        # older than the largest: changes nothing
+        assert n.rec_acked == 400
+        n.on_recorded(UInt64(data=1000 - lag // 2))
+        assert not n.rec_waiting and n.state is n.RUNNING_COMMAND and n.published[n.cmd_topic] == sent + 2
+        assert n.rec_waits >= 1 and n.rec_wait_seconds > 0
+        # the recorder gone while the learner waits: it goes on (never a wedge)
+        n.samples_published = 5000
+        n.state = None
+        n.dispatch(cmd)
+        assert n.rec_waiting
+        recorder.destroy_publisher(pub)
+        assert wait_for(lambda: n.rec_sub.get_publisher_count() == 0)
+        n.on_poll()
+        assert not n.rec_waiting and n.published[n.cmd_topic] == sent + 3
+    finally:
+        recorder.destroy_node()
+        n.state, n.samples_published, n.rec_acked = None, 0, 0
+
+
+def _status_reason(n) -> str:
+    got = []
+    n.status_pub.publish = got.append   # (the message the status timer would publish)
+    try:
+        n.publish_status()
+    finally:
+        del n.status_pub.publish
+    return got[-1].pause_reason
+
+
+def test_a_forged_message_queued_after_its_publisher_left_never_moves_the_stream():
+    """The soak's wedge (publishers phase): forged samples numbered far beyond ours, still queued at
+    the recorder after the forger had left (the topic looked fine again), were taken as a gap; the
+    stream then stood at the forger's number and every real sample was rejected. A gap is taken
+    only from a message sent after another publisher was last seen on the topic."""
+    from types import SimpleNamespace
+    from sagg_common.publishers import PublisherStream, PublisherWatch
+
+    def info(node, gid):
+        return SimpleNamespace(node_name=node, node_namespace="/", endpoint_gid=bytes([gid] * 16))
+
+    graph = {"/sagg/sample": [info("sagg_learner", 1)]}
+    node = SimpleNamespace(get_publishers_info_by_topic=lambda t: list(graph[t]),
+                           count_publishers=lambda t: len(graph[t]))
+    watch = PublisherWatch(node)
+    watch.watch("/sagg/sample", None, "sagg_learner")
+    stream = PublisherStream(watch, "/sagg/sample", "sagg_learner")
+    for seq in range(1, 101):
+        assert stream.check(seq, time.time_ns()) == ""
+        stream.commit(seq)
+    t_forged = time.time_ns()                  # the forger publishes (numbers up to 27,312) ...
+    graph["/sagg/sample"].append(info("sagg_fuzzer", 2))
+    assert "2 publishers" in watch.refresh("/sagg/sample")
+    assert "while the topic has" in stream.check(27312, t_forged)
+    graph["/sagg/sample"].pop()                # ... and leaves; its messages are still queued
+    assert watch.refresh("/sagg/sample") == ""
+    assert "before another publisher" in stream.check(27312, t_forged)
+    assert stream.last == 100
+    assert stream.check(101, time.time_ns()) == ""   # the real stream goes on
+    stream.commit(101)
+    time.sleep(0.001)
+    assert stream.check(105, time.time_ns()) == ""   # a real gap (messages missed), sent afterwards

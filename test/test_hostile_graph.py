@@ -54,9 +54,16 @@ def bag_counts(bag: Path) -> dict[str, int]:
 
 
 def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
+    """With the recorder's backpressure made to bite (recorder_max_lag 16: the learner waits for
+    sagg run's acknowledgements on /sagg/recorded many times), the bag still equals the nodes'
+    published counts, and its metadata is rosbag2's: ros_distro jazzy, the publishers' offered QoS
+    (/sagg/competence transient_local, as its publisher), topic_type_hash on every mcap channel
+    equal to metadata.yaml's type_description_hash."""
+    import yaml
+    from sagg_bringup.bag_channels import channel_metadata
     out = tmp_path / "run"
     p = subprocess.run([SAGG, "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", str(N),
-                        "--eval-every", str(N), "--out", str(out), "--quiet"],
+                        "--eval-every", str(N), "--out", str(out), "--quiet", "--set", "recorder_max_lag=16"],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     s = json.loads((out / "summary.json").read_text())
@@ -67,6 +74,19 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
     counts = bag_counts(out / "bag")
     assert {t: counts.get(t, 0) for t in published} == published
     assert s["bag"]["dropped"] == {} and s["bag"]["rejected"] == {}
+    waits = re.search(r"recorder backpressure: (\d+) waits", (out / "logs" / "learner.log").read_text())
+    assert waits and int(waits.group(1)) > 0
+    meta = yaml.safe_load((out / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["ros_distro"] == "jazzy"
+    topics = {t["topic_metadata"]["name"]: t["topic_metadata"] for t in meta["topics_with_message_count"]}
+    competence_qos = yaml.safe_load(topics["/sagg/competence"]["offered_qos_profiles"]) \
+        if isinstance(topics["/sagg/competence"]["offered_qos_profiles"], str) else topics["/sagg/competence"]["offered_qos_profiles"]
+    assert competence_qos[0]["durability"] == "transient_local"
+    channels = channel_metadata(out / "bag" / meta["relative_file_paths"][0])
+    assert set(channels) == set(topics)
+    for topic, md in channels.items():
+        assert md["topic_type_hash"] == topics[topic]["type_description_hash"]
+        assert md["topic_type_hash"].startswith("RIHS01_")
 
 
 def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):
@@ -83,6 +103,21 @@ def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):
     assert s["bag"]["dropped"] == {} and s["bag"]["rejected"] == {}
 
 
+def test_fixed_context_arm_bag_holds_exactly_what_the_nodes_published(tmp_path):
+    """The synergy learner on the arm's position contract (PositionLink): its position commands (a
+    rest command, then θ, per experiment) are in its published counts, and the bag equals them."""
+    from sagg_bringup.synergy_graph import run_synergy_graph
+    n = 12
+    run_synergy_graph("config/arm8.yaml", n, tmp_path / "f", eval_every=n, progress=False, stall_timeout=120.0,
+                      overrides={"context": "fixed", "eval.goals": 5})
+    published = published_counts(tmp_path / "f" / "logs")
+    cmd = "/forward_position_controller/commands"
+    assert published[cmd] == 1 + 2 * n and published["/sagg/sample"] == n
+    assert {"/joint_states", "/tip_position", "/sagg/competence", "/sagg/goal"} <= set(published)
+    counts = bag_counts(tmp_path / "f" / "bag")
+    assert {t: counts.get(t, 0) for t in published} == published
+
+
 def test_hostile_bench_short(tmp_path):
     """`sagg bench hostile` in seconds: a few cases per phase on a running arm8 graph; every case
     survived, was counted and logged, learning went on, and every invariant holds."""
@@ -91,6 +126,7 @@ def test_hostile_bench_short(tmp_path):
     res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=1.5, eval_every=200, drain=5.0,
                         out=lines.append, only=["joint states 3.0 rad", "report seq +10^12", "NaN sample",
                                                 "2,000 joint states/s from a second publisher",
+                                                "forged sample with the next index",
                                                 "forged report at the next seq"])
     assert res["ok"], "\n".join(lines)
     content = res["phases"]["content"]
@@ -103,3 +139,6 @@ def test_hostile_bench_short(tmp_path):
         assert inv["no command farther than max_joint_step"] is True
         assert inv["every stored α is a posture the driver published"] is True
         assert inv["recorder dropped"] == {}
+        # relearn rebuilds the run's memory from its bag: no forged sample took a real index there
+        assert inv["relearn rebuilds the run's memory"] is True, inv["relearn rejected"]
+    assert any(k.startswith("sample from another publisher") for k in res["phases"]["publishers"]["invariants"]["relearn rejected"])

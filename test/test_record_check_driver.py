@@ -113,6 +113,9 @@ def test_sagg_record_alone_records_a_late_joined_graph_and_stops_cleanly(ros_env
     qos = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"] for t in meta["topics_with_message_count"]}
     assert qos["/sagg/regions"][0]["durability"] == "transient_local"  # the publisher's
     assert qos["/sagg/competence"][0]["durability"] == "transient_local"
+    # the publishers' offered QoS as `ros2 bag record` writes them (a reader learns no history or
+    # depth: unknown / 0), not the recorder's own subscription (keep_last, its depth)
+    assert (qos["/sagg/competence"][0]["history"], qos["/sagg/competence"][0]["depth"]) == ("unknown", 0)
     assert (qos["/joint_states"][0]["durability"], qos["/joint_states"][0]["reliability"]) == ("volatile", "reliable")
     ex.shutdown()
     node.destroy_node()

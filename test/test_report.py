@@ -85,3 +85,20 @@ def test_report_describes_the_simulated_robot(result, tmp_path):
     assert "| set-up | quadruped (synergies, fixed context; trajectories on joint_trajectory_controller, " \
            "outcome on /body_pose) |" in text
     assert "DOF" not in text
+
+
+def test_report_names_what_the_recorder_missed_and_did_not_use(result, tmp_path):
+    """Issue 11: a recorder that fell behind is never silent: the summary's bag.dropped (gaps in the
+    publishers' sequence numbers), dropped_not_estimated and rejected appear in report.md."""
+    data = json.loads((result / "result.json").read_text())
+    data["bag"] = {"path": "bag", "topics": {"/joint_states": {"type": "sensor_msgs/msg/JointState", "count": 90}},
+                   "dropped": {"/joint_states": 1234, "/tip_position": 7}, "dropped_not_estimated": ["/sagg/goal"],
+                   "rejected": {"/sagg/sample publishers": 300}}
+    text = write_report(data, tmp_path / "r").read_text()
+    assert "Messages missed by the recorder" in text
+    assert "`/joint_states` 1,234" in text and "`/tip_position` 7" in text
+    assert "Not estimated (the topic had several publishers): `/sagg/goal`" in text
+    assert "`/sagg/sample publishers` 300" in text
+    data["bag"]["dropped"], data["bag"]["dropped_not_estimated"] = {}, []
+    assert "Messages missed by the recorder (gaps in the publishers' sequence numbers): none." in \
+        write_report(data, tmp_path / "r2").read_text()

@@ -20,6 +20,7 @@ number (they carry the same values).
 """
 from __future__ import annotations
 
+import json
 import signal
 import sys
 import time
@@ -41,7 +42,7 @@ from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
 
 from .bag_reader import bag_messages, open_bag
 from .graph import evaluate_frozen, evaluation_setup, node_schemas
-from .recorder import _msg_class
+from .recorder import BagWriter, _msg_class
 from .report import write_report
 from .results import goal_share_stats
 
@@ -174,6 +175,21 @@ def _params_from(bag: Path, params_file: str | Path | None) -> dict[str, dict]:
     return out
 
 
+def foreign_messages(paths: list[Path]) -> set[tuple[str, int]]:
+    """(topic, timestamp) of the messages ``sagg run``'s recorder attributed to another publisher
+    than their topic's expected node (``BagWriter.FOREIGN_FILE`` in each bag directory, if any)."""
+    out: set[tuple[str, int]] = set()
+    for p in paths:
+        f = Path(p) / BagWriter.FOREIGN_FILE
+        if f.is_file():
+            try:
+                doc = json.loads(f.read_text())
+                out |= {(str(m[0]), int(m[1])) for m in doc["messages"]}
+            except (ValueError, KeyError, TypeError, IndexError) as exc:
+                raise ConfigError(f"bag: '{f}' is not a list of foreign messages ({exc})") from exc
+    return out
+
+
 def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path | None = None,
             evaluate: bool = True, report: bool = True, out: Callable[[str], None] = print) -> dict:
     """Rebuild memory and region tree from ``bags``; write DIR/memory.npz, regions.json, summary.json
@@ -210,7 +226,11 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         j_lo, j_hi = spec.limits()
     window = full["sagg_goal_generator"].get("report_window", 10000)
     wanted = {"/sagg/sample", "/sagg/competence", "/sagg/goal", "/sagg/regions"}
-    for topic, _, _, raw in bag_messages(paths, wanted):
+    foreign = foreign_messages(paths)
+    for topic, _, ts, raw in bag_messages(paths, wanted):
+        if (topic, ts) in foreign:  # the recorder attributed it to another publisher than the expected one
+            drop(f"{topic.rsplit('/', 1)[-1]} from another publisher")
+            continue
         try:
             if topic == "/sagg/sample":
                 sample = decode_sample(raw)

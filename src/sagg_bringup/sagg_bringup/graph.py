@@ -655,11 +655,13 @@ class RunState:
             self.last_competence = float(m.competence)
         return True
 
-    def on_regions(self, m) -> None:
+    def on_regions(self, m) -> bool:
         self.last_regions = m
+        return True
 
-    def on_status(self, m) -> None:
+    def on_status(self, m) -> bool:
         self.status = _status_dict(m, self.status_rate)
+        return True
 
     def progress(self) -> dict:
         """The progress bar's fields."""
@@ -706,9 +708,13 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
 
 
 def _both(first: Callable, second: Callable) -> Callable:
-    def handler(msg) -> None:
-        first(msg)
+    """Both handlers; the first one's answer (truthy: message used) is the recorder's, which
+    advances the expected publisher's stream with it (dropping it left the stream at 0: while a
+    second publisher was on the topic, every real message was then rejected as foreign)."""
+    def handler(msg):
+        used = first(msg)
         second(msg)
+        return used
     return handler
 
 
@@ -748,6 +754,10 @@ class GraphSession:
         self.st = RunState(status_rate=status_rate)
         self.eval_pub = self.node.create_publisher(Evaluation, "/sagg/evaluation", 100)
         self.recorder: TopicRecorder | None = None
+        # backpressure (acknowledge): ack_source() = the samples recorded and accepted from index 0
+        self.ack_source: Callable[[], int] | None = None
+        self.ack_pub = None
+        self._acked, self._ack_t = -1, 0.0
         self.view = None  # markers.MarkerView, from record()
         self.stop_signal: list[int] = []
         self.interrupted = False
@@ -768,6 +778,16 @@ class GraphSession:
             handlers[topic] = h if topic not in handlers else _both(handlers[topic], h)
         self.recorder = TopicRecorder(self.node, self.bag, self.topics, handlers,
                                       gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+
+    def acknowledge(self, source: Callable[[], int]) -> None:
+        """Publish ``source()`` (how many samples, from index 0, are recorded and accepted) on
+        /sagg/recorded, the learner's backpressure (``recorder_max_lag``). Only a session that calls
+        this has the publisher: the learner waits only while an acknowledging recorder exists."""
+        # lazy (heavy): ROS interface package
+        from std_msgs.msg import UInt64
+        self._uint64 = UInt64
+        self.ack_pub = self.node.create_publisher(UInt64, "/sagg/recorded", 10)
+        self.ack_source = source
 
     def publish_evaluation(self, at: int, errors: np.ndarray) -> None:
         """/sagg/evaluation (published from here, the executor's thread; recorded like the rest)."""
@@ -809,6 +829,13 @@ class GraphSession:
             self.executor.spin_once(timeout_sec=0)
             if bag.written == before:
                 break
+        if self.ack_source is not None:
+            # on every change, and at least every 0.5 s (a learner subscribing later, e.g. a
+            # resumed one whose count starts where the earlier bags end, gets it too)
+            n, now = self.ack_source(), time.monotonic()
+            if n != self._acked or now - self._ack_t >= 0.5:
+                self._acked, self._ack_t = n, now
+                self.ack_pub.publish(self._uint64(data=n))
         if self.stop_signal:
             raise KeyboardInterrupt
 
@@ -1090,9 +1117,10 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
 
         tracker = SplitTracker(t_lower, t_upper)
 
-        def on_regions(m) -> None:
+        def on_regions(m) -> bool:
             st.last_regions = m
             tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
+            return True
 
         if prior:
             handlers = {"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
@@ -1106,6 +1134,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         st.task_lower, st.task_upper = t_lower, t_upper
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/regions": on_regions, "/sagg/status": st.on_status})
+        session.acknowledge(lambda: st.samples)  # the samples recorded and accepted, from index 0
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
         t_first = None
         waiting_note = False

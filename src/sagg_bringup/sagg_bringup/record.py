@@ -24,6 +24,7 @@ from sagg_low_level.schema import LEARNER_SCHEMA
 from .graph import graph_topics
 from .markers import MarkerView, MARKER_TOPIC
 from .recorder import BagWriter, TopicSpec, _msg_class
+from .recorder import publishers_qos as offered_qos
 
 
 def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
@@ -63,6 +64,7 @@ class LiveRecorder:
         self.node, self.bag, self.handlers = node, bag, handlers or {}
         self.waiting = {t.name: t for t in topics}
         self.qos: dict[str, TopicSpec] = {}
+        self.rejected: dict[str, int] = {}  # topic -> messages the handler could not use (recorded all the same)
         self._subs = []
 
     def poll(self) -> None:
@@ -71,9 +73,9 @@ class LiveRecorder:
             if not infos:
                 continue
             del self.waiting[name]
-            self._subscribe(publishers_qos(infos, spec))
+            self._subscribe(publishers_qos(infos, spec), infos)
 
-    def _subscribe(self, t: TopicSpec) -> None:
+    def _subscribe(self, t: TopicSpec, infos=()) -> None:
         # lazy (heavy): ROS
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
@@ -82,6 +84,8 @@ class LiveRecorder:
                          reliability=ReliabilityPolicy.BEST_EFFORT if t.best_effort else ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local else DurabilityPolicy.VOLATILE)
         self.bag.add_topic(t)
+        # the bag's offered_qos_profiles: the publishers' own, as `ros2 bag record` writes them
+        self.bag.offer(t.name, offered_qos(infos))
         self.qos[t.name] = t
         handler = self.handlers.get(t.name)
 
@@ -89,7 +93,13 @@ class LiveRecorder:
             if not self.bag.closed:
                 self.bag.write(topic, time.time_ns(), data)
             if handler is not None:
-                handler(deserialize_message(data, cls))
+                try:
+                    handler(deserialize_message(data, cls))
+                except Exception as exc:  # noqa: BLE001 - a hostile message never ends the recording
+                    n = self.rejected[topic] = self.rejected.get(topic, 0) + 1
+                    if n == 1 or n % 1000 == 0:
+                        self.node.get_logger().error(f"{topic}: message not used by the live view "
+                                                     f"({type(exc).__name__}: {exc}); {n} so far")
 
         self._subs.append(self.node.create_subscription(cls, t.name, callback, qos, raw=True))
 

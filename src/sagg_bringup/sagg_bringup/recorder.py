@@ -22,12 +22,15 @@ from typing import Callable
 
 import yaml
 
+from sagg_common.journal import write_json_atomic
 from sagg_common.msg_codecs import MESSAGES, find_msg_dir
 from sagg_common.publishers import PublisherStream, PublisherWatch
 
+from .bag_channels import add_type_hashes
+
 # topics whose publisher keeps only the latest message by design (a reader may skip snapshots):
 # not counted as dropped
-NO_DROP_COUNT = ("/sagg/regions",)
+NO_DROP_COUNT = ("/sagg/regions", "/sagg/markers")
 
 
 @dataclass(frozen=True)
@@ -99,6 +102,7 @@ class BagWriter:
     ``ros_distro: jazzy`` (the distribution whose types and QoS the bag holds)."""
 
     ROS_DISTRO = "jazzy"
+    FOREIGN_FILE = "foreign_messages.json"
 
     def __init__(self, path: str | Path, topics: list[TopicSpec], typestore=None):
         # lazy (heavy): rosbags
@@ -115,6 +119,9 @@ class BagWriter:
         self._offered: dict[str, list] = {}
         self.counts: dict[str, int] = {}
         self.written = 0  # messages written, all topics
+        # recorded messages attributed to a publisher other than their topic's expected one
+        # (TopicRecorder's publisher streams): written to FOREIGN_FILE at close, for relearn
+        self.foreign: list[tuple[str, int, str]] = []
         self.types: dict[str, str] = {}
         try:
             for t in topics:
@@ -158,14 +165,36 @@ class BagWriter:
                 if topic not in self._conn:
                     self._connect(topic)
             self._writer.close()
-            self._set_distro()
+            doc = self._set_distro()
+            self._set_type_hashes(doc)
+            if self.foreign:
+                self._write_foreign()
 
-    def _set_distro(self) -> None:
-        """metadata.yaml's ``ros_distro`` (rosbags writes its own name there)."""
+    def _write_foreign(self) -> None:
+        """``FOREIGN_FILE`` in the bag directory: (topic, bag timestamp, why) of every recorded
+        message the recorder attributed to another publisher than the topic's expected node (rclpy
+        gives no publisher GID per message in Jazzy: the attribution is the recorder's publisher
+        stream, :class:`~sagg_common.publishers.PublisherStream`). ``sagg relearn`` skips them, so
+        a forged message never displaces the real one with the same index or seq."""
+        write_json_atomic(self.path / self.FOREIGN_FILE, {
+            "format": "sagg.foreign/1",
+            "doc": "messages of this bag not from their topic's expected publisher (sagg run's recorder)",
+            "messages": [list(m) for m in self.foreign]})
+
+    def _set_distro(self) -> dict:
+        """metadata.yaml's ``ros_distro`` (rosbags writes its own name there); returns the document."""
         meta = self.path / "metadata.yaml"
         doc = yaml.safe_load(meta.read_text())
         doc["rosbag2_bagfile_information"]["ros_distro"] = self.ROS_DISTRO
         meta.write_text(yaml.safe_dump(doc, sort_keys=False))
+        return doc
+
+    def _set_type_hashes(self, doc: dict) -> None:
+        """``topic_type_hash`` (RIHS01) on every mcap channel, as rosbag2 writes it (rosbags does
+        not: :mod:`.bag_channels`)."""
+        hashes = {t: self.typestore.hash_rihs01(ty) for t, ty in self.types.items()}
+        for rel in doc["rosbag2_bagfile_information"]["relative_file_paths"]:
+            add_type_hashes(self.path / rel, hashes)
 
     def abort(self) -> None:
         self.closed = True
@@ -267,6 +296,7 @@ class TopicRecorder:
 
     def _subscribe(self, t: TopicSpec):
         # lazy (heavy): ROS
+        from rclpy.event_handler import SubscriptionEventCallbacks
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
 
@@ -294,12 +324,13 @@ class TopicRecorder:
                     self.bag.offer(topic, publishers_qos(self.node.get_publishers_info_by_topic(topic)))
                 self.bag.write(topic, now, data)
             # messages the recorder missed: gaps in the publisher's sequence numbers (the rmw's
-            # message info), counted while the topic has exactly one publisher (numbers are per
+            # message info), counted while the topic has at most one publisher (numbers are per
             # publisher; the count starts again whenever the set of publishers changed)
             seq = info["publication_sequence_number"]
             if count_drops and seq is not None and topic not in unsure:
-                if holder["sub"].get_publisher_count() != 1:
+                if holder["sub"].get_publisher_count() > 1:
                     # numbers of several publishers interleave: no estimate for this topic from now on
+                    # (none left: the last publisher stopped and its queued messages are taken now)
                     unsure.add(topic)
                 else:
                     gap = _follow(last_seq.setdefault(topic, []), seq)
@@ -310,9 +341,11 @@ class TopicRecorder:
             if handler is not None:
                 stream = self.streams.get(topic)
                 if stream is not None:
-                    why = stream.check(seq)
+                    why = stream.check(seq, info["source_timestamp"])
                     if why:
                         self._drop(topic, "publishers", why)
+                        if not self.bag.closed:
+                            self.bag.foreign.append((topic, now, why))
                         return
                 try:
                     accepted = handler(deserialize_message(data, cls))
@@ -322,13 +355,22 @@ class TopicRecorder:
                 if accepted and stream is not None:
                     stream.commit(seq)
 
-        sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True)
+        events = None
+        if watched:  # every publisher (un)match re-reads the topic's publishers at once (PublisherWatch)
+            events = SubscriptionEventCallbacks(matched=lambda _info, topic=t.name: self._matched(topic))
+        sub = self.node.create_subscription(cls, t.name, callback, qos, raw=True, event_callbacks=events)
         holder["sub"] = sub
         if watched:
             self.watch.watch(t.name, sub, t.publisher)
             self.streams[t.name] = PublisherStream(self.watch, t.name, t.publisher)
         self._subs.append(sub)
         return sub
+
+    def _matched(self, topic: str) -> None:
+        """A publisher of ``topic`` matched or left: its publishers are read now, so a second one is
+        known (PublisherWatch.foreign_ns) even if it came and went between two messages."""
+        if topic in self.watch.rules:
+            self.watch.refresh(topic)
 
     def _drop(self, topic: str, why: str, detail: str) -> None:
         """Count a message not handed to its handler; logged at the first and then at most every 5 s."""

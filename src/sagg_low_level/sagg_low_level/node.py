@@ -29,7 +29,7 @@ import numpy as np
 
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, UInt64
 from std_srvs.srv import SetBool
 
 from sagg_common.cdr import JointStateDecoder, decode_point_stamped, encode_f64_array
@@ -122,6 +122,15 @@ class LearnerNode(LearnerNodeBase):
             self.watch.watch(topic, None, owner)
         self.js_decoder = JointStateDecoder()
         self.create_service(SetBool, "/sagg/pause", self.on_pause)
+        # backpressure: a recorder's acknowledgements (recorder_max_lag)
+        self.rec_max_lag = p["recorder_max_lag"]
+        self.rec_acked = 0          # the largest valid acknowledgement (samples recorded from index 0)
+        self.rec_waiting = False    # a command waits for the recorder
+        self.rec_waits = 0          # how often, and for how long in all
+        self.rec_wait_seconds = 0.0
+        self.rec_wait_t0 = 0.0
+        self.samples_published = 0  # samples published (index of the last one + 1)
+        self.rec_sub = self.create_subscription(UInt64, "/sagg/recorded", self.on_recorded, reliable(10))
 
         # --- observation state
         self._names: tuple | None = None     # joint-name order of the last JointState seen (cached)
@@ -371,6 +380,8 @@ class LearnerNode(LearnerNodeBase):
                         f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
         if self.state not in (self.STARTING, self.STOPPED):
             self._check_driver()
+        if self.rec_waiting and not self._recorder_behind():  # e.g. the recorder is gone
+            self._recorder_caught_up()
         if (self.outbox and self.state is not self.STARTING
                 and time.monotonic() - self.last_flush >= self.publish_period):
             self.flush()
@@ -384,8 +395,10 @@ class LearnerNode(LearnerNodeBase):
         limit = self.params["joint_state_timeout"]
         stale = [name for name, t in (("joint_states", self.js_rx), ("task point", self.tip_rx)) if now - t > limit]
         if stale:
-            self._set_hold("driver", f"no valid {' or '.join(stale)} for more than {limit} s "
-                                     "(driver stopped or disconnected?)")
+            # (while a topic has a second publisher every message of it is rejected: name that cause)
+            why = (f"rejected: {self.holds['publishers']}" if "publishers" in self.holds
+                   else "driver stopped or disconnected?")
+            self._set_hold("driver", f"no valid {' or '.join(stale)} for more than {limit} s ({why})")
         elif self.count_publishers("/joint_states") == 0:
             self._set_hold("driver", "/joint_states has no publisher (driver gone)")
         elif self.holds.get("driver"):
@@ -419,6 +432,8 @@ class LearnerNode(LearnerNodeBase):
         state = {"state": self.state or "running", "micro_actions": str(learner.micro_actions),
                  "samples": str(len(learner.memory)), "holds": "; ".join(self.holds.values())}
         state.update({f"published {t}": str(n) for t, n in self.published.items()})
+        state.update({"recorder waits": str(self.rec_waits), "recorder wait seconds": f"{self.rec_wait_seconds:.3f}",
+                      "recorder acknowledged samples": str(self.rec_acked)})
         fault = "; ".join(v for k, v in self.holds.items() if k != "service")
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state, fault))
 
@@ -455,6 +470,9 @@ class LearnerNode(LearnerNodeBase):
                     if self.outbox:
                         self.flush()
                     return
+                if self.rec_max_lag and self._recorder_behind():
+                    self._wait_for_recorder(req)
+                    return
                 target = self._safe_command(req)
                 if target is None:
                     self._set_hold("fault", "the learner produced an invalid command (see /diagnostics)")
@@ -485,6 +503,49 @@ class LearnerNode(LearnerNodeBase):
                 req = self.coro.send((self.js_alpha.copy(), self.tip.copy()))
                 continue
             raise TypeError(f"unknown learner request {req!r}")
+
+    # ------------------------------------------------------------------ recorder backpressure
+    def _recorder_behind(self) -> bool:
+        """More than ``recorder_max_lag`` published samples not yet acknowledged,
+        while a recorder acknowledges on /sagg/recorded."""
+        return (self.samples_published - self.rec_acked > self.rec_max_lag
+                and self.rec_sub.get_publisher_count() > 0)
+
+    def _wait_for_recorder(self, req: Command) -> None:
+        """Keep ``req`` until the recorder caught up (:meth:`on_recorded`); counted, logged at most every 10 s."""
+        self.pending, self.state = req, self.PAUSED
+        if self.outbox:
+            self.flush()  # what is queued is published now, so that it can be acknowledged
+        if self.rec_waiting:
+            return  # (again after a hold was released)
+        self.rec_waiting = True
+        self.rec_waits += 1
+        self.rec_wait_t0 = time.monotonic()
+        self.get_logger().info(
+            f"waiting for the recorder: {self.samples_published} samples published, {self.rec_acked} "
+            f"acknowledged on /sagg/recorded (recorder_max_lag {self.rec_max_lag}); {self.rec_waits} waits so far",
+            throttle_duration_sec=10.0)
+
+    def on_recorded(self, msg: UInt64) -> None:
+        """A recorder's acknowledgement: the number of samples it has recorded from index 0. One
+        larger than what was published is impossible: rejected (counted, logged); a smaller one than
+        the largest so far changes nothing (a slower second recorder, or a stale message)."""
+        n = int(msg.data)
+        if n > self.samples_published:
+            self.guard.reject("recorded.ahead", f"/sagg/recorded: data = {n}; allowed: <= {self.samples_published} "
+                                                "(the samples published so far)")
+            return
+        if n > self.rec_acked:
+            self.rec_acked = n
+        if self.rec_waiting and self.samples_published - self.rec_acked <= self.rec_max_lag // 2:
+            self._recorder_caught_up()
+
+    def _recorder_caught_up(self) -> None:
+        self.rec_waiting = False
+        self.rec_wait_seconds += time.monotonic() - self.rec_wait_t0
+        if self.state is self.PAUSED and not self.holds:
+            self.state = None
+            self.dispatch(self.pending)
 
     def _safe_command(self, req: Command) -> np.ndarray:
         """Last check before a command leaves: within the joint limits and, for a micro-action,
@@ -585,6 +646,9 @@ class LearnerNode(LearnerNodeBase):
 
     def close(self) -> None:
         """At shutdown: publish what is queued, then the final checkpoint."""
+        if self.rec_waits:
+            self.get_logger().info(f"recorder backpressure: {self.rec_waits} waits, "
+                                   f"{self.rec_wait_seconds:.3f} s in all (recorder_max_lag {self.rec_max_lag})")
         if self.checkpointer is not None:
             try:
                 self.flush()
@@ -606,6 +670,7 @@ class LearnerNode(LearnerNodeBase):
     def publish_sample(self, idx: int) -> None:
         mem = self.learner.memory
         self.published["/sagg/sample"] += 1
+        self.samples_published = max(self.samples_published, idx + 1)
         self.sample_pub.publish(encode_sample(
             self.now_ns(), idx, mem.alpha[idx], mem.delta_alpha[idx], mem.delta_y[idx]))
 
@@ -619,6 +684,9 @@ class LearnerNode(LearnerNodeBase):
         (t0, n0), (t1, n1) = self.rate_window[0], self.rate_window[-1]
         paused = self.state in (self.STARTING, self.STOPPED, self.PAUSED) or bool(self.holds)
         reason = self.pause_reason if self.state in (self.STARTING, self.STOPPED) else ""
+        if self.rec_waiting:
+            reason = (f"waiting for the recorder ({self.rec_acked} of {self.samples_published} samples "
+                      "acknowledged on /sagg/recorded)")
         self._publish_status(learner.strategy.upper(), learner.micro_actions, len(learner.memory),
                              (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0, paused,
                              "; ".join([r for r in [reason, *self.holds.values()] if r]) if paused else "")

@@ -87,6 +87,9 @@ class PositionLink:
         self.waiting = True
         self.sent_time = time.monotonic()
         self.pub.publish(encode_f64_array(np.asarray(target, dtype=float)))
+        published = getattr(self.node, "published", None)  # (what a bag must hold; issue 11)
+        if published is not None:
+            published[self.topic] = published.get(self.topic, 0) + 1
 
     def poll(self) -> None:
         """Settle and response timeouts of the command in flight."""

@@ -74,6 +74,14 @@ LEARNER_NODE_SCHEMA: Schema = (
           "generator was restarted and lost it). The generator answers a repeated request "
           "(same after_report) with the same goal, so a retry never changes the run. Our choice.",
           low=0.0, high=3600.0, low_open=True),
+    Param("recorder_max_lag", "int", 500,
+          "Backpressure for a recorder that acknowledges on /sagg/recorded (std_msgs/UInt64: how many "
+          "samples, from index 0, it has recorded; `sagg run` does): before a command the learner waits "
+          "while more than this many published samples are unacknowledged, so a recorder that falls "
+          "behind on a loaded machine never lets its queues overflow (the bag holds every message). "
+          "Only while /sagg/recorded has a publisher; the largest acknowledgement counts. 0 = never "
+          "wait. Our choice: 500 micro-actions are ~2,000 hardware messages, far below the "
+          "publishers' and the recorder's history depths (10,000 and more).", low=0, high=1_000_000_000),
     # the plausibility envelope of the measurements (DESIGN §8; sagg_common.envelope)
     Param("plausibility.joint_tolerance", "float", 0.1,
           "A joint state is rejected when a position lies outside the joint limits by more than this "
