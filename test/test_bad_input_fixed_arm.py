@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import rclpy
 
-from sagg_bringup.graph import pick_domain_id, write_params_file
-from sagg_bringup.synergy_experiment import load_synergy_config
-from sagg_bringup.synergy_graph import synergy_node_schemas
+from sagg_bringup.params_files import write_params_file
+from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.setups import SETUPS
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
 from sagg_low_level.position_link import PositionLink
 from sagg_low_level.synergy_node import SynergyLearnerNode
@@ -21,9 +21,7 @@ from sagg_common.cdr import encode_joint_state
 
 @pytest.fixture(scope="module")
 def node(tmp_path_factory):
-    schemas = synergy_node_schemas(arm=True)
-    cfg = load_synergy_config("config/arm8.yaml", {"context": "fixed"}, learner_schema=schemas["sagg_learner"],
-                              bridge_schema=schemas["sagg_sim_bridge"])
+    cfg = SETUPS["arm-fixed"].graph_config("config/arm8.yaml", {"context": "fixed"})
     path = tmp_path_factory.mktemp("fixed_arm") / "params.yaml"
     write_params_file(path, {"sagg_learner": cfg["sagg_learner"]})
     rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=pick_domain_id())

@@ -16,7 +16,7 @@ import pytest
 
 from sagg_bringup.bag_reader import bag_messages
 from sagg_bringup.bags import relearn
-from sagg_bringup.graph import pick_domain_id
+from sagg_bringup.processes import pick_domain_id
 from sagg_low_level.memory import SampleMemory
 
 from sagg_low_level.checkpoint import checkpoint_memory

@@ -229,7 +229,8 @@ def test_ray_local_instance_gives_the_process_pool_results(resumed, tmp_path):
 
 def test_bench_speed_rows_and_bytes_per_sample():
     from sagg_bringup.lab.bench import babbling_samples, bench_speed
-    from sagg_bringup.experiment import InProcessRun, load_experiment_config
+    from sagg_bringup.experiment import InProcessRun
+    from sagg_bringup.setups import load_experiment_config
     run = InProcessRun(load_experiment_config(CONFIG, {"arm.dof": 7}))
     a, da, dy = babbling_samples(run, 450, period=200)
     assert a.shape == da.shape == (450, 7) and dy.shape == (450, 2)

@@ -5,7 +5,8 @@ from pathlib import Path
 import pytest
 
 from sagg_bringup.cli import main as cli_main
-from sagg_bringup.experiment import InProcessRun, load_experiment_config, run_experiment
+from sagg_bringup.experiment import InProcessRun
+from sagg_bringup.setups import load_experiment_config, run_experiment
 from sagg_common.params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,4 +89,4 @@ def test_resume_of_a_synergy_run_is_refused_by_name(tmp_path, capsys):
         "sagg_learner:\n  ros__parameters:\n    max_micro_actions: 50\n")
     assert cli_main(["run", "--resume", str(tmp_path)]) == 2
     err = capsys.readouterr().err
-    assert "is a synergy run (setup 'quadruped')" in err and "start a new run" in err
+    assert "is a run of set-up 'quadruped'" in err and "start a new run" in err

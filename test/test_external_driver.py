@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from sagg_bringup.graph import pick_domain_id
+from sagg_bringup.processes import pick_domain_id
 from sagg_sim_bridge.arm import ArmSpec
 
 HERE = Path(__file__).resolve().parent

@@ -4,8 +4,9 @@ experiment, and learns an inverse model; in-process here (the graph: test_synerg
 import numpy as np
 import pytest
 
-from sagg_bringup.experiment import load_experiment_config, run_experiment
-from sagg_bringup.synergy_experiment import ARM_FIXED, SynergyRun, config_setup
+from sagg_bringup.setups import load_experiment_config, run_experiment
+from sagg_bringup.setups import in_process_run, setup_of
+from sagg_bringup.synergy_experiment import ARM_FIXED
 from sagg_common.params import ConfigError, STRATEGIES
 
 # noise-free kinematic 8-DOF arm (config/arm8.yaml is dynamic with 20 % motor noise)
@@ -13,12 +14,12 @@ KIN = {"context": "fixed", "arm.mode": "kinematic", "arm.motor_noise": 0.0, "eva
 
 
 def test_context_chooses_the_learner():
-    assert config_setup("config/arm8.yaml") is None
-    assert config_setup("config/arm8.yaml", {"context": "fixed"}) == ARM_FIXED
-    assert config_setup("config/arm8.yaml", {"context": "evolving"}) is None
-    assert config_setup("config/quadruped.yaml", {"context": "fixed"}) == "quadruped"
+    assert setup_of("config/arm8.yaml").name == "arm"
+    assert setup_of("config/arm8.yaml", {"context": "fixed"}).name == ARM_FIXED
+    assert setup_of("config/arm8.yaml", {"context": "evolving"}).name == "arm"
+    assert setup_of("config/quadruped.yaml", {"context": "fixed"}).name == "quadruped"
     with pytest.raises(ConfigError, match="context"):
-        config_setup("config/arm8.yaml", {"context": "both"})
+        setup_of("config/arm8.yaml", {"context": "both"})
 
 
 def test_fixed_arm_config_drops_the_evolving_parameters_and_takes_the_arm():
@@ -37,7 +38,7 @@ def test_fixed_arm_config_drops_the_evolving_parameters_and_takes_the_arm():
 def test_each_experiment_is_theta_from_rest_and_its_settled_tip():
     """Kinematic arm: every stored outcome is the tip of its θ (forward kinematics), every θ within
     the joint limits, whatever the previous experiment: the context is fixed."""
-    run = SynergyRun(load_experiment_config("config/arm8.yaml", KIN))
+    run = in_process_run("config/arm8.yaml", KIN)
     run.step_until(60)
     sim = run.setup.sim
     th, y = run.learner.thetas, run.learner.outcomes

@@ -19,7 +19,7 @@ from rclpy.serialization import serialize_message
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 
-from sagg_bringup.graph import RunState
+from sagg_bringup.run_state import RunState
 from sagg_low_level.learner import Command
 from sagg_low_level.node import LearnerNode
 from sagg_msgs.msg import CompetenceReport, Goal

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from sagg_bringup.bags import bag_messages
-from sagg_bringup.graph import pick_domain_id
+from sagg_bringup.processes import pick_domain_id
 
 ROOT = Path(__file__).resolve().parents[1]
 SAGG = str(Path(sys.executable).parent / "sagg")
@@ -90,9 +90,9 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
 
 
 def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):
-    from sagg_bringup.synergy_graph import run_synergy_graph
+    from sagg_bringup.setups import run_graph
     n = 12
-    s = run_synergy_graph("config/quadruped.yaml", n, tmp_path / "q", eval_every=n, progress=False, stall_timeout=120.0,
+    s = run_graph("config/quadruped.yaml", n, tmp_path / "q", eval_every=n, progress=False, stall_timeout=120.0,
                   overrides={"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0})
     published = published_counts(tmp_path / "q" / "logs")
     assert set(published) == {"/joint_trajectory_controller/joint_trajectory", "/body_pose", "/sagg/sample",

@@ -17,8 +17,8 @@ import yaml
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from sagg_bringup.graph import (graph_params, load_graph_config, run_only_params, set_checkpoint_dirs,
-                                write_params_file)
+from sagg_bringup.arm_params import graph_params, load_graph_config
+from sagg_bringup.params_files import run_only_params, set_checkpoint_dirs, write_params_file
 from sagg_bringup.launch_params import installed_configs, launch_plan, resolve_config, write_plan
 from sagg_common.params import read_config
 from sagg_msgs.msg import CompetenceReport, LearnerStatus
@@ -116,7 +116,7 @@ def test_launch_plan_fills_every_derived_parameter(name, driver, tmp_path):
         want = sections.get("/**", {}).get(key, sections.get("sagg_learner", {}).get(key))
         if want is not None:
             assert lp[key] == [float(v) for v in want] == gp[key]
-    if plan.setup is None:  # arm: joints / limits / rest from the config's arm (its DOF)
+    if plan.setup == "arm":  # arm: joints / limits / rest from the config's arm (its DOF)
         spec = arm_spec_from_params(plan.params["sagg_sim_bridge"])
         assert lp["joints"] == spec.joint_names() and len(lp["joints"]) == spec.dof
         assert lp["rest_posture"] == spec.rest_posture().tolist()

@@ -144,7 +144,7 @@ def test_blocking_declares_the_goal_or_only_the_subgoal_unreached(scope):
 
 # ------------------------------------------------------------------------------ phases
 def test_result_says_where_the_micro_actions_went(tmp_path):
-    from sagg_bringup.experiment import run_experiment
+    from sagg_bringup.setups import run_experiment
     res = run_experiment("config/arm7_ratio15.yaml", "sagg-riac", 0, 600, 600, tmp_path, progress=False)
     ph = res["phases"]
     assert ph["reach"] + ph["explore"] + ph["babble"] == res["micro_actions"] == 600

@@ -6,7 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.experiment import InProcessRun, load_experiment_config, run_experiment
+from sagg_bringup.experiment import InProcessRun
+from sagg_bringup.setups import load_experiment_config, run_experiment
+from sagg_bringup.setups import write_report as write_setup_report
 from sagg_bringup.report import leaves_after, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,12 +78,12 @@ def test_split_replay_gives_the_generators_leaves_at_every_goal():
 
 def test_report_describes_the_simulated_robot(result, tmp_path):
     data = json.loads((result / "result.json").read_text())
-    text = write_report(data, tmp_path / "arm").read_text()
+    text = write_setup_report(data, tmp_path / "arm").read_text()
     assert "| arm | 7 DOF, equal links" in text
     # a synergy run's bridge has a set-up, no arm.* parameters: named, never "None DOF"
     data["config"]["sagg_sim_bridge"] = {"seed": 3, "setup": "quadruped", "controller": "joint_trajectory_controller",
                                          "task_topic": "/body_pose"}
-    text = write_report(data, tmp_path / "quadruped").read_text()
+    text = write_setup_report(data, tmp_path / "quadruped").read_text()
     assert "| set-up | quadruped (synergies, fixed context; trajectories on joint_trajectory_controller, " \
            "outcome on /body_pose) |" in text
     assert "DOF" not in text

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from sagg_bringup.experiment import run_experiment
+from sagg_bringup.setups import run_experiment
 from sagg_bringup.recorder import make_typestore
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,9 +9,13 @@ import numpy as np
 import pytest
 import yaml
 
-from sagg_bringup.experiment import InProcessRun, load_experiment_config
-from sagg_bringup.graph import (SplitTracker, graph_params, graph_topics, load_graph_config, pick_domain_id,
-                                run_only_params, write_params_file)
+from sagg_bringup.experiment import InProcessRun
+from sagg_bringup.setups import load_experiment_config
+from sagg_bringup.arm_params import graph_params, load_graph_config
+from sagg_bringup.params_files import run_only_params, write_params_file
+from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.split_tracker import SplitTracker
+from sagg_bringup.topics import graph_topics
 from sagg_bringup.recorder import BagWriter, TopicRecorder, TopicSpec, make_typestore
 from sagg_bringup.report import leaves_after
 from sagg_common.params import ConfigError
@@ -190,7 +194,7 @@ def test_graph_session_closed_before_run_leaves_a_readable_bag_and_no_context(tm
     # could not read it
     from rosbags.highlevel import AnyReader
 
-    from sagg_bringup.graph import GraphSession
+    from sagg_bringup.session import GraphSession
 
     params = graph_params(load_graph_config(ROOT / "config/arm8.yaml"), 100, "lockstep")
     session = GraphSession([], None, graph_topics(params["sagg_learner"], "lockstep"), tmp_path / "bag",

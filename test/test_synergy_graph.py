@@ -5,10 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sagg_bringup.experiment import run_experiment
+from sagg_bringup.setups import load_experiment_config, run_experiment, run_graph
 from sagg_bringup.recorder import make_typestore
-from sagg_bringup.synergy_experiment import load_synergy_config
-from sagg_bringup.synergy_graph import run_synergy_graph
 from sagg_low_level.fixed_context import synergy_from_params
 
 OVERRIDES = {"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0}
@@ -16,7 +14,7 @@ OVERRIDES = {"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0}
 
 def test_quadruped_graph_equals_in_process_and_records_trajectories(tmp_path):
     n = 16
-    graph = run_synergy_graph("config/quadruped.yaml", n, tmp_path / "graph", eval_every=8, overrides=OVERRIDES,
+    graph = run_graph("config/quadruped.yaml", n, tmp_path / "graph", eval_every=8, overrides=OVERRIDES,
                               progress=False, stall_timeout=120.0)
     inproc = run_experiment("config/quadruped.yaml", None, None, n, 8, tmp_path / "inproc", progress=False,
                             overrides=OVERRIDES)
@@ -35,7 +33,7 @@ def test_quadruped_graph_equals_in_process_and_records_trajectories(tmp_path):
     # the first recorded synergy is the trajectory of the first stored θ
     from rosbags.highlevel import AnyReader
     store = make_typestore()
-    cfg = load_synergy_config("config/quadruped.yaml", OVERRIDES)
+    cfg = load_experiment_config("config/quadruped.yaml", OVERRIDES)
     syn = synergy_from_params(cfg["sagg_learner"])
     with AnyReader([tmp_path / "graph" / "bag"], default_typestore=store) as reader:
         conns = {c.topic: c for c in reader.connections}
@@ -67,7 +65,7 @@ def test_fixed_context_arm_graph_equals_in_process_and_speaks_the_position_contr
     and the bag holds one rest command then θ per experiment on the position controller's topic."""
     n = 20
     ov = {"context": "fixed", "eval.goals": 5}
-    graph = run_synergy_graph("config/arm8.yaml", n, tmp_path / "graph", eval_every=10, overrides=ov,
+    graph = run_graph("config/arm8.yaml", n, tmp_path / "graph", eval_every=10, overrides=ov,
                               progress=False, stall_timeout=120.0)
     inproc = run_experiment("config/arm8.yaml", None, None, n, 10, tmp_path / "inproc", progress=False,
                             overrides=ov)
@@ -85,7 +83,7 @@ def test_fixed_context_arm_graph_equals_in_process_and_speaks_the_position_contr
     assert "/joint_trajectory_controller/joint_trajectory" not in topics
 
     from rosbags.highlevel import AnyReader
-    cfg = load_synergy_config("config/arm8.yaml", ov)
+    cfg = load_experiment_config("config/arm8.yaml", ov)
     rest = np.array(cfg["sagg_learner"]["rest_posture"])
     with AnyReader([tmp_path / "graph" / "bag"], default_typestore=make_typestore()) as reader:
         conns = {c.topic: c for c in reader.connections}

@@ -21,7 +21,7 @@ from launch.actions import DeclareLaunchArgument, ExecuteProcess, LogInfo, Opaqu
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from sagg_bringup.graph import find_node_executable
+from sagg_bringup.processes import find_node_executable
 from sagg_bringup.launch_params import launch_plan, write_plan
 
 

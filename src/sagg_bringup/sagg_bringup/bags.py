@@ -38,12 +38,13 @@ from sagg_common.report_kinds import KIND_NAMES
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
-from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
+from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
 from .bag_reader import bag_messages, open_bag
-from .graph import evaluate_frozen, evaluation_setup, node_schemas
+from .arm_params import node_schemas
+from .evaluator import evaluate_frozen, evaluation_setup
 from .recorder import BagWriter, _msg_class
-from .report import write_report
+from .report import arm_rows, write_report
 from .results import goal_share_stats
 
 
@@ -157,10 +158,14 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
 
 
 # ------------------------------------------------------------------------------------ relearn
+def params_path(bag: Path, params_file: str | Path | None) -> Path:
+    """``params_file``, else ``params.yaml`` next to the bag (``sagg run``'s DIR/params.yaml)."""
+    return Path(params_file) if params_file else bag.parent / "params.yaml"
+
+
 def _params_from(bag: Path, params_file: str | Path | None) -> dict[str, dict]:
-    """The nodes' parameters: ``params_file``, else ``params.yaml`` next to the bag (``sagg run``'s
-    DIR/params.yaml), resolved against the full node schemas."""
-    path = Path(params_file) if params_file else bag.parent / "params.yaml"
+    """The nodes' parameters (:func:`params_path`), resolved against the full node schemas."""
+    path = params_path(bag, params_file)
     if not path.is_file():
         raise ConfigError(f"--params: '{path}' not found; allowed: the run's params.yaml (sagg run writes DIR/params.yaml)")
     try:
@@ -201,11 +206,9 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     gp = {p.name: full["sagg_goal_generator"][p.name] for p in GEN_SCHEMA}
     lp = {p.name: full["sagg_learner"][p.name] for p in LEARNER_SCHEMA}
     bp = {p.name: full["sagg_sim_bridge"][p.name] for p in BRIDGE_SCHEMA}
-    if lp["context"] != "evolving":
-        raise ConfigError("relearn: the run's learner has context 'fixed'; allowed: evolving-context arm runs "
-                          "(fixed-context runs are evaluated from their samples by `sagg run` itself)")
     t0 = time.perf_counter()
-    spec, area, test_goals, learner = evaluation_setup(lp, bp)
+    spec = arm_spec_from_params(bp)
+    area, test_goals, learner = evaluation_setup(lp, spec)
     mem = learner.memory
     gen = GoalGenerator(gp)
     reports: dict[int, tuple] = {}
@@ -366,7 +369,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
             "config": {"sagg_goal_generator": gp, "sagg_learner": lp, "sagg_sim_bridge": bp},
             "micro_actions": len(mem), "goals": goals_out, "regions": gen.region_snapshot(),
             "splits": gen.tree.splits, "goal_stats": goal_share_stats(pos, gma, area, len(mem))})
-        write_report(summary, outp, area=area)
+        write_report(summary, outp, area=area, setup_rows=arm_rows(bp))
         summary["goals"] = len(gen.goals)  # summary.json keeps counts; regions.json has the tree
         summary["regions"] = len(gen.tree.leaves())
         summary["splits"] = len(gen.tree.splits)

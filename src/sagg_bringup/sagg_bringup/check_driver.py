@@ -30,7 +30,7 @@ from sagg_common.params import ConfigError
 from sagg_common.ros_params import HW_DEPTH, reliable
 
 from .external import DriverMonitor, explicit_joints, external_params
-from .graph import load_graph_config
+from .arm_params import load_graph_config
 
 
 def learner_params(config: str) -> dict:

@@ -10,12 +10,9 @@ from pathlib import Path
 import yaml
 
 from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
-from sagg_goal_generator.schema import SCHEMA as GEN_SCHEMA
-from sagg_low_level.schema import LEARNER_SCHEMA, SYNERGY_LEARNER_SCHEMA
 
 from .check_driver import main_check_driver
-from .external import run_external_graph
-from .graph import GraphError, run_graph
+from .processes import GraphError
 from .lab.hostile import bench_hostile
 from .lab.soak import main_soak
 from .record import default_out, record
@@ -38,14 +35,10 @@ def positive_int(text: str) -> int:
 
 
 def node_schemas() -> dict:
-    """Every node's full parameter schema (core parameters + node-only ones: topics, timing...), from
-    the node packages' schema modules."""
-    # lazy (heavy): mujoco
-    from sagg_sim_bridge.schema import BRIDGE_SCHEMA, SYNERGY_BRIDGE_SCHEMA
-    return {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": BRIDGE_SCHEMA,
-            # synergy setups (config `setup: quadruped|fishing`): same node names, other executables
-            "sagg_learner (synergy_learner)": SYNERGY_LEARNER_SCHEMA,
-            "sagg_sim_bridge (synergy_bridge)": SYNERGY_BRIDGE_SCHEMA}
+    """Every node's full parameter schema (core parameters + node-only ones: topics, timing...)."""
+    # lazy (heavy): ROS, mujoco
+    from .setups import node_tables
+    return node_tables()  # (the set-ups' nodes; another set-up's node of a section: "section (script)")
 
 
 def params_markdown(node: str | None = None) -> str:
@@ -265,9 +258,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args) -> int:
-    # lazy (heavy): mujoco
-    from .synergy_experiment import config_setup
-    from .synergy_graph import run_synergy_graph
+    # lazy (heavy): ROS, mujoco
+    from .setups import run_graph, setup_of
     if args.resume:
         return _resume(args)
     if args.config is None:
@@ -279,27 +271,25 @@ def _run(args) -> int:
         seed = "" if args.seed is None else f"-seed{args.seed}"
         strategy = "" if args.strategy is None else f"-{args.strategy}"
         out = Path("runs") / f"{Path(args.config).stem}{strategy}{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
-    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): their own nodes
-    # and the arm with the learner parameter context: fixed (the fixed-context learner node)
-    run = run_graph if config_setup(args.config, parse_set(args.set)) is None else run_synergy_graph
+    setup = setup_of(args.config, parse_set(args.set))
     try:
         if args.driver == "external":
-            s = run_external_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
-                                   eval_every=args.eval_every, overrides=parse_set(args.set),
-                                   progress=not args.quiet, domain_id=args.domain_id,
-                                   robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
-                                   driver_timeout=args.driver_timeout)
+            s = run_graph(args.config, args.micro_actions, out, driver="external", seed=args.seed,
+                          strategy=args.strategy, eval_every=args.eval_every, overrides=parse_set(args.set),
+                          progress=not args.quiet, domain_id=args.domain_id,
+                          robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
+                          driver_timeout=args.driver_timeout)
         else:
-            s = run(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
-                    timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
-                    progress=not args.quiet, domain_id=args.domain_id)
+            s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
+                          timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
+                          progress=not args.quiet, domain_id=args.domain_id)
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
         hint = (" (external-driver runs cannot be resumed: start a new run)" if args.driver == "external"
-                else f" (sagg run --resume {out} continues)" if run is run_graph
-                else " (synergy runs cannot be resumed: start a new run)")
+                else f" (sagg run --resume {out} continues)" if setup.resumable
+                else f" ({setup.name} runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
     print(f"{s['strategy']} seed {s['seed']} (graph, {s['timing']}): final mean test error "
@@ -319,6 +309,8 @@ def _run(args) -> int:
 def _resume(args) -> int:
     """``sagg run --resume DIR``: the same run, continued (timing and budget from DIR unless given)."""
 
+    # lazy (heavy): ROS, mujoco
+    from .setups import run_graph
     out = Path(args.resume)
     params_file = out / "params.yaml"
     if args.config is not None or args.seed is not None or args.strategy is not None or args.set:
@@ -328,12 +320,6 @@ def _resume(args) -> int:
     doc = yaml.safe_load(params_file.read_text()) or {}
     learner = doc.get("sagg_learner", {}).get("ros__parameters", {})
     bridge = doc.get("sagg_sim_bridge", {}).get("ros__parameters", {})
-    # lazy (heavy): mujoco
-    from .synergy_experiment import config_setup
-    setup = config_setup(params_file)
-    if setup is not None:
-        raise ConfigError(f"--resume: '{out}' is a synergy run (setup {setup!r}); allowed: the directory "
-                          "of an arm run (the synergy learner keeps no checkpoints: start a new run)")
     old = {}
     if (out / "summary.json").is_file():
         old = json.loads((out / "summary.json").read_text())
@@ -364,8 +350,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "experiment":
-            # lazy (heavy): mujoco
-            from .experiment import run_experiment
+            # lazy (heavy): ROS, mujoco
+            from .setups import run_experiment
             res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions,
                                  args.eval_every, args.out, progress=not args.quiet,
                                  overrides=parse_set(args.set))
@@ -375,6 +361,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{len(res['goals'])} goals, {len(res['regions'])} regions -> "
                   f"{Path(args.out) / 'result.json'}")
             if args.report:
+                # lazy (heavy): ROS, mujoco
+                from .setups import write_report
                 print(f"report: {write_report(res, args.out)}")
             return 0
         if args.command == "run":
@@ -394,8 +382,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "check-driver":
             return main_check_driver(args)
         if args.command == "relearn":
-            # lazy (heavy): mujoco
-            from .bags import relearn
+            # lazy (heavy): ROS, mujoco
+            from .setups import relearn
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "reproduce":

@@ -1,4 +1,5 @@
-"""In-process experiments: the three cores wired together without ROS (``sagg experiment``).
+"""In-process experiments of the evolving-context arm: the three cores wired together without ROS
+(``sagg experiment`` with an arm config; the set-up registry :mod:`.setups` chooses it).
 
 The driver answers the learner coroutine's requests from a simulator and the goal generator, in
 exactly the order the ROS graph does in lockstep mode.
@@ -24,13 +25,10 @@ from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 from .arm_eval import evaluate_arm
 from .phases import PhaseCounter, coverage, phase_breakdown
 from .results import learning_curve, result_dict, run_overrides, write_result
-from .synergy_experiment import config_setup, load_synergy_config, run_synergy_experiment
 
 
-def load_experiment_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
-    """Resolve the three nodes' parameters from a config file (+ overrides applied to every node)."""
-    if config_setup(path, overrides) is not None:  # quadruped / fishing / context: fixed arm
-        return load_synergy_config(path, overrides)
+def load_arm_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
+    """Resolve the three nodes' parameters from an arm config file (+ overrides applied to every node)."""
     out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": LEARNER_SCHEMA,
                                "sagg_sim_bridge": BRIDGE_SCHEMA}, overrides)
     arm_spec_from_params(out["sagg_sim_bridge"])  # validates the arm, naming the bad parameter
@@ -88,18 +86,12 @@ class InProcessRun:
         return evaluate_arm(self.learner, self.spec, self.seed, goals)
 
 
-def run_experiment(config_path: str | Path, strategy: str | None, seed: int | None,
-                   micro_actions: int, eval_every: int, out_dir: str | Path | None,
-                   progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
-    """Run one (strategy, seed) experiment in-process and write ``out_dir/result.json``."""
-    # synergy setups (config parameter `setup`: quadruped / fishing, paper Sec. 4-5): fixed-context
-    # learner and synergy simulators, same result.json keys (micro_actions = experiments)
-    # and the arm with the learner parameter context: fixed (the same fixed-context learner)
-    if config_setup(config_path, overrides) is not None:
-        return run_synergy_experiment(config_path, strategy, seed, micro_actions, eval_every, out_dir,
-                                      progress=progress, overrides=overrides)
+def run_arm_experiment(config_path: str | Path, strategy: str | None, seed: int | None,
+                       micro_actions: int, eval_every: int, out_dir: str | Path | None,
+                       progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
+    """Run one (strategy, seed) arm experiment in-process and write ``out_dir/result.json``."""
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
-    config = load_experiment_config(config_path, ov)
+    config = load_arm_config(config_path, ov)
     run = InProcessRun(config)
     lp = config["sagg_learner"]
     lower = np.asarray(lp["task_space.lower"])

@@ -44,11 +44,15 @@ from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import EvolvingContextLearner, SCHEMA
 from sagg_low_level.memory import SampleMemory
 
-from .graph import (GraphError, GraphSession, NODES, Evaluator, SplitTracker, check_domain_id, core_config,
-                    graph_params, graph_topics, load_graph_config, node_processes, run_only_params,
-                    set_checkpoint_dirs, write_params_file)
-from .report import write_report
+from .arm_params import NODES, core_config, graph_params, resolve_arm
+from .evaluator import Evaluator
+from .params_files import run_only_params, set_checkpoint_dirs, write_params_file
+from .processes import GraphError, check_domain_id, node_processes
+from .session import GraphSession
+from .split_tracker import SplitTracker
+from .report import arm_rows, write_report
 from .results import run_overrides
+from .topics import graph_topics
 
 JS_TYPE = "sensor_msgs/msg/JointState"
 TIP_TYPE = "geometry_msgs/msg/PointStamped"
@@ -69,13 +73,14 @@ def explicit_joints(config_path: str | Path, overrides: dict[str, Any] | None) -
     return any("joints" in sections.get(s, {}) for s in ("/**", "sagg_learner")) or "joints" in (overrides or {})
 
 
-def external_params(full: dict[str, dict], micro_actions: int, own_joints: bool) -> dict[str, dict]:
-    """The nodes' parameters for an external driver: :func:`~sagg_bringup.graph.graph_params`, but
+def external_params(full: dict[str, dict], micro_actions: int, own_joints: bool, spec=None) -> dict[str, dict]:
+    """The nodes' parameters for an external driver: :func:`~sagg_bringup.arm_params.graph_params`, but
     the learner keeps the config's ``joints`` / ``joint_limits`` / ``rest_posture`` when
-    ``own_joints`` (they are checked here, before anything starts)."""
+    ``own_joints`` (they are checked here, before anything starts); ``spec``: the config's arm, when
+    the caller has it."""
     # lazy (heavy): ROS
     from sagg_low_level.node import robot_from_params
-    params = graph_params(full, micro_actions, "lockstep")
+    params = graph_params(full, micro_actions, "lockstep", spec)
     if own_joints:
         lp = params["sagg_learner"]
         for k in ("joints", "joint_limits.lower", "joint_limits.upper", "rest_posture"):
@@ -423,23 +428,18 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                        driver_timeout: float = 120.0) -> dict:
     """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
     # lazy (heavy): mujoco
-    from .synergy_experiment import config_setup
     from sagg_sim_bridge.arm import reachable_area, test_goals
-    from sagg_sim_bridge.params import arm_spec_from_params
 
-    if config_setup(config_path) is not None:
-        raise ConfigError("--driver external: synergy set-ups (config parameter 'setup') and the arm with "
-                          "context: fixed are not supported; allowed: an arm config (context: evolving)")
     if robot_eval_goals < 1 or robot_eval_every < 0:
         raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every}; "
                           "allowed: goals >= 1, every >= 0")
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     check_domain_id(domain_id)
-    full = load_graph_config(config_path, ov)
+    full, spec = resolve_arm(config_path, ov)  # (the one arm_spec_from_params of the run)
     out = Path(out_dir)
     if (out / "bag").exists():
         raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
-    params = external_params(full, micro_actions, explicit_joints(config_path, ov))
+    params = external_params(full, micro_actions, explicit_joints(config_path, ov), spec)
     lp = params["sagg_learner"]
     if len(lp["task_space.lower"]) != 2:
         raise ConfigError("--driver external: a 2-D task space (geometry_msgs/PointStamped x, y) is needed")
@@ -449,7 +449,6 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
     config = core_config(full)
-    spec = arm_spec_from_params(config["sagg_sim_bridge"])
     simulated = sim_model_matches(lp, spec)
     if not simulated:
         config.pop("sagg_sim_bridge")  # not a model of this arm: no reachable area, no simulated evaluation
@@ -467,7 +466,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         evaluator = None
         checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
         if simulated:
-            evaluator = Evaluator(config["sagg_learner"], config["sagg_sim_bridge"], checkpoints)
+            evaluator = Evaluator(config["sagg_learner"], spec, checkpoints)
         samples: tuple[list, list, list] = ([], [], [])
         reached: list[np.ndarray] = []
 
@@ -607,7 +606,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     write_json_atomic(out / "robot_evaluation.json", {"summary": robot_summary, "trace": robot.trace})
 
     def report_now() -> None:
-        path = write_report(summary, out, area=area)
+        path = write_report(summary, out, area=area, setup_rows=arm_rows(config.get("sagg_sim_bridge") or {}))
         path.write_text(path.read_text() + robot_report_section(summary))
 
     return session.finish(summary, report_now if report and summary["curve"] else None)

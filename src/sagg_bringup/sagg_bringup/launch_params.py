@@ -14,10 +14,10 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sagg_common.params import ConfigError, node_params, read_config
+from sagg_common.params import ConfigError
 
-from .external import explicit_joints, external_params
-from .graph import NODES, graph_params, load_graph_config, write_params_file
+from .params_files import write_params_file
+from .setups import setup_of
 
 DRIVERS = ("sim", "external")
 DEFAULT_CONFIG = "arm8"
@@ -63,42 +63,23 @@ class LaunchPlan:
 
     config: Path
     driver: str
-    setup: str | None
+    setup: str  # the set-up registry's name (sagg_bringup.setups)
     nodes: list[tuple[str, str, str]] = field(default_factory=list)
     params: dict[str, dict] = field(default_factory=dict)
 
 
 def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) -> LaunchPlan:
     """The parameters ``sagg run`` would give the nodes for ``config`` (without its recorder waits:
-    :func:`~sagg_bringup.graph.run_only_params`), and the nodes for ``driver`` (``sim``: with the
+    :func:`~sagg_bringup.params_files.run_only_params`), and the nodes for ``driver`` (``sim``: with the
     MuJoCo bridge; ``external``: the goal generator and the learner only). ``max_micro_actions``:
     the learner's stop (0 = never)."""
-    # lazy (heavy): mujoco
-    from .synergy_experiment import config_setup
     if driver not in DRIVERS:
         raise ConfigError(f"driver:={driver!r}; allowed: one of {', '.join(DRIVERS)}")
     path = resolve_config(config)
-    setup = config_setup(path)
-    if setup is not None:
-        # lazy (heavy): mujoco
-        from .synergy_experiment import load_synergy_config
-        from .synergy_experiment import ARM_FIXED
-        from .synergy_graph import ARM_FIXED_NODES, SYNERGY_NODES, synergy_graph_params, synergy_node_schemas
-        arm = setup == ARM_FIXED  # the arm with context: fixed (synergy learner + MuJoCo arm bridge)
-        schemas = synergy_node_schemas(arm)
-        full = load_synergy_config(path, None, learner_schema=schemas["sagg_learner"],
-                                   bridge_schema=schemas["sagg_sim_bridge"])
-        full["sagg_goal_generator"] = node_params(read_config(path), "sagg_goal_generator", schemas["sagg_goal_generator"])
-        params = synergy_graph_params(full, max_micro_actions)
-        nodes = ARM_FIXED_NODES if arm else SYNERGY_NODES
-    else:
-        full = load_graph_config(path)
-        if driver == "external":
-            params = external_params(full, max_micro_actions, explicit_joints(path, None))
-        else:
-            params = graph_params(full, max_micro_actions, "lockstep")
-        nodes = NODES
-    plan = LaunchPlan(path, driver, setup)
+    setup = setup_of(path)
+    params = setup.graph_params(setup.graph_config(path), max_micro_actions, driver, path)
+    nodes = setup.nodes
+    plan = LaunchPlan(path, driver, setup.name)
     for name, (module, script) in nodes.items():
         if driver == "external" and name == "sagg_sim_bridge":
             continue

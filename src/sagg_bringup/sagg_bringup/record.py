@@ -18,12 +18,11 @@ import sys
 import time
 from pathlib import Path
 
-from sagg_common.params import ConfigError, node_params, read_config
-from sagg_low_level.schema import LEARNER_SCHEMA
+from sagg_common.params import ConfigError
 
-from .graph import graph_topics
 from .markers import MarkerView, MARKER_TOPIC
 from .recorder import BagWriter, TopicSpec, _msg_class
+from .topics import graph_topics
 from .recorder import publishers_qos as offered_qos
 
 
@@ -34,15 +33,9 @@ def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
              TopicSpec(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", depth=1, transient_local=True)]
     if params_file is None:
         return graph_topics({}) + extra
-    # lazy (heavy): mujoco
-    from .synergy_experiment import config_setup
-    sections = read_config(params_file)
-    if config_setup(params_file) is not None:
-        # lazy (heavy): mujoco
-        from .synergy_graph import synergy_node_schemas, synergy_topics
-        lp = node_params(sections, "sagg_learner", synergy_node_schemas()["sagg_learner"])
-        return synergy_topics(lp) + extra
-    return graph_topics(node_params(sections, "sagg_learner", LEARNER_SCHEMA)) + extra
+    # lazy (heavy): ROS, mujoco (the set-up registry loads every runner)
+    from .setups import recorded_topics as setup_topics
+    return setup_topics(params_file) + extra
 
 
 def publishers_qos(infos, spec: TopicSpec) -> TopicSpec:

@@ -298,26 +298,35 @@ def _curve_rows(curve: list[dict], max_rows: int = 12) -> list[dict]:
     return [curve[i] for i in idx]
 
 
-def _setup_rows(bp: dict) -> list[tuple[str, str]]:
-    """The simulated robot of a run, from its bridge parameters: the arm (``arm.*``) or a synergy
-    set-up (``setup`` = quadruped / fishing, with its controller and outcome topic)."""
+def synergy_rows(bp: dict) -> list[tuple[str, str]]:
+    """The report rows of a synergy set-up's robot (``setup`` = quadruped / fishing, with its
+    controller and outcome topic), from its bridge parameters."""
+    return [("set-up", f"{bp.get('setup')} (synergies, fixed context; trajectories on "
+                       f"{bp.get('controller')}, outcome on {bp.get('task_topic')})")]
+
+
+# the extra row of the arm in the fixed context
+FIXED_ARM_ROWS = [("context", "fixed (θ = joint targets, one position command from rest per experiment; "
+                              "micro-actions = experiments)")]
+
+
+def arm_rows(bp: dict) -> list[tuple[str, str]]:
+    """The report rows of a simulated arm (``arm.*`` bridge parameters); none without them (a run
+    on a real arm)."""
     if not bp:
         return []
-    setup = bp.get("setup")
-    if setup:
-        return [("set-up", f"{setup} (synergies, fixed context; trajectories on "
-                           f"{bp.get('controller')}, outcome on {bp.get('task_topic')})")]
     arm = {k[4:]: v for k, v in bp.items() if k.startswith("arm.")}
     links = (f"link ratio {arm['link_ratio']:g}" if arm.get("link_ratio") else f"{arm.get('link_profile')} links")
     return [("arm", f"{arm.get('dof')} DOF, {links}, length "
                     f"{arm.get('total_length')}, {arm.get('mode')}, motor noise {arm.get('motor_noise')}")]
 
 
-def write_report(result: dict | str | Path, out_dir: str | Path, area=None) -> Path:
+def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setup_rows=()) -> Path:
     """Write ``report.md`` and its PNG figures into ``out_dir`` and return the report's path.
 
     ``result`` is a result-like dict (or a path to ``result.json`` / ``summary.json``); ``area``
-    (optional) the run's ReachableArea of Y when already computed."""
+    (optional) the run's ReachableArea of Y when already computed; ``setup_rows``: the rows that
+    describe the run's robot (the set-up registry's :meth:`~sagg_bringup.setups.Setup.report_rows`)."""
     if not isinstance(result, dict):
         result = json.loads(Path(result).read_text())
     for key in ("strategy", "seed", "config", "micro_actions", "curve"):
@@ -370,10 +379,7 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None) -> P
     task = f"[{', '.join(_fmt(float(v)) for v in lp['task_space.lower'])}] – " \
            f"[{', '.join(_fmt(float(v)) for v in lp['task_space.upper'])}]"
     rows.append(("task space Y (lower – upper)", task))
-    rows += _setup_rows(bp)
-    if lp.get("context") == "fixed" and not bp.get("setup"):
-        rows.append(("context", "fixed (θ = joint targets, one position command from rest per experiment; "
-                                "micro-actions = experiments)"))
+    rows += list(setup_rows)
     lines += ["| | |", "|---|---|"] + [f"| {k} | {_fmt(v)} |" for k, v in rows] + [""]
 
     lines += ["## Learning curve", "",

@@ -27,7 +27,7 @@ from typing import Any, Callable
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import STRATEGIES, ConfigError
 
-from .experiment import load_experiment_config, run_experiment
+from .setups import load_experiment_config, run_experiment
 
 FINGERPRINT_FORMAT = "sagg.compare/1"
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.params import ConfigError, read_config, resolve_nodes
+from sagg_common.params import ConfigError, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import stream, substream_seed
 from sagg_common.synergy import transported_outcome
@@ -27,32 +27,17 @@ from sagg_low_level.eval_metrics import frame_summary, metric_frame
 from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, Driver, FixedContextLearner, ThetaSpace,
                                           spread_goals, synergy_from_params)
 from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
-from sagg_low_level.learner import CONTEXT, SCHEMA as EVOLVING_SCHEMA
+from sagg_low_level.learner import SCHEMA as EVOLVING_SCHEMA
 from sagg_low_level.outcome_set import reachable_outcomes
 from sagg_low_level.schema import SYNERGY_LEARNER_SCHEMA as LEARNER_SCHEMA
 from sagg_sim_bridge.arm import reachable_area, test_goals, ArmSim
 from sagg_sim_bridge.params import arm_spec_from_params, SCHEMA as ARM_SCHEMA
 from sagg_sim_bridge.schema import SYNERGY_BRIDGE_SCHEMA as SYN_BRIDGE_SCHEMA
-from sagg_sim_bridge.synergy_params import SETUPS, make_sim
+from sagg_sim_bridge.synergy_params import make_sim
 
 from .results import learning_curve, result_dict, run_overrides, write_result
 
-ARM_FIXED = "arm-fixed"  # config_setup of an arm config with context: fixed
-
-
-def config_setup(path: str | Path, overrides: dict[str, Any] | None = None) -> str | None:
-    """The config's ``setup`` ('quadruped' / 'fishing', under '/**' or 'sagg_sim_bridge'); for an
-    arm config (no such parameter) ``'arm-fixed'`` when the learner parameter ``context`` (config or
-    ``overrides``) is 'fixed', else None (the evolving-context arm)."""
-    sections = read_config(path)
-    setup = sections.get("/**", {}).get("setup", sections.get("sagg_sim_bridge", {}).get("setup"))
-    if setup is not None and setup not in SETUPS:
-        raise ConfigError(f"parameter 'setup': got {setup!r}; allowed: one of {', '.join(map(repr, SETUPS))}")
-    if setup is not None:
-        return setup
-    context = sections.get("sagg_learner", {}).get("context", sections.get("/**", {}).get("context", "evolving"))
-    context = CONTEXT.validate((overrides or {}).get("context", context))
-    return ARM_FIXED if context == "fixed" else None
+ARM_FIXED = "arm-fixed"  # the set-up name of the arm in the fixed context (context: fixed)
 
 
 def fixed_arm_learner_schema(node_schema=LEARNER_SCHEMA):
@@ -64,30 +49,12 @@ def fixed_arm_learner_schema(node_schema=LEARNER_SCHEMA):
     return tuple(dataclasses.replace(p, default=arm[p.name]) if p.name in arm else p for p in node_schema)
 
 
-def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None = None,
+def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None, adapter,
                         learner_schema=LEARNER_SCHEMA, bridge_schema=None) -> dict[str, dict]:
     """Resolve the three nodes' parameters of a fixed-context config (+ overrides applied to every
-    node); ``bridge_schema`` None = the simulator's core schema (synergy or arm).
-
-    An arm config with ``context: fixed`` resolves the arm bridge's parameters and the learner's
-    with :func:`fixed_arm_learner_schema`; the evolving learner's own parameters (v, subgoals, ...)
-    are accepted there and dropped (unused in the fixed context); ``joints``, ``joint_limits.*`` and
-    ``rest_posture`` come from the simulated arm."""
-    if config_setup(path, overrides) == ARM_FIXED:
-        fixed = fixed_arm_learner_schema(learner_schema)
-        names = {p.name for p in fixed}
-        tolerated = tuple(p for p in EVOLVING_SCHEMA if p.name not in names)
-        out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": fixed + tolerated,
-                                   "sagg_sim_bridge": bridge_schema or ARM_SCHEMA}, overrides)
-        lp = out["sagg_learner"] = {k: v for k, v in out["sagg_learner"].items() if k in names}
-        spec = arm_spec_from_params(out["sagg_sim_bridge"])
-        lower, upper = spec.limits()
-        lp.update({"joints": spec.joint_names(), "joint_limits.lower": lower.tolist(),
-                   "joint_limits.upper": upper.tolist(), "rest_posture": spec.rest_posture().tolist(),
-                   "synergy.kind": "posture"})
-    else:
-        out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": learner_schema,
-                                   "sagg_sim_bridge": bridge_schema or SYN_BRIDGE_SCHEMA}, overrides)
+    node) for the set-up adapter ``adapter`` (:class:`SynergySetup` or :class:`ArmPostureSetup`,
+    named by the set-up registry); ``bridge_schema`` None = the simulator's core schema."""
+    out = adapter.resolve(path, overrides, learner_schema, bridge_schema)
     synergy_from_params(out["sagg_learner"])  # validates the synergy, naming the bad parameter
     return out
 
@@ -115,6 +82,12 @@ class SynergySetup:
     """Quadruped / fishing rod: θ → a joint trajectory run by the synergy simulator from its rest state
     (the synergy bridge's ``on_trajectory``); test goals spread over an estimate of the reachable
     outcome set (:mod:`sagg_low_level.outcome_set`)."""
+
+    @staticmethod
+    def resolve(path, overrides, learner_schema, bridge_schema) -> dict[str, dict]:
+        """The config's parameters (the synergy bridge's core schema unless ``bridge_schema``)."""
+        return resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": learner_schema,
+                                    "sagg_sim_bridge": bridge_schema or SYN_BRIDGE_SCHEMA}, overrides)
 
     def __init__(self, config: dict[str, dict]):
         lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
@@ -189,6 +162,25 @@ class ArmPostureSetup:
 
     name = ARM_FIXED
 
+    @staticmethod
+    def resolve(path, overrides, learner_schema, bridge_schema) -> dict[str, dict]:
+        """The arm bridge's parameters and the learner's with :func:`fixed_arm_learner_schema`; the
+        evolving learner's own parameters (v, subgoals, ...) are accepted there and dropped (unused
+        in the fixed context); ``joints``, ``joint_limits.*`` and ``rest_posture`` come from the
+        simulated arm."""
+        fixed = fixed_arm_learner_schema(learner_schema)
+        names = {p.name for p in fixed}
+        tolerated = tuple(p for p in EVOLVING_SCHEMA if p.name not in names)
+        out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": fixed + tolerated,
+                                   "sagg_sim_bridge": bridge_schema or ARM_SCHEMA}, overrides)
+        lp = out["sagg_learner"] = {k: v for k, v in out["sagg_learner"].items() if k in names}
+        spec = arm_spec_from_params(out["sagg_sim_bridge"])
+        lower, upper = spec.limits()
+        lp.update({"joints": spec.joint_names(), "joint_limits.lower": lower.tolist(),
+                   "joint_limits.upper": upper.tolist(), "rest_posture": spec.rest_posture().tolist(),
+                   "synergy.kind": "posture"})
+        return out
+
     def __init__(self, config: dict[str, dict]):
         lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
         self.config = config
@@ -219,20 +211,16 @@ class ArmPostureSetup:
         return goals, area, {}
 
 
-def make_setup(config: dict[str, dict]):
-    """The set-up adapter of a resolved fixed-context config."""
-    return SynergySetup(config) if "setup" in config["sagg_sim_bridge"] else ArmPostureSetup(config)
-
-
 class SynergyRun:
     """A fixed-context learning run of one strategy and seed (synergy set-up or the arm in the fixed
-    context), stepped in-process."""
+    context), stepped in-process; ``adapter``: the set-up's class (:class:`SynergySetup`,
+    :class:`ArmPostureSetup`), named by the set-up registry."""
 
-    def __init__(self, config: dict[str, dict]):
+    def __init__(self, config: dict[str, dict], adapter):
         self.config = config
         gp, lp = config["sagg_goal_generator"], config["sagg_learner"]
         self.seed = lp["seed"]
-        self.setup = make_setup(config)
+        self.setup = adapter(config)
         self.synergy = self.setup.synergy
         if len(lp["task_space.lower"]) != self.setup.task_dim:
             raise ConfigError(f"parameter 'task_space.lower': {len(lp['task_space.lower'])} dimensions; "
@@ -282,14 +270,15 @@ def outcome_extents(outcomes: np.ndarray) -> dict:
             "p99": np.percentile(outcomes, 99, axis=0).tolist()}
 
 
-def run_synergy_experiment(config_path: str | Path, strategy: str | None, seed: int | None,
+def run_synergy_experiment(adapter, config_path: str | Path, strategy: str | None, seed: int | None,
                            micro_actions: int, eval_every: int, out_dir: str | Path | None,
                            progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
-    """Run one (strategy, seed) synergy experiment in-process and write ``out_dir/result.json``.
-    ``micro_actions`` is the number of experiments (synergy executions with an outcome)."""
+    """Run one (strategy, seed) fixed-context experiment of the set-up ``adapter`` in-process and
+    write ``out_dir/result.json``. ``micro_actions`` is the number of experiments (synergy
+    executions with an outcome)."""
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
-    config = load_synergy_config(config_path, ov)
-    run = SynergyRun(config)
+    config = load_synergy_config(config_path, ov, adapter)
+    run = SynergyRun(config, adapter)
     lp = config["sagg_learner"]
     t0 = time.perf_counter()
     goals, area, goal_info = run.test_goals()

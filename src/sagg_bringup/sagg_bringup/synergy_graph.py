@@ -1,5 +1,6 @@
-"""``sagg run`` for the synergy setups (quadruped, fishing rod): goal generator, synergy learner and
-synergy bridge as processes, recorded and evaluated.
+"""``sagg run`` for the fixed-context set-ups (quadruped, fishing rod, the arm with ``context: fixed``;
+each a :class:`~sagg_bringup.setups.FixedContext` entry of the registry, passed in as ``setup``): goal
+generator, synergy learner and the set-up's bridge as processes, recorded and evaluated.
 
 Like :func:`~sagg_bringup.graph.run_graph` (same helpers: node processes with a private
 ``ROS_DOMAIN_ID`` and localhost discovery, SIGINT then SIGKILL, the mcap recorder), with three
@@ -26,33 +27,25 @@ import numpy as np
 
 from sagg_common.params import ConfigError, node_params, read_config
 from sagg_common.progress import Progress
-from sagg_goal_generator.schema import SCHEMA as GEN
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
-from sagg_sim_bridge.schema import BRIDGE_SCHEMA as ARM_BRIDGE
 
-from .graph import (GraphSession, check_domain_id, node_processes, run_only_params, sagg_topics,
-                    write_params_file, graph_topics)
-from .recorder import TopicSpec
+from .params_files import run_only_params, write_params_file
+from .processes import check_domain_id, node_processes
 from .results import run_overrides
-from .synergy_experiment import (ARM_FIXED, LEARNER_SCHEMA, SYN_BRIDGE_SCHEMA, SynergyRun, config_setup,
-                                 load_synergy_config, outcome_extents)
-
-SYNERGY_NODES = {
-    "sagg_goal_generator": ("sagg_goal_generator", "goal_generator"),
-    "sagg_learner": ("sagg_low_level", "synergy_learner"),
-    "sagg_sim_bridge": ("sagg_sim_bridge", "synergy_bridge"),
-}
+from .session import GraphSession
+from .synergy_experiment import SynergyRun, load_synergy_config, outcome_extents
 
 
-# the arm in the fixed context (context: fixed): the synergy learner speaks the arm's position
-# contract (synergy.kind 'posture') to the MuJoCo arm bridge
-ARM_FIXED_NODES = dict(SYNERGY_NODES, sagg_sim_bridge=("sagg_sim_bridge", "mujoco_bridge"))
-
-
-def synergy_node_schemas(arm: bool = False) -> dict[str, tuple]:
-    if arm:
-        return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": ARM_BRIDGE}
-    return {"sagg_goal_generator": GEN, "sagg_learner": LEARNER_SCHEMA, "sagg_sim_bridge": SYN_BRIDGE_SCHEMA}
+def resolve_fixed_graph(setup, config_path: str | Path, overrides: dict[str, Any] | None) -> dict[str, dict]:
+    """The nodes' parameters (full node schemas) of a fixed-context config for the registry's set-up
+    ``setup`` (its ``adapter`` and ``node_schemas()``)."""
+    schemas = setup.node_schemas()
+    full = load_synergy_config(config_path, overrides, setup.adapter, learner_schema=schemas["sagg_learner"],
+                               bridge_schema=schemas["sagg_sim_bridge"])
+    # the goal generator's node-only parameters (load_synergy_config resolved its core schema)
+    full["sagg_goal_generator"] = node_params(read_config(config_path), "sagg_goal_generator",
+                                              schemas["sagg_goal_generator"], overrides)
+    return full
 
 
 def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, dict]:
@@ -65,43 +58,27 @@ def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, d
         if bp[k] != lp[k]:
             raise ConfigError(f"parameter '{k}' differs between sagg_sim_bridge ({bp[k]!r}) and "
                               f"sagg_learner ({lp[k]!r}); set it once under '/**'")
-    # (the waits for the recorder are given on the command line: graph.run_only_params)
+    # (the waits for the recorder are given on the command line: params_files.run_only_params)
     return params
 
 
-def synergy_topics(lp: dict) -> list[TopicSpec]:
-    if lp["synergy.kind"] == "posture":  # the arm's position contract
-        return graph_topics(lp, "lockstep")
-    task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
-    out_type = "geometry_msgs/msg/PoseStamped" if len(lp["task_space.lower"]) == 3 else "geometry_msgs/msg/PointStamped"
-    return sagg_topics() + [
-        TopicSpec(f"/{lp['controller'].strip('/')}/joint_trajectory", "trajectory_msgs/msg/JointTrajectory"),
-        TopicSpec(task, out_type),
-    ]
-
-
-def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
+def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
                       seed: int | None = None, strategy: str | None = None, timing: str = "lockstep",
                       eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
                       domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True) -> dict:
-    """Run the synergy graph for ``micro_actions`` experiments; returns the summary (also in DIR)."""
+    """Run the graph of the fixed-context set-up ``setup`` (a registry entry: its nodes, schemas,
+    adapter and topics) for ``micro_actions`` experiments; returns the summary (also in DIR)."""
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     if timing != "lockstep":
         raise ConfigError(f"--timing: got {timing!r}; allowed: 'lockstep' (the synergy bridge answers each "
                           "trajectory once it has run)")
     check_domain_id(domain_id)
-    arm = config_setup(config_path, ov) == ARM_FIXED
-    schemas = synergy_node_schemas(arm)
-    full = load_synergy_config(config_path, ov, learner_schema=schemas["sagg_learner"],
-                               bridge_schema=schemas["sagg_sim_bridge"])
-    setup_name = full["sagg_sim_bridge"].get("setup", ARM_FIXED)
-    # the goal generator's node-only parameters (load_synergy_config resolved its core schema)
-    full["sagg_goal_generator"] = node_params(read_config(config_path), "sagg_goal_generator",
-                                              schemas["sagg_goal_generator"], ov)
+    full = resolve_fixed_graph(setup, config_path, ov)
+    setup_name = setup.name
     out = Path(out_dir)
     if (out / "bag").exists():
         raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
-    procs = node_processes(ARM_FIXED_NODES if arm else SYNERGY_NODES, out / "logs")
+    procs = node_processes(setup.nodes, out / "logs")
     t_start = time.perf_counter()
     params = synergy_graph_params(full, micro_actions)
     params_file = out / "params.yaml"
@@ -109,7 +86,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
     lp = full["sagg_learner"]
 
     # the learner status has no rate here (the synergy summary's learner_status never had one)
-    session = GraphSession(procs, domain_id, synergy_topics(params["sagg_learner"]), out / "bag", out,
+    session = GraphSession(procs, domain_id, setup.topics(params["sagg_learner"]), out / "bag", out,
                            drain=500, status_rate=False)
     st = session.st
     try:  # set-up: a failure or Ctrl-C before session.run still closes the bag and rclpy
@@ -147,7 +124,7 @@ def run_synergy_graph(config_path: str | Path, micro_actions: int, out_dir: str 
                                      lambda waited: waited > 0.5)
             # ---- evaluation from the recorded samples (same test goals and simulator as in-process)
             run = SynergyRun({"sagg_goal_generator": full["sagg_goal_generator"], "sagg_learner": lp,
-                              "sagg_sim_bridge": full["sagg_sim_bridge"]})
+                              "sagg_sim_bridge": full["sagg_sim_bridge"]}, setup.adapter)
             goals_test, area, _ = run.test_goals()
             checkpoints = [c for c in list(range(0, micro_actions, eval_every)) + [micro_actions] if c <= len(samples)]
             frame = metric_frame(goals_test, run.setup.metric_base)  # as in-process (eval_metrics)

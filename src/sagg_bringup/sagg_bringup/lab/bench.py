@@ -19,9 +19,11 @@ import numpy as np
 from sagg_common.rng import stream
 from sagg_low_level.memory import SampleMemory
 
-from ..experiment import InProcessRun, load_experiment_config
-from ..graph import (NODES, NodeProcess, find_node_executable, graph_params, load_graph_config,
-                     pick_domain_id, stop_processes, write_params_file)
+from ..arm_params import NODES, graph_params, load_graph_config
+from ..experiment import InProcessRun
+from ..params_files import write_params_file
+from ..processes import NodeGroup, node_processes
+from ..setups import load_experiment_config
 from .pingpong import measure
 
 
@@ -150,8 +152,6 @@ def graph_rate(config: str | Path, micro_actions: int, overrides: dict | None = 
     """Micro-actions/s of the three node processes in lockstep, from the learner's own log line
     ("N micro-actions in T s", timed from its first command to its last observation); nothing
     else runs (no recorder, no evaluation)."""
-
-
     full = load_graph_config(config, overrides)
     params = graph_params(full, micro_actions, "lockstep")
     params["sagg_learner"]["min_sample_subscribers"] = 0  # nobody records here
@@ -159,26 +159,20 @@ def graph_rate(config: str | Path, micro_actions: int, overrides: dict | None = 
     with tempfile.TemporaryDirectory(prefix="sagg-bench-") as tmp:
         tmp = Path(tmp)
         write_params_file(tmp / "params.yaml", params)
-        env = dict(os.environ, ROS_DOMAIN_ID=str(pick_domain_id()),
-                   ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
-        procs = [NodeProcess(name, find_node_executable(module.split(".")[0], script),
-                             tmp / f"{script}.log") for name, (module, script) in NODES.items()]
+        nodes = NodeGroup(node_processes(NODES, tmp))
         learner_log = tmp / "learner.log"
         try:
-            for p in procs:
-                p.start(tmp / "params.yaml", env)
+            nodes.start(tmp / "params.yaml")
             end = time.perf_counter() + timeout
             while time.perf_counter() < end:
                 m = re.search(r"\((\d+) micro-actions in ([\d.]+) s", learner_log.read_text(errors="replace"))
                 if m:
                     return int(m.group(1)) / float(m.group(2))
-                for p in procs:
-                    if p.poll() is not None:
-                        raise RuntimeError(f"node {p.name} exited with {p.exit_code}: {p.log_tail()}")
+                nodes.check()
                 time.sleep(0.05)
             raise RuntimeError(f"graph benchmark: no result within {timeout:.0f} s")
         finally:
-            stop_processes(procs)
+            nodes.stop()
 
 
 def inprocess_rate(config: str | Path, micro_actions: int, overrides: dict | None = None) -> float:

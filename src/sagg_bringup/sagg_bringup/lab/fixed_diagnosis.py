@@ -26,11 +26,11 @@ import numpy as np
 
 from sagg_common.regions import interest_probabilities
 
-from ..synergy_experiment import SynergyRun, load_synergy_config
+from ..setups import in_process_run
 
 
 def diagnose(config: str, strategy: str, seed: int, points: list[int], overrides: dict) -> list[dict]:
-    run = SynergyRun(load_synergy_config(config, dict(overrides, context="fixed", strategy=strategy, seed=seed)))
+    run = in_process_run(config, dict(overrides, context="fixed", strategy=strategy, seed=seed))
     goals, area, _ = run.test_goals()
     kinds: collections.Counter = collections.Counter()
     execute = run.driver.execute

@@ -51,7 +51,8 @@ from sagg_common.ros_params import reliable
 from sagg_low_level.checkpoint import checkpoint_memory
 
 from ..bag_reader import bag_messages
-from ..graph import graph_params, load_graph_config, pick_domain_id
+from ..arm_params import graph_params, load_graph_config
+from ..processes import pick_domain_id
 
 SEC = 1_000_000_000
 RESUME_LIMIT = 60.0  # s after a case within which learning must have gone on again

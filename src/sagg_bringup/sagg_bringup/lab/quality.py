@@ -23,7 +23,8 @@ from sagg_common.params import ConfigError
 from sagg_sim_bridge.arm import reachable_area, test_goals, tip_jacobian
 
 from ..compare import pairwise_tests
-from ..experiment import InProcessRun, load_experiment_config, run_experiment
+from ..experiment import InProcessRun
+from ..setups import load_experiment_config, run_experiment
 from ..sweep import RunSpec, expected_config, validate_result
 
 CONTEXTS = ("evolving", "fixed")

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..experiment import InProcessRun, load_experiment_config
+from ..experiment import InProcessRun
+from ..setups import load_experiment_config
 
 
 def walk_compatible(tree, alpha: np.ndarray, n: int) -> list:

@@ -36,8 +36,9 @@ import numpy as np
 from sagg_common.journal import write_json_atomic
 from sagg_common.ros_params import reliable
 
-from ..graph import (NODES, GraphError, NodeProcess, find_node_executable, graph_params, load_graph_config,
-                     pick_domain_id, set_checkpoint_dirs, stop_processes, write_params_file)
+from ..arm_params import NODES, graph_params, load_graph_config
+from ..params_files import set_checkpoint_dirs, write_params_file
+from ..processes import GraphError, NodeGroup, node_processes
 
 
 def rss_bytes(pid: int | str = "self") -> int:
@@ -101,7 +102,8 @@ def soak_inprocess(config: str | Path, micro_actions: int, every: int,
                    overrides: dict[str, Any] | None = None, out: Callable[[str], None] = print) -> dict:
     """In-process soak; returns the rows and the verdict numbers."""
     # lazy (heavy): mujoco
-    from ..experiment import InProcessRun, load_experiment_config
+    from ..experiment import InProcessRun
+    from ..setups import load_experiment_config
 
     shm0 = shm_entries()
     fd0 = open_fds()
@@ -160,12 +162,8 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
     set_checkpoint_dirs(params, outp)
     params_file = outp / "params.yaml"
     write_params_file(params_file, params)
-    procs = [NodeProcess(name, find_node_executable(mod.split(".")[0], script), outp / "logs" / f"{script}.log")
-             for name, (mod, script) in NODES.items()]
-    domain = pick_domain_id()
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    nodes = NodeGroup(node_processes(NODES, outp / "logs"))
+    procs, domain = nodes.procs, nodes.domain
     shm0 = shm_entries()
     # lazy (heavy): ROS
     import rclpy
@@ -199,15 +197,12 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
     error = None
     fds0: dict[str, int] = {}
     try:
-        for p in procs:
-            p.start(params_file, env)
+        nodes.start(params_file)
         last = (0, time.monotonic())
         while True:
             ex.spin_once(timeout_sec=0.1)
+            nodes.check()
             for p in procs:
-                code = p.poll()
-                if code is not None:
-                    raise GraphError(f"node {p.name} exited with code {code}:\n{p.log_tail()}")
                 if p.name not in fds0 and status:
                     fds0[p.name] = open_fds(p.popen.pid)
             done = status.get("micro_actions", 0)
@@ -232,7 +227,7 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
     except GraphError as exc:
         error = str(exc)
     finally:
-        stop_processes(procs)
+        nodes.stop()
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)

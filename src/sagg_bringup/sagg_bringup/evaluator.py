@@ -1,0 +1,201 @@
+"""The evaluation process of an evolving-context arm run (``sagg run``; ``sagg relearn`` uses its
+set-up): the memory rebuilt from ``/sagg/sample`` and the frozen model evaluated on its own
+simulator, exactly as :meth:`~sagg_bringup.experiment.InProcessRun.evaluate`."""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import queue
+import signal
+import time
+
+import numpy as np
+
+from sagg_common.rng import substream_seed
+from sagg_low_level.eval_metrics import error_metrics, metric_frame
+from sagg_low_level.learner import EvolvingContextLearner, Robot
+from sagg_low_level.memory import SampleMemory
+
+# Niceness of the evaluation process: a mild preference for the graph (the nodes, and this
+# process's DDS threads receiving the recorded topics). Evaluation first ran in a thread of this
+# process at normal priority: on 2 cores the recorder then lost bursts of ~12 /<controller>/commands
+# messages (GIL + CPU contention; the learner's writer keeps only 10). As a separate process, runs
+# of 4000 micro-actions at niceness 0 and 10 lost nothing; a high niceness starves the evaluation
+# on a busy machine (the live test error then lags far behind).
+EVAL_NICE = 5
+
+
+def evaluation_setup(learner_params: dict, spec: ArmSpec):
+    """``(area, test_goals, learner)`` of a run's evaluation on the arm ``spec``, as
+    ``run_experiment`` computes them (``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``); the
+    learner (empty memory) is built exactly as the learner node builds its own (same neighbour
+    search). Used by ``sagg run``'s evaluator and by ``sagg relearn``."""
+    # lazy (heavy): mujoco
+    from sagg_sim_bridge.arm import reachable_area, test_goals
+    lp = learner_params
+    area = reachable_area(spec, lp["task_space.lower"], lp["task_space.upper"], seed=lp["eval.seed"])
+    goals = test_goals(spec, lp["task_space.lower"], lp["task_space.upper"], n=lp["eval.goals"],
+                       seed=lp["eval.seed"], area=area)
+    lower, upper = spec.limits()
+    robot = Robot(spec.joint_names(), lower, upper, spec.rest_posture())
+    learner = EvolvingContextLearner(lp, robot, len(lp["task_space.lower"]))
+    return area, goals, learner
+
+
+def evaluate_frozen(learner, spec, learner_params: dict, goals: np.ndarray) -> np.ndarray:
+    """Test errors of the frozen model, as ``InProcessRun.evaluate`` (``arm_eval.evaluate_arm``)."""
+    # lazy (heavy): mujoco
+    from .arm_eval import evaluate_arm
+    return evaluate_arm(learner, spec, learner_params["seed"], goals)
+
+
+def _eval_worker(inbox, outbox, learner_params: dict, spec: ArmSpec, checkpoints: list[int],
+                 nice: int) -> None:
+    """Evaluation process: computes the reachable area and the test goals (as ``run_experiment``
+    does: ``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``), then rebuilds the memory from the
+    sample batches in ``inbox`` and, whenever it holds exactly a checkpoint's number of samples,
+    evaluates the frozen model as ``InProcessRun.evaluate`` does (fresh
+    ``ArmSim(spec, substream_seed(seed, "eval_sim"))``). Sends ``("area", ...)``, then
+    ``("eval", at, errors, seconds)`` per checkpoint, or ``("error", text)``, to ``outbox``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # `sagg run` stops us (a terminal Ctrl-C reaches us too)
+    try:
+        os.nice(nice)
+    except OSError:
+        pass
+    try:
+        area, goals, learner = evaluation_setup(learner_params, spec)
+        outbox.put(("area", area.lower, area.upper, area.resolution, area.mask, area.cell_points, goals))
+        memory = learner.memory
+        pending = sorted(set(checkpoints))
+
+        def due() -> None:
+            while pending and len(memory) == pending[0]:
+                at = pending.pop(0)
+                t0 = time.perf_counter()
+                errors = evaluate_frozen(learner, spec, learner_params, goals)
+                outbox.put(("eval", at, errors, time.perf_counter() - t0))
+
+        while True:
+            due()
+            item = inbox.get()
+            if item[0] == "stop":
+                return
+            _, start, alpha, dalpha, dy = item
+            if start != len(memory):
+                raise RuntimeError(f"sample batch starts at {start} but {len(memory)} samples were rebuilt")
+            for i in range(len(alpha)):
+                memory.add(alpha[i], dalpha[i], dy[i])
+                due()
+    except Exception as exc:  # noqa: BLE001 - reported by the orchestrator
+        outbox.put(("error", f"{type(exc).__name__}: {exc}"))
+
+
+class Evaluator:
+    """The run's evaluation, in a separate process (its own GIL: the recorder in this process keeps
+    up) at a lower CPU priority than the graph. Samples from /sagg/sample are checked for order,
+    batched and shipped to it; results come back through :meth:`poll`."""
+
+    def __init__(self, learner_params: dict, spec: ArmSpec, checkpoints: list[int],
+                 nice: int = EVAL_NICE):
+        ctx = multiprocessing.get_context("spawn")  # never fork a process that runs DDS threads
+        self.inbox, self.outbox = ctx.Queue(), ctx.Queue()
+        self.proc = ctx.Process(target=_eval_worker, name="sagg-evaluator", daemon=True,
+                                args=(self.inbox, self.outbox, learner_params, spec,
+                                      list(checkpoints), nice))
+        self.area = None  # the ReachableArea of Y, once the worker has computed it
+        self.test_goals: np.ndarray | None = None
+        self._frame: dict | None = None  # eval_metrics.metric_frame of the test goals, with them
+        self.checkpoints = sorted(set(checkpoints))
+        self.curve: list[dict] = []
+        self.errors: dict[int, np.ndarray] = {}
+        self.eval_seconds = 0.0
+        self.error: str | None = None
+        self.samples = 0  # samples received (in order) so far
+        self._batch: list[tuple] = []
+        self._sent = 0
+        # this process's copy of the samples: the memory digest of the summary
+        self.alpha: list[np.ndarray] = []
+        self.delta_alpha: list[np.ndarray] = []
+        self.delta_y: list[np.ndarray] = []
+
+    def start(self) -> None:
+        self.proc.start()
+
+    def add(self, index: int, alpha, delta_alpha, delta_y) -> None:
+        if index != self.samples:
+            if self.error is None:
+                self.error = (f"/sagg/sample index {index} received after {self.samples} samples: samples "
+                              "were lost or reordered")
+            return
+        self.samples += 1
+        self.alpha.append(alpha)
+        self.delta_alpha.append(delta_alpha)
+        self.delta_y.append(delta_y)
+
+    def flush(self) -> None:
+        """Ship the samples received since the last flush (non-blocking: a feeder thread sends)."""
+        if self._sent < self.samples:
+            a, b = self._sent, self.samples
+            self.inbox.put(("samples", a, np.array(self.alpha[a:b]), np.array(self.delta_alpha[a:b]),
+                            np.array(self.delta_y[a:b])))
+            self._sent = b
+
+    def poll(self) -> list[tuple[int, np.ndarray]]:
+        """Evaluations finished since the last call, as ``(micro_actions, errors)``."""
+        done = []
+        while True:
+            try:
+                item = self.outbox.get_nowait()
+            except queue.Empty:
+                break
+            if item[0] == "error":
+                self.error = item[1]
+                continue
+            if item[0] == "area":
+                # lazy (heavy): mujoco
+                from sagg_sim_bridge.arm import ReachableArea
+                self.area = ReachableArea(*item[1:6])
+                self.test_goals = item[6]
+                # the evaluation's metrics (eval_metrics, as in-process; base at the origin), also
+                # for points evaluated before (a resumed run's, from its bags)
+                self._frame = metric_frame(self.test_goals, np.zeros(np.asarray(self.test_goals).shape[1]))
+                for c in self.curve:
+                    c.update(error_metrics(self.errors[c["micro_actions"]], self._frame))
+                continue
+            _, at, errors, secs = item
+            self.eval_seconds += secs
+            self.errors[at] = errors
+            self.curve.append({"micro_actions": int(at), "mean_error": float(errors.mean()),
+                               "median_error": float(np.median(errors))})
+            if self._frame is not None:
+                self.curve[-1].update(error_metrics(errors, self._frame))
+            done.append((at, errors))
+        if self.error is None and not self.proc.is_alive() and self.proc.exitcode not in (None, 0):
+            self.error = f"evaluation process exited with code {self.proc.exitcode}"
+        return done
+
+    def finished(self, upto: int) -> bool:
+        """Every checkpoint up to ``upto`` micro-actions is evaluated."""
+        return all(c in self.errors for c in self.checkpoints if c <= upto)
+
+    def stop(self, timeout: float = 5.0) -> None:
+        try:
+            self.inbox.put(("stop",))
+        except (OSError, ValueError):
+            pass
+        self.proc.join(timeout)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        for q in (self.inbox, self.outbox):
+            q.cancel_join_thread()
+            q.close()
+
+    def memory(self):
+        """A SampleMemory of the received samples (for the digest; same class as the learner's)."""
+        n = len(self.alpha[0]) if self.alpha else 1
+        m = len(self.delta_y[0]) if self.delta_y else 1
+        mem = SampleMemory(n, n, m, capacity=max(1, len(self.alpha)))
+        for a, da, dy in zip(self.alpha, self.delta_alpha, self.delta_y):
+            mem.add(a, da, dy)
+        return mem

@@ -1,0 +1,119 @@
+"""What a graph run's orchestrator learns from the /sagg topics, each message checked (DESIGN §8)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from sagg_common.diagnostics import goal_problem, report_problem
+from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
+from sagg_goal_generator.core import MODE_NAMES
+
+
+@dataclass
+class RunState:
+    """What the orchestrator learns from the topics."""
+
+    samples: int = 0
+    sample_t0: float | None = None
+    sample_t1: float | None = None
+    status: dict | None = None
+    goals: dict[int, dict] = field(default_factory=dict)
+    goal_competence: dict[int, float] = field(default_factory=dict)
+    report_ma: dict[int, int] = field(default_factory=dict)
+    reports: int = 0
+    last_regions: Any = None
+    last_competence: float = float("nan")
+    last_error: float = float("nan")
+    # messages missing from sequences the recorder can check (seq/index not consecutive)
+    gaps: dict[str, int] = field(default_factory=lambda: {"/sagg/sample": 0, "/sagg/competence": 0,
+                                                          "/sagg/goal": 0})
+    status_rate: bool = True  # keep /sagg/status's micro_actions_per_second in `status`
+    # messages from the expected publisher that were rejected, by "<topic> <problem>" (DESIGN §8)
+    rejected: dict[str, int] = field(default_factory=dict)
+    task_lower: Any = None  # Y, for checking goals (None: not checked)
+    task_upper: Any = None
+    window: int = 10000     # a goal or report seq further than this beyond the last is rejected
+
+    def reject(self, topic: str, kind: str) -> None:
+        key = f"{topic} {kind}"
+        self.rejected[key] = self.rejected.get(key, 0) + 1
+
+    def on_goal(self, m) -> None:
+        """/sagg/goal (keyed by seq)."""
+        if int(m.seq) in self.goals:
+            return  # published again (a repeated goal request after a generator restart)
+        if not 0 < int(m.seq) <= len(self.goals) + self.window:
+            self.reject("/sagg/goal", "seq out of window")
+            return
+        if self.task_lower is not None and goal_problem(m.position, self.task_lower, self.task_upper)[1]:
+            self.reject("/sagg/goal", "position not finite or outside Y")
+            return
+        if int(m.seq) != len(self.goals) + 1:
+            self.gaps["/sagg/goal"] += 1
+        self.goals[int(m.seq)] = {"seq": int(m.seq), "position": list(m.position), "mode": int(m.mode),
+                                  "mode_name": MODE_NAMES.get(int(m.mode), str(m.mode)),
+                                  "after_report": int(m.after_report)}
+        return True
+
+    def on_report(self, m) -> None:
+        """/sagg/competence: the micro-actions at each report, the competence of each goal."""
+        if int(m.seq) <= self.reports:
+            return  # republished by a resumed learner
+        if int(m.seq) > self.reports + self.window:
+            self.reject("/sagg/competence", "seq out of window")
+            return
+        target = m.target if len(m.target) else m.reached
+        dim = len(self.task_lower) if self.task_lower is not None else len(m.reached)
+        if report_problem(int(m.kind), target, float(m.competence), dim, KIND_NAMES):
+            self.reject("/sagg/competence", "invalid content")
+            return
+        if int(m.seq) != self.reports + 1:
+            self.gaps["/sagg/competence"] += 1
+        self.reports += 1
+        self.report_ma[int(m.seq)] = int(m.micro_actions)
+        if m.kind == KIND_GOAL:
+            self.goal_competence[int(m.goal_seq)] = float(m.competence)
+            self.last_competence = float(m.competence)
+        return True
+
+    def on_regions(self, m) -> bool:
+        self.last_regions = m
+        return True
+
+    def on_status(self, m) -> bool:
+        self.status = _status_dict(m, self.status_rate)
+        return True
+
+    def progress(self) -> dict:
+        """The progress bar's fields."""
+        return {"goals": len(self.goals),
+                "regions": len(self.last_regions.regions) if self.last_regions is not None else 1,
+                "competence": self.last_competence, "error": self.last_error}
+
+    def goal_list(self) -> list[dict]:
+        """The goals in seq order, with their final competence and the micro-actions done when
+        they were chosen (the summary's ``goals``)."""
+        goals = []
+        for seq in sorted(self.goals):
+            g = dict(self.goals[seq])
+            g["competence"] = self.goal_competence.get(seq)
+            g["micro_actions"] = self.report_ma.get(g["after_report"], 0)
+            goals.append(g)
+        return goals
+
+    def region_list(self) -> list[dict]:
+        """The leaves of the last /sagg/regions (the summary's ``regions``)."""
+        if self.last_regions is None:
+            return []
+        return [{"id": int(r.id), "lower": list(r.lower), "upper": list(r.upper),
+                 "interest": float(r.interest), "count": int(r.count),
+                 "mean_competence": float(r.mean_competence)} for r in self.last_regions.regions]
+
+
+def _status_dict(m, rate: bool = True) -> dict:
+    out = {"strategy": m.strategy, "micro_actions": int(m.micro_actions), "goals": int(m.goals),
+           "samples": int(m.samples), "last_competence": float(m.last_competence)}
+    if rate:
+        out["micro_actions_per_second"] = float(m.micro_actions_per_second)
+    out.update(paused=bool(m.paused), pause_reason=m.pause_reason)
+    return out

@@ -1,0 +1,338 @@
+"""The ROS session of a graph run (every set-up's): the node processes on a private domain, this
+process's rclpy node, the recorder and its bag, Ctrl-C handling, the wait for the learner, the
+cleanup and the summary's common keys."""
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from sagg_common.journal import write_json_atomic
+from sagg_common.progress import Progress
+
+from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
+from .processes import GraphError, NodeGroup, NodeProcess
+from .recorder import BagWriter, TopicRecorder, TopicSpec
+from .results import goal_share_stats
+from .run_state import RunState
+
+# the keys of summary.json, in order (a run writes those it has)
+SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_file", "timing", "domain_id",
+                "micro_actions", "micro_actions_requested", "micro_actions_per_second", "eval_every",
+                "resumed_segments", "learn_seconds", "startup_seconds", "eval_seconds", "wall_seconds", "curve",
+                "final_mean_error", "final_median_error", "memory", "learner_status", "reports", "goals",
+                "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
+                "interrupted", "error", "driver", "curve_source", "simulated_evaluation", "robot_evaluation")
+
+
+def _both(first: Callable, second: Callable) -> Callable:
+    """Both handlers; the first one's answer (truthy: message used) is the recorder's, which
+    advances the expected publisher's stream with it (dropping it left the stream at 0: while a
+    second publisher was on the topic, every real message was then rejected as foreign)."""
+    def handler(msg):
+        used = first(msg)
+        second(msg)
+        return used
+    return handler
+
+
+class GraphSession:
+    """The orchestration one ``sagg run`` graph run needs, for the arm (:func:`run_graph`) and the
+    synergy set-ups (:func:`~sagg_bringup.synergy_graph.run_synergy_graph`): the node processes on
+    a private ``ROS_DOMAIN_ID`` (``domain_id``, or a random one) with localhost discovery; this
+    process's rclpy node, executor and ``/sagg/evaluation`` publisher; the mcap bag of ``topics``
+    and its recorder (feeding :attr:`st`, a :class:`RunState`); Ctrl-C / SIGTERM as a flag; the wait
+    for the learner to finish (a node exiting or a stall is a :class:`GraphError`); the cleanup in
+    every case; the summary's common keys. ``drain``: at most this many queued callbacks are taken
+    per loop before the bookkeeping."""
+
+    def __init__(self, procs: list[NodeProcess], domain_id: int | None, topics: list[TopicSpec],
+                 bag_path: Path, out: Path, drain: int, status_rate: bool = True, localhost: bool = True):
+        self.procs, self.topics, self.out, self.drain = procs, topics, out, drain
+        self.nodes = NodeGroup(procs, domain_id, localhost)
+        self.domain, self.env = self.nodes.domain, self.nodes.env
+        # lazy (heavy): ROS
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from sagg_msgs.msg import Evaluation
+
+        self._rclpy, self._evaluation = rclpy, Evaluation
+        self.ctx = Context()
+        rclpy.init(context=self.ctx, domain_id=self.domain, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("sagg_run", context=self.ctx)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.bag = BagWriter(bag_path, topics)
+        self.st = RunState(status_rate=status_rate)
+        self.eval_pub = self.node.create_publisher(Evaluation, "/sagg/evaluation", 100)
+        self.recorder: TopicRecorder | None = None
+        # backpressure (acknowledge): ack_source() = the samples recorded and accepted from index 0
+        self.ack_source: Callable[[], int] | None = None
+        self.ack_pub = None
+        self._acked, self._ack_t = -1, 0.0
+        self.view = None  # markers.MarkerView, from record()
+        self.stop_signal: list[int] = []
+        self.interrupted = False
+        self.error: GraphError | None = None
+        self.t_nodes: float | None = None  # when the nodes were started
+        self.t_end: float | None = None    # when everything was stopped
+        self._closed = False
+
+    def record(self, handlers: dict[str, Callable]) -> None:
+        """Record every topic (``handlers``: topic -> callback of the deserialized message).
+        /sagg/sample is subscribed once the hardware topics (and /sagg/competence) are matched: the
+        learner waits for that subscriber before its first command, so the bag misses no command
+        or answer of the driver."""
+        hw = tuple(t.name for t in self.topics if not t.name.startswith("/sagg/") and t.name != "/clock")
+        self.view = MarkerView(self.node, self.topics)
+        handlers = dict(handlers)
+        for topic, h in self.view.handlers().items():
+            handlers[topic] = h if topic not in handlers else _both(handlers[topic], h)
+        self.recorder = TopicRecorder(self.node, self.bag, self.topics, handlers,
+                                      gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+
+    def acknowledge(self, source: Callable[[], int]) -> None:
+        """Publish ``source()`` (how many samples, from index 0, are recorded and accepted) on
+        /sagg/recorded, the learner's backpressure (``recorder_max_lag``). Only a session that calls
+        this has the publisher: the learner waits only while an acknowledging recorder exists."""
+        # lazy (heavy): ROS interface package
+        from std_msgs.msg import UInt64
+        self._uint64 = UInt64
+        self.ack_pub = self.node.create_publisher(UInt64, "/sagg/recorded", 10)
+        self.ack_source = source
+
+    def publish_evaluation(self, at: int, errors: np.ndarray) -> None:
+        """/sagg/evaluation (published from here, the executor's thread; recorded like the rest)."""
+        msg = self._evaluation()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.micro_actions = int(at)
+        msg.mean_error = float(errors.mean())
+        msg.median_error = float(np.median(errors))
+        msg.errors = errors.tolist()
+        self.eval_pub.publish(msg)
+        self.st.last_error = msg.mean_error
+
+    def rejected(self) -> dict[str, int]:
+        """Messages of the /sagg topics not used: another publisher on the topic (the recorder) or
+        content/sequence rejected (the handlers); all are in the bag (it records what happened)."""
+        out = dict(self.st.rejected)
+        if self.recorder is not None:
+            for k, v in self.recorder.rejected.items():
+                out[k] = out.get(k, 0) + v
+        return out
+
+    def start_nodes(self, params_file: Path, extra: dict[str, dict] | None = None) -> None:
+        """Start every node on ``params_file``, plus ``extra[node name]`` as ``-p`` parameters."""
+        self.nodes.start(params_file, extra)
+        self.t_nodes = time.perf_counter()
+
+    def spin(self) -> None:
+        """One loop's callbacks: wait up to 20 ms for one, then drain what is already queued (one
+        callback per loop made this process fall far behind the learner and show a stale rate).
+        KeyboardInterrupt after Ctrl-C / SIGTERM."""
+        self.executor.spin_once(timeout_sec=0.02)
+        self.recorder.poll_gate()
+        if self.view is not None:
+            self.view.maybe_publish()
+        bag = self.bag
+        for _ in range(self.drain):
+            before = bag.written
+            self.executor.spin_once(timeout_sec=0)
+            if bag.written == before:
+                break
+        if self.ack_source is not None:
+            # on every change, and at least every 0.5 s (a learner subscribing later, e.g. a
+            # resumed one whose count starts where the earlier bags end, gets it too)
+            n, now = self.ack_source(), time.monotonic()
+            if n != self._acked or now - self._ack_t >= 0.5:
+                self._acked, self._ack_t = n, now
+                self.ack_pub.publish(self._uint64(data=n))
+        if self.stop_signal:
+            raise KeyboardInterrupt
+
+    def wait_for_learner(self, micro_actions: int, stall_timeout: float, unit: str,
+                         tick: Callable[[float], None], may_end: Callable[[float], bool]) -> None:
+        """Spin until the learner reports ``micro_actions`` done (/sagg/status), every sample it
+        stored is in, and ``may_end(seconds since then)`` is true. ``tick(now)`` runs after every
+        spin. GraphError when a node exits before (a node that exits 0 once the learner is done is
+        fine) or no new sample came for ``stall_timeout`` s (``unit``: what a sample counts)."""
+        st = self.st
+        last_progress = (0, time.perf_counter())
+        done_at = None
+        while True:
+            self.spin()
+            now = time.perf_counter()
+            tick(now)
+            learner_done = st.status is not None and st.status["micro_actions"] >= micro_actions
+            self.nodes.check(may_exit=learner_done)
+            if st.samples != last_progress[0]:
+                last_progress = (st.samples, now)
+            elif not learner_done and now - last_progress[1] > stall_timeout:
+                raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} {unit}); "
+                                 f"node logs in {self.out / 'logs'}")
+            if learner_done and st.samples >= st.status["samples"]:
+                if done_at is None:
+                    done_at = now
+                if may_end(now - done_at):
+                    return
+
+    def catch_up(self, limit: float = 60.0) -> None:
+        """After Ctrl-C / SIGTERM: pause the learner (/sagg/pause; the micro-action in flight
+        completes) and record until every sample it stored is in and no new one came for 0.5 s (at
+        most ``limit`` s; a second Ctrl-C stops at once), so that an interrupted run's bag is as
+        complete as a finished one's (a recorder behind a fast lockstep learner on a loaded machine
+        otherwise loses its backlog)."""
+        if self.recorder is None or self.bag.closed:
+            return
+        # lazy (heavy): ROS
+        from std_srvs.srv import SetBool
+        self.stop_signal.clear()
+        cli = self.node.create_client(SetBool, "/sagg/pause")
+        try:
+            if cli.service_is_ready():
+                cli.call_async(SetBool.Request(data=True))
+            else:
+                return
+            st = self.st
+            t0 = time.perf_counter()
+            # (samples, not all messages: status and idle joint states keep coming while paused)
+            last, t_last, paused = st.samples, t0, False
+            while time.perf_counter() - t0 < limit and not self.stop_signal:
+                self.executor.spin_once(timeout_sec=0.05)
+                now = time.perf_counter()
+                paused = paused or bool(st.status and st.status.get("paused"))
+                if st.samples != last:
+                    last, t_last = st.samples, now
+                elif paused and st.status and st.samples >= st.status["samples"] and now - t_last >= 0.5:
+                    break
+        finally:
+            self.node.destroy_client(cli)
+
+    def drain_recorder(self, quiet: float = 0.5, limit: float = 60.0) -> None:
+        """After the nodes stopped: take what the recorder's subscriptions still hold (a recorder
+        that fell behind, e.g. on an interrupted run on a loaded machine, would otherwise lose its
+        backlog), until nothing came for ``quiet`` s (at most ``limit`` s)."""
+        if self.recorder is None or self.bag.closed:
+            return
+        t_end = time.perf_counter() + limit
+        last, t_last = self.bag.written, time.perf_counter()
+        while time.perf_counter() < t_end:
+            self.executor.spin_once(timeout_sec=0.05)
+            now = time.perf_counter()
+            if self.bag.written != last:
+                last, t_last = self.bag.written, now
+            elif now - t_last >= quiet:
+                break
+
+    def final_drain(self, seconds: float = 0.3) -> None:
+        """Spin a little longer: the recorder takes the final Evaluation message (and view)."""
+        if self.view is not None:
+            self.view.maybe_publish(force=True)
+        t_end = time.perf_counter() + seconds
+        while time.perf_counter() < t_end:
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def run(self, body: Callable[[], None], bar: Progress, between: Callable[[], None] | None = None) -> None:
+        """``body()`` (start the nodes, wait, evaluate) with Ctrl-C / SIGTERM turned into a flag
+        checked between spins (a KeyboardInterrupt raised inside a callback, e.g. in rclpy's C++
+        deserializer, would surface as an unrelated error); an interruption sets
+        :attr:`interrupted`, a GraphError :attr:`error`. Then, whatever happened: the bar closed,
+        the nodes stopped (SIGINT, SIGKILL after a timeout), ``between()``, the recorder, bag
+        (closed in every case), executor and rclpy context shut down."""
+        def on_signal(signum, frame):  # noqa: ARG001
+            self.stop_signal.append(signum)
+
+        old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            body()
+        except KeyboardInterrupt:
+            self.interrupted = True
+            self.catch_up()
+        except GraphError as exc:
+            self.error = exc
+        finally:
+            bar.close()
+            self.nodes.stop()
+            for sig, handler in old_handlers.items():
+                signal.signal(sig, handler)
+            self.drain_recorder()
+            if between is not None:
+                between()
+            self.close()
+        self.t_end = time.perf_counter()
+
+    def close(self) -> None:
+        """Recorder, bag (closed: a later ``--resume`` reads it), executor and rclpy context; once.
+        :meth:`run` ends with it; a caller that fails or is interrupted before :meth:`run` calls it
+        itself, so even then the bag is closed and nothing leaks."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.recorder is not None:
+            self.recorder.destroy()
+        self.bag.close()
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.shutdown(context=self.ctx)
+
+    def summary(self, learner_params: dict, config: dict, params: dict, params_file: Path, timing: str,
+                micro_actions: int, curve: list[dict], area, t_start: float, prior_samples: int = 0,
+                **specific) -> dict:
+        """summary.json: the keys every graph run has, from what was recorded, plus ``specific``
+        (in :data:`SUMMARY_KEYS` order). ``area`` (with ``contains`` / ``share``) gives the goal
+        statistics ({} when None); ``prior_samples``: samples of earlier segments (not in the rate)."""
+        st, lp = self.st, learner_params
+        learn_seconds = (st.sample_t1 - st.sample_t0) if st.samples - prior_samples > 1 else 0.0
+        goals = st.goal_list()
+        pos = np.array([g["position"] for g in goals], float).reshape(-1, len(lp["task_space.lower"]))
+        gma = np.array([g["micro_actions"] for g in goals], float)
+        out = dict(specific)
+        out.update({
+            "format": "sagg.summary/1",
+            "strategy": lp["strategy"],
+            "seed": lp["seed"],
+            "config": config,
+            "node_params": params,
+            "params_file": str(params_file),
+            "timing": timing,
+            "domain_id": self.domain,
+            "micro_actions": int(st.status["micro_actions"] if st.status else st.samples),
+            "micro_actions_requested": int(micro_actions),
+            "micro_actions_per_second": ((st.samples - prior_samples - 1) / learn_seconds if learn_seconds > 0
+                                         else float("nan")),
+            "learn_seconds": learn_seconds,
+            "wall_seconds": self.t_end - t_start,
+            "curve": curve,
+            "final_mean_error": curve[-1]["mean_error"] if curve else float("nan"),
+            "final_median_error": curve[-1]["median_error"] if curve else float("nan"),
+            "learner_status": st.status,
+            "reports": st.reports,
+            "goals": goals,
+            "goal_stats": goal_share_stats(pos, gma, area, micro_actions) if area is not None else {},
+            "regions": st.region_list(),
+            "nodes": {p.name: {"pid": p.popen.pid if p.popen else None, "exit_code": p.exit_code,
+                               "log": str(p.log_path)} for p in self.procs},
+            "interrupted": self.interrupted,
+            "error": str(self.error) if self.error else None,
+        })
+        unknown = set(out) - set(SUMMARY_KEYS)
+        if unknown:
+            raise ValueError(f"summary keys {sorted(unknown)}; allowed: {', '.join(SUMMARY_KEYS)}")
+        return {k: out[k] for k in SUMMARY_KEYS if k in out}
+
+    def finish(self, summary: dict, write_report: Callable[[], Any] | None) -> dict:
+        """Write DIR/summary.json, then the report (``write_report``, when given); raise the
+        graph's error or the interruption, else return the summary."""
+        write_json_atomic(self.out / "summary.json", summary)
+        if write_report is not None:
+            write_report()
+        if self.error is not None:
+            raise self.error
+        if self.interrupted:
+            raise KeyboardInterrupt
+        return summary

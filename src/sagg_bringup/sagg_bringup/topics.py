@@ -1,0 +1,44 @@
+"""The topics a graph run records: the /sagg topics of every set-up, and each set-up's hardware
+topics (the names follow the learner's ``controller`` and ``task_topic``)."""
+from __future__ import annotations
+
+from .recorder import TopicSpec
+
+
+def sagg_topics() -> list[TopicSpec]:
+    """The /sagg topics every graph run records (the hardware topics depend on the set-up)."""
+    return [
+        TopicSpec("/sagg/goal", "sagg_msgs/msg/Goal", publisher="sagg_goal_generator"),
+        TopicSpec("/sagg/competence", "sagg_msgs/msg/CompetenceReport", publisher="sagg_learner"),
+        TopicSpec("/sagg/regions", "sagg_msgs/msg/RegionTree", depth=1000, transient_local=True,
+                  publisher="sagg_goal_generator"),
+        TopicSpec("/sagg/sample", "sagg_msgs/msg/Sample", publisher="sagg_learner"),
+        TopicSpec("/sagg/status", "sagg_msgs/msg/LearnerStatus", depth=100, publisher="sagg_learner"),
+        TopicSpec("/sagg/evaluation", "sagg_msgs/msg/Evaluation", depth=100),
+        TopicSpec("/sagg/markers", "visualization_msgs/msg/MarkerArray", depth=1, transient_local=True),
+    ]
+
+
+def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSpec]:
+    """The arm's topics (the position contract: joint states, position commands, the tip), and
+    /clock in real time."""
+    controller = learner_params.get("controller", "forward_position_controller")
+    task_topic = learner_params.get("task_topic", "/tip_position")
+    if not task_topic.startswith("/"):
+        task_topic = "/" + task_topic
+    return sagg_topics() + [
+        TopicSpec("/joint_states", "sensor_msgs/msg/JointState"),
+        TopicSpec(f"/{controller}/commands", "std_msgs/msg/Float64MultiArray"),
+        TopicSpec(task_topic, "geometry_msgs/msg/PointStamped"),
+    ] + ([TopicSpec("/clock", "rosgraph_msgs/msg/Clock", depth=100)] if timing == "realtime" else [])
+
+
+def trajectory_topics(lp: dict) -> list[TopicSpec]:
+    """The synergy set-ups' topics: trajectories on ``/<controller>/joint_trajectory`` and the outcome
+    (PoseStamped for a 3-D task space (u, v, φ), else PointStamped) on ``task_topic``."""
+    task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
+    out_type = "geometry_msgs/msg/PoseStamped" if len(lp["task_space.lower"]) == 3 else "geometry_msgs/msg/PointStamped"
+    return sagg_topics() + [
+        TopicSpec(f"/{lp['controller'].strip('/')}/joint_trajectory", "trajectory_msgs/msg/JointTrajectory"),
+        TopicSpec(task, out_type),
+    ]
