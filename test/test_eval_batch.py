@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sagg_bringup.arm_eval import eval_arms, evaluate_arm
-from sagg_bringup.experiment import InProcessRun, load_experiment_config
+from sagg_bringup.setups import in_process_run
 from sagg_low_level.evaluate import evaluate, evaluate_batch, evaluate_per_goal
 from sagg_low_level.memory import SampleMemory
 from sagg_low_level.memory_batch import neighbours_many
@@ -21,7 +21,7 @@ SETUPS = [
 
 
 def _run_and_goals(cfg, ov, n, goals=40):
-    run = InProcessRun(load_experiment_config(cfg, dict(ov, **{"eval.goals": goals})))
+    run = in_process_run(cfg, dict(ov, **{"eval.goals": goals}))
     lp = run.config["sagg_learner"]
     area = reachable_area(run.spec, lp["task_space.lower"], lp["task_space.upper"], seed=lp["eval.seed"])
     g = test_goals(run.spec, lp["task_space.lower"], lp["task_space.upper"], n=lp["eval.goals"],
@@ -101,10 +101,9 @@ def test_reach_steps_match_reach_step_rows():
     ("config/fishing.yaml", {"strategy": "sagg-riac", "eval.pool": 150}, 150),
 ])
 def test_batched_fixed_context_evaluation_equals_per_goal(cfg, ov, n):
-    from sagg_bringup.synergy_experiment import SynergyRun, load_synergy_config
     from sagg_low_level.fixed_context import evaluate_fixed
     from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch, inverses
-    run = SynergyRun(load_synergy_config(cfg, dict(ov, **{"eval.goals": 30})))
+    run = in_process_run(cfg, dict(ov, **{"eval.goals": 30}))
     goals = run.test_goals()[0]
     run.step_until(n)
     want = evaluate_fixed(run.learner, run.setup.evaluator(), goals)

@@ -32,8 +32,8 @@ from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
 from sagg_sim_bridge.arm import test_goals
 
 from ..arm_eval import eval_arms
-from ..experiment import InProcessRun, cached_reachable_area, load_experiment_config
-from ..synergy_experiment import SynergyRun
+from ..experiment import InProcessRun, cached_reachable_area
+from ..setups import in_process_run
 
 SETUPS = {"arm8": ("config/arm8.yaml", {}), "arm15": ("config/arm15.yaml", {}),
           "arm7_ratio15": ("config/arm7_ratio15.yaml", {}),
@@ -52,10 +52,10 @@ def _timed(f):
 def measure(name: str, strategy: str, micro_actions: int, seed: int, repeat: int) -> dict:
     """Learning-phase and evaluation seconds of one set-up (see the module docstring)."""
     cfg, ov = SETUPS[name]
-    config = load_experiment_config(cfg, dict(ov, strategy=strategy, seed=seed))
-    evolving = "setup" not in config["sagg_sim_bridge"] and config["sagg_learner"].get("context", "evolving") == "evolving"
+    run = in_process_run(cfg, dict(ov, strategy=strategy, seed=seed))
+    evolving = isinstance(run, InProcessRun)
     if evolving:
-        run = InProcessRun(config)
+        config = run.config
         lp = config["sagg_learner"]
         lower, upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
         area = cached_reachable_area(run.spec, lower, upper, lp["eval.seed"])
@@ -64,7 +64,6 @@ def measure(name: str, strategy: str, micro_actions: int, seed: int, repeat: int
         before = lambda: evaluate_per_goal(run.learner, eval_arms(run.spec, run.seed, len(goals)), goals)  # noqa: E731
         after = lambda: evaluate_batch(run.learner, eval_arms(run.spec, run.seed, len(goals)), goals)  # noqa: E731
     else:
-        run = SynergyRun(config)
         goals = run.test_goals()[0]
         before = lambda: evaluate_fixed(run.learner, run.setup.evaluator(), goals)  # noqa: E731
         after = lambda: evaluate_fixed_batch(run.learner, run.setup.evaluator(), goals)  # noqa: E731
