@@ -60,6 +60,11 @@ def test_relearn_gives_the_runs_memory_and_tree(run_dir, tmp_path):
     # same evaluation code and test goals as the run: the same final test error
     assert s["test_goals"] == summary["test_goals"]
     assert s["final_mean_error"] == summary["final_mean_error"]
+    # and the evaluation's other metrics (eval_metrics), as the run reports them
+    assert s["curve"][-1]["median_error"] == summary["curve"][-1]["median_error"]
+    assert s["final_within_share"] == summary["curve"][-1]["within_share"]
+    assert s["band_mean_errors"] == summary["curve"][-1]["band_mean_errors"]
+    assert s["eval_metrics"]["band_counts"] and sum(s["eval_metrics"]["band_counts"]) == len(s["test_goals"])
 
 
 def test_relearn_detects_a_tampered_recording(run_dir, tmp_path):

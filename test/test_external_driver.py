@@ -91,6 +91,11 @@ def test_sagg_run_external_driver_learns_and_is_evaluated_on_the_robot(tmp_path)
     r = s["robot_evaluation"]
     assert r["label"] == "on the robot" and len(r["goals"]) == 8
     assert r["curve"][-1]["micro_actions"] == N and len(r["curve"][-1]["errors"]) == 8
+    # the evaluation's metrics (eval_metrics) from the errors measured on the robot
+    e = np.array(r["curve"][-1]["errors"])
+    assert r["final_median_error"] == float(np.median(e))
+    assert r["final_within_share"] == float(np.mean(e <= r["eval_metrics"]["within"]))
+    assert len(r["band_mean_errors"]) == 4 and sum(r["eval_metrics"]["band_counts"]) == 8
     print(f"on the robot: {r['initial_mean_error']:.2f} -> {r['final_mean_error']:.2f}; simulated: "
           f"{s['curve'][0]['mean_error']:.2f} -> {s['curve'][-1]['mean_error']:.2f}")
     assert r["final_mean_error"] < ROBOT_FACTOR * r["initial_mean_error"], r

@@ -36,6 +36,7 @@ from sagg_common.msg_codecs import decode_report, decode_sample
 from sagg_common.params import ConfigError, flatten
 from sagg_common.report_kinds import KIND_NAMES
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
+from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
@@ -341,8 +342,8 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     curve = []
     if evaluate and len(mem):
         errors = evaluate_frozen(learner, spec, lp, test_goals)
-        curve.append({"micro_actions": len(mem), "mean_error": float(errors.mean()),
-                      "median_error": float(np.median(errors))})
+        frame = metric_frame(test_goals, np.zeros(test_goals.shape[1]))  # the arm's base (eval_metrics)
+        curve.append({"micro_actions": len(mem), **error_metrics(errors, frame)})
     summary = {
         "format": "sagg.relearn/1", "bags": [str(p) for p in paths], "strategy": lp["strategy"], "seed": lp["seed"],
         "memory": {"samples": len(mem), "digest": mem.digest(), "bytes": int(mem.nbytes)},
@@ -354,6 +355,9 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         "last_regions_snapshot_reports": max(snapshots) if snapshots else None,
         "curve": curve, "final_mean_error": curve[-1]["mean_error"] if curve else None,
         "final_median_error": curve[-1]["median_error"] if curve else None,
+        "final_within_share": curve[-1]["within_share"] if curve else None,
+        "band_mean_errors": curve[-1]["band_mean_errors"] if curve else None,
+        "eval_metrics": frame_summary(frame) if curve else None,
         "test_goals": test_goals.tolist(), "seconds": time.perf_counter() - t0,
     }
     if report and curve:
@@ -373,7 +377,8 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     out(f"relearned {len(mem):,} samples (digest {mem.digest()[:16]}), {gen.reports:,} reports, "
         f"{len(gen.goals)} goals (match recorded: {summary['goals_match']}), {len(gen.tree.leaves())} regions "
         f"(equal to all {len(checked)} recorded /sagg/regions snapshots: {regions_match})"
-        + (f"; mean test error {curve[-1]['mean_error']:.3f} (median {curve[-1]['median_error']:.3f})" if curve else "")
+        + (f"; mean test error {curve[-1]['mean_error']:.3f} (median {curve[-1]['median_error']:.3f}, "
+           f"{curve[-1]['within_share']:.0%} within {frame['within']:.3g})" if curve else "")
         + (f"; rejected {sum(dropped.values())} message(s): {dropped}" if dropped else "")
         + f" -> {outp}")
     return summary

@@ -13,7 +13,6 @@ import numpy as np
 
 from sagg_common.rng import substream_seed
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
-from sagg_low_level.evaluate import evaluate
 from sagg_low_level.learner import EvolvingContextLearner, Robot
 from sagg_low_level.memory import SampleMemory
 
@@ -44,11 +43,10 @@ def evaluation_setup(learner_params: dict, spec: ArmSpec):
 
 
 def evaluate_frozen(learner, spec, learner_params: dict, goals: np.ndarray) -> np.ndarray:
-    """Test errors of the frozen model, as ``InProcessRun.evaluate``: a fresh
-    ``ArmSim(spec, substream_seed(seed, "eval_sim"))``."""
+    """Test errors of the frozen model, as ``InProcessRun.evaluate`` (``arm_eval.evaluate_arm``)."""
     # lazy (heavy): mujoco
-    from sagg_sim_bridge.arm import ArmSim
-    return evaluate(learner, ArmSim(spec, seed=substream_seed(learner_params["seed"], "eval_sim")), goals)
+    from .arm_eval import evaluate_arm
+    return evaluate_arm(learner, spec, learner_params["seed"], goals)
 
 
 def _eval_worker(inbox, outbox, learner_params: dict, spec: ArmSpec, checkpoints: list[int],

@@ -17,12 +17,12 @@ from sagg_common.progress import Progress
 from sagg_common.rng import substream_seed
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import frame_summary, metric_frame
-from sagg_low_level.evaluate import evaluate
 from sagg_low_level.learner import (SCHEMA as LEARNER_SCHEMA, Command, EvolvingContextLearner,
                                     GoalRequest, Observe, Robot)
 from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
+from .arm_eval import evaluate_arm
 from .phases import PhaseCounter, coverage, phase_breakdown
 from .results import learning_curve, result_dict, run_overrides, write_result
 
@@ -81,9 +81,9 @@ class InProcessRun:
         self.learn_seconds += time.perf_counter() - t0
 
     def evaluate(self, goals: np.ndarray) -> np.ndarray:
-        """Test errors of the frozen model on a fresh simulator (never counted as learning)."""
-        eval_sim = ArmSim(self.spec, seed=substream_seed(self.seed, "eval_sim"))
-        return evaluate(self.learner, eval_sim, goals)
+        """Test errors of the frozen model, one evaluation arm per goal, all goals reached together
+        (:mod:`.arm_eval`; never counted as learning)."""
+        return evaluate_arm(self.learner, self.spec, self.seed, goals)
 
 
 def run_arm_experiment(config_path: str | Path, strategy: str | None, seed: int | None,

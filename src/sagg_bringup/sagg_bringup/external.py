@@ -40,6 +40,7 @@ from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, read_config
 from sagg_common.progress import Progress
 from sagg_common.ros_params import HW_DEPTH, reliable
+from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import EvolvingContextLearner, SCHEMA
 from sagg_low_level.memory import SampleMemory
@@ -313,7 +314,8 @@ def spread_points(points: np.ndarray, n: int, seed: int) -> np.ndarray:
 class RobotEvaluation:
     """The frozen model reaching test goals from rest on the robot, at the scheduled points
     (``every`` micro-actions, 0 = only at the end) and at the end. Results: ``curve`` (micro-actions,
-    mean, median, the errors of every goal) and the initial error (the empty model does not move the
+    the evaluation's metrics of sagg_low_level.eval_metrics: mean, median, share within tolerance,
+    mean error per distance-from-base band; the errors of every goal) and the initial error (the empty model does not move the
     arm: the distance from the measured rest tip to each goal)."""
 
     def __init__(self, learner_params: dict, robot: ContractRobot, n_goals: int, every: int, goals=None):
@@ -358,9 +360,14 @@ class RobotEvaluation:
         errors = np.array(errors)
         if self.initial_errors is None:
             self.initial_errors = np.array(rest)
-        self.curve.append({"micro_actions": int(at), "mean_error": float(errors.mean()),
-                           "median_error": float(np.median(errors)), "errors": errors.tolist()})
+        # the evaluation's metrics (sagg_low_level.eval_metrics; base at the arm's base, the origin)
+        self.curve.append({"micro_actions": int(at), **error_metrics(errors, self.frame()),
+                           "errors": errors.tolist()})
         return errors
+
+    def frame(self) -> dict:
+        """The metric frame of the test goals (R, tolerance, distance bands; eval_metrics)."""
+        return metric_frame(self.goals, np.zeros(self.goals.shape[1]))
 
     def summary(self) -> dict:
         init = self.initial_errors
@@ -370,6 +377,10 @@ class RobotEvaluation:
                 "initial_errors": None if init is None else init.tolist(),
                 "curve": self.curve,
                 "final_mean_error": self.curve[-1]["mean_error"] if self.curve else float("nan"),
+                "final_median_error": self.curve[-1]["median_error"] if self.curve else float("nan"),
+                "final_within_share": self.curve[-1]["within_share"] if self.curve else float("nan"),
+                "band_mean_errors": self.curve[-1]["band_mean_errors"] if self.curve else None,
+                "eval_metrics": None if self.goals is None else frame_summary(self.frame()),
                 "commands": self.robot.commands, "settle_timeouts": self.robot.timeouts, "seconds": self.seconds}
 
 
@@ -630,10 +641,20 @@ def robot_report_section(summary: dict) -> str:
              f"The frozen model reached {len(r['goals'] or [])} test goals from rest through the driver, learning "
              f"paused ({'every ' + str(r['every']) + ' micro-actions and ' if r['every'] else ''}at the end); "
              f"test goals: {r['goal_source']}. Errors measured by the task-point topic.", "",
-             "| micro-actions | mean error (on the robot) | median error |", "|---:|---:|---:|",
+             "| micro-actions | mean error (on the robot) | median error | within tolerance |",
+             "|---:|---:|---:|---:|",
              f"| 0 (empty model: the arm stays at rest) | {r['initial_mean_error']:.3f} | "
-             f"{float(np.median(r['initial_errors'])) if r['initial_errors'] else float('nan'):.3f} |"]
-    lines += [f"| {c['micro_actions']:,} | {c['mean_error']:.3f} | {c['median_error']:.3f} |" for c in r["curve"]]
+             f"{float(np.median(r['initial_errors'])) if r['initial_errors'] else float('nan'):.3f} | – |"]
+    lines += [f"| {c['micro_actions']:,} | {c['mean_error']:.3f} | {c['median_error']:.3f} | "
+              f"{c['within_share']:.0%} |" for c in r["curve"]]
+    frame = r.get("eval_metrics")
+    if frame and r["curve"]:
+        bands = r["curve"][-1]["band_mean_errors"]
+        edges = frame["band_edges"]
+        lines += ["", f"Within tolerance: within {frame['within']:.3g} (2 % of R = {frame['radius']:.3g}, the "
+                  "farthest test goal from the base). Final mean error per distance-from-base band: "
+                  + "; ".join(f"{a:.3g}-{b:.3g} ({c} goals): {'–' if e is None else f'{e:.3f}'}"
+                              for a, b, c, e in zip(edges, edges[1:], frame["band_counts"], bands)) + "."]
     lines += ["", f"Joint states at {r['joint_state_rate']:.0f}/s, task points at {r['task_point_rate']:.0f}/s; "
               f"{r['commands']} evaluation commands in {r['seconds']:.1f} s ({r['settle_timeouts']} answered only "
               "after settle_timeout).", ""]

@@ -272,6 +272,25 @@ def _fmt(x: Any, digits: int = 4) -> str:
     return str(x)
 
 
+def _metric_rows(result: dict) -> list[tuple[str, Any]]:
+    """The evaluation's other metrics at the last point (sagg_low_level.eval_metrics): share of test
+    goals within tolerance and mean error per distance-from-base band; nothing for runs written
+    before these metrics existed."""
+    last = result["curve"][-1] if result.get("curve") else {}
+    frame = result.get("eval_metrics") or {}
+    if last.get("within_share") is None:
+        return []
+    rows = [(f"final share of test goals within {_fmt(float(frame.get('within', float('nan'))), 3)}",
+             float(last["within_share"]))]
+    edges = frame.get("band_edges")
+    bands = last.get("band_mean_errors") or []
+    if edges and len(edges) == len(bands) + 1:
+        cells = [f"{_fmt(float(a), 3)}-{_fmt(float(b), 3)}: {'–' if e is None else _fmt(float(e), 3)}"
+                 for a, b, e in zip(edges, edges[1:], bands)]
+        rows.append(("final mean error per distance-from-base band", "; ".join(cells)))
+    return rows
+
+
 def _curve_rows(curve: list[dict], max_rows: int = 12) -> list[dict]:
     if len(curve) <= max_rows:
         return curve
@@ -340,6 +359,9 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
         ("final mean test error", float(result.get("final_mean_error", float("nan")))),
         ("final median test error", float(result.get("final_median_error", float("nan")))),
         ("initial mean test error", float(result["curve"][0]["mean_error"]) if result["curve"] else float("nan")),
+    ]
+    rows += _metric_rows(result)
+    rows += [
         ("goals", len(result.get("goals") or [])),
         ("regions (final)", len(result.get("regions") or [])),
         ("splits", len(result.get("splits") or [])),
@@ -365,8 +387,9 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
               f"(eval.seed {lp.get('eval.seed')}), reached from the rest posture without learning.", ""]
     if figs["learning_curve"]:
         lines += ["![learning curve](learning_curve.png)", ""]
-    lines += ["| micro-actions | mean error | median error |", "|---:|---:|---:|"]
-    lines += [f"| {c['micro_actions']:,} | {c['mean_error']:.3f} | {c['median_error']:.3f} |"
+    lines += ["| micro-actions | mean error | median error | within tolerance |", "|---:|---:|---:|---:|"]
+    lines += [f"| {c['micro_actions']:,} | {c['mean_error']:.3f} | {c['median_error']:.3f} | "
+              f"{_fmt(c['within_share'], 3) if c.get('within_share') is not None else '–'} |"
               for c in _curve_rows(result["curve"])] + [""]
     sections = [
         ("goals_over_time", "Goals over time (cf. paper Fig. 7)",

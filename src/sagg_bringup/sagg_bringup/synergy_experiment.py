@@ -25,7 +25,8 @@ from sagg_common.synergy import transported_outcome
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import frame_summary, metric_frame
 from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, Driver, FixedContextLearner, ThetaSpace,
-                                          evaluate_fixed, spread_goals, synergy_from_params)
+                                          spread_goals, synergy_from_params)
+from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
 from sagg_low_level.learner import SCHEMA as EVOLVING_SCHEMA
 from sagg_low_level.outcome_set import reachable_outcomes
 from sagg_low_level.schema import SYNERGY_LEARNER_SCHEMA as LEARNER_SCHEMA
@@ -250,8 +251,9 @@ class SynergyRun:
         self.learn_seconds += time.perf_counter() - t0
 
     def evaluate(self, goals: np.ndarray) -> np.ndarray:
-        """Test errors of the frozen model on the evaluation simulator (never counted as learning)."""
-        return evaluate_fixed(self.learner, self.setup.evaluator(), goals)
+        """Test errors of the frozen model on the evaluation simulator (never counted as learning;
+        ``evaluate_fixed`` with the inverse model's searches batched across goals: the same floats)."""
+        return evaluate_fixed_batch(self.learner, self.setup.evaluator(), goals)
 
     def test_goals(self):
         """(test goals, reachable-area estimate, extra ``synergy`` result keys) of the set-up."""

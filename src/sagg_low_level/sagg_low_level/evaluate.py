@@ -6,12 +6,13 @@ simulator instance so the learning run is untouched, and is never counted as lea
 """
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, Sequence
 
 import numpy as np
 
 from .learner import EvolvingContextLearner, safe_target, timeout_budget
 from .local_model import desired_displacement
+from .reach_batch import batch_supported, reach_steps
 
 
 class ReachingRobot(Protocol):
@@ -41,3 +42,67 @@ def reach_frozen(learner: EvolvingContextLearner, robot: ReachingRobot, goal: np
 def evaluate(learner: EvolvingContextLearner, robot: ReachingRobot, goals: np.ndarray) -> np.ndarray:
     """Final distances for every test goal (paper Sec. 3.7: mean and median are reported)."""
     return np.array([reach_frozen(learner, robot, g) for g in np.asarray(goals, dtype=float)])
+
+
+def evaluate_per_goal(learner: EvolvingContextLearner, robots: Sequence[ReachingRobot],
+                      goals: np.ndarray) -> np.ndarray:
+    """Final distances, test goal i reached on ``robots[i]`` (:func:`reach_frozen`, one goal after the
+    other): the definition :func:`evaluate_batch` reproduces. With one noise-free robot per goal it
+    equals :func:`evaluate` on one robot (every reach starts with ``reset``)."""
+    goals = np.asarray(goals, dtype=float)
+    if len(robots) != len(goals):
+        raise ValueError(f"robots: {len(robots)} for {len(goals)} test goals (one per goal)")
+    return np.array([reach_frozen(learner, r, g) for r, g in zip(robots, goals)])
+
+
+def evaluate_batch(learner: EvolvingContextLearner, robots: Sequence[ReachingRobot],
+                   goals: np.ndarray) -> np.ndarray:
+    """:func:`evaluate_per_goal`, every test goal's reach advanced together, one frozen step at a time.
+
+    Per goal the semantics are :func:`reach_frozen`'s (budget ``ceil(eval.timeout_factor × D / v)``,
+    early stop within ``eval.tolerance``, stop when the model has no Jacobian, final distance); only
+    the model's work is batched across the goals still reaching
+    (:func:`sagg_low_level.reach_batch.reach_steps`, bit-identical to ``reach_step``). The clip to
+    ``max_joint_step`` and the joint limits (:func:`~sagg_low_level.learner.safe_target`) is element-wise
+    and is applied to all rows at once with the same operations. Each robot sees exactly the commands
+    it would see in :func:`evaluate_per_goal`, so the result is the same, bit for bit (checked by
+    test/test_eval_batch.py). A learner whose model functions were replaced on the instance is
+    evaluated goal by goal."""
+    goals = np.asarray(goals, dtype=float)
+    if len(robots) != len(goals):
+        raise ValueError(f"robots: {len(robots)} for {len(goals)} test goals (one per goal)")
+    if not batch_supported(learner):
+        return evaluate_per_goal(learner, robots, goals)
+    p = learner.p
+    tol, v, max_step = p["eval.tolerance"], learner.v, p["max_joint_step"]
+    lower, upper = learner.robot.lower, learner.robot.upper
+    starts = [r.reset() for r in robots]
+    alpha = np.array([a for a, _ in starts], dtype=float)
+    y = np.array([yy for _, yy in starts], dtype=float)
+    budget = np.array([timeout_budget(float(np.linalg.norm(g - yy)), v, p["eval.timeout_factor"])
+                       for g, yy in zip(goals, y)])
+    used = np.zeros(len(goals), dtype=int)
+    active = list(range(len(goals)))
+    cache: dict = {}
+    while active:
+        # reach_frozen's loop head: budget spent, or within tolerance
+        active = [i for i in active
+                  if used[i] < budget[i] and not float(np.linalg.norm(goals[i] - y[i])) <= tol]
+        if not active:
+            break
+        rows = np.array(active)
+        a = alpha[rows]
+        dys = np.array([desired_displacement(y[i], goals[i], v) for i in active])
+        dalpha = reach_steps(learner, a, dys, cache)
+        if dalpha is None:  # no model yet: every reach stops where it is
+            break
+        # safe_target, row-wise with the same element-wise operations
+        step = (a + dalpha) - a
+        big = np.abs(step).max(axis=1) if step.shape[1] else np.zeros(len(rows))
+        for j in np.flatnonzero(big > max_step):
+            step[j] = step[j] * (max_step / float(big[j]))
+        target = np.minimum(np.maximum(a + step, lower), upper)
+        for j, i in enumerate(active):
+            alpha[i], y[i] = robots[i].command(target[j])
+            used[i] += 1
+    return np.array([float(np.linalg.norm(g - yy)) for g, yy in zip(goals, y)])

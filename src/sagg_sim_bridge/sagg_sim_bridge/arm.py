@@ -363,6 +363,15 @@ class ArmSim:
         self.last_settled = True       # whether it met the settle criteria
         self.reset()
 
+    def reseed(self, seed: int) -> None:
+        """Restart the motor-noise generator as ``ArmSim(spec, seed)`` starts it (the physics state is
+        left alone: ``reset`` restores it). Lets one instance serve many independent reaches."""
+        if not _is_int(seed) or int(seed) < 0:
+            raise ValueError(f"ArmSim.seed must be an integer >= 0, got {seed!r}")
+        self.seed = int(seed)
+        self.rng = np.random.default_rng(self.seed)
+        self._nblock, self._block_state, self._nidx = None, None, NOISE_BLOCK
+
     # ------------------------------------------------------------------ protocol
     def reset(self) -> tuple[np.ndarray, np.ndarray]:
         """Teleport to the rest posture with zero velocity; no noise, no RNG draw."""

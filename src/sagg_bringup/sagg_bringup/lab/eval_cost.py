@@ -1,0 +1,109 @@
+"""The cost of one evaluation, as a ratio to a 5k learning phase, before and after batching (issue 14).
+
+    .venv/bin/python -m sagg_bringup.lab.eval_cost [--setups arm8 arm15 ...] [--strategy S]
+        [--micro-actions 5000] [--seed 0] [--repeat 2]
+
+Per set-up, one process, one seeded run: the learning phase from 0 to ``--micro-actions`` is timed,
+then the evaluation of the frozen model on the config's test goals, ``--repeat`` times each way,
+alternating (a burst of load on this shared machine hits both alike; the minimum is reported):
+
+* evolving-context arms (arm8, arm15, arm7_ratio15): *before* = goal after goal
+  (:func:`sagg_low_level.evaluate.evaluate_per_goal`, the procedure of before 2026-11-23 apart from
+  arm8's per-goal noise streams, same cost), *after* = all goals together
+  (:func:`~sagg_low_level.evaluate.evaluate_batch`). Both must give the same floats (checked, printed);
+* fixed-context set-ups (quadruped, fishing, arm15_fixed = config/arm15.yaml with context fixed): one
+  synergy execution per goal; *before* = ``evaluate_fixed`` (goal by goal), *after* =
+  :func:`~sagg_low_level.fixed_eval_batch.evaluate_fixed_batch` (the inverse model's searches
+  batched; the executions stay one per goal). Same floats (checked, printed).
+
+Prints one table (CPU seconds of this process, and ratios to the learning phase) and the load average.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from sagg_low_level.evaluate import evaluate_batch, evaluate_per_goal
+from sagg_low_level.fixed_context import evaluate_fixed
+from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
+from sagg_sim_bridge.arm import test_goals
+
+from ..arm_eval import eval_arms
+from ..experiment import InProcessRun, cached_reachable_area
+from ..setups import in_process_run
+
+SETUPS = {"arm8": ("config/arm8.yaml", {}), "arm15": ("config/arm15.yaml", {}),
+          "arm7_ratio15": ("config/arm7_ratio15.yaml", {}),
+          "quadruped": ("config/quadruped.yaml", {}), "fishing": ("config/fishing.yaml", {}),
+          "arm15_fixed": ("config/arm15.yaml", {"context": "fixed"})}
+
+
+def _timed(f):
+    """CPU seconds of this process (``time.process_time``: on a shared machine far less sensitive
+    to other processes' load than the wall clock; the work is single-threaded) and the result."""
+    t0 = time.process_time()
+    out = f()
+    return time.process_time() - t0, out
+
+
+def measure(name: str, strategy: str, micro_actions: int, seed: int, repeat: int) -> dict:
+    """Learning-phase and evaluation seconds of one set-up (see the module docstring)."""
+    cfg, ov = SETUPS[name]
+    run = in_process_run(cfg, dict(ov, strategy=strategy, seed=seed))
+    evolving = isinstance(run, InProcessRun)
+    if evolving:
+        config = run.config
+        lp = config["sagg_learner"]
+        lower, upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
+        area = cached_reachable_area(run.spec, lower, upper, lp["eval.seed"])
+        goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
+        eval_arms(run.spec, run.seed, len(goals))  # the arms are built once per process, as in a curve
+        before = lambda: evaluate_per_goal(run.learner, eval_arms(run.spec, run.seed, len(goals)), goals)  # noqa: E731
+        after = lambda: evaluate_batch(run.learner, eval_arms(run.spec, run.seed, len(goals)), goals)  # noqa: E731
+    else:
+        goals = run.test_goals()[0]
+        before = lambda: evaluate_fixed(run.learner, run.setup.evaluator(), goals)  # noqa: E731
+        after = lambda: evaluate_fixed_batch(run.learner, run.setup.evaluator(), goals)  # noqa: E731
+    learn, _ = _timed(lambda: run.step_until(micro_actions))
+    tb, ta, same = [], [], True
+    for _ in range(repeat):
+        t, eb = _timed(before)
+        tb.append(t)
+        t, ea = _timed(after)
+        ta.append(t)
+        same = same and eb.tobytes() == ea.tobytes()
+    return {"setup": name, "learn": learn, "before": min(tb), "after": min(ta), "same": same,
+            "mean_error": float(ea.mean()), "goals": len(goals), "batched": evolving}
+
+
+def main(argv=None) -> list[dict]:
+    ap = argparse.ArgumentParser(prog="python -m sagg_bringup.lab.eval_cost", description=__doc__.split("\n")[0])
+    ap.add_argument("--setups", nargs="+", default=["arm8", "arm15", "arm7_ratio15", "quadruped", "fishing"],
+                    choices=sorted(SETUPS))
+    ap.add_argument("--strategy", default="sagg-riac")
+    ap.add_argument("--micro-actions", type=int, default=5000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=2)
+    args = ap.parse_args(argv)
+    rows = []
+    print(f"strategy {args.strategy}, seed {args.seed}, learning phase 0-{args.micro_actions}, "
+          f"evaluation on the config's test goals, min of {args.repeat} alternating repeats")
+    print("| set-up | learning CPU s | eval before CPU s | eval after CPU s | before / learning | after / learning | "
+          "speed-up | same floats | mean error |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name in args.setups:
+        r = measure(name, args.strategy, args.micro_actions, args.seed, args.repeat)
+        rows.append(r)
+        note = "" if r["batched"] else " (fixed context)"
+        print(f"| {name}{note} | {r['learn']:.2f} | {r['before']:.2f} | {r['after']:.2f} | "
+              f"{r['before'] / r['learn']:.2f} | {r['after'] / r['learn']:.2f} | "
+              f"{r['before'] / r['after']:.2f} | {r['same']} | {r['mean_error']:.4g} |", flush=True)
+    print("load average (1, 5, 15 min): " + ", ".join(f"{x:.2f}" for x in os.getloadavg()))
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""The reaching step for many postures at once, on a frozen model (the evaluation's batch). ROS-free.
+
+:func:`reach_steps` returns, row for row, exactly what
+:meth:`~sagg_low_level.learner.EvolvingContextLearner.reach_step` returns for one posture (the same
+floats, bit for bit), while the memory does not change (the evaluation freezes the model):
+
+* the k nearest samples of every posture with one batch search
+  (:func:`sagg_low_level.memory_batch.neighbours_many`, the single search's answers);
+* the local Jacobian (:func:`~sagg_low_level.local_model.local_jacobian`, one least-squares fit per
+  neighbour set, as the learner) is computed once per distinct ordered neighbour set and kept in
+  ``cache``: the same input rows give the same floats, and along a reach (and at the common rest
+  posture) consecutive steps often share their neighbours;
+* the pseudo-inverse for all rows with one stacked ``numpy.linalg.pinv`` (numpy computes a stack
+  one matrix at a time with the same LAPACK call, so each slice equals the single call; checked by
+  test/test_eval_batch.py) and ``J⁺ · Δy_next`` as a stacked matmul;
+* ``reach_limits = clamp``: rows whose plain step leaves the joint limits are re-solved by
+  :func:`~sagg_low_level.local_model.clamped_step` itself, one row at a time (the others end after
+  its first round, which is the plain step).
+
+Nothing here changes the reaching semantics: the per-goal functions stay the definition, this module
+reproduces them faster; test/test_eval_batch.py compares the two on several set-ups.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .local_model import clamped_step, local_jacobian
+from .memory_batch import neighbours_many
+
+
+def batch_supported(learner) -> bool:
+    """False when the learner's model functions were replaced on the instance (e.g. an analytic
+    Jacobian in a lab tool): then only the per-goal path knows what the step is."""
+    return not any(name in vars(learner) for name in ("reach_step", "jacobian_at", "inverse"))
+
+
+def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
+                cache: dict | None = None) -> np.ndarray | None:
+    """``learner.reach_step(alphas[i], dys[i])`` for every row i, as a (B, n) array; None when the
+    memory is too small (reach_step returns None for every row then). ``cache`` (a dict, one per
+    frozen model) keeps the Jacobians by neighbour set across calls."""
+    alphas = np.asarray(alphas, dtype=float)
+    dys = np.asarray(dys, dtype=float)
+    mem = learner.memory
+    if len(mem) < learner.min_samples:
+        return None
+    p = learner.p
+    cache = {} if cache is None else cache
+    idx = neighbours_many(mem, alphas, learner.k)
+    da, dy = mem.delta_alpha, mem.delta_y
+    jacs = np.empty((len(alphas), learner.m, alphas.shape[1]))
+    for i, row in enumerate(idx):
+        key = row.tobytes()
+        jac = cache.get(key)
+        if jac is None:
+            jac = cache[key] = local_jacobian(da[row], dy[row], p["jacobian_rcond"])
+        jacs[i] = jac
+    pinv = np.linalg.pinv(jacs, rcond=p["pinv_rcond"])
+    steps = (pinv @ dys[:, :, None])[:, :, 0]
+    if p["reach_limits"] == "clip":
+        return steps
+    lower, upper = learner.robot.lower, learner.robot.upper
+    new = alphas + steps
+    over = np.flatnonzero(((new > upper) | (new < lower)).any(axis=1))
+    for i in over:
+        steps[i] = clamped_step(jacs[i], dys[i], alphas[i], lower, upper, p["pinv_rcond"])
+    return steps
