@@ -106,10 +106,10 @@ def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):
 def test_fixed_context_arm_bag_holds_exactly_what_the_nodes_published(tmp_path):
     """The synergy learner on the arm's position contract (PositionLink): its position commands (a
     rest command, then θ, per experiment) are in its published counts, and the bag equals them."""
-    from sagg_bringup.synergy_graph import run_synergy_graph
+    from sagg_bringup.setups import run_graph
     n = 12
-    run_synergy_graph("config/arm8.yaml", n, tmp_path / "f", eval_every=n, progress=False, stall_timeout=120.0,
-                      overrides={"context": "fixed", "eval.goals": 5})
+    run_graph("config/arm8.yaml", n, tmp_path / "f", eval_every=n, progress=False, stall_timeout=120.0,
+              overrides={"context": "fixed", "eval.goals": 5})
     published = published_counts(tmp_path / "f" / "logs")
     cmd = "/forward_position_controller/commands"
     assert published[cmd] == 1 + 2 * n and published["/sagg/sample"] == n
