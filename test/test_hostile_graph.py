@@ -20,22 +20,12 @@ import numpy as np
 import pytest
 
 from sagg_bringup.bags import bag_messages
+from sagg_bringup.lab.hostile import published_counts
 from sagg_bringup.processes import pick_domain_id
 
 ROOT = Path(__file__).resolve().parents[1]
 SAGG = str(Path(sys.executable).parent / "sagg")
 N = 800
-
-
-def published_counts(logs: Path) -> dict[str, int]:
-    """The nodes' 'published counts: {...}' shutdown lines, merged."""
-    out: dict[str, int] = {}
-    for log in logs.glob("*.log"):
-        for line in log.read_text(errors="replace").splitlines():
-            m = re.search(r"published counts: (\{.*\})", line)
-            if m:
-                out.update(json.loads(m.group(1)))
-    return out
 
 
 def bag_counts(bag: Path) -> dict[str, int]:

@@ -310,7 +310,9 @@ def _start_run(config: str, out: Path, domain: int, sets: list[str], micro_actio
     return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True), log, cmd
 
 
-def _published_counts(logs: Path) -> dict[str, int]:
+def published_counts(logs: Path) -> dict[str, int]:
+    """The nodes' 'published counts: {...}' shutdown lines, summed per topic over the logs (two
+    processes publishing one topic both reach the bag)."""
     counts: dict[str, int] = {}
     for log in logs.glob("*.log"):
         for line in log.read_text(errors="replace").splitlines():
@@ -386,7 +388,7 @@ def invariants(run_dir: Path, sent: dict[str, int]) -> dict[str, object]:
     out["no command farther than max_joint_step"] = bool(m and steps.max() <= step + 1e-6 and abs(len(micro) - k) <= 1)
     out["every stored α is a posture the driver published"] = all(
         np.ascontiguousarray(a).tobytes() in driver_postures for a in alpha)
-    published = _published_counts(run_dir / "logs")
+    published = published_counts(run_dir / "logs")
     legit = {t: counts.get(t, 0) for t in published}
     out["bag complete for the legitimate publishers"] = legit == published and not s["bag"].get("dropped")
     out["published vs bag"] = {t: [published[t], legit[t]] for t in sorted(published)}
