@@ -223,3 +223,57 @@ def test_compare_summary_carries_the_other_metrics():
     assert s["band_mean_errors"] == [2.0, None]
     row = summary_markdown(rs, tests=False).splitlines()[-1]
     assert row.endswith("| 0.300 | 60% (≤ 0.04) | [0, 1]: 2.000, [1, 2]: — |")
+
+
+# ------------------------------------------------------------ sensitivity (issue 14 item 2)
+def test_sensitivity_registry_has_every_open_choice_at_the_issue_scale():
+    from sagg_bringup.sensitivity import load_sensitivity, variants
+    reg = load_registry()
+    sens = load_sensitivity(reg)
+    assert {c["name"] for c in sens["choices"]} == {
+        "rest posture", "eps_sim", "eps_max", "explore_amplitude", "evaluation budget",
+        "blocking scope", "reached points"}
+    assert reg["experiments"][sens["experiment"]]["section"] == "3.9"
+    assert reg["experiments"][sens["experiment"]]["set"]["arm.dof"] == 15
+    assert sens["paper"]["seeds"] >= 8 and sens["paper"]["micro_actions"] >= 50_000
+    vs = variants(reg)
+    assert vs[0]["choice"] == "default" and vs[0]["experiment"]["set"] == reg["experiments"][sens["experiment"]]["set"]
+    assert len({v["name"] for v in vs}) == len(vs)  # one directory each
+    for v in vs[1:]:  # each variant = the base experiment with exactly its own change
+        assert v["experiment"]["set"] == {**vs[0]["experiment"]["set"], **v["set"]}
+    with pytest.raises(ConfigError, match="--choice: unknown"):
+        variants(reg, ["no such choice"])
+
+
+def test_sensitivity_flips_on_known_inputs():
+    from sagg_bringup.sensitivity import flips
+    default = {"verdict": "reproduced", "pairs": [{"a": "x", "b": "y", "verdict": "reproduced"},
+                                                  {"a": "x", "b": "z", "verdict": "reproduced"}]}
+    same = {"verdict": "reproduced", "pairs": [dict(p) for p in default["pairs"]]}
+    other = {"verdict": "not reproduced", "pairs": [{"a": "x", "b": "y", "verdict": "not reproduced"},
+                                                    {"a": "x", "b": "z", "verdict": "reproduced"}]}
+    assert flips(default, same) == []
+    assert flips(default, other) == ["x>y: reproduced → not reproduced",
+                                     "claim: reproduced → not reproduced"]
+
+
+def test_sensitivity_smoke_one_choice_end_to_end(tmp_path):
+    out = tmp_path / "s"
+    r = subprocess.run([str(SAGG), "reproduce", "sensitivity", "--choice", "reached points", "--scale",
+                        "smoke", "--out", str(out), "--workers", "2"], capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    from sagg_bringup.sensitivity import SENSITIVITY_FIELDS
+    rows = json.loads((out / "sensitivity.json").read_text())
+    assert [(row["choice"], row["overrides"]) for row in rows] == [
+        ("default", {}), ("reached points", {"count_reached": True})]
+    for row in rows:
+        assert set(SENSITIVITY_FIELDS) <= set(row)
+        assert row["verdict"] in VERDICTS and row["seeds"] == [0, 1]
+    # the variant's runs really ran with its change, the default's without it
+    cfg = {row["choice"]: json.loads(next((out / "experiments" / row["experiment"]).rglob("result.json"))
+                                     .read_text())["config"]["sagg_goal_generator"]["count_reached"]
+           for row in rows}
+    assert cfg == {"default": False, "reached points": True}
+    md = (out / "sensitivity.md").read_text()
+    assert "| reached points | on (Sec. 3.7" in md and "| default |" in md

@@ -18,6 +18,7 @@ from .lab.soak import main_soak
 from .record import default_out, record
 from .report import write_report
 from .reproduce import estimate, run_reproduce
+from .sensitivity import run_sensitivity
 
 # A command whose modules load rclpy, mujoco or matplotlib imports them when it runs (`# lazy (heavy)`:
 # they take seconds to import, and `sagg params` or `sagg bench table` need none of them); light
@@ -148,7 +149,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     rq = sub.add_parser("reproduce", help="settle the paper's claims (registry sagg_bringup/claims.yaml) "
                                           "through bench compare: claims.json, report.md; resumable")
-    rq.add_argument("claims", nargs="+", metavar="CLAIM", help="claim ids, experiment names, or all")
+    rq.add_argument("claims", nargs="+", metavar="CLAIM",
+                    help="claim ids, experiment names, or all; or 'sensitivity': the Sec. 3.9 15-DOF "
+                         "claim under each open choice (registry section 'sensitivity'), "
+                         "sensitivity.json / sensitivity.md")
     rq.add_argument("--scale", choices=["paper", "smoke"], default="paper")
     rq.add_argument("--out", help="output directory (default runs/reproduce-<scale>; rerun to resume)")
     rq.add_argument("--workers", type=positive_int, help="parallel runs (default: os.cpu_count())")
@@ -156,6 +160,8 @@ def build_parser() -> argparse.ArgumentParser:
     rq.add_argument("--estimate", action="store_true",
                     help="instead: one short probe run per strategy and experiment, and the "
                          "extrapolated paper-scale core-hours (written to OUT/estimate.json)")
+    rq.add_argument("--choice", action="append", metavar="NAME",
+                    help="with 'sensitivity': only this open choice (repeatable; default: all)")
     pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
                                        "description) as Markdown tables")
     pp.add_argument("--node", choices=["sagg_goal_generator", "sagg_learner", "sagg_sim_bridge"],
@@ -390,7 +396,12 @@ def main(argv: list[str] | None = None) -> int:
             if args.estimate:
                 estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
                 return 0
-            rows = run_reproduce(args.claims, args.scale, args.out, args.workers, args.ray)
+            if args.claims == ["sensitivity"]:
+                rows = run_sensitivity(args.scale, args.out, args.workers, args.ray, args.choice)
+            elif args.choice:
+                raise ConfigError("--choice: only with 'sagg reproduce sensitivity'")
+            else:
+                rows = run_reproduce(args.claims, args.scale, args.out, args.workers, args.ray)
             return 0 if rows else 1
         if args.command == "params":
             if args.update_readme:

@@ -45,7 +45,8 @@ STATISTICS = ("mannwhitney_p", "welch_p")
 
 def load_registry(path: str | Path = REGISTRY) -> dict:
     """The claim registry, checked: every claim names a known experiment, known strategies of that
-    experiment, a known metric and statistic; every experiment has a paper scale and a config."""
+    experiment, a known metric and statistic; every experiment has a paper scale and a config.
+    (Its ``sensitivity`` section is checked by :func:`sagg_bringup.sensitivity.load_sensitivity`.)"""
     reg = yaml.safe_load(Path(path).read_text())
     if not isinstance(reg, dict) or reg.get("format") != "sagg.claims/1":
         raise ConfigError(f"{path}: not a sagg.claims/1 registry")
@@ -208,7 +209,7 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
     pool = None  # one pool for every experiment, made when the first run is due (warm workers)
     try:
         for i, name in enumerate(needed, 1):
-            pool = _run_experiment(reg, name, i, len(needed), scale, out, workers, ray_address,
+            pool = run_claim_experiment(reg, name, i, len(needed), scale, out, workers, ray_address,
                                    pool, summaries, settings, out_fn)
     finally:
         if pool is not None:
@@ -235,7 +236,7 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
     return rows
 
 
-def _run_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, summaries, settings,
+def run_claim_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, summaries, settings,
                     out_fn):
     """One experiment through run_compare (on ``pool``, made here if None and runs are due);
     fills ``summaries`` / ``settings``; returns the pool."""
@@ -258,7 +259,7 @@ def _run_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, sum
 
 
 # --------------------------------------------------------------------------------------- report
-def _fmt(x, spec=".3g") -> str:
+def fmt_number(x, spec=".3g") -> str:
     return "—" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
 
 
@@ -281,10 +282,10 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
     for r in rows:
         s = r["ours"]["strategies"]
         named = {n for pr in r["pairs"] for n in (pr["a"], pr["b"])}  # the claim's strategies only
-        ours = "; ".join(f"{n} {_fmt(v['mean'])}" for n, v in s.items() if n in named)
+        ours = "; ".join(f"{n} {fmt_number(v['mean'])}" for n, v in s.items() if n in named)
         if r["ours"]["metric"] != "final_mean_error":
             ours += f" ({r['ours']['metric']})"
-        md.append(f"| {r['id']} | {r['section']} | {r['paper']} | {ours} | {_fmt(r['p_value'])} | "
+        md.append(f"| {r['id']} | {r['section']} | {r['paper']} | {ours} | {fmt_number(r['p_value'])} | "
                   f"**{r['verdict']}** |")
     md.append("")
     for exp in dict.fromkeys(r["setup"]["experiment"] for r in rows):
@@ -299,11 +300,11 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
             if r["setup"]["experiment"] != exp:
                 continue
             md += [f"- **{r['id']}**: {r['claim']} — **{r['verdict']}** ({r['statistic']} "
-                   f"{_fmt(r['p_value'])}, on {r['ours']['metric']})"]
+                   f"{fmt_number(r['p_value'])}, on {r['ours']['metric']})"]
             for pr in r["pairs"]:
-                md.append(f"  - {pr['a']} better than {pr['b']}: {_fmt(pr.get('mean_a'))} vs "
-                          f"{_fmt(pr.get('mean_b'))}, p = {_fmt(pr['p'])} (smallest possible "
-                          f"{_fmt(pr.get('p_floor'))}): {pr['verdict']}")
+                md.append(f"  - {pr['a']} better than {pr['b']}: {fmt_number(pr.get('mean_a'))} vs "
+                          f"{fmt_number(pr.get('mean_b'))}, p = {fmt_number(pr['p'])} (smallest possible "
+                          f"{fmt_number(pr.get('p_floor'))}): {pr['verdict']}")
         md.append("")
         if results:
             # the comparison's own figure (mean ± std over seeds, drawn by write_summary)

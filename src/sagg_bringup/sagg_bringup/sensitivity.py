@@ -1,0 +1,165 @@
+"""``sagg reproduce sensitivity``: which of the paper's conclusions depend on our open choices.
+
+The registry's ``sensitivity`` section (``claims.yaml``) names one claim (the Sec. 3.9 15-DOF
+comparison), a scale (8 seeds x 50k at paper scale) and the open choices: rest posture, ε_sim,
+ε_max, the exploration amplitude, the evaluation budget, the blocking timeout's scope, reached points
+on/off. Each value is the claim's experiment with that one choice changed (``set``); "default" is the
+experiment itself at the same scale. Every variant is one ``sagg bench compare`` directory (the
+same resumable runs as ``sagg reproduce``), decided with the same rules (:func:`reproduce.decide`).
+
+A conclusion *flips* when a pair [A, B] of the claim ("A better than B") has another verdict under
+the variant than under the default (e.g. reproduced → inconclusive), or the claim's verdict changes.
+
+Layout of ``--out DIR``::
+
+    DIR/experiments/sens-<choice>-<value>/   one `sagg bench compare` directory per variant
+    DIR/sensitivity.json                      one row per variant (SENSITIVITY_FIELDS)
+    DIR/sensitivity.md                        the table: per variant the strategies' final errors,
+                                              the claim's verdict and p, and what flipped
+"""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Callable
+
+from sagg_common.journal import write_json_atomic
+from sagg_common.params import ConfigError
+
+from .reproduce import (REGISTRY, code_commit, decide, fmt_number, load_registry,
+                        run_claim_experiment)
+
+SENSITIVITY_FIELDS = ("choice", "value", "overrides", "experiment", "claim", "strategies", "verdict",
+                      "p_value", "pairs", "flips", "seeds", "micro_actions", "scale", "commit")
+DEFAULT = "default"
+
+
+def load_sensitivity(reg: dict) -> dict:
+    """The registry's ``sensitivity`` section, checked: a known claim on its named experiment, a
+    paper scale, and per choice a unique name and values with a label and a non-empty ``set``."""
+    sens = reg.get("sensitivity")
+    if not isinstance(sens, dict):
+        raise ConfigError("claims registry: no 'sensitivity' section")
+    exp = sens.get("experiment")
+    if exp not in reg["experiments"]:
+        raise ConfigError(f"sensitivity: unknown experiment {exp!r}")
+    claims = [c for c in reg["claims"] if c["id"] == sens.get("claim")]
+    if not claims or claims[0]["experiment"] != exp:
+        raise ConfigError(f"sensitivity: claim {sens.get('claim')!r} is not a claim on experiment {exp!r}")
+    for key in ("seeds", "micro_actions", "eval_every"):
+        if key not in (sens.get("paper") or {}):
+            raise ConfigError(f"sensitivity: paper scale has no {key!r}")
+    names = [c.get("name") for c in sens.get("choices") or []]
+    if not names or len(set(names)) != len(names) or DEFAULT in names:
+        raise ConfigError(f"sensitivity: choice names {names} must be unique, non-empty, not {DEFAULT!r}")
+    for c in sens["choices"]:
+        for v in c.get("values") or [None]:
+            if not isinstance(v, dict) or not v.get("label") or not isinstance(v.get("set"), dict) \
+                    or not v["set"]:
+                raise ConfigError(f"sensitivity: choice {c['name']!r}: every value needs a label and a "
+                                  f"non-empty 'set', got {v!r}")
+    return sens
+
+
+def slug(text: str) -> str:
+    """A directory-safe name: lower case, runs of other characters as one '-'."""
+    return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
+
+
+def variants(reg: dict, choices: list[str] | None = None) -> list[dict]:
+    """The default, then every value of the selected choices (all when None), each as an
+    experiment entry ready for :func:`reproduce.run_claim_experiment`."""
+    sens = load_sensitivity(reg)
+    known = [c["name"] for c in sens["choices"]]
+    bad = [c for c in choices or [] if c not in known]
+    if bad:
+        raise ConfigError(f"--choice: unknown {bad}; allowed: {', '.join(known)}")
+    base = reg["experiments"][sens["experiment"]]
+    out = [{"choice": DEFAULT, "value": DEFAULT, "name": "sens-default", "set": {}}]
+    for c in sens["choices"]:
+        if choices and c["name"] not in choices:
+            continue
+        out += [{"choice": c["name"], "value": v["label"], "set": dict(v["set"]),
+                 "name": f"sens-{slug(c['name'])}-{i}"} for i, v in enumerate(c["values"], 1)]
+    for v in out:
+        v["experiment"] = {**base, "set": {**base["set"], **v["set"]}, "paper": dict(sens["paper"])}
+    return out
+
+
+def flips(default: dict, variant: dict) -> list[str]:
+    """What changed against the default: per pair "A>B: old → new", and the claim's verdict."""
+    old = {(p["a"], p["b"]): p["verdict"] for p in default["pairs"]}
+    out = [f"{a}>{b}: {old[(a, b)]} → {p['verdict']}" for p in variant["pairs"]
+           for a, b in [(p["a"], p["b"])] if old.get((a, b)) not in (None, p["verdict"])]
+    if default["verdict"] != variant["verdict"]:
+        out.append(f"claim: {default['verdict']} → {variant['verdict']}")
+    return out
+
+
+def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers: int | None = None,
+                    ray_address: str | None = None, choices: list[str] | None = None,
+                    registry: str | Path = REGISTRY,
+                    out_fn: Callable[[str], None] = print) -> list[dict]:
+    """Run (or resume) the default and every variant, decide the claim on each, write
+    sensitivity.json and sensitivity.md. Returns the rows."""
+    reg = load_registry(registry)
+    sens = load_sensitivity(reg)
+    claim = next(c for c in reg["claims"] if c["id"] == sens["claim"])
+    vs = variants(reg, choices)
+    out = Path(out or f"runs/sensitivity-{scale}")
+    commit = code_commit()
+    alpha = float(reg.get("alpha", 0.05))
+    reg = {**reg, "experiments": {**reg["experiments"], **{v["name"]: v["experiment"] for v in vs}}}
+    summaries, settings, pool = {}, {}, None
+    workers = workers or os.cpu_count() or 1
+    try:
+        for i, v in enumerate(vs, 1):
+            out_fn(f"-- sensitivity {i}/{len(vs)}: {v['choice']} = {v['value']}")
+            pool = run_claim_experiment(reg, v["name"], i, len(vs), scale, out, workers, ray_address,
+                                        pool, summaries, settings, out_fn)
+    finally:
+        if pool is not None:
+            pool.close()
+    rows = []
+    for v in vs:
+        d = decide(claim, summaries[v["name"]], alpha)
+        st = settings[v["name"]]
+        rows.append({"choice": v["choice"], "value": v["value"], "overrides": v["set"],
+                     "experiment": v["name"], "claim": claim["id"],
+                     "strategies": d["ours"]["strategies"], "verdict": d["verdict"],
+                     "p_value": d["p_value"], "pairs": d["pairs"], "seeds": list(range(st["seeds"])),
+                     "micro_actions": st["micro_actions"], "scale": scale, "commit": commit})
+    for r in rows:
+        r["flips"] = flips(rows[0], r)
+    write_json_atomic(out / "sensitivity.json", rows)
+    (out / "sensitivity.md").write_text(sensitivity_table(rows, sens, reg) + "\n")
+    flipped = sum(bool(r["flips"]) for r in rows)
+    out_fn(f"wrote {out / 'sensitivity.json'}, {out / 'sensitivity.md'}: {len(rows)} variants, "
+           f"{flipped} with a flipped conclusion")
+    return rows
+
+
+def sensitivity_table(rows: list[dict], sens: dict, reg: dict) -> str:
+    """Markdown: one line per variant (final mean error ± std per strategy, verdict, p, flips)."""
+    strategies = list(rows[0]["strategies"]) if rows else []
+    base = reg["experiments"][sens["experiment"]]
+    r0 = rows[0] if rows else {"seeds": [], "micro_actions": 0, "commit": "?", "scale": "?"}
+    head = [f"# Sensitivity of claim `{sens['claim']}` to the open choices ({r0['scale']} scale)", "",
+            f"Experiment `{sens['experiment']}` (Sec. {base['section']}, `{base['config']}`, "
+            f"overrides {base['set']}), {len(r0['seeds'])} seeds × {r0['micro_actions']:,} "
+            f"micro-actions per variant, code commit `{r0['commit']}`. One choice changed at a time; "
+            "final mean test error, mean ± std over seeds; verdict and p as `sagg reproduce` "
+            "(sagg_bringup/reproduce.py); *flips*: pairs whose verdict differs from the default's.", "",
+            "| choice | value | " + " | ".join(strategies) + " | verdict | p | flips vs default |",
+            "|---|---|" + "---|" * len(strategies) + "---|---|---|"]
+    defaults = {c["name"]: c["default"] for c in sens["choices"]}
+    lines = []
+    for r in rows:
+        cells = [f"{fmt_number(r['strategies'][s]['mean'])} ± {fmt_number(r['strategies'][s]['std'], '.2g')}"
+                 if s in r["strategies"] else "—" for s in strategies]
+        value = r["value"] if r["choice"] != DEFAULT else "paper / registry defaults"
+        lines.append(f"| {r['choice']} | {value} | " + " | ".join(cells) + f" | {r['verdict']} | "
+                     f"{fmt_number(r['p_value'])} | {'; '.join(r['flips']) or '—'} |")
+    notes = ["", "Defaults of each choice: " + "; ".join(f"{k}: {v}" for k, v in defaults.items()) + "."]
+    return "\n".join(head + lines + notes)
