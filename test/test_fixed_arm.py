@@ -58,6 +58,15 @@ def test_fixed_arm_learns_in_process():
     assert r["synergy"]["setup"] == ARM_FIXED and r["micro_actions"] == 600
     assert last < first / 4, r["curve"]
     assert len(r["goals"]) > 10
+    # where the experiments went (result.json "phases", both contexts): reach + explore = all of
+    # them, split over the goals inside / outside the reachable area; every goal is attempted once
+    ph = r["phases"]
+    assert ph["reach"] + ph["explore"] == 600 and ph["babble"] == 0
+    assert ph["reach"] >= len(r["goals"]) - 1  # the last goal may be cut by the budget
+    inside, outside = ph["reachable_goals"], ph["unreachable_goals"]
+    assert inside["goals"] + outside["goals"] == len(r["goals"])
+    assert inside["reach"] + inside["explore"] + outside["reach"] + outside["explore"] == 600
+    assert 0 <= r["coverage"]["median"] <= r["coverage"]["max"]
 
 
 @pytest.mark.parametrize("strategy", STRATEGIES)

@@ -23,7 +23,7 @@ from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
 from .arm_eval import evaluate_arm
-from .phases import PhaseCounter, coverage, phase_breakdown
+from .phases import PhaseCounter, coverage
 from .results import learning_curve, result_dict, run_overrides, write_result
 
 
@@ -133,7 +133,4 @@ def build_result(run: InProcessRun, curve: list[dict], area, total: int, eval_se
     res = result_dict(run, curve, area, total, eval_seconds, learner.micro_actions,
                       {"samples": len(learner.memory), "digest": learner.memory.digest(),
                        "bytes": int(learner.memory.nbytes)})
-    gen = run.generator
-    res["phases"] = phase_breakdown(run.phases, [g.seq for g in gen.goals],
-                                    np.array([g.position for g in gen.goals]).reshape(-1, len(gen.lower)), area)
     return res

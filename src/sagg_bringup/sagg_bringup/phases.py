@@ -1,4 +1,4 @@
-"""Where an in-process arm run's micro-actions went (issue 10): counts by phase (reaching,
+"""Where an in-process run's micro-actions (fixed context: experiments) went (issue 10): counts by phase (reaching,
 exploration, babbling) and returns to rest, split by whether the self-generated goal they served
 lies in the arm's reachable area; and how close the run's tips came to each test goal. ROS-free;
 written into result.json by :mod:`sagg_bringup.experiment`."""
@@ -37,7 +37,7 @@ def phase_breakdown(counter: PhaseCounter, goal_seqs, goal_positions: np.ndarray
            "rest_returns": t.get("reset", 0)}
     done = out["reach"] + out["explore"] + out["babble"]
     out["explore_share"] = out["explore"] / done if done else float("nan")
-    pos = np.asarray(goal_positions, dtype=float).reshape(-1, 2)
+    pos = np.asarray(goal_positions, dtype=float)
     inside = area.contains(pos) if len(pos) else np.zeros(0, bool)
     for name, mask in (("reachable_goals", inside), ("unreachable_goals", ~inside)):
         seqs = [s for s, m in zip(goal_seqs, mask) if m and s in counter.per_goal]

@@ -15,6 +15,8 @@ from sagg_common.progress import Progress
 from sagg_goal_generator.core import MODE_NAMES
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
+from .phases import phase_breakdown
+
 
 def run_overrides(micro_actions: int, eval_every: int, strategy: str | None, seed: int | None,
                   overrides: dict[str, Any] | None) -> dict[str, Any]:
@@ -80,7 +82,8 @@ def goal_share_stats(goal_positions: np.ndarray, goal_ma: np.ndarray, area, tota
 def result_dict(run, curve: list[dict], area, total: int, eval_seconds: float, done: int,
                 memory: dict) -> dict:
     """The ``result.json`` keys every in-process run writes (arm and synergy runs): ``done`` =
-    micro-actions (experiments) learned, ``memory`` = the memory's size and digest."""
+    micro-actions (experiments) learned, ``memory`` = the memory's size and digest; ``phases``:
+    where they went (``run.phases``, a :class:`~sagg_bringup.phases.PhaseCounter`)."""
     gen, learner = run.generator, run.learner
     goals = [{"seq": g.seq, "position": g.position.tolist(), "mode": g.mode,
               "mode_name": MODE_NAMES[g.mode], "competence": g.competence,
@@ -106,4 +109,5 @@ def result_dict(run, curve: list[dict], area, total: int, eval_seconds: float, d
         "goal_stats": goal_share_stats(pos, gma, area, total),
         "regions": gen.region_snapshot(),
         "splits": gen.tree.splits,
+        "phases": phase_breakdown(run.phases, [g["seq"] for g in goals], pos, area),
     }

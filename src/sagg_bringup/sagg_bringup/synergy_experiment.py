@@ -35,6 +35,7 @@ from sagg_sim_bridge.params import arm_spec_from_params, SCHEMA as ARM_SCHEMA
 from sagg_sim_bridge.schema import SYNERGY_BRIDGE_SCHEMA as SYN_BRIDGE_SCHEMA
 from sagg_sim_bridge.synergy_params import make_sim
 
+from .phases import PhaseCounter, coverage
 from .results import learning_curve, result_dict, run_overrides, write_result
 
 ARM_FIXED = "arm-fixed"  # the set-up name of the arm in the fixed context (context: fixed)
@@ -231,6 +232,7 @@ class SynergyRun:
                                            self.setup.task_dim)
         self.learner.on_report = self._on_report
         self.goal_micro_actions: dict[int, int] = {}
+        self.phases = PhaseCounter()  # experiments by kind (reach / explore / babble), per goal
         self.driver = Driver(self.learner, self._execute, self._next_goal, self.setup.rest_outcome)
         self.learn_seconds = 0.0
 
@@ -238,11 +240,13 @@ class SynergyRun:
         self.generator.report(r.kind, r.target, r.competence)
 
     def _execute(self, theta, kind):
+        self.phases.command(kind)
         return self.setup.execute(theta)
 
     def _next_goal(self):
         g = self.generator.next_goal()
         self.goal_micro_actions[g.seq] = self.learner.experiments
+        self.phases.goal(g.seq)
         return g.seq, g.position
 
     def step_until(self, experiments: int) -> None:
@@ -297,6 +301,7 @@ def run_synergy_experiment(adapter, config_path: str | Path, strategy: str | Non
         "eval_metrics": frame_summary(frame),
         "test_goals": goals.tolist(),
         "final_errors": errors.tolist(),
+        "coverage": coverage(outcomes, goals),  # test goal to the nearest outcome ever reached
         "synergy": {
             "setup": run.setup.name,
             "experiments": learner.experiments,
