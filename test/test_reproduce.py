@@ -112,7 +112,9 @@ def test_smoke_all_writes_every_claim_with_every_field(tmp_path):
         # 2 seeds: the smallest two-sided Mann-Whitney p is 1/3, so nothing can be decided
         # (p is NaN when all values tie, e.g. no goal in the second half of 100 micro-actions)
         assert row["verdict"] == "inconclusive" and not row["p_value"] < 1 / 3 - 1e-12
-        assert row["commit"]
+        # the commit the runs computed at, from their result.json files (one commit here)
+        assert row["commit"] and not row["commit"].startswith("mixed")
+        assert row["run_commits"] == {row["commit"]: 2 * len(strategies)}
     report = (tmp_path / "all" / "report.md").read_text()
     for row in rows:
         assert f"| {row['id']} |" in report
@@ -275,5 +277,15 @@ def test_sensitivity_smoke_one_choice_end_to_end(tmp_path):
                                      .read_text())["config"]["sagg_goal_generator"]["count_reached"]
            for row in rows}
     assert cfg == {"default": False, "reached points": True}
+    assert all(row["run_commits"] == {row["commit"]: 8} for row in rows)  # 4 strategies x 2 seeds
     md = (out / "sensitivity.md").read_text()
     assert "| reached points | on (Sec. 3.7" in md and "| default |" in md
+
+
+def test_run_commits_says_when_an_experiment_spans_several_commits(tmp_path):
+    from sagg_bringup.results import run_commits
+    assert run_commits(tmp_path, "abc") == {"commit": "abc", "run_commits": {}}
+    for i, c in enumerate(["c1", "c1", "c2"]):
+        (tmp_path / f"r{i}").mkdir()
+        (tmp_path / f"r{i}" / "result.json").write_text(json.dumps({"commit": c}))
+    assert run_commits(tmp_path, "abc") == {"commit": "mixed: c1, c2", "run_commits": {"c1": 2, "c2": 1}}

@@ -24,7 +24,6 @@ import json
 import math
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 from typing import Callable
@@ -34,6 +33,8 @@ import yaml
 
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import STRATEGIES, ConfigError
+
+from .results import code_commit, run_commits
 
 REGISTRY = Path(__file__).with_name("claims.yaml")
 CLAIM_FIELDS = ("id", "section", "claim", "setup", "strategies", "seeds", "micro_actions", "paper",
@@ -117,20 +118,6 @@ def select(reg: dict, which: list[str]) -> list[dict]:
     if bad:
         raise ConfigError(f"CLAIM: unknown {bad}; allowed: all, or any of {', '.join(sorted(ids))}")
     return [c for c in claims if c["id"] in which or c["experiment"] in which]
-
-
-def code_commit() -> str:
-    """The commit of the code that ran (with ``-dirty`` when the work tree has changes), or
-    ``unknown`` outside a git checkout."""
-    here = Path(__file__).resolve().parent
-    try:
-        rev = subprocess.run(["git", "-C", str(here), "rev-parse", "--short", "HEAD"],
-                             capture_output=True, text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return rev + ("-dirty" if dirty else "")
 
 
 def significance_floor(n_a: int, n_b: int) -> float:
@@ -227,7 +214,8 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
                      "seeds": list(range(st["seeds"])), "micro_actions": st["micro_actions"],
                      "paper": c["paper"], "ours": d["ours"], "p_value": d["p_value"],
                      "verdict": d["verdict"], "statistic": d["statistic"], "pairs": d["pairs"],
-                     "alpha": alpha, "scale": scale, "commit": commit})
+                     "alpha": alpha, "scale": scale,
+                     **run_commits(out / "experiments" / c["experiment"], commit)})
     write_json_atomic(out / "claims.json", rows)
     write_report(out, rows, reg, scale, commit)
     counts = {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS}
@@ -295,6 +283,7 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
         md += [f"## {exp} (Sec. {first['section']})", "",
                f"`{first['setup']['config']}`, overrides {first['setup']['overrides'] or 'none'}; "
                f"{len(first['seeds'])} seeds × {first['micro_actions']:,} micro-actions; "
+               f"runs computed at commit `{first['commit']}`; "
                f"details: `experiments/{exp}/summary.md`.", ""]
         for r in rows:
             if r["setup"]["experiment"] != exp:

@@ -3,6 +3,8 @@
 ``result.json`` keys (:func:`result_dict`, :func:`goal_share_stats`, :func:`write_result`)."""
 from __future__ import annotations
 
+import json
+import subprocess
 import time
 from pathlib import Path
 from typing import Any
@@ -55,6 +57,34 @@ def learning_curve(run, goals: np.ndarray, micro_actions: int, eval_every: int,
                    competence=run.learner.last_competence, error=float(errors.mean()))
     bar.close()
     return curve, eval_seconds, errors
+
+
+def code_commit() -> str:
+    """The commit of the code that ran (with ``-dirty`` when the work tree has changes), or
+    ``unknown`` outside a git checkout."""
+    here = Path(__file__).resolve().parent
+    try:
+        rev = subprocess.run(["git", "-C", str(here), "rev-parse", "--short", "HEAD"],
+                             capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return rev + ("-dirty" if dirty else "")
+
+
+def run_commits(directory: str | Path, fallback: str) -> dict:
+    """``commit``: the commit every ``result.json`` under ``directory`` was computed at (``mixed:
+    a, b`` when a resumed experiment spans several; ``fallback`` when none says), and
+    ``run_commits``: how many runs came from each."""
+    counts: dict[str, int] = {}
+    for f in sorted(Path(directory).rglob("result.json")):
+        c = json.loads(f.read_text()).get("commit", "unrecorded")
+        counts[c] = counts.get(c, 0) + 1
+    if not counts:
+        return {"commit": fallback, "run_commits": {}}
+    commit = next(iter(counts)) if len(counts) == 1 else "mixed: " + ", ".join(sorted(counts))
+    return {"commit": commit, "run_commits": counts}
 
 
 def write_result(out_dir: str | Path | None, result: dict) -> None:

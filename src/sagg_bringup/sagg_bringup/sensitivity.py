@@ -27,8 +27,8 @@ from typing import Callable
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError
 
-from .reproduce import (REGISTRY, code_commit, decide, fmt_number, load_registry,
-                        run_claim_experiment)
+from .reproduce import REGISTRY, decide, fmt_number, load_registry, run_claim_experiment
+from .results import code_commit, run_commits
 
 SENSITIVITY_FIELDS = ("choice", "value", "overrides", "experiment", "claim", "strategies", "verdict",
                       "p_value", "pairs", "flips", "seeds", "micro_actions", "scale", "commit")
@@ -129,7 +129,8 @@ def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers
                      "experiment": v["name"], "claim": claim["id"],
                      "strategies": d["ours"]["strategies"], "verdict": d["verdict"],
                      "p_value": d["p_value"], "pairs": d["pairs"], "seeds": list(range(st["seeds"])),
-                     "micro_actions": st["micro_actions"], "scale": scale, "commit": commit})
+                     "micro_actions": st["micro_actions"], "scale": scale,
+                     **run_commits(out / "experiments" / v["name"], commit)})
     for r in rows:
         r["flips"] = flips(rows[0], r)
     write_json_atomic(out / "sensitivity.json", rows)

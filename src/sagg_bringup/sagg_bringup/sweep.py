@@ -27,6 +27,7 @@ from typing import Any, Callable
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import STRATEGIES, ConfigError
 
+from .results import code_commit
 from .setups import load_experiment_config, run_experiment
 
 FINGERPRINT_FORMAT = "sagg.compare/1"
@@ -274,6 +275,7 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
            + (f"Ray ({ray_address})" if ray_address else f"{workers} local worker process(es)"))
 
     failures: dict[str, str] = {}
+    commit = code_commit()  # the code the runs compute with (workers import the same packages)
     if todo:
         own = pool is None
         if own:
@@ -291,7 +293,7 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
                     d.mkdir(parents=True, exist_ok=True)
                     done_now += 1
                     if err is None:
-                        write_json_atomic(d / "result.json", result)
+                        write_json_atomic(d / "result.json", {**result, "commit": commit})
                         (d / "error.txt").unlink(missing_ok=True)
                         what = (f"final mean error {result['final_mean_error']:.3f} "
                                 f"({result['learn_seconds'] + result['eval_seconds']:.1f} s)")
