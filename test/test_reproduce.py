@@ -115,7 +115,12 @@ def test_smoke_all_writes_every_claim_with_every_field(tmp_path):
         # the commit the runs computed at, from their result.json files (one commit here)
         assert row["commit"] and not row["commit"].startswith("mixed")
         assert row["run_commits"] == {row["commit"]: 2 * len(strategies)}
+        # the evidence next to the verdict: where each strategy's micro-actions went
+        mech = row["mechanisms"]
+        assert sorted(mech) == sorted(strategies) and all(m["seeds"] == 2 for m in mech.values())
+        assert all(0 <= m["explore_share"] <= 1 for m in mech.values()), mech
     report = (tmp_path / "all" / "report.md").read_text()
+    assert "| exploration share of micro-actions |" in report
     for row in rows:
         assert f"| {row['id']} |" in report
     for exp in reg["experiments"]:
@@ -289,3 +294,25 @@ def test_run_commits_says_when_an_experiment_spans_several_commits(tmp_path):
         (tmp_path / f"r{i}").mkdir()
         (tmp_path / f"r{i}" / "result.json").write_text(json.dumps({"commit": c}))
     assert run_commits(tmp_path, "abc") == {"commit": "mixed: c1, c2", "run_commits": {"c1": 2, "c2": 1}}
+
+
+def test_mechanisms_average_over_seeds_and_skip_what_a_strategy_lacks():
+    from sagg_bringup.mechanisms import mechanism_table, strategy_mechanisms
+
+    def run(err, share, goals):
+        r = {"final_mean_error": err, "curve": [{"median_error": err / 2, "within_share": 0.5}],
+             "phases": {"explore_share": share, "reachable_goals": {"share_of_micro_actions": 0.1,
+                                                                    "micro_actions_per_goal": 10},
+                        "unreachable_goals": {"share_of_micro_actions": 0.9, "micro_actions_per_goal": 90}},
+             "coverage": {"median": 0.1, "max": 1.0}}
+        if goals is not None:
+            r["goal_stats"] = {"goals": goals, "goal_share_reachable": 0.25,
+                               "goal_share_reachable_second_half": 0.5}
+        return r
+    m = strategy_mechanisms({"sagg-riac": [run(1.0, 0.8, 10), run(3.0, 0.6, 20)],
+                             "actuator-random": [run(2.0, 0.0, None)]})
+    assert m["sagg-riac"]["final_mean_error"] == 2.0 and m["sagg-riac"]["goals"] == 15
+    assert m["sagg-riac"]["explore_share"] == pytest.approx(0.7) and m["sagg-riac"]["seeds"] == 2
+    assert math.isnan(m["actuator-random"]["goals"])
+    table = mechanism_table(m)
+    assert "| self-generated goals | 15 | — |" in table

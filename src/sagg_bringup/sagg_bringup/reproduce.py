@@ -34,6 +34,7 @@ import yaml
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import STRATEGIES, ConfigError
 
+from .mechanisms import mechanism_table, strategy_mechanisms
 from .results import code_commit, run_commits
 
 REGISTRY = Path(__file__).with_name("claims.yaml")
@@ -203,6 +204,7 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
             pool.close()
 
     alpha = float(reg.get("alpha", 0.05))
+    mechanisms = {name: experiment_mechanisms(out / "experiments" / name) for name in needed}
     rows = []
     for c in claims:
         e, st = reg["experiments"][c["experiment"]], settings[c["experiment"]]
@@ -214,6 +216,7 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
                      "seeds": list(range(st["seeds"])), "micro_actions": st["micro_actions"],
                      "paper": c["paper"], "ours": d["ours"], "p_value": d["p_value"],
                      "verdict": d["verdict"], "statistic": d["statistic"], "pairs": d["pairs"],
+                     "mechanisms": mechanisms[c["experiment"]],
                      "alpha": alpha, "scale": scale,
                      **run_commits(out / "experiments" / c["experiment"], commit)})
     write_json_atomic(out / "claims.json", rows)
@@ -244,6 +247,14 @@ def run_claim_experiment(reg, name, i, n, scale, out, workers, ray_address, pool
     settings[name] = {"config": e["config"], "overrides": overrides,
                       **{k: sc[k] for k in ("seeds", "micro_actions", "eval_every")}}
     return pool
+
+
+def experiment_mechanisms(directory: Path) -> dict:
+    """:func:`mechanisms.strategy_mechanisms` of the finished runs of one experiment directory."""
+    # lazy (heavy): scipy
+    from .compare import by_strategy, load_results
+    runs = directory / "runs"
+    return strategy_mechanisms(by_strategy(load_results([runs]))) if runs.is_dir() else {}
 
 
 # --------------------------------------------------------------------------------------- report
@@ -295,6 +306,9 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
                           f"{fmt_number(pr.get('mean_b'))}, p = {fmt_number(pr['p'])} (smallest possible "
                           f"{fmt_number(pr.get('p_floor'))}): {pr['verdict']}")
         md.append("")
+        if first.get("mechanisms"):
+            md += ["Where the micro-actions went (the evidence behind the verdicts; "
+                   "sagg_bringup/mechanisms.py):", "", mechanism_table(first["mechanisms"]), ""]
         if results:
             # the comparison's own figure (mean ± std over seeds, drawn by write_summary)
             shutil.copyfile(d / "curves.png", figs / f"{exp}_curves.png")
