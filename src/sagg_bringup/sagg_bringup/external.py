@@ -475,25 +475,16 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         j_tol = lp["plausibility.joint_tolerance"]
 
         def on_sample(m) -> bool | None:
-            # the checks of `sagg run`'s own recorder: the next index and a plausible content, else
-            # dropped and counted (a forged sample never takes the real one's index); True = used,
-            # which moves the topic's publisher stream on
-            if int(m.index) < st.samples:
-                return None  # republished (same values)
-            if sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha, m.delta_y, j_lo, j_hi,
-                              len(t_lower), j_tol):
-                st.reject("/sagg/sample", "index or content rejected")
-                return None
-            now = time.perf_counter()
-            st.sample_t0 = st.sample_t0 or now
-            st.sample_t1 = now
-            st.samples += 1
-            a, da, dy = np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y)
-            for lst, v in zip(samples, (a, da, dy)):
-                lst.append(v)
-            if evaluator is not None:
-                evaluator.add(int(m.index), a, da, dy)
-            return True
+            # the checks of `sagg run`'s own recorder (RunState.accept_sample)
+            ok = st.accept_sample(m, lambda m: sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha,
+                                                              m.delta_y, j_lo, j_hi, len(t_lower), j_tol))
+            if ok:
+                a, da, dy = np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y)
+                for lst, v in zip(samples, (a, da, dy)):
+                    lst.append(v)
+                if evaluator is not None:
+                    evaluator.add(int(m.index), a, da, dy)
+            return ok
 
         def on_tip(m) -> None:
             monitor.on_task_point(m)

@@ -120,21 +120,12 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         j_lo, j_hi = params["sagg_learner"]["joint_limits.lower"], params["sagg_learner"]["joint_limits.upper"]
         j_tol, t_dim = params["sagg_learner"]["plausibility.joint_tolerance"], len(t_lower)
 
-        def on_sample(m) -> None:
-            if int(m.index) < st.samples:
-                return  # republished by a resumed learner (same values)
-            # a sample must continue the sequence and be plausible (a forged one is dropped and
-            # counted; it never takes the index of the real one)
-            if sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha, m.delta_y, j_lo, j_hi, t_dim, j_tol):
-                st.reject("/sagg/sample", "index or content rejected")
-                return
-            now = time.perf_counter()
-            if st.sample_t0 is None:
-                st.sample_t0 = now
-            st.sample_t1 = now
-            st.samples += 1
-            evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
-            return True
+        def on_sample(m) -> bool | None:
+            ok = st.accept_sample(m, lambda m: sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha,
+                                                              m.delta_y, j_lo, j_hi, t_dim, j_tol))
+            if ok:
+                evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
+            return ok
 
         tracker = SplitTracker(t_lower, t_upper)
 

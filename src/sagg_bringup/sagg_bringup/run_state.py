@@ -1,8 +1,9 @@
 """What a graph run's orchestrator learns from the /sagg topics, each message checked (DESIGN §8)."""
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 from sagg_common.diagnostics import goal_problem, report_problem
 from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
@@ -37,6 +38,26 @@ class RunState:
     def reject(self, topic: str, kind: str) -> None:
         key = f"{topic} {kind}"
         self.rejected[key] = self.rejected.get(key, 0) + 1
+
+    def accept_sample(self, m, problem: Callable[[Any], str], republished_ok: bool = True) -> bool | None:
+        """/sagg/sample, one check for every recorder (``sagg run``'s graph, ``--driver external``,
+        the synergy graph): ``problem(m)`` names what is wrong ('' if nothing: the next index and a
+        plausible content, e.g. :func:`sagg_common.diagnostics.sample_problem`); a bad sample is
+        dropped and counted, so a forged one never takes the real one's index. A sample below the
+        next index is a re-publication by a resumed learner (same values) and is ignored when
+        ``republished_ok``. True = used (the caller stores it; the topic's publisher stream moves
+        on), None = not used. Stamps the sample rate's first and last arrival."""
+        if republished_ok and int(m.index) < self.samples:
+            return None
+        if problem(m):
+            self.reject("/sagg/sample", "index or content rejected")
+            return None
+        now = time.perf_counter()
+        if self.sample_t0 is None:
+            self.sample_t0 = now
+        self.sample_t1 = now
+        self.samples += 1
+        return True
 
     def on_goal(self, m) -> None:
         """/sagg/goal (keyed by seq)."""

@@ -92,19 +92,19 @@ def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_di
     try:  # set-up: a failure or Ctrl-C before session.run still closes the bag and rclpy
         samples: list[tuple[np.ndarray, np.ndarray]] = []
 
-        def on_sample(m) -> None:
-            # the next index and finite values only (DESIGN §8): a forged or broken sample never
-            # takes the index of the real one
-            alpha, dy = np.array(m.alpha, float), np.array(m.delta_y, float)
-            if int(m.index) != len(samples) or not (np.isfinite(alpha).all() and np.isfinite(dy).all()):
-                st.reject("/sagg/sample", "index or content rejected")
-                return None
-            now = time.perf_counter()
-            st.sample_t0 = st.sample_t0 or now
-            st.sample_t1 = now
-            samples.append((alpha, dy))
-            st.samples = len(samples)
-            return True
+        def problem(m) -> str:
+            # the next index and finite values only (DESIGN §8)
+            if int(m.index) != len(samples):
+                return f"index {int(m.index)}; allowed: {len(samples)} (the next sample)"
+            ok = np.isfinite(np.array(m.alpha, float)).all() and np.isfinite(np.array(m.delta_y, float)).all()
+            return "" if ok else "NaN/inf value; allowed: finite values"
+
+        def on_sample(m) -> bool | None:
+            # no resume here: an older index is not a re-publication but a bad sample
+            ok = st.accept_sample(m, problem, republished_ok=False)
+            if ok:
+                samples.append((np.array(m.alpha, float), np.array(m.delta_y, float)))
+            return ok
 
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
                         "/sagg/status": st.on_status, "/sagg/regions": st.on_regions})
