@@ -153,6 +153,40 @@ def test_rerun_after_a_lost_run_redoes_only_that_run(tmp_path):
     assert "0 to run" in r.stdout
 
 
+def test_archive_resumes_in_a_new_directory_and_decides_the_same(tmp_path):
+    """A session's runs, archived compactly, let another session (a fresh --out) resume without
+    rerunning them and decide and draw exactly as from the full results."""
+    arch = tmp_path / "archive"
+    r = reproduce(tmp_path / "a", "quadruped-riac-best", "--archive", str(arch))
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    full = sorted((tmp_path / "a" / "experiments" / "quadruped" / "runs").rglob("result.json"))
+    kept = sorted((arch / "smoke" / "quadruped" / "runs").rglob("result.json"))
+    assert len(full) == len(kept) == 8 and (arch / "smoke" / "quadruped" / "compare.json").is_file()
+    for f, k in zip(full, kept):
+        res, small = json.loads(f.read_text()), json.loads(k.read_text())
+        assert "goals" not in small and "regions" not in small
+        assert {key: v for key, v in res.items() if key not in ("goals", "regions")} == \
+            {key: v for key, v in small.items() if key != "goal_histogram"}
+        if res["goals"]:  # the histogram counts every goal inside Y
+            assert sum(c[2] for c in small["goal_histogram"]["cells"]) == len(res["goals"])
+    # a lost run in the new directory: restored from the archive, not rerun
+    r = reproduce(tmp_path / "b", "quadruped-riac-best", "--archive", str(arch))
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "restored 8 archived run(s)" in r.stdout and "0 to run" in r.stdout
+    a, b = (json.loads((tmp_path / d / "claims.json").read_text()) for d in "ab")
+    assert [(x["verdict"], x["p_value"], x["ours"]) for x in a] == [(x["verdict"], x["p_value"], x["ours"]) for x in b]
+    assert (tmp_path / "b" / "figures" / "quadruped_goals.png").stat().st_size > 0
+    # an archived run that does not match the settings is rerun, not trusted
+    first = kept[0]
+    bad = json.loads(first.read_text())
+    bad["micro_actions"] += 1
+    first.write_text(json.dumps(bad))
+    r = reproduce(tmp_path / "c", "quadruped-riac-best", "--archive", str(arch))
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "rerun" in r.stdout and "1 to run" in r.stdout
+    assert json.loads(first.read_text())["micro_actions"] == bad["micro_actions"] - 1  # re-archived
+
+
 # ------------------------------------------------------------ the evaluation's pieces, known inputs
 def test_error_metrics_on_known_inputs():
     from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame

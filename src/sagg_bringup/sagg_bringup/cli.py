@@ -160,6 +160,10 @@ def build_parser() -> argparse.ArgumentParser:
     rq.add_argument("--estimate", action="store_true",
                     help="instead: one short probe run per strategy and experiment, and the "
                          "extrapolated paper-scale core-hours (written to OUT/estimate.json)")
+    rq.add_argument("--archive", metavar="DIR",
+                    help="keep every finished run, compacted, under DIR/<scale>/<experiment> and restore "
+                         "the runs kept there before running (resume across machines and sessions; "
+                         "docs/reproduction/archive is the committed one)")
     rq.add_argument("--choice", action="append", metavar="NAME",
                     help="with 'sensitivity': only this open choice (repeatable; default: all)")
     pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
@@ -397,11 +401,13 @@ def main(argv: list[str] | None = None) -> int:
                 estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
                 return 0
             if args.claims == ["sensitivity"]:
-                rows = run_sensitivity(args.scale, args.out, args.workers, args.ray, args.choice)
+                rows = run_sensitivity(args.scale, args.out, args.workers, args.ray, args.choice,
+                                       archive=args.archive)
             elif args.choice:
                 raise ConfigError("--choice: only with 'sagg reproduce sensitivity'")
             else:
-                rows = run_reproduce(args.claims, args.scale, args.out, args.workers, args.ray)
+                rows = run_reproduce(args.claims, args.scale, args.out, args.workers, args.ray,
+                                     archive=args.archive)
             return 0 if rows else 1
         if args.command == "params":
             if args.update_readme:

@@ -34,6 +34,7 @@ import yaml
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import STRATEGIES, ConfigError
 
+from .archive import archive_experiment, archive_run, histogram_counts, histogram_of, restore_experiment
 from .mechanisms import mechanism_table, strategy_mechanisms
 from .results import code_commit, run_commits
 
@@ -183,9 +184,11 @@ def decide(claim: dict, summary: dict, alpha: float) -> dict:
 
 def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None = None,
                   workers: int | None = None, ray_address: str | None = None,
-                  registry: str | Path = REGISTRY, out_fn: Callable[[str], None] = print) -> list[dict]:
+                  registry: str | Path = REGISTRY, out_fn: Callable[[str], None] = print,
+                  archive: str | Path | None = None) -> list[dict]:
     """Run (or resume) every experiment the selected claims need, then write claims.json and
-    report.md with figures. Returns the claims.json list."""
+    report.md with figures. Returns the claims.json list. ``archive``: a directory of archived runs
+    (:mod:`sagg_bringup.archive`) restored before and updated after every run."""
 
     reg = load_registry(registry)
     claims = select(reg, which)
@@ -198,7 +201,7 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
     try:
         for i, name in enumerate(needed, 1):
             pool = run_claim_experiment(reg, name, i, len(needed), scale, out, workers, ray_address,
-                                   pool, summaries, settings, out_fn)
+                                        pool, summaries, settings, out_fn, archive)
     finally:
         if pool is not None:
             pool.close()
@@ -228,9 +231,11 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
 
 
 def run_claim_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, summaries, settings,
-                    out_fn):
+                         out_fn, archive=None):
     """One experiment through run_compare (on ``pool``, made here if None and runs are due);
-    fills ``summaries`` / ``settings``; returns the pool."""
+    fills ``summaries`` / ``settings``; returns the pool. With ``archive``, the experiment's
+    archived runs (``archive/<scale>/<experiment>``) are restored first and every run finished
+    here is archived as soon as it is written."""
     # lazy (heavy): mujoco
     from .sweep import make_pool, run_compare
     e = reg["experiments"][name]
@@ -238,12 +243,22 @@ def run_claim_experiment(reg, name, i, n, scale, out, workers, ray_address, pool
     overrides = {**e["set"], **sc.get("set", {})}
     out_fn(f"== experiment {i}/{n}: {name} (Sec. {e['section']}, {e['config']}, "
            f"{scale} scale: {sc['seeds']} seeds x {sc['micro_actions']})")
+    exp_dir = out / "experiments" / name
+    kept = Path(archive) / scale / name if archive else None
+    on_result = None
+    if kept is not None:
+        restored = restore_experiment(kept, exp_dir)
+        if restored:
+            out_fn(f"restored {restored} archived run(s) from {kept}")
+        on_result = lambda f: archive_run(f, exp_dir, kept)  # noqa: E731
     if pool is None:
         pool = make_pool(workers, ray_address)
     summaries[name] = run_compare(resolve_config(e["config"]), e["strategies"], sc["seeds"],
-                                  sc["micro_actions"], sc["eval_every"], out / "experiments" / name,
+                                  sc["micro_actions"], sc["eval_every"], exp_dir,
                                   workers=workers, ray_address=ray_address, overrides=overrides,
-                                  base_seed=0, out_fn=out_fn, pool=pool)
+                                  base_seed=0, out_fn=out_fn, pool=pool, on_result=on_result)
+    if kept is not None:
+        archive_experiment(exp_dir, kept)  # runs kept from before the archive existed, too
     settings[name] = {"config": e["config"], "overrides": overrides,
                       **{k: sc[k] for k in ("seeds", "micro_actions", "eval_every")}}
     return pool
@@ -320,10 +335,11 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
     return path
 
 
-def plot_goal_histograms(results: list[dict], path: Path, title: str, bins: int = 40) -> bool:
+def plot_goal_histograms(results: list[dict], path: Path, title: str) -> bool:
     """2-D histograms of the self-generated goals (first two task dimensions, all seeds pooled), one
-    panel per strategy that chooses goals, with the test goals on top. False when no strategy has
-    goals (nothing drawn)."""
+    panel per strategy that chooses goals, with the test goals on top; from each run's goal
+    histogram (:func:`sagg_bringup.archive.histogram_of`: archived runs have no goal list). False
+    when no strategy has goals (nothing drawn)."""
     # lazy (heavy): matplotlib
     import matplotlib
     matplotlib.use("Agg")
@@ -331,21 +347,26 @@ def plot_goal_histograms(results: list[dict], path: Path, title: str, bins: int 
     import matplotlib.pyplot as plt
 
     from .compare import by_strategy
-    groups = {n: rs for n, rs in by_strategy(results).items()
-              if any(r.get("goals") for r in rs)}
+    groups = {}
+    for name, rs in by_strategy(results).items():
+        hists = [h for h in map(histogram_of, rs) if h is not None]
+        if hists:
+            groups[name] = (rs, sum(histogram_counts(h) for h in hists), hists[0])
     if not groups:
         return False
     lp = results[0]["config"]["sagg_learner"]
-    lo, hi = lp["task_space.lower"], lp["task_space.upper"]
+    lo = lp["task_space.lower"]
     fig, axes = plt.subplots(1, len(groups), figsize=(4.2 * len(groups), 3.8), squeeze=False)
-    for ax, (name, rs) in zip(axes[0], groups.items()):
-        pos = np.array([g["position"][:2] for r in rs for g in r["goals"]]).reshape(-1, 2)
-        ax.hist2d(pos[:, 0], pos[:, 1], bins=bins, range=[[lo[0], hi[0]], [lo[1], hi[1]]], cmap="Blues")
+    for ax, (name, (rs, counts, h)) in zip(axes[0], groups.items()):
+        (x0, y0), (x1, y1) = h["lower"], h["upper"]
+        # counts[i, j]: i along y1, j along y2 (as histogram2d, which hist2d drew before)
+        ax.pcolormesh(np.linspace(x0, x1, h["bins"] + 1), np.linspace(y0, y1, h["bins"] + 1), counts.T,
+                      cmap="Blues")
         tg = np.array(rs[0].get("test_goals") or []).reshape(-1, len(lo))
         if len(tg):
             ax.scatter(tg[:, 0], tg[:, 1], s=4, c="red", label="test goals")
             ax.legend(fontsize=7, loc="upper right")
-        ax.set_title(f"{name}: {len(pos)} goals, {len(rs)} seeds", fontsize=9)
+        ax.set_title(f"{name}: {int(counts.sum())} goals, {len(rs)} seeds", fontsize=9)
         ax.set_xlabel("y1")
         ax.set_ylabel("y2")
     fig.suptitle(f"{title}: self-generated goals (all seeds)", fontsize=10)

@@ -100,9 +100,11 @@ def flips(default: dict, variant: dict) -> list[str]:
 def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers: int | None = None,
                     ray_address: str | None = None, choices: list[str] | None = None,
                     registry: str | Path = REGISTRY,
-                    out_fn: Callable[[str], None] = print) -> list[dict]:
+                    out_fn: Callable[[str], None] = print,
+                    archive: str | Path | None = None) -> list[dict]:
     """Run (or resume) the default and every variant, decide the claim on each, write
-    sensitivity.json and sensitivity.md. Returns the rows."""
+    sensitivity.json and sensitivity.md. Returns the rows. ``archive``: as
+    :func:`~sagg_bringup.reproduce.run_reproduce`."""
     reg = load_registry(registry)
     sens = load_sensitivity(reg)
     claim = next(c for c in reg["claims"] if c["id"] == sens["claim"])
@@ -117,7 +119,7 @@ def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers
         for i, v in enumerate(vs, 1):
             out_fn(f"-- sensitivity {i}/{len(vs)}: {v['choice']} = {v['value']}")
             pool = run_claim_experiment(reg, v["name"], i, len(vs), scale, out, workers, ray_address,
-                                        pool, summaries, settings, out_fn)
+                                        pool, summaries, settings, out_fn, archive)
     finally:
         if pool is not None:
             pool.close()

@@ -223,11 +223,12 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
                 eval_every: int, out: str | Path, workers: int | None = None,
                 ray_address: str | None = None, overrides: dict | None = None,
                 base_seed: int | None = None, out_fn: Callable[[str], None] = print,
-                pool=None) -> dict:
+                pool=None, on_result: Callable[[Path], None] | None = None) -> dict:
     """Run every (strategy, seed) not finished yet, then write the summary; returns it.
 
     ``pool``: an open :func:`make_pool` pool to run on (left open; its workers stay warm for the
     next comparison, as ``sagg reproduce`` does); default: one made and closed here.
+    ``on_result``: called with each new ``result.json`` once written (``sagg reproduce --archive``).
 
     Seeds are ``base_seed + i`` for i in 0..seeds-1; ``base_seed`` defaults to the config's
     ``seed``. Raises ConfigError for bad arguments or a fingerprint mismatch."""
@@ -295,6 +296,8 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
                     if err is None:
                         write_json_atomic(d / "result.json", {**result, "commit": commit})
                         (d / "error.txt").unlink(missing_ok=True)
+                        if on_result is not None:
+                            on_result(d / "result.json")
                         what = (f"final mean error {result['final_mean_error']:.3f} "
                                 f"({result['learn_seconds'] + result['eval_seconds']:.1f} s)")
                     else:
