@@ -132,6 +132,18 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "Δα = J⁺Δy_next (Sec. 3.3), clipped to the limits afterwards; the behaviour before "
           "2026-11-23 (measured on config/arm7_ratio15.yaml with the analytic Jacobian: mean test "
           "error 0.124, 35 of 100 test goals missed).", choices=("clamp", "clip")),
+    Param("reach_damping", "float", 0.0,
+          "Damping of the reaching inverse, in units of v / (explore_amplitude × √n): λ = "
+          "reach_damping × v / (a √n), and Δα = J^T (J J^T + λ² I)^{-1} Δy_next, the damped "
+          "least-squares ('singularity-robust') inverse (Nakamura & Hanafusa 1986; Wampler 1986; "
+          "local_model.pseudo_inverse), in learning and in the evaluation's reaching alike. 0 "
+          "(default) = the paper's Moore-Penrose J⁺ (Sec. 3.3, which bypasses singularities with "
+          "noise). 1 = the principled value: a joint motion as large as the largest exploratory "
+          "micro-action (a per joint, norm a√n) costs as much as missing the desired displacement "
+          "by v. Near a singularity (the unfolded arm; a rest without net curl, arm.rest_shape "
+          "zigzag) J⁺ turns the small desired radial motion into huge joint steps that commit the "
+          "arm's curl before the goal's side can choose it; the damped inverse moves mostly where "
+          "the arm moves its tip well (docs/reach_limits.md).", low=0.0, high=1e6),
     Param("pinv_rcond", "float", 1e-2,
           "Relative cut-off of singular values in J⁺ (Sec. 3.3); paper: noise bypasses singularities.",
           low=0.0, high=1.0),
@@ -244,6 +256,12 @@ def timeout_budget(distance: float, v: float, factor: float) -> int:
     return max(1, math.ceil(factor * distance / v))
 
 
+def reach_damping(params: dict, n: int) -> float:
+    """λ of the damped least-squares reaching inverse (learner parameter ``reach_damping``, in units
+    of v / (a √n), a = explore_amplitude, n = joints): 0 = the paper's J⁺ (Sec. 3.3)."""
+    return float(params.get("reach_damping", 0.0)) * params["v"] / (params["explore_amplitude"] * math.sqrt(n))
+
+
 def safe_target(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: Robot) -> np.ndarray:
     """Clip a commanded posture to ``max_step`` per joint from ``alpha`` (the step is scaled down
     as a whole so its direction is kept) and to the robot's joint limits."""
@@ -279,6 +297,7 @@ class EvolvingContextLearner:
         self.min_samples = params["min_samples"] or n
         self.v = params["v"]
         self.eps_max = params["eps_max_ratio"] * self.v
+        self.damping = reach_damping(params, n)
         self.scale = (self.task_upper - self.task_lower) if params["competence_rescale"] else None
         self.rng = stream(params["seed"], "learner")
         self.alpha = robot.rest.copy()
@@ -337,7 +356,8 @@ class EvolvingContextLearner:
     def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
         """Δα = J⁺(α)·Δy_next from the local model (None while memory is too small)."""
         jac = self.jacobian_at(alpha)
-        return None if jac is None else pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
+        return None if jac is None else pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"],
+                                                            self.damping)
 
     def reach_step(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
         """The reaching micro-action Δα for a desired effector displacement (Sec. 3.6.1), within
@@ -347,8 +367,9 @@ class EvolvingContextLearner:
         if jac is None:
             return None
         if self.p["reach_limits"] == "clip":
-            return pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
-        return clamped_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper, self.p["pinv_rcond"])
+            return pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"], self.damping)
+        return clamped_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper, self.p["pinv_rcond"],
+                            self.damping)
 
     def predict(self, alpha: np.ndarray, dalpha: np.ndarray) -> np.ndarray:
         """Forward prediction Δy ≈ J(α)·Δα from the local model (zeros while memory is too small)."""
