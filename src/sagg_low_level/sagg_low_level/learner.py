@@ -363,13 +363,29 @@ class EvolvingContextLearner:
         """The reaching micro-action Δα for a desired effector displacement (Sec. 3.6.1), within
         the joint limits as ``reach_limits`` says; used by learning and by the evaluation's
         reaching from rest alike. None while the memory is too small."""
+        return self.reach_plan(alpha, dy_next)[1]
+
+    def reach_plan(self, alpha: np.ndarray, dy_next: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(J(α), Δα) of :meth:`reach_step`: the local Jacobian the step was computed from, and
+        the step; (None, None) while the memory is too small."""
         jac = self.jacobian_at(alpha)
         if jac is None:
-            return None
+            return None, None
         if self.p["reach_limits"] == "clip":
-            return pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"], self.damping)
-        return clamped_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper, self.p["pinv_rcond"],
-                            self.damping)
+            return jac, pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"], self.damping)
+        return jac, clamped_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper,
+                                 self.p["pinv_rcond"], self.damping)
+
+    def step_aim(self, jac: np.ndarray, dalpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray:
+        """The effector displacement a reaching micro-action was computed to produce, against
+        which Inefficient measures ε = ||Δỹ − aim|| (Sec. 3.6.1, Alg. 3). With the paper's J⁺
+        (``reach_damping`` 0) it is Δy_next itself, the paper's formula. The damped inverse aims
+        by design at less than Δy_next in the directions the arm barely moves its tip (its
+        compromise with the joint motion): its aim is the model's own prediction J·Δα of the
+        commanded step, so ε measures how wrong the model was, which is what the test is for
+        ("judge if the current model has been efficient enough", Sec. 2, Alg. 2), not the
+        shortfall the damping chose."""
+        return dy_next if self.damping == 0.0 else jac @ dalpha
 
     def predict(self, alpha: np.ndarray, dalpha: np.ndarray) -> np.ndarray:
         """Forward prediction Δy ≈ J(α)·Δα from the local model (zeros while memory is too small)."""
@@ -436,16 +452,17 @@ class EvolvingContextLearner:
                     blocked = self.p["blocking_scope"] == "goal"
                     break
                 dy_next = desired_displacement(self.y, target, self.v)
-                dalpha = self.reach_step(self.alpha, dy_next)
+                jac, dalpha = self.reach_plan(self.alpha, dy_next)
                 need_explore = dalpha is None
                 if dalpha is not None:
+                    aim = self.step_aim(jac, dalpha, dy_next)
                     if self.p["reach_noise"] > 0:
                         a = self.p["reach_noise"]
                         dalpha = dalpha + self.rng.uniform(-a, a, self.robot.n)
                     dy = yield from self._act(self.alpha + dalpha, "reach")
                     used += 1
                     self._report(KIND_REACHED, goal_seq, self.y, self.y, 0.0)
-                    need_explore = float(np.linalg.norm(dy - dy_next)) > self.eps_max
+                    need_explore = float(np.linalg.norm(dy - aim)) > self.eps_max
                 if need_explore:
                     # the timeout counter runs through both phases (Sec. 3.6.2); with
                     # exploration_respects_timeout it may cut the phase short, and a phase that

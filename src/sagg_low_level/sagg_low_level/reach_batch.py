@@ -32,7 +32,7 @@ from .memory_batch import neighbours_many
 def batch_supported(learner) -> bool:
     """False when the learner's model functions were replaced on the instance (e.g. an analytic
     Jacobian in a lab tool): then only the per-goal path knows what the step is."""
-    return not any(name in vars(learner) for name in ("reach_step", "jacobian_at", "inverse"))
+    return not any(name in vars(learner) for name in ("reach_step", "reach_plan", "jacobian_at", "inverse"))
 
 
 def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
