@@ -9,7 +9,7 @@ from sagg_common.params import resolve
 from sagg_common.report_kinds import KIND_GOAL, KIND_SUBGOAL
 from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
-from sagg_low_level.local_model import clamped_step, pseudo_inverse, pseudo_inverse_step
+from sagg_low_level.local_model import clamped_step, damped_steps, pseudo_inverse_step
 from sagg_sim_bridge.arm import GOLDEN_RATIO, ArmSim, ArmSpec, forward_kinematics, tip_jacobian
 
 from test_learner import StuckRobot, drive, make_learner
@@ -160,17 +160,23 @@ def test_result_says_where_the_micro_actions_went(tmp_path):
 
 
 # ------------------------------------------------------------------------------ damped inverse
-def test_pseudo_inverse_without_damping_is_numpys_pinv_and_with_damping_the_closed_form():
+def test_damped_step_is_the_closed_form_and_the_same_alone_or_in_a_stack():
     rng = np.random.default_rng(5)
     jac = rng.normal(size=(2, 7))
-    assert pseudo_inverse(jac, 1e-2).tobytes() == np.linalg.pinv(jac, rcond=1e-2).tobytes()
+    dy = np.array([0.03, -0.01])
     lam = 0.3
-    closed = jac.T @ np.linalg.inv(jac @ jac.T + lam ** 2 * np.eye(2))
-    assert np.allclose(pseudo_inverse(jac, 1e-2, lam), closed, atol=1e-12)
-    # a stack gives each matrix's own floats (the batched evaluation relies on it)
-    stack = rng.normal(size=(4, 2, 7))
+    closed = jac.T @ np.linalg.inv(jac @ jac.T + lam ** 2 * np.eye(2)) @ dy
+    assert np.allclose(pseudo_inverse_step(jac, dy, 1e-2, lam), closed, atol=1e-12)
+    # minimises ||J Δα − Δy||² + λ²||Δα||²: any other step costs more
+    step = pseudo_inverse_step(jac, dy, 1e-2, lam)
+    cost = lambda d: np.sum((jac @ d - dy) ** 2) + lam ** 2 * np.sum(d ** 2)
+    assert all(cost(step) < cost(step + 1e-4 * rng.normal(size=7)) for _ in range(20))
+    # damping 0 is the paper's J⁺ step, numpy's pinv, the same floats
+    assert pseudo_inverse_step(jac, dy, 1e-2).tobytes() == (np.linalg.pinv(jac, rcond=1e-2) @ dy).tobytes()
+    # a stack gives each row's own floats (the batched evaluation relies on it)
+    stack, dys = rng.normal(size=(4, 2, 7)), rng.normal(size=(4, 2))
     for j in range(4):
-        assert pseudo_inverse(stack, 1e-2, lam)[j].tobytes() == pseudo_inverse(stack[j], 1e-2, lam).tobytes()
+        assert damped_steps(stack, dys, lam)[j].tobytes() == pseudo_inverse_step(stack[j], dys[j], 1e-2, lam).tobytes()
 
 
 def test_damped_step_stays_small_near_a_singularity_where_the_plain_one_explodes():

@@ -10,10 +10,10 @@ floats, bit for bit), while the memory does not change (the evaluation freezes t
   neighbour set, as the learner) is computed once per distinct ordered neighbour set and kept in
   ``cache``: the same input rows give the same floats, and along a reach (and at the common rest
   posture) consecutive steps often share their neighbours;
-* the pseudo-inverse for all rows with one stacked ``numpy.linalg.pinv`` (or, with ``reach_damping``,
-  the stacked SVD of :func:`~sagg_low_level.local_model.pseudo_inverse`; numpy computes a stack
+* the pseudo-inverse for all rows with one stacked ``numpy.linalg.pinv`` (numpy computes a stack
   one matrix at a time with the same LAPACK call, so each slice equals the single call; checked by
-  test/test_eval_batch.py) and ``J⁺ · Δy_next`` as a stacked matmul;
+  test/test_eval_batch.py), or with ``reach_damping`` the stacked
+  :func:`~sagg_low_level.local_model.damped_steps`, which the single step calls with a stack of one and ``J⁺ · Δy_next`` as a stacked matmul;
 * ``reach_limits = clamp``: rows whose plain step leaves the joint limits are re-solved by
   :func:`~sagg_low_level.local_model.clamped_step` itself, one row at a time (the others end after
   its first round, which is the plain step).
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .local_model import clamped_step, local_jacobian, pseudo_inverse
+from .local_model import clamped_step, damped_steps, local_jacobian
 from .memory_batch import neighbours_many
 
 
@@ -56,8 +56,11 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
         if jac is None:
             jac = cache[key] = local_jacobian(da[row], dy[row], p["jacobian_rcond"])
         jacs[i] = jac
-    pinv = pseudo_inverse(jacs, p["pinv_rcond"], learner.damping)
-    steps = (pinv @ dys[:, :, None])[:, :, 0]
+    if learner.damping:
+        steps = damped_steps(jacs, dys, learner.damping)
+    else:
+        pinv = np.linalg.pinv(jacs, rcond=p["pinv_rcond"])
+        steps = (pinv @ dys[:, :, None])[:, :, 0]
     if p["reach_limits"] == "clip":
         return steps
     lower, upper = learner.robot.lower, learner.robot.upper
