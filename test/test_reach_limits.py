@@ -9,7 +9,7 @@ from sagg_common.params import resolve
 from sagg_common.report_kinds import KIND_GOAL, KIND_SUBGOAL
 from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
-from sagg_low_level.local_model import clamped_step, damped_steps, pseudo_inverse_step, step_dampings
+from sagg_low_level.local_model import clamped_step, damped_steps, pseudo_inverse_step
 from sagg_sim_bridge.arm import GOLDEN_RATIO, ArmSim, ArmSpec, forward_kinematics, tip_jacobian
 
 from test_learner import StuckRobot, drive, make_learner
@@ -164,62 +164,45 @@ def test_damped_step_is_the_closed_form_and_the_same_alone_or_in_a_stack():
     rng = np.random.default_rng(5)
     jac = rng.normal(size=(2, 7))
     dy = np.array([0.03, -0.01])
-    per_unit = 8.0
-    lam = per_unit * np.linalg.norm(dy)                  # λ = damping × ||Δy_next||
+    lam = 0.3
     closed = jac.T @ np.linalg.inv(jac @ jac.T + lam ** 2 * np.eye(2)) @ dy
-    step = pseudo_inverse_step(jac, dy, 1e-2, per_unit)
-    assert np.allclose(step, closed, atol=1e-12)
-    # it minimises ||J Δα − Δy||² + λ²||Δα||²: any other step costs more
+    assert np.allclose(pseudo_inverse_step(jac, dy, 1e-2, lam), closed, atol=1e-12)
+    # minimises ||J Δα − Δy||² + λ²||Δα||²: any other step costs more
+    step = pseudo_inverse_step(jac, dy, 1e-2, lam)
     cost = lambda d: np.sum((jac @ d - dy) ** 2) + lam ** 2 * np.sum(d ** 2)
     assert all(cost(step) < cost(step + 1e-4 * rng.normal(size=7)) for _ in range(20))
     # damping 0 is the paper's J⁺ step, numpy's pinv, the same floats
     assert pseudo_inverse_step(jac, dy, 1e-2).tobytes() == (np.linalg.pinv(jac, rcond=1e-2) @ dy).tobytes()
     # a stack gives each row's own floats (the batched evaluation relies on it)
     stack, dys = rng.normal(size=(4, 2, 7)), rng.normal(size=(4, 2))
-    lams = step_dampings(dys, per_unit)
     for j in range(4):
-        assert damped_steps(stack, dys, lams)[j].tobytes() == \
-            pseudo_inverse_step(stack[j], dys[j], 1e-2, per_unit).tobytes()
-    # no displacement asked, no step (λ = 0 there), even from a singular Jacobian
-    assert not np.any(pseudo_inverse_step(np.zeros((2, 7)), np.zeros(2), 1e-2, per_unit))
+        assert damped_steps(stack, dys, lam)[j].tobytes() == pseudo_inverse_step(stack[j], dys[j], 1e-2, lam).tobytes()
 
 
-def test_damped_step_stays_within_the_exploration_scale_where_the_plain_one_explodes():
+def test_damped_step_stays_small_near_a_singularity_where_the_plain_one_explodes():
     lengths = ArmSpec(dof=7, total_length=1.0, link_ratio=1.5).link_lengths()
     nearly_straight = np.array([0.0, 0.01, -0.01, 0.01, -0.01, 0.01, -0.01])
     jac = tip_jacobian(nearly_straight, lengths)
-    a, n = 0.05, 7
-    per_unit = 1.0 / (a * math.sqrt(n))                # reach_damping 1
-    for dy in (np.array([-0.04, 0.0]), np.array([-0.004, 0.0])):  # in toward the base: singular
-        plain = pseudo_inverse_step(jac, dy, 1e-6)
-        damped = pseudo_inverse_step(jac, dy, 1e-6, per_unit)
-        assert np.linalg.norm(plain) > 0.1            # J⁺: large joint motion for a small move
-        assert np.linalg.norm(damped) <= a * math.sqrt(n) / 2 + 1e-12  # half the largest exploration
-    # away from the singular direction the damped step moves the tip the requested way
+    dy = np.array([-0.04, 0.0])                    # straight in toward the base: the singular direction
+    lam = 0.3
+    plain = pseudo_inverse_step(jac, dy, 1e-6)
+    damped = pseudo_inverse_step(jac, dy, 1e-6, lam)
+    assert np.linalg.norm(plain) > 1.0             # J⁺: radians for a 0.04 move
+    assert np.linalg.norm(damped) <= np.linalg.norm(dy) / (2 * lam) + 1e-12  # the DLS bound
+    # away from the singular direction the damped step still moves the tip the requested way
     side = np.array([0.0, -0.04])
-    moved = jac @ pseudo_inverse_step(jac, side, 1e-6, per_unit)
+    moved = jac @ pseudo_inverse_step(jac, side, 1e-6, lam)
     assert moved[1] < -0.03 and abs(moved[0]) < 1e-3
 
 
-def test_reach_damping_is_per_unit_of_displacement_over_the_largest_exploratory_micro_action():
-    p = resolve(SCHEMA, {"reach_damping": 2.0, "explore_amplitude": 0.05,
+def test_reach_damping_is_in_units_of_v_over_the_largest_exploratory_micro_action():
+    p = resolve(SCHEMA, {"reach_damping": 2.0, "v": 0.04, "explore_amplitude": 0.05,
                          "task_space.lower": [-1.0, -1.0], "task_space.upper": [1.0, 1.0]})
     learner = EvolvingContextLearner(p, Robot([f"j{i}" for i in range(7)], np.full(7, -1.0),
                                               np.full(7, 1.0), np.zeros(7)), 2)
-    assert learner.damping == pytest.approx(2.0 / (0.05 * math.sqrt(7)))
+    assert learner.damping == pytest.approx(2.0 * 0.04 / (0.05 * math.sqrt(7)))
     p["reach_damping"] = 0.0
     assert EvolvingContextLearner(p, learner.robot, 2).damping == 0.0
-
-
-def test_with_damping_inefficient_measures_the_model_error_not_the_chosen_shortfall():
-    jac = np.array([[1.0, 0.0, 0.0], [0.0, 0.05, 0.0]])
-    dy_next = np.array([0.0, 0.1])                     # along the weak direction
-    plain = make_learner(min_samples=1)
-    assert plain.step_aim(jac, np.zeros(3), dy_next) is dy_next  # paper: ε = ||Δỹ − Δy_next||
-    damped = make_learner(min_samples=1, reach_damping=1.0)
-    step = pseudo_inverse_step(jac, dy_next, 1e-2, damped.damping)
-    aim = damped.step_aim(jac, step, dy_next)
-    assert np.allclose(aim, jac @ step) and np.linalg.norm(aim) < 0.5 * np.linalg.norm(dy_next)
 
 
 # Goals beside the base on the y < 0 side of config/arm7_ratio15.yaml's arm, beyond the base joint's

@@ -133,20 +133,17 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "2026-11-23 (measured on config/arm7_ratio15.yaml with the analytic Jacobian: mean test "
           "error 0.124, 35 of 100 test goals missed).", choices=("clamp", "clip")),
     Param("reach_damping", "float", 0.0,
-          "Damped least-squares reaching (Levenberg-Marquardt; the 'singularity-robust inverse' of "
-          "Nakamura & Hanafusa 1986, Wampler 1986; local_model.damped_steps), in learning and in "
-          "the evaluation's reaching alike: Δα = J^T (J J^T + λ² I)^{-1} Δy_next, which minimises "
-          "||J Δα − Δy_next||² + λ²||Δα||², with λ = reach_damping × ||Δy_next|| / (a √n) "
-          "(a = explore_amplitude, n = joints). 0 (default) = the paper's Moore-Penrose J⁺ (Sec. "
-          "3.3, which bypasses singularities with noise). 1 = a joint motion as large as the "
-          "largest exploratory micro-action (a per joint, norm a√n) costs as much as missing the "
-          "step's desired displacement by its own length; every damped step then moves the joints "
-          "by at most a√n / 2, the scale of the micro-actions the local model was fitted from (a "
-          "trust region), and a small final step is J⁺'s. Near a singularity (the unfolded arm; a "
-          "rest without net curl, arm.rest_shape zigzag) J⁺ turns a small radial displacement "
-          "into huge joint steps that commit the arm's curl before the goal's side can choose it "
-          "(docs/reach_limits.md). With damping, Inefficient (Sec. 3.6.1) measures ε against the "
-          "model's prediction J·Δα of the damped step (learner.step_aim).", low=0.0, high=1e6),
+          "Damping of the reaching inverse, in units of v / (explore_amplitude × √n): λ = "
+          "reach_damping × v / (a √n), and Δα = J^T (J J^T + λ² I)^{-1} Δy_next, the damped "
+          "least-squares ('singularity-robust') inverse (Nakamura & Hanafusa 1986; Wampler 1986; "
+          "local_model.pseudo_inverse), in learning and in the evaluation's reaching alike. 0 "
+          "(default) = the paper's Moore-Penrose J⁺ (Sec. 3.3, which bypasses singularities with "
+          "noise). 1 = the principled value: a joint motion as large as the largest exploratory "
+          "micro-action (a per joint, norm a√n) costs as much as missing the desired displacement "
+          "by v. Near a singularity (the unfolded arm; a rest without net curl, arm.rest_shape "
+          "zigzag) J⁺ turns the small desired radial motion into huge joint steps that commit the "
+          "arm's curl before the goal's side can choose it; the damped inverse moves mostly where "
+          "the arm moves its tip well (docs/reach_limits.md).", low=0.0, high=1e6),
     Param("pinv_rcond", "float", 1e-2,
           "Relative cut-off of singular values in J⁺ (Sec. 3.3); paper: noise bypasses singularities.",
           low=0.0, high=1.0),
@@ -260,10 +257,9 @@ def timeout_budget(distance: float, v: float, factor: float) -> int:
 
 
 def reach_damping(params: dict, n: int) -> float:
-    """The damping per unit of desired displacement, λ / ||Δy_next|| = reach_damping / (a √n)
-    (learner parameter ``reach_damping``; a = explore_amplitude, n = joints): 0 = the paper's J⁺
-    (Sec. 3.3). See :func:`sagg_low_level.local_model.damped_steps`."""
-    return float(params.get("reach_damping", 0.0)) / (params["explore_amplitude"] * math.sqrt(n))
+    """λ of the damped least-squares reaching inverse (learner parameter ``reach_damping``, in units
+    of v / (a √n), a = explore_amplitude, n = joints): 0 = the paper's J⁺ (Sec. 3.3)."""
+    return float(params.get("reach_damping", 0.0)) * params["v"] / (params["explore_amplitude"] * math.sqrt(n))
 
 
 def safe_target(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: Robot) -> np.ndarray:

@@ -15,35 +15,22 @@ def local_jacobian(delta_alpha: np.ndarray, delta_y: np.ndarray, rcond: float = 
     return jt.T
 
 
-def step_dampings(dys: np.ndarray, per_unit: float) -> np.ndarray:
-    """λ of each desired displacement in a stack (B, m): ``per_unit × ||Δy||`` (learner parameter
-    ``reach_damping``, :func:`sagg_low_level.learner.reach_damping`). Computed the same way for one
-    row or many, so a step alone and in the batched evaluation get the same λ."""
-    dys = np.asarray(dys, dtype=float)
-    return per_unit * np.sqrt((dys * dys).sum(axis=-1))
-
-
-def damped_steps(jacs: np.ndarray, dys: np.ndarray, dampings: np.ndarray) -> np.ndarray:
-    """Damped least-squares joint steps for a stack of Jacobians (B, m, n), desired effector
-    displacements (B, m) and dampings λ (B,): ``Δα = J^T (J J^T + λ² I)^{-1} Δy``, the joint step
-    minimising ``||J Δα − Δy||² + λ² ||Δα||²`` (Levenberg 1944 / Marquardt 1963; in robotics the
-    "singularity-robust inverse", Nakamura & Hanafusa 1986, J. Dyn. Sys. Meas. Control 108(3);
-    Wampler 1986, IEEE Trans. SMC 16(1)).
+def damped_steps(jacs: np.ndarray, dys: np.ndarray, damping: float) -> np.ndarray:
+    """Damped least-squares joint steps for a stack of Jacobians (B, m, n) and desired effector
+    displacements (B, m): ``Δα = J^T (J J^T + λ² I)^{-1} Δy``, the joint step minimising
+    ``||J Δα − Δy||² + λ² ||Δα||²`` (the "singularity-robust inverse" of Nakamura & Hanafusa 1986,
+    J. Dyn. Sys. Meas. Control 108(3); Wampler 1986, IEEE Trans. SMC 16(1)).
 
     Per singular value σ of J the gain is σ/(σ² + λ²) instead of J⁺'s 1/σ: directions in which
     the arm barely moves its tip (σ ≪ λ, near a singularity such as the unfolded arm) get small
     joint steps instead of J⁺'s huge ones, and ||Δα|| ≤ ||Δy||/(2λ) always; where σ ≫ λ it is
     J⁺'s step. No singular value needs cutting (the gain vanishes with σ), so ``pinv_rcond`` plays
-    no part. A row with λ = 0 must have Δy = 0 (λ ∝ ||Δy||) and gets Δα = 0. Each row is computed
-    with the same operations whatever the stack size (one row alone gives the same floats; the
-    batched evaluation relies on it, test/test_eval_batch.py).
+    no part. Each row is computed with the same operations whatever the stack size (one row
+    alone gives the same floats; the batched evaluation relies on it, test/test_eval_batch.py).
     """
     jacs = np.asarray(jacs, dtype=float)
-    lam2 = np.asarray(dampings, dtype=float) ** 2
     m = jacs.shape[-2]
-    eye = np.eye(m)
-    gram = np.matmul(jacs, np.swapaxes(jacs, -1, -2)) + lam2[..., None, None] * eye
-    gram = np.where((lam2 > 0.0)[..., None, None], gram, eye)  # Δy = 0 there: x = 0, whatever J
+    gram = np.matmul(jacs, np.swapaxes(jacs, -1, -2)) + (damping * damping) * np.eye(m)
     x = np.linalg.solve(gram, np.asarray(dys, dtype=float)[..., None])   # (B, m, 1)
     return (jacs * x).sum(axis=-2)
 
@@ -55,12 +42,11 @@ def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float,
 
     ``rcond`` cuts singular values below ``rcond × σ_max`` (vague in the paper, which bypasses
     singularities with noise; our choice, exposed as the learner parameter ``pinv_rcond``).
-    With ``damping`` > 0 (per unit of ||Δy_next||, :func:`step_dampings`; learner parameter
-    ``reach_damping``; the paper's J⁺ is 0) the damped least-squares step of
-    :func:`damped_steps` instead.
+    With ``damping`` λ > 0 (learner parameter ``reach_damping``; the paper's J⁺ is λ = 0) the
+    damped least-squares step of :func:`damped_steps` instead.
     """
     if damping:
-        return damped_steps(jac[None], dy_next[None], step_dampings(dy_next[None], damping))[0]
+        return damped_steps(jac[None], dy_next[None], damping)[0]
     return np.linalg.pinv(jac, rcond=rcond) @ dy_next
 
 
@@ -78,18 +64,15 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     the displacement still missing, ``Δα_free = J_free⁺ (Δy_next − J_clamped Δα_clamped)``; until no
     free joint violates a limit (at most n rounds). Without limits in the way it is exactly
     ``J⁺ Δy_next``. A joint at its limit whose solution moves it back inside stays free, so the
-    arm can leave a limit again. With ``damping`` (per unit of ||Δy_next||) every solve is the
-    damped step of :func:`damped_steps` with the micro-action's own λ = damping × ||Δy_next||.
+    arm can leave a limit again. Every solve is :func:`pseudo_inverse_step` with ``damping``.
     """
-    lam = step_dampings(dy_next[None], damping) if damping else None
     n = jac.shape[1]
     free = np.ones(n, dtype=bool)
     dalpha = np.zeros(n)
     target = dy_next
     cols = jac
     for _ in range(n):
-        step = (damped_steps(cols[None], target[None], lam)[0] if damping
-                else np.linalg.pinv(cols, rcond=rcond) @ target)
+        step = pseudo_inverse_step(cols, target, rcond, damping)
         idx = np.flatnonzero(free)
         new = alpha[idx] + step
         over = (new > upper[idx]) | (new < lower[idx])

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .local_model import clamped_step, damped_steps, local_jacobian, step_dampings
+from .local_model import clamped_step, damped_steps, local_jacobian
 from .memory_batch import neighbours_many
 
 
@@ -57,7 +57,7 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
             jac = cache[key] = local_jacobian(da[row], dy[row], p["jacobian_rcond"])
         jacs[i] = jac
     if learner.damping:
-        steps = damped_steps(jacs, dys, step_dampings(dys, learner.damping))
+        steps = damped_steps(jacs, dys, learner.damping)
     else:
         pinv = np.linalg.pinv(jacs, rcond=p["pinv_rcond"])
         steps = (pinv @ dys[:, :, None])[:, :, 0]
