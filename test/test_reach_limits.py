@@ -230,3 +230,13 @@ def test_clockwise_curl_goals_need_a_rest_without_net_curl_and_the_damped_invers
     assert np.sum(_arm7_reach("zigzag", 0.0, CLOCKWISE_GOALS) > 0.03) >= 4
     # zigzag rest + damped inverse: the tangential motion curls the arm toward the goal's side
     assert np.all(_arm7_reach("zigzag", 1.0, CLOCKWISE_GOALS) < 1e-3)
+
+
+def test_arm7_ratio15_reaches_its_test_goals_with_the_true_jacobian_and_the_paper_rest_does_not():
+    from sagg_bringup.lab.quality import analytic_reach
+    cfg = "config/arm7_ratio15.yaml"
+    now = analytic_reach(cfg, modes=("clamp",))["clamp"]          # zigzag rest + reach_damping 1
+    assert now["mean"] <= 0.001                                  # issue 10's target
+    paper = analytic_reach(cfg, {"arm.rest_shape": "arc", "reach_damping": 0.0,
+                                 "eval.timeout_factor": 5.0}, modes=("clamp",))["clamp"]
+    assert paper["mean"] > 0.05 and paper["missed"] >= 15        # the clockwise-curl goals

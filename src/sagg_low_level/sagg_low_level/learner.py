@@ -133,17 +133,21 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "2026-11-23 (measured on config/arm7_ratio15.yaml with the analytic Jacobian: mean test "
           "error 0.124, 35 of 100 test goals missed).", choices=("clamp", "clip")),
     Param("reach_damping", "float", 0.0,
-          "Damping of the reaching inverse, in units of v / (explore_amplitude × √n): λ = "
-          "reach_damping × v / (a √n), and Δα = J^T (J J^T + λ² I)^{-1} Δy_next, the damped "
-          "least-squares ('singularity-robust') inverse (Nakamura & Hanafusa 1986; Wampler 1986; "
-          "local_model.pseudo_inverse), in learning and in the evaluation's reaching alike. 0 "
-          "(default) = the paper's Moore-Penrose J⁺ (Sec. 3.3, which bypasses singularities with "
-          "noise). 1 = the principled value: a joint motion as large as the largest exploratory "
-          "micro-action (a per joint, norm a√n) costs as much as missing the desired displacement "
-          "by v. Near a singularity (the unfolded arm; a rest without net curl, arm.rest_shape "
-          "zigzag) J⁺ turns the small desired radial motion into huge joint steps that commit the "
-          "arm's curl before the goal's side can choose it; the damped inverse moves mostly where "
-          "the arm moves its tip well (docs/reach_limits.md).", low=0.0, high=1e6),
+          "Damped least-squares reaching (the 'singularity-robust inverse' of Nakamura & Hanafusa "
+          "1986 and Wampler 1986; local_model.damped_steps), in learning and in the evaluation's "
+          "reaching alike: Δα = J^T (J J^T + λ² I)^{-1} Δy_next, the step minimising "
+          "||J Δα − Δy_next||² + λ²||Δα||², with λ = reach_damping × v / (a √n) (a = "
+          "explore_amplitude, n = joints). 0 (default) = the paper's Moore-Penrose J⁺ (Sec. 3.3, "
+          "which bypasses singularities with noise). 1 = a joint motion as large as the largest "
+          "exploratory micro-action (a per joint, norm a√n) costs as much as missing a full "
+          "reaching step v: no reaching step then moves the joints more than a√n/2, the scale of "
+          "the micro-actions the local model is fitted from, while where the arm moves its tip "
+          "well (singular value ≫ λ) the step is J⁺'s. Needed near a singularity (the unfolded arm; "
+          "a rest without net curl, arm.rest_shape zigzag), where J⁺ turns a small radial "
+          "displacement into huge joint steps that commit the arm's curl before the goal's side "
+          "can choose it (docs/reach_limits.md). With damping, Inefficient (Sec. 3.6.1) measures ε "
+          "against the model's prediction J·Δα of the damped step (learner.step_aim), not against "
+          "the shortfall the damping chose.", low=0.0, high=1e6),
     Param("pinv_rcond", "float", 1e-2,
           "Relative cut-off of singular values in J⁺ (Sec. 3.3); paper: noise bypasses singularities.",
           low=0.0, high=1.0),
