@@ -252,14 +252,14 @@ def test_graph_learner_reaches_with_the_damped_inverse_like_the_in_process_run(t
     from sagg_bringup.setups import run_experiment
     sagg = str(Path(sys.executable).parent / "sagg")
     out = tmp_path / "run"
-    proc = subprocess.run([sagg, "run", "config/arm7_ratio15.yaml", "--micro-actions", "400", "--eval-every",
+    proc = subprocess.run([sagg, "run", "config/arm7_ratio15.yaml", "--micro-actions", "200", "--eval-every",
                            "200", "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     s = json.loads((out / "summary.json").read_text())
     assert s["config"]["sagg_learner"]["reach_damping"] == 1.0
-    r = run_experiment("config/arm7_ratio15.yaml", None, None, 400, 200, None, progress=False)
+    r = run_experiment("config/arm7_ratio15.yaml", None, None, 200, 200, None, progress=False)
     assert s["memory"]["digest"] == r["memory"]["digest"] and s["curve"] == r["curve"]
     # and the damping matters: the paper's J⁺ learns other samples from the same seed
-    r0 = run_experiment("config/arm7_ratio15.yaml", None, None, 400, 200, None, progress=False,
+    r0 = run_experiment("config/arm7_ratio15.yaml", None, None, 200, 200, None, progress=False,
                         overrides={"reach_damping": 0.0})
     assert r0["memory"]["digest"] != r["memory"]["digest"]
