@@ -17,6 +17,8 @@ SETUPS = [
     ("config/arm7_ratio15.yaml", {"strategy": "actuator-random"}, 1500),  # 7 DOF, small units
     ("config/arm15.yaml", {"strategy": "sagg-random", "reach_limits": "clip"}, 1000),
     ("config/arm8.yaml", {"strategy": "sagg-riac"}, 600),               # dynamic, motor noise 0.2
+    ("config/arm7_ratio15.yaml", {"strategy": "sagg-riac", "reach_damping": 1.0,  # damped inverse
+                                  "arm.rest_shape": "zigzag"}, 1500),
 ]
 
 

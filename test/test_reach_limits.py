@@ -9,7 +9,7 @@ from sagg_common.params import resolve
 from sagg_common.report_kinds import KIND_GOAL, KIND_SUBGOAL
 from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
-from sagg_low_level.local_model import clamped_step, pseudo_inverse_step
+from sagg_low_level.local_model import clamped_step, damped_steps, pseudo_inverse_step
 from sagg_sim_bridge.arm import GOLDEN_RATIO, ArmSim, ArmSpec, forward_kinematics, tip_jacobian
 
 from test_learner import StuckRobot, drive, make_learner
@@ -157,3 +157,109 @@ def test_result_says_where_the_micro_actions_went(tmp_path):
     assert sum(s["reach"] + s["explore"] for s in split) == 600
     cov = res["coverage"]
     assert 0 <= cov["median"] <= cov["max"] and 0 <= cov["mean"] <= cov["max"]
+
+
+# ------------------------------------------------------------------------------ damped inverse
+def test_damped_step_is_the_closed_form_and_the_same_alone_or_in_a_stack():
+    rng = np.random.default_rng(5)
+    jac = rng.normal(size=(2, 7))
+    dy = np.array([0.03, -0.01])
+    lam = 0.3
+    closed = jac.T @ np.linalg.inv(jac @ jac.T + lam ** 2 * np.eye(2)) @ dy
+    assert np.allclose(pseudo_inverse_step(jac, dy, 1e-2, lam), closed, atol=1e-12)
+    # minimises ||J Δα − Δy||² + λ²||Δα||²: any other step costs more
+    step = pseudo_inverse_step(jac, dy, 1e-2, lam)
+    cost = lambda d: np.sum((jac @ d - dy) ** 2) + lam ** 2 * np.sum(d ** 2)
+    assert all(cost(step) < cost(step + 1e-4 * rng.normal(size=7)) for _ in range(20))
+    # damping 0 is the paper's J⁺ step, numpy's pinv, the same floats
+    assert pseudo_inverse_step(jac, dy, 1e-2).tobytes() == (np.linalg.pinv(jac, rcond=1e-2) @ dy).tobytes()
+    # a stack gives each row's own floats (the batched evaluation relies on it)
+    stack, dys = rng.normal(size=(4, 2, 7)), rng.normal(size=(4, 2))
+    for j in range(4):
+        assert damped_steps(stack, dys, lam)[j].tobytes() == pseudo_inverse_step(stack[j], dys[j], 1e-2, lam).tobytes()
+
+
+def test_damped_step_stays_small_near_a_singularity_where_the_plain_one_explodes():
+    lengths = ArmSpec(dof=7, total_length=1.0, link_ratio=1.5).link_lengths()
+    nearly_straight = np.array([0.0, 0.01, -0.01, 0.01, -0.01, 0.01, -0.01])
+    jac = tip_jacobian(nearly_straight, lengths)
+    dy = np.array([-0.04, 0.0])                    # straight in toward the base: the singular direction
+    lam = 0.3
+    plain = pseudo_inverse_step(jac, dy, 1e-6)
+    damped = pseudo_inverse_step(jac, dy, 1e-6, lam)
+    assert np.linalg.norm(plain) > 1.0             # J⁺: radians for a 0.04 move
+    assert np.linalg.norm(damped) <= np.linalg.norm(dy) / (2 * lam) + 1e-12  # the DLS bound
+    # away from the singular direction the damped step still moves the tip the requested way
+    side = np.array([0.0, -0.04])
+    moved = jac @ pseudo_inverse_step(jac, side, 1e-6, lam)
+    assert moved[1] < -0.03 and abs(moved[0]) < 1e-3
+
+
+def test_reach_damping_is_in_units_of_v_over_the_largest_exploratory_micro_action():
+    p = resolve(SCHEMA, {"reach_damping": 2.0, "v": 0.04, "explore_amplitude": 0.05,
+                         "task_space.lower": [-1.0, -1.0], "task_space.upper": [1.0, 1.0]})
+    learner = EvolvingContextLearner(p, Robot([f"j{i}" for i in range(7)], np.full(7, -1.0),
+                                              np.full(7, 1.0), np.zeros(7)), 2)
+    assert learner.damping == pytest.approx(2.0 * 0.04 / (0.05 * math.sqrt(7)))
+    p["reach_damping"] = 0.0
+    assert EvolvingContextLearner(p, learner.robot, 2).damping == 0.0
+
+
+# Goals beside the base on the y < 0 side of config/arm7_ratio15.yaml's arm, beyond the base joint's
+# −π/3: every inverse-kinematics solution curls the arm clockwise (joints 1-3 at −π/3), the opposite
+# of the counter-clockwise arc rest (docs/reach_limits.md).
+CLOCKWISE_GOALS = np.array([[0.151, -0.42], [-0.236, -0.389], [0.081, -0.54], [-0.212, -0.673],
+                            [-0.114, -0.636]])
+
+
+def _arm7_reach(rest_shape, damping, goals):
+    spec = ArmSpec(dof=7, total_length=1.0, link_ratio=1.5, joint_limit=math.pi / 3,
+                   base_limit=math.pi / 3, rest_shape=rest_shape)
+    sim = ArmSim(spec, 0)
+    p = resolve(SCHEMA, {"v": 0.04, "eps_c": 0.002, "eval.tolerance": 0.0002, "reach_damping": damping,
+                         "task_space.lower": [-0.5, -1.0], "task_space.upper": [1.0, 1.0]})
+    learner = EvolvingContextLearner(p, Robot(sim.joint_names, sim.lower, sim.upper, sim.rest), 2)
+    learner.jacobian_at = lambda a: tip_jacobian(a, sim.link_lengths)  # the true Jacobian
+    return np.array([reach_frozen(learner, sim, g) for g in goals])
+
+
+def test_clockwise_curl_goals_need_a_rest_without_net_curl_and_the_damped_inverse():
+    # the paper's J⁺ from the counter-clockwise arc rest curls the arm further the wrong way
+    assert np.all(_arm7_reach("arc", 0.0, CLOCKWISE_GOALS) > 0.03)
+    # from the zigzag rest (no net curl) J⁺'s huge radial steps bend joint 1 counter-clockwise first
+    assert np.sum(_arm7_reach("zigzag", 0.0, CLOCKWISE_GOALS) > 0.03) >= 4
+    # zigzag rest + damped inverse: the tangential motion curls the arm toward the goal's side
+    assert np.all(_arm7_reach("zigzag", 1.0, CLOCKWISE_GOALS) < 1e-3)
+
+
+def test_arm7_ratio15_reaches_its_test_goals_with_the_true_jacobian_and_the_paper_rest_does_not():
+    from sagg_bringup.lab.quality import analytic_reach
+    cfg = "config/arm7_ratio15.yaml"
+    now = analytic_reach(cfg, modes=("clamp",))["clamp"]          # zigzag rest + reach_damping 1
+    assert now["mean"] <= 0.001                                  # issue 10's target
+    paper = analytic_reach(cfg, {"arm.rest_shape": "arc", "reach_damping": 0.0,
+                                 "eval.timeout_factor": 5.0}, modes=("clamp",))["clamp"]
+    assert paper["mean"] > 0.05 and paper["missed"] >= 15        # the clockwise-curl goals
+
+
+def test_graph_learner_reaches_with_the_damped_inverse_like_the_in_process_run(tmp_path):
+    """config/arm7_ratio15.yaml (zigzag rest, reach_damping 1) through `sagg run`: the learner node
+    takes the damped step and Inefficient's aim exactly as in-process (same samples, same curve)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+    from sagg_bringup.setups import run_experiment
+    sagg = str(Path(sys.executable).parent / "sagg")
+    out = tmp_path / "run"
+    proc = subprocess.run([sagg, "run", "config/arm7_ratio15.yaml", "--micro-actions", "200", "--eval-every",
+                           "200", "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    s = json.loads((out / "summary.json").read_text())
+    assert s["config"]["sagg_learner"]["reach_damping"] == 1.0
+    r = run_experiment("config/arm7_ratio15.yaml", None, None, 200, 200, None, progress=False)
+    assert s["memory"]["digest"] == r["memory"]["digest"] and s["curve"] == r["curve"]
+    # and the damping matters: the paper's J⁺ learns other samples from the same seed
+    r0 = run_experiment("config/arm7_ratio15.yaml", None, None, 200, 200, None, progress=False,
+                        overrides={"reach_damping": 0.0})
+    assert r0["memory"]["digest"] != r["memory"]["digest"]

@@ -132,6 +132,23 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "Δα = J⁺Δy_next (Sec. 3.3), clipped to the limits afterwards; the behaviour before "
           "2026-11-23 (measured on config/arm7_ratio15.yaml with the analytic Jacobian: mean test "
           "error 0.124, 35 of 100 test goals missed).", choices=("clamp", "clip")),
+    Param("reach_damping", "float", 0.0,
+          "Damped least-squares reaching (the 'singularity-robust inverse' of Nakamura & Hanafusa "
+          "1986 and Wampler 1986; local_model.damped_steps), in learning and in the evaluation's "
+          "reaching alike: Δα = J^T (J J^T + λ² I)^{-1} Δy_next, the step minimising "
+          "||J Δα − Δy_next||² + λ²||Δα||², with λ = reach_damping × v / (a √n) (a = "
+          "explore_amplitude, n = joints). 0 (default) = the paper's Moore-Penrose J⁺ (Sec. 3.3, "
+          "which bypasses singularities with noise). 1 = a joint motion as large as the largest "
+          "exploratory micro-action (a per joint, norm a√n) costs as much as missing a full "
+          "reaching step v: the damped solve then never moves the joints more than a√n/2 (before "
+          "the joint limits' re-solve and the reach noise), the scale of the micro-actions the "
+          "local model is fitted from, while where the arm moves its tip "
+          "well (singular value ≫ λ) the step is J⁺'s. Needed near a singularity (the unfolded arm; "
+          "a rest without net curl, arm.rest_shape zigzag), where J⁺ turns a small radial "
+          "displacement into huge joint steps that commit the arm's curl before the goal's side "
+          "can choose it (docs/reach_limits.md). With damping, Inefficient (Sec. 3.6.1) measures ε "
+          "against the model's prediction J·Δα of the damped step (learner.step_aim), not against "
+          "the shortfall the damping chose.", low=0.0, high=1e6),
     Param("pinv_rcond", "float", 1e-2,
           "Relative cut-off of singular values in J⁺ (Sec. 3.3); paper: noise bypasses singularities.",
           low=0.0, high=1.0),
@@ -244,6 +261,12 @@ def timeout_budget(distance: float, v: float, factor: float) -> int:
     return max(1, math.ceil(factor * distance / v))
 
 
+def reach_damping(params: dict, n: int) -> float:
+    """λ of the damped least-squares reaching inverse (learner parameter ``reach_damping``, in units
+    of v / (a √n), a = explore_amplitude, n = joints): 0 = the paper's J⁺ (Sec. 3.3)."""
+    return float(params.get("reach_damping", 0.0)) * params["v"] / (params["explore_amplitude"] * math.sqrt(n))
+
+
 def safe_target(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: Robot) -> np.ndarray:
     """Clip a commanded posture to ``max_step`` per joint from ``alpha`` (the step is scaled down
     as a whole so its direction is kept) and to the robot's joint limits."""
@@ -279,6 +302,7 @@ class EvolvingContextLearner:
         self.min_samples = params["min_samples"] or n
         self.v = params["v"]
         self.eps_max = params["eps_max_ratio"] * self.v
+        self.damping = reach_damping(params, n)
         self.scale = (self.task_upper - self.task_lower) if params["competence_rescale"] else None
         self.rng = stream(params["seed"], "learner")
         self.alpha = robot.rest.copy()
@@ -337,18 +361,36 @@ class EvolvingContextLearner:
     def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
         """Δα = J⁺(α)·Δy_next from the local model (None while memory is too small)."""
         jac = self.jacobian_at(alpha)
-        return None if jac is None else pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
+        return None if jac is None else pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"],
+                                                            self.damping)
 
     def reach_step(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
         """The reaching micro-action Δα for a desired effector displacement (Sec. 3.6.1), within
         the joint limits as ``reach_limits`` says; used by learning and by the evaluation's
         reaching from rest alike. None while the memory is too small."""
+        return self.reach_plan(alpha, dy_next)[1]
+
+    def reach_plan(self, alpha: np.ndarray, dy_next: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(J(α), Δα) of :meth:`reach_step`: the local Jacobian the step was computed from, and
+        the step; (None, None) while the memory is too small."""
         jac = self.jacobian_at(alpha)
         if jac is None:
-            return None
+            return None, None
         if self.p["reach_limits"] == "clip":
-            return pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"])
-        return clamped_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper, self.p["pinv_rcond"])
+            return jac, pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"], self.damping)
+        return jac, clamped_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper,
+                                 self.p["pinv_rcond"], self.damping)
+
+    def step_aim(self, jac: np.ndarray, dalpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray:
+        """The effector displacement a reaching micro-action was computed to produce, against
+        which Inefficient measures ε = ||Δỹ − aim|| (Sec. 3.6.1, Alg. 3). With the paper's J⁺
+        (``reach_damping`` 0) it is Δy_next itself, the paper's formula. The damped inverse aims
+        by design at less than Δy_next in the directions the arm barely moves its tip (its
+        compromise with the joint motion): its aim is the model's own prediction J·Δα of the
+        commanded step, so ε measures how wrong the model was, which is what the test is for
+        ("judge if the current model has been efficient enough", Sec. 2, Alg. 2), not the
+        shortfall the damping chose."""
+        return dy_next if self.damping == 0.0 else jac @ dalpha
 
     def predict(self, alpha: np.ndarray, dalpha: np.ndarray) -> np.ndarray:
         """Forward prediction Δy ≈ J(α)·Δα from the local model (zeros while memory is too small)."""
@@ -415,16 +457,17 @@ class EvolvingContextLearner:
                     blocked = self.p["blocking_scope"] == "goal"
                     break
                 dy_next = desired_displacement(self.y, target, self.v)
-                dalpha = self.reach_step(self.alpha, dy_next)
+                jac, dalpha = self.reach_plan(self.alpha, dy_next)
                 need_explore = dalpha is None
                 if dalpha is not None:
+                    aim = self.step_aim(jac, dalpha, dy_next)
                     if self.p["reach_noise"] > 0:
                         a = self.p["reach_noise"]
                         dalpha = dalpha + self.rng.uniform(-a, a, self.robot.n)
                     dy = yield from self._act(self.alpha + dalpha, "reach")
                     used += 1
                     self._report(KIND_REACHED, goal_seq, self.y, self.y, 0.0)
-                    need_explore = float(np.linalg.norm(dy - dy_next)) > self.eps_max
+                    need_explore = float(np.linalg.norm(dy - aim)) > self.eps_max
                 if need_explore:
                     # the timeout counter runs through both phases (Sec. 3.6.2); with
                     # exploration_respects_timeout it may cut the phase short, and a phase that

@@ -15,18 +15,43 @@ def local_jacobian(delta_alpha: np.ndarray, delta_y: np.ndarray, rcond: float = 
     return jt.T
 
 
-def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float) -> np.ndarray:
+def damped_steps(jacs: np.ndarray, dys: np.ndarray, damping: float) -> np.ndarray:
+    """Damped least-squares joint steps for a stack of Jacobians (B, m, n) and desired effector
+    displacements (B, m): ``Δα = J^T (J J^T + λ² I)^{-1} Δy``, the joint step minimising
+    ``||J Δα − Δy||² + λ² ||Δα||²`` (the "singularity-robust inverse" of Nakamura & Hanafusa 1986,
+    J. Dyn. Sys. Meas. Control 108(3); Wampler 1986, IEEE Trans. SMC 16(1)).
+
+    Per singular value σ of J the gain is σ/(σ² + λ²) instead of J⁺'s 1/σ: directions in which
+    the arm barely moves its tip (σ ≪ λ, near a singularity such as the unfolded arm) get small
+    joint steps instead of J⁺'s huge ones, and ||Δα|| ≤ ||Δy||/(2λ) always; where σ ≫ λ it is
+    J⁺'s step. No singular value needs cutting (the gain vanishes with σ), so ``pinv_rcond`` plays
+    no part. Each row is computed with the same operations whatever the stack size (one row
+    alone gives the same floats; the batched evaluation relies on it, test/test_eval_batch.py).
+    """
+    jacs = np.asarray(jacs, dtype=float)
+    m = jacs.shape[-2]
+    gram = np.matmul(jacs, np.swapaxes(jacs, -1, -2)) + (damping * damping) * np.eye(m)
+    x = np.linalg.solve(gram, np.asarray(dys, dtype=float)[..., None])   # (B, m, 1)
+    return (jacs * x).sum(axis=-2)
+
+
+def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float,
+                        damping: float = 0.0) -> np.ndarray:
     """Joint displacement for a desired effector displacement: paper Sec. 3.3, equation
     (jacobianPseudo), ``Δα = J⁺(α) · Δy_next`` with the Moore-Penrose pseudo-inverse.
 
     ``rcond`` cuts singular values below ``rcond × σ_max`` (vague in the paper, which bypasses
     singularities with noise; our choice, exposed as the learner parameter ``pinv_rcond``).
+    With ``damping`` λ > 0 (learner parameter ``reach_damping``; the paper's J⁺ is λ = 0) the
+    damped least-squares step of :func:`damped_steps` instead.
     """
+    if damping:
+        return damped_steps(jac[None], dy_next[None], damping)[0]
     return np.linalg.pinv(jac, rcond=rcond) @ dy_next
 
 
 def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower: np.ndarray,
-                 upper: np.ndarray, rcond: float) -> np.ndarray:
+                 upper: np.ndarray, rcond: float, damping: float = 0.0) -> np.ndarray:
     """Pseudo-inverse step that respects joint limits by clamping and re-solving (the "joint
     clamping" loop of Baerlocher & Boulic 2004, "An inverse kinematics architecture enforcing an
     arbitrary number of strict priority levels", The Visual Computer 20(6); see also Flacco, De Luca
@@ -39,7 +64,7 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     the displacement still missing, ``Δα_free = J_free⁺ (Δy_next − J_clamped Δα_clamped)``; until no
     free joint violates a limit (at most n rounds). Without limits in the way it is exactly
     ``J⁺ Δy_next``. A joint at its limit whose solution moves it back inside stays free, so the
-    arm can leave a limit again.
+    arm can leave a limit again. Every solve is :func:`pseudo_inverse_step` with ``damping``.
     """
     n = jac.shape[1]
     free = np.ones(n, dtype=bool)
@@ -47,7 +72,7 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     target = dy_next
     cols = jac
     for _ in range(n):
-        step = np.linalg.pinv(cols, rcond=rcond) @ target
+        step = pseudo_inverse_step(cols, target, rcond, damping)
         idx = np.flatnonzero(free)
         new = alpha[idx] + step
         over = (new > upper[idx]) | (new < lower[idx])

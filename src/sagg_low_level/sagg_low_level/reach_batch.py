@@ -12,7 +12,8 @@ floats, bit for bit), while the memory does not change (the evaluation freezes t
   posture) consecutive steps often share their neighbours;
 * the pseudo-inverse for all rows with one stacked ``numpy.linalg.pinv`` (numpy computes a stack
   one matrix at a time with the same LAPACK call, so each slice equals the single call; checked by
-  test/test_eval_batch.py) and ``J⁺ · Δy_next`` as a stacked matmul;
+  test/test_eval_batch.py), or with ``reach_damping`` the stacked
+  :func:`~sagg_low_level.local_model.damped_steps`, which the single step calls with a stack of one and ``J⁺ · Δy_next`` as a stacked matmul;
 * ``reach_limits = clamp``: rows whose plain step leaves the joint limits are re-solved by
   :func:`~sagg_low_level.local_model.clamped_step` itself, one row at a time (the others end after
   its first round, which is the plain step).
@@ -24,14 +25,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .local_model import clamped_step, local_jacobian
+from .local_model import clamped_step, damped_steps, local_jacobian
 from .memory_batch import neighbours_many
 
 
 def batch_supported(learner) -> bool:
     """False when the learner's model functions were replaced on the instance (e.g. an analytic
     Jacobian in a lab tool): then only the per-goal path knows what the step is."""
-    return not any(name in vars(learner) for name in ("reach_step", "jacobian_at", "inverse"))
+    return not any(name in vars(learner) for name in ("reach_step", "reach_plan", "jacobian_at", "inverse"))
 
 
 def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
@@ -55,13 +56,16 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
         if jac is None:
             jac = cache[key] = local_jacobian(da[row], dy[row], p["jacobian_rcond"])
         jacs[i] = jac
-    pinv = np.linalg.pinv(jacs, rcond=p["pinv_rcond"])
-    steps = (pinv @ dys[:, :, None])[:, :, 0]
+    if learner.damping:
+        steps = damped_steps(jacs, dys, learner.damping)
+    else:
+        pinv = np.linalg.pinv(jacs, rcond=p["pinv_rcond"])
+        steps = (pinv @ dys[:, :, None])[:, :, 0]
     if p["reach_limits"] == "clip":
         return steps
     lower, upper = learner.robot.lower, learner.robot.upper
     new = alphas + steps
     over = np.flatnonzero(((new > upper) | (new < lower)).any(axis=1))
     for i in over:
-        steps[i] = clamped_step(jacs[i], dys[i], alphas[i], lower, upper, p["pinv_rcond"])
+        steps[i] = clamped_step(jacs[i], dys[i], alphas[i], lower, upper, p["pinv_rcond"], learner.damping)
     return steps

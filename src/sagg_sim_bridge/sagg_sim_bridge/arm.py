@@ -88,12 +88,16 @@ class ArmSpec:
     # avoid starting at the unfolded singularity). "arc" (default; the shape before 2026-11-23):
     # every joint bent by rest_bend/(dof-1) the same way, a C. "zigzag": joints bent alternately
     # by ±rest_bend/(dof-1) (+ first), an accordion: as far from straight per joint as the arc,
-    # but with no net curl. Why it matters with tight joint limits: a C-shaped rest commits the
-    # arm to curling its way when the tip must come in toward the base; goals beside the base
-    # beyond the base joint's limit on the other side need the opposite curl (every IK solution
-    # of (0.151, -0.42) on config/arm7_ratio15.yaml has joints 1-3 at -π/3), so from an arc rest
-    # no local reacher gets there along the straight task-space path. In both shapes the base
-    # angle then puts the rest tip on the +x axis.
+    # but with no net curl. Which one (docs/reach_limits.md): a C-shaped rest commits the arm to
+    # curling its way when the tip must come in toward the base, which is harmless when the base
+    # joint's range covers every direction of the task space (the paper's arm and every arm config
+    # here but one: base ±π/2, Y in x ≥ 0), and fatal when it does not: on
+    # config/arm7_ratio15.yaml (base ±π/3, Y reaching x < 0) goals beside the base beyond −π/3 need
+    # the opposite curl (every IK solution of (0.151, -0.42) has joints 1-3 at -π/3) and 17 of 100
+    # test goals are missed with the true Jacobian. "zigzag" leaves the curl to the goal's side,
+    # but lies near the unfolded singularity: use it with the learner's reach_damping (with J⁺ it
+    # misses 29 of those goals, and on the 15-DOF arm its mean error is 1.05 against 0.0023).
+    # In both shapes the base angle then puts the rest tip on the +x axis.
     rest_shape: str = "arc"
     # "kinematic" (qpos set + mj_kinematics) | "dynamic" (position actuators + physics).
     mode: str = "kinematic"

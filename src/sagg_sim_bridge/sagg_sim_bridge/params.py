@@ -15,9 +15,11 @@ _ARM_DOC = {
     "joint_limit": "Symmetric limit ±rad of joints 1..n-1 (paper: none given; ours ±π/2).",
     "base_limit": "Symmetric limit ±rad of the base joint (ours ±π/2: the arm faces x ≥ 0).",
     "rest_bend": "Total bend (rad) of the rest posture, spread over the joints; tip on +x.",
-    "rest_shape": "'arc': rest bend spread evenly one way (a C; default); 'zigzag': alternately "
-                  "±rest_bend/(dof-1), no net curl, so the rest does not commit the arm to curling one "
-                  "way (matters with tight joint limits; see arm.py ArmSpec).",
+    "rest_shape": "'arc': rest bend spread evenly one way (a C; default: right when the base "
+                  "joint's range covers every direction of Y, as on the paper's arm); 'zigzag': "
+                  "alternately ±rest_bend/(dof-1), no net curl, so the goal's side chooses how the arm "
+                  "curls (needed when the base range does not cover Y, e.g. config/arm7_ratio15.yaml; "
+                  "near-singular, so use it with the learner's reach_damping; see arm.py ArmSpec).",
     "mode": "'kinematic' (ideal position control, kinematics only) or 'dynamic' (MuJoCo physics, "
             "position actuators, settle criterion).",
     "motor_noise": "Multiplicative motor noise: realised Δα = Δα·(1 + noise·N(0,1)) per joint "
