@@ -256,7 +256,9 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
     fp = make_fingerprint(config, strategies, seed_list, micro_actions, eval_every, overrides)
     resuming = check_fingerprint(out, fp)
 
-    specs = [RunSpec(st, s) for st in strategies for s in seed_list]
+    # seed by seed, every strategy of a seed before the next seed: an interrupted comparison holds
+    # the same seeds for every strategy, so it can already be decided on them
+    specs = [RunSpec(st, s) for s in seed_list for st in strategies]
     todo = []
     skipped = 0
     for spec in specs:
