@@ -9,9 +9,10 @@ directory (``EXP/runs/<strategy>/seed-<s>/result.json``) is also written, compac
 running, so only what is missing runs (the comparison's own resume check validates each restored
 result against the settings, exactly as a local one).
 
-Compacting drops what grows with the run's length and is not needed by any summary, verdict or
-figure of a comparison: the per-goal list ``goals`` (replaced by ``goal_histogram``, the counts the
-report's goal histograms draw) and the region tree ``regions``. Everything else (curve, final
+Compacting (JSON on one line) drops what grows with the run's length and is not needed by any
+summary, verdict or figure of a comparison: the per-goal list ``goals`` (replaced by ``goal_histogram``, the counts the
+report's goal histograms draw), the region tree ``regions`` and its split history ``splits``
+(drawn only by a single run's report). Everything else (curve, final
 errors, goal_stats, phases, coverage, memory digest, config, commit) is kept as computed.
 """
 from __future__ import annotations
@@ -25,7 +26,7 @@ import numpy as np
 from sagg_common.journal import write_json_atomic
 
 HISTOGRAM_BINS = 40          # cells per task dimension of the goal histogram (the report's figure)
-DROPPED = ("goals", "regions")
+DROPPED = ("goals", "regions", "splits")
 
 
 def goal_histogram(positions: np.ndarray, lower, upper, bins: int = HISTOGRAM_BINS) -> dict:
@@ -81,7 +82,7 @@ def archive_run(result_file: Path, exp_dir: Path, archive_dir: Path) -> Path:
     result_file, exp_dir, archive_dir = Path(result_file), Path(exp_dir), Path(archive_dir)
     target = archive_dir / result_file.relative_to(exp_dir)
     target.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(target, compact(json.loads(result_file.read_text())))
+    write_json_atomic(target, compact(json.loads(result_file.read_text())), compact=True)
     if (exp_dir / "compare.json").exists():
         shutil.copyfile(exp_dir / "compare.json", archive_dir / "compare.json")
     return target

@@ -108,12 +108,16 @@ class GenerationFiles:
                 self._path(kind, k).unlink(missing_ok=True)
 
 
-def write_json_atomic(path: str | Path, data: Any) -> None:
-    """JSON to ``path`` atomically: temporary file in the same folder, fsync, ``os.replace``."""
+def write_json_atomic(path: str | Path, data: Any, compact: bool = False) -> None:
+    """JSON to ``path`` atomically: temporary file in the same folder, fsync, ``os.replace``.
+    One value per line (readable, diffable), or with ``compact`` on one line without spaces."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w") as fh:
-        json.dump(data, fh, indent=1, allow_nan=True)
+        if compact:
+            json.dump(data, fh, separators=(",", ":"), allow_nan=True)
+        else:
+            json.dump(data, fh, indent=1, allow_nan=True)
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, path)
