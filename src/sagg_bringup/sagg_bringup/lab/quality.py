@@ -218,7 +218,8 @@ def bench_quality(config: str | Path, strategies, seeds: int, points, contexts=C
         if c not in CONTEXTS:
             raise ConfigError(f"--contexts: got {c!r}; allowed: {', '.join(CONTEXTS)}")
         check_context(config, c, overrides)
-    base = load_experiment_config(config, overrides)["sagg_learner"]
+    # the task space of the first context's runs (a fixed-context-only --set would fail the evolving load)
+    base = load_experiment_config(config, context_overrides(contexts[0], overrides))["sagg_learner"]
     spaces = {"config": (list(base["task_space.lower"]), list(base["task_space.upper"]))}
     if wide is not None:
         spaces["wide"] = ([float(wide[0]), float(wide[1])], [float(wide[2]), float(wide[3])])
