@@ -37,16 +37,17 @@ def test_fixed_arm_config_drops_the_evolving_parameters_and_takes_the_arm():
 
 def test_fixed_arm_is_metric_and_explores_per_arm_length():
     """The fixed-context arm's defaults: competence on plain distances (its Y is metric, Sec. 3.5)
-    and the exploration's D per arm length (explore_length = total_length, whatever Y); an explicit
-    explore_length is kept. The synergy set-ups keep the rescaled units (Sec. 4.3)."""
+    and the exploration's D per arm length (explore_length = total_length, whatever Y) unless the
+    config or an override gives explore_length. The synergy set-ups keep the rescaled units (Sec. 4.3)."""
     lp = load_experiment_config("config/arm8.yaml", {"context": "fixed"})["sagg_learner"]
     assert lp["competence_rescale"] is False and lp["explore_length"] == 50.0
     for box in ([-2.0, -2.0], [2.0, 2.0]), ([-0.5, -1.0], [1.0, 1.0]):
         lp = load_experiment_config("config/arm7_ratio15.yaml", {
             "context": "fixed", "task_space.lower": box[0], "task_space.upper": box[1]})["sagg_learner"]
         assert lp["explore_length"] == 1.0
-    lp = load_experiment_config("config/arm8.yaml", {"context": "fixed", "explore_length": 5.0})["sagg_learner"]
-    assert lp["explore_length"] == 5.0
+    for given in (5.0, 0.0):  # given explicitly: kept (0 = the competence's units)
+        lp = load_experiment_config("config/arm8.yaml", {"context": "fixed", "explore_length": given})["sagg_learner"]
+        assert lp["explore_length"] == given
     lp = load_experiment_config("config/quadruped.yaml")["sagg_learner"]
     assert lp["competence_rescale"] is True and lp["explore_length"] == 0.0
     run = in_process_run("config/arm8.yaml", KIN)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.params import ConfigError, resolve_nodes
+from sagg_common.params import WILDCARD, ConfigError, read_config, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import stream, substream_seed
 from sagg_common.synergy import transported_outcome
@@ -185,7 +185,12 @@ class ArmPostureSetup:
         lp.update({"joints": spec.joint_names(), "joint_limits.lower": lower.tolist(),
                    "joint_limits.upper": upper.tolist(), "rest_posture": spec.rest_posture().tolist(),
                    "synergy.kind": "posture"})
-        if lp["explore_length"] == 0:  # the exploration noise per arm length (Param explore_length)
+        # the exploration noise per arm length (Param explore_length), unless the config or an
+        # override gives explore_length (0 included: the competence's units)
+        sections = read_config(path)
+        given = "explore_length" in (overrides or {}) or any(
+            "explore_length" in sections.get(name, {}) for name in (WILDCARD, "sagg_learner"))
+        if not given:
             lp["explore_length"] = float(spec.total_length)
         return out
 
