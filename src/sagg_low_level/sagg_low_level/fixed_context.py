@@ -112,7 +112,9 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "competence_rescale).", low=0.0, high=1e9),
     EPS_SIM,
     Param("competence_rescale", "bool", True,
-          "Rescale each task dimension to [0, 1] by Y's extent before distances (Sec. 4.3)."),
+          "Rescale each task dimension to [0, 1] by Y's extent before distances (Sec. 4.3: u, v and "
+          "φ have different units). The fixed-context arm defaults to false: its Y is metric in both "
+          "dimensions and its competence is on plain distances (Sec. 3.5)."),
     Param("riac.g_max", "int", 30, "ACTUATOR-RIAC: points per θ region before a split.",
           low=2, high=1_000_000),
     *RIAC_SPLITTING,
