@@ -110,6 +110,10 @@ def summarise(results: dict, points: list[int]) -> dict:
             cell["explore_share"] = float(np.mean([p["explore_share"] for p in ph]))
             cell["share_on_reachable_goals"] = float(np.mean(
                 [p["reachable_goals"]["share_of_micro_actions"] for p in ph]))
+            # the goal choice itself: share of the self-generated goals inside the reachable area
+            cell["goals_in_reachable_area"] = float(np.mean(
+                [p["reachable_goals"]["goals"] / max(1, p["reachable_goals"]["goals"] + p["unreachable_goals"]["goals"])
+                 for p in ph]))
         cov = [r["coverage"]["max"] for r in rs if r.get("coverage")]
         if cov:
             cell["coverage_max"] = _stats(cov)
@@ -166,6 +170,13 @@ def markdown(summary: dict, contexts, spaces: dict, strategies, points, config_n
             row.append("—" if cell is None or "explore_share" not in cell else
                        f"{cell['explore_share']:.0%} / {cell['share_on_reachable_goals']:.0%}")
         lines.append("| exploration / on reachable goals (share of micro-actions) | " + " | ".join(row) + " |"
+                     + (" |" if targets else ""))
+        row = []
+        for c, s in cols:
+            cell = cells.get((c, space, s))
+            row.append("—" if cell is None or "goals_in_reachable_area" not in cell else
+                       f"{cell['goals_in_reachable_area']:.0%}")
+        lines.append("| goals in the reachable area (share of goals) | " + " | ".join(row) + " |"
                      + (" |" if targets else ""))
         row = []
         for c, s in cols:
