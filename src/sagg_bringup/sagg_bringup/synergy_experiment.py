@@ -320,8 +320,8 @@ def run_synergy_experiment(adapter, config_path: str | Path, strategy: str | Non
             "trials": learner.trials,
             "discarded": learner.discarded,
             "goals_done": learner.goals_done,
-            "goals_reached": learner.goals_reached,  # attempts that ended reached (C > ε_sim)
-            "goals_blocked": learner.goals_blocked,  # declared unreached by blocking_w (Sec. 3.7.6)
+            "goals_reached": learner.goals_reached,  # attempts whose best outcome reached the goal
+            "goals_blocked": learner.goals_blocked,  # not reached, stopped by blocking_w (Sec. 3.7.6)
             "pool_seconds": pool_seconds,
             **goal_info,
             "outcome_extents": outcome_extents(outcomes),

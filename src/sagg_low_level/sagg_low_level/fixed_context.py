@@ -312,8 +312,8 @@ class FixedContextLearner:
         self.reports_sent = 0
         self.goals_done = 0
         self.exploration_phases = 0
-        self.goals_reached = 0     # goals whose attempt ended reached (C > ε_sim)
-        self.goals_blocked = 0     # goals declared unreached by the blocking test (blocking_w)
+        self.goals_reached = 0     # goals whose best outcome reached them (C > ε_sim)
+        self.goals_blocked = 0     # goals not reached and stopped by the blocking test (blocking_w)
         self.last_competence = float("nan")
         self.on_report: Callable[[Report], None] | None = None
         self.on_sample: Callable[[int], None] | None = None
@@ -454,12 +454,12 @@ class FixedContextLearner:
         d = np.asarray(goal, dtype=float) - np.asarray(y, dtype=float)
         return math.sqrt(float(d @ d)) / length
 
-    def outcome_gamma(self, goal, y) -> float:
-        """Γ recorded at an outcome y of an experiment toward ``goal`` (parameter
-        ``outcome_competence``): Γ(C(y_g, y)) of Sec. 2.4.1 (Alg. 4's Γ_{y_i}), or 0 (Sec. 2.5)."""
+    def outcome_gamma(self, c: float) -> float:
+        """Γ recorded at an outcome whose competence toward the current goal is ``c`` (parameter
+        ``outcome_competence``): Γ(c) of Sec. 2.4.1 (Alg. 4's Γ_{y_i}), or 0 (Sec. 2.5)."""
         if self.p["outcome_competence"] == "maximal":
             return 0.0
-        return gamma(self.competence_of(goal, y), self.p["eps_sim"])
+        return gamma(c, self.p["eps_sim"])
 
     def _goal_attempt(self) -> Generator:
         """One goal (Alg. 1 inner loop with Alg. 4): reach with the inverse model; when that does not
@@ -474,7 +474,7 @@ class FixedContextLearner:
         g = self.scale_y(goal)
         d_best = math.inf  # distance of best_y to the goal
         eps_sim, w = self.p["eps_sim"], self.p["blocking_w"]
-        reached = blocked = False
+        blocked = False
         for _ in range(self.p["rounds"]):
             # y_c, the closest known outcome (its index), and θ from the inverse model (Sec. 4.4.1);
             # L's first member is y_c (same search, same order)
@@ -494,9 +494,8 @@ class FixedContextLearner:
                 if best_y is None or d_y < d_best:
                     best_y, d_best = y, d_y
                 c_y = self.competence_of(goal, y)
-                self._report(KIND_REACHED, goal_seq, y, self.outcome_gamma(goal, y), y)
+                self._report(KIND_REACHED, goal_seq, y, self.outcome_gamma(c_y), y)
                 if is_reached(c_y, eps_sim):
-                    reached = True
                     break
             # Inefficient(M⁻¹, ỹ_j, y_j): the reach did not beat the closest known outcome
             if y is not None and d_y <= d_before:
@@ -524,7 +523,7 @@ class FixedContextLearner:
                     continue
                 last_y = y_i
                 c_i = self.competence_of(goal, y_i)
-                self._report(KIND_EXPLORATION, goal_seq, y_i, self.outcome_gamma(goal, y_i), y_i)
+                self._report(KIND_EXPLORATION, goal_seq, y_i, self.outcome_gamma(c_i), y_i)
                 d_i = self.distance(goal, y_i)
                 if y_k is None or d_i < d_k:
                     theta_k, y_k, d_k = self.thetas[len(self) - 1].copy(), y_i, d_i
@@ -534,7 +533,6 @@ class FixedContextLearner:
                 if best_y is None or d_i < d_best:
                     best_y, d_best = y_i, d_i
                 if self.p["stop_when_reached"] and is_reached(c_i, eps_sim):
-                    reached = True
                     break
                 if w and idle >= w:
                     blocked = True
@@ -542,7 +540,6 @@ class FixedContextLearner:
             if blocked:
                 break
             if best_y is not None and is_reached(self.competence_of(goal, best_y), eps_sim):
-                reached = True
                 break
         final = best_y if self.p["goal_competence"] == "best" else last_y
         if final is None:  # no outcome at all in this attempt: the rest outcome stands in
@@ -550,8 +547,11 @@ class FixedContextLearner:
         c = self.competence_of(goal, final)
         self._report(KIND_GOAL, goal_seq, goal, gamma(c, eps_sim), final)
         self.goals_done += 1
+        # how the attempt ended (statistics): its best outcome reached the goal, else the blocking
+        # test stopped it, else its budget (q, rounds) ran out
+        reached = best_y is not None and is_reached(self.competence_of(goal, best_y), eps_sim)
         self.goals_reached += reached
-        self.goals_blocked += blocked
+        self.goals_blocked += blocked and not reached
 
     def _actuator_babbling(self, riac: bool) -> Generator:
         """ACTUATOR-RANDOM (θ uniform in its bounds) and ACTUATOR-RIAC (θ regions of the normalised
