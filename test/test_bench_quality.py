@@ -32,6 +32,10 @@ def test_bench_quality_smoke(tmp_path, capsys, monkeypatch):
     ana = res["analytic_reach"]
     assert ana["clamp"]["mean"] < ana["clip"]["mean"] and ana["clamp"]["missed"] < ana["clip"]["missed"]
     assert "Y = wide" in text and "queries/s" in text and "Mann-Whitney" in text
+    assert 0 <= cell["goals_in_reachable_area"] <= 1 and "goals in the reachable area" in text
+    # SAGG-RANDOM's goals are uniform in Y: in [-2,2]² far fewer of them fall in the reachable area
+    assert res["cells"]["evolving/wide/sagg-random"]["goals_in_reachable_area"] < \
+        res["cells"]["evolving/config/sagg-random"]["goals_in_reachable_area"]
     # every run's result.json is kept, with where its micro-actions went
     r = json.loads((tmp_path / "evolving/config/sagg-riac/seed-1/result.json").read_text())
     assert r["phases"]["reach"] + r["phases"]["explore"] == 100

@@ -4,7 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sagg_common.competence import gamma, is_reached
 from sagg_common.params import ConfigError, resolve
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.fixed_context import (SCHEMA, SYNERGY_SCHEMA, Driver, Execute, FixedContextLearner,
                                           ThetaSpace, evaluate_fixed, exploration_theta, least_spread_set,
@@ -163,3 +165,124 @@ def test_spread_goals_cover_rare_areas():
     assert all(any(np.array_equal(g, p) for p in pts) for g in goals)
     with pytest.raises(ValueError, match="eval.pool"):
         spread_goals(pts + 10, 5, rng, [-1, -1], [2, 2])
+
+
+def _recorded(over, n=600, seed=0):
+    """A SAGG-RANDOM run on smooth_map with every report recorded: (learner, reports)."""
+    reports = []
+    learner, driver = make("sagg-random", seed=seed, **over)
+    forward = learner.on_report
+
+    def keep(r):
+        reports.append(r)
+        forward(r)
+
+    learner.on_report = keep
+    driver.step_until(n)
+    return learner, reports
+
+
+def _per_goal(reports):
+    """Reports grouped by goal, in order, the goal's own report last."""
+    out: dict[int, list] = {}
+    for r in reports:
+        out.setdefault(r.goal_seq, []).append(r)
+    return [rs for rs in out.values() if rs[-1].kind == KIND_GOAL]
+
+
+def test_outcome_competence_goal_is_the_outcomes_competence_toward_the_goal():
+    """'goal' (Alg. 4: Γ_{y_i}): each reach / exploration outcome is reported at y_i with
+    Γ(C(y_g, y_i)); 'maximal' (Sec. 2.5): with 0."""
+    for mode in ("goal", "maximal"):
+        learner, reports = _recorded({"outcome_competence": mode}, n=300)
+        seen_negative = False
+        for rs in _per_goal(reports):
+            goal = rs[-1].target
+            for r in rs[:-1]:
+                assert r.kind in (KIND_REACHED, KIND_EXPLORATION)
+                np.testing.assert_array_equal(r.target, r.reached)  # recorded where it landed
+                want = gamma(learner.competence_of(goal, r.reached), learner.p["eps_sim"])
+                assert r.competence == (want if mode == "goal" else 0.0)
+                seen_negative |= r.competence < 0
+        assert seen_negative == (mode == "goal")
+
+
+def test_stop_when_reached_ends_the_exploration_at_the_first_reaching_experiment():
+    """True (Sec. 2.4.1): no experiment of a goal follows one that reached it; False (default, Alg. 4
+    literally): the q experiments run on after a reaching one, and the goals cost more. No inverse
+    model (min_samples), so the reaches are random and the explorations do the reaching."""
+    costs = {}
+    for stop in (True, False):
+        learner, reports = _recorded({"stop_when_reached": stop, "eps_sim": -0.2, "min_samples": 10_000})
+        after_reached = 0
+        for rs in _per_goal(reports):
+            goal = rs[-1].target
+            hit = [is_reached(learner.competence_of(goal, r.reached), -0.2) for r in rs[:-1]]
+            after_reached += sum(1 for i, h in enumerate(hit) if any(hit[:i]))
+        assert (after_reached == 0) == stop, (stop, after_reached)
+        costs[stop] = learner.experiments / learner.goals_done
+        assert learner.goals_reached > 0
+    assert costs[True] < costs[False]
+
+
+def test_blocking_w_stops_after_w_experiments_without_progress():
+    """blocking_w = w (Sec. 3.7.6 in Alg. 4): an exploration phase ends after w consecutive
+    experiments that do not beat the best so far, and the goal counts as blocked; 0: q experiments."""
+    for w in (0, 2):
+        learner, reports = _recorded({"blocking_w": w, "q": 12, "stop_when_reached": False,
+                                      "min_samples": 50})
+        lengths = []
+        for rs in _per_goal(reports):
+            explore = [r for r in rs if r.kind == KIND_EXPLORATION]
+            if not explore:
+                continue
+            goal = rs[-1].target
+            lengths.append(len(explore))
+            # the phase starts from the closest outcome known before it: the best so far
+            best = min(learner.distance(goal, r.reached) for r in rs if r.kind == KIND_REACHED)
+            prior = learner.outcomes[: explore[0].micro_actions - 1]
+            best = min(best, *(learner.distance(goal, y) for y in prior)) if len(prior) else best
+            idle = 0
+            for r in explore:
+                d = learner.distance(goal, r.reached)
+                idle = 0 if d < best else idle + 1
+                best = min(best, d)
+                if w:
+                    assert idle <= w
+            if w and len(explore) < 12:
+                assert idle == w  # stopped by the blocking test, nothing else
+        if w:
+            assert learner.goals_blocked > 0 and min(lengths) == w
+        else:
+            assert learner.goals_blocked == 0 and set(lengths) == {12}
+
+
+def test_explore_length_measures_the_exploration_distance_whatever_the_box():
+    """explore_length L > 0: the exploration noise's D is the task-unit distance / L, the same for
+    any box Y; 0: the competence's units, which scale with the box (rescaled)."""
+    goal, y = np.array([0.3, -0.4]), np.array([0.0, 0.0])
+    for box in (3.0, 6.0):
+        over = {"task_space.lower": [-box, -box], "task_space.upper": [box, box]}
+        fixed = FixedContextLearner(resolve(SCHEMA, {**over, "explore_length": 2.0}), ThetaSpace(np.zeros(6), np.ones(6)))
+        assert fixed.explore_distance(goal, y) == pytest.approx(0.25)
+        rescaled = FixedContextLearner(resolve(SCHEMA, over), ThetaSpace(np.zeros(6), np.ones(6)))
+        assert rescaled.explore_distance(goal, y) == pytest.approx(0.5 / (2 * box))
+    # in a run: an exploratory θ's distance (max-norm, normalised θ) to the nearest stored θ (its
+    # θ_k among them) is at most λ·D/L; measured mean 0.079 with L = 4, 0.30 with L = 0.25 (clipped)
+    mean_step = {}
+    for length in (4.0, 0.25):
+        learner, driver = make("sagg-random", seed=2, explore_length=length, min_samples=20, blocking_w=0)
+        steps = []
+        base_execute = driver.execute
+
+        def execute(th, kind, steps=steps, learner=learner):
+            if kind == "explore":
+                stored = learner.norm_theta(learner.thetas)
+                steps.append(np.abs(stored - learner.norm_theta(th)).max(axis=1).min())
+            return base_execute(th, kind)
+
+        driver.execute = execute
+        driver.step_until(300)
+        mean_step[length] = float(np.mean(steps))
+        assert max(steps) <= 0.5 * 6.0 / length + 1e-12  # D < 6, the diagonal of the reachable set
+    assert mean_step[4.0] < 0.12 and mean_step[0.25] > 2.5 * mean_step[4.0], mean_step

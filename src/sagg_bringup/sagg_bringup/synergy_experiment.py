@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.params import ConfigError, resolve_nodes
+from sagg_common.params import WILDCARD, ConfigError, read_config, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import stream, substream_seed
 from sagg_common.synergy import transported_outcome
@@ -44,9 +44,14 @@ ARM_FIXED = "arm-fixed"  # the set-up name of the arm in the fixed context (cont
 def fixed_arm_learner_schema(node_schema=LEARNER_SCHEMA):
     """The learner schema of the arm in the fixed context: the fixed-context learner node's, with the
     arm's hardware-contract defaults (controller ``forward_position_controller``, task topic
-    ``/tip_position``, synergy.kind 'posture')."""
+    ``/tip_position``, synergy.kind 'posture') and its metric task space (competence_rescale false;
+    :meth:`ArmPostureSetup.resolve` sets explore_length to the arm's length)."""
     arm = {"controller": "forward_position_controller", "task_topic": "/tip_position",
-           "synergy.kind": "posture", "context": "fixed"}
+           "synergy.kind": "posture", "context": "fixed",
+           # the arm's Y is metric in both dimensions: its competence is on plain distances (Sec. 3.5;
+           # Sec. 4.3 rescales because u, v and φ have different units) and the arm configs give
+           # ε_C in task units
+           "competence_rescale": False}
     return tuple(dataclasses.replace(p, default=arm[p.name]) if p.name in arm else p for p in node_schema)
 
 
@@ -180,6 +185,13 @@ class ArmPostureSetup:
         lp.update({"joints": spec.joint_names(), "joint_limits.lower": lower.tolist(),
                    "joint_limits.upper": upper.tolist(), "rest_posture": spec.rest_posture().tolist(),
                    "synergy.kind": "posture"})
+        # the exploration noise per arm length (Param explore_length), unless the config or an
+        # override gives explore_length (0 included: the competence's units)
+        sections = read_config(path)
+        given = "explore_length" in (overrides or {}) or any(
+            "explore_length" in sections.get(name, {}) for name in (WILDCARD, "sagg_learner"))
+        if not given:
+            lp["explore_length"] = float(spec.total_length)
         return out
 
     def __init__(self, config: dict[str, dict]):
@@ -308,6 +320,8 @@ def run_synergy_experiment(adapter, config_path: str | Path, strategy: str | Non
             "trials": learner.trials,
             "discarded": learner.discarded,
             "goals_done": learner.goals_done,
+            "goals_reached": learner.goals_reached,  # attempts whose best outcome reached the goal
+            "goals_blocked": learner.goals_blocked,  # not reached, stopped by blocking_w (Sec. 3.7.6)
             "pool_seconds": pool_seconds,
             **goal_info,
             "outcome_extents": outcome_extents(outcomes),

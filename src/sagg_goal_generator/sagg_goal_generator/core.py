@@ -90,8 +90,10 @@ class GoalGenerator:
         """Take one competence report (Alg. 1: UpdateRegions(R, y, Γ)).
 
         ``target`` is the goal/subgoal position for goals and subgoals, and the reached position for
-        reached points and exploration samples (whose competence is the maximal one, 0).
-        Reached/exploration reports are ignored unless ``count_reached``.
+        reached points and exploration samples, whose competence the learner chose: the maximal one,
+        0 (Sec. 2.5; the evolving learner), or that of the outcome toward its goal (Alg. 4's Γ_{y_i};
+        the fixed-context learner's ``outcome_competence``). Reached/exploration reports are ignored
+        unless ``count_reached``.
         """
         self.reports += 1
         if kind == KIND_GOAL and self.goals:

@@ -54,12 +54,46 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "synergy setups; our choice.", low=1, high=100_000),
     Param("lambda", "float", 0.5,
           "λ > 0 of the exploration noise θ_c + λ·rand(n)·D(y_g, y_c) (Sec. 4.4.2), in normalised θ "
-          "units per unit of rescaled distance. Not given in the paper; our choice.",
+          "units per unit of D (explore_length). Not given in the paper; our choice.",
           low=0.0, high=1e6, low_open=True),
+    Param("explore_length", "float", 0.0,
+          "Length that D(y_g, y_c) is measured in for the exploration noise λ·rand(n)·D (Sec. 4.4.2). "
+          "0 = the competence's units (Y's extent per dimension when competence_rescale, Sec. 4.3): "
+          "the synergy set-ups. The fixed-context arm fills in its total length (the radius of its "
+          "reachable set), so that λ is joint noise per arm length whatever box Y the goals are drawn "
+          "from; in Y's units the same metric distance gave 2.7x less joint noise in [-2,2]² than in "
+          "[-0.5,1]x[-1,1] on the 1-length arm (docs/issue10_fixed_arm_riac_speed.md, finding 5).",
+          low=0.0, high=1e9),
     Param("rounds", "int", 1,
           "Timeout of a goal: at most this many rounds of (one reaching experiment + an exploration "
           "phase when inefficient) per goal (Alg. 1 'timeout'; no value in the paper: ours 1).",
           low=1, high=10_000),
+    Param("outcome_competence", "str", "goal",
+          "Competence Γ recorded (when the generator's count_reached) at each outcome of a goal's "
+          "experiments, reach and exploration: 'goal' (default, Alg. 4 read literally: 'Compute the "
+          "competence Γ_{y_i}; UpdateRegions(R, y_i, Γ_{y_i}); if Γ_{y_i} > Γ_{y_k}' uses one Γ_{y_i} "
+          "for the region update and for the comparison with the best experiment, which only means "
+          "something as the competence of y_i toward the current goal, Sec. 2.4.1's Γ(C(y_g, y_i)); "
+          "recorded at y_i) or 'maximal' (Sec. 2.5: 'we can consider y' as another goal reached "
+          "with the highest level of competence', 0; with it a region inside the reachable area "
+          "holds a window of zeros and its interest is 0, docs/issue10_fixed_arm_riac_speed.md).",
+          choices=("goal", "maximal")),
+    Param("stop_when_reached", "bool", False,
+          "True: end the exploration phase as soon as one of its experiments reaches the goal "
+          "(C > ε_sim; Sec. 2.4.1 'a reaching attempt ... is considered terminated ... [when] the goal "
+          "has effectively been reached'). False (default): Alg. 4 read literally, its FOR loop runs "
+          "the q experiments and Alg. 2's 'while Γ ≤ ε_C' is tested after it returns (the rounds "
+          "loop). Measured on config/arm7_ratio15.yaml: True stops refining at C > ε_sim = -0.05 "
+          "(a few hundredths of the arm's length) and raised the 20k error of both SAGG strategies."),
+    Param("blocking_w", "int", 3,
+          "Blocking (Sec. 3.7.6) applied to Alg. 4's exploration: after w consecutive exploratory "
+          "experiments that do not come closer to the goal than the best so far, the phase stops and "
+          "the goal is declared unreached ('if the system is not coming closer to the goal even after "
+          "some low-level explorations, the exploration toward this precise goal stops'). In the "
+          "fixed context every experiment is a whole movement from rest toward the goal, so the "
+          "count is per experiment. Default 3: the paper's value (w = 3, 'typically w >= 2'); Alg. 4 "
+          "has no other timeout than its budget q. 0 disables it (Alg. 4 alone: always q).",
+          low=0, high=100_000),
     Param("goal_competence", "str", "best",
           "Outcome the goal's competence Γ is computed from: 'best' (the closest outcome of the "
           "attempt, the θ_k Alg. 4 keeps) or 'last' (the last experiment). Vague in the paper.",
@@ -78,7 +112,9 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "competence_rescale).", low=0.0, high=1e9),
     EPS_SIM,
     Param("competence_rescale", "bool", True,
-          "Rescale each task dimension to [0, 1] by Y's extent before distances (Sec. 4.3)."),
+          "Rescale each task dimension to [0, 1] by Y's extent before distances (Sec. 4.3: u, v and "
+          "φ have different units). The fixed-context arm defaults to false: its Y is metric in both "
+          "dimensions and its competence is on plain distances (Sec. 3.5)."),
     Param("riac.g_max", "int", 30, "ACTUATOR-RIAC: points per θ region before a split.",
           low=2, high=1_000_000),
     *RIAC_SPLITTING,
@@ -276,6 +312,8 @@ class FixedContextLearner:
         self.reports_sent = 0
         self.goals_done = 0
         self.exploration_phases = 0
+        self.goals_reached = 0     # goals whose best outcome reached them (C > ε_sim)
+        self.goals_blocked = 0     # goals not reached and stopped by the blocking test (blocking_w)
         self.last_competence = float("nan")
         self.on_report: Callable[[Report], None] | None = None
         self.on_sample: Callable[[int], None] | None = None
@@ -407,16 +445,36 @@ class FixedContextLearner:
         else:
             yield from self._actuator_babbling(riac=self.strategy == "actuator-riac")
 
+    def explore_distance(self, goal, y) -> float:
+        """D(y_g, y) of the exploration noise (Sec. 4.4.2) in the unit ``explore_length`` (0: the
+        competence's units, :meth:`distance`)."""
+        length = self.p["explore_length"]
+        if length <= 0:
+            return self.distance(goal, y)
+        d = np.asarray(goal, dtype=float) - np.asarray(y, dtype=float)
+        return math.sqrt(float(d @ d)) / length
+
+    def outcome_gamma(self, c: float) -> float:
+        """Γ recorded at an outcome whose competence toward the current goal is ``c`` (parameter
+        ``outcome_competence``): Γ(c) of Sec. 2.4.1 (Alg. 4's Γ_{y_i}), or 0 (Sec. 2.5)."""
+        if self.p["outcome_competence"] == "maximal":
+            return 0.0
+        return gamma(c, self.p["eps_sim"])
+
     def _goal_attempt(self) -> Generator:
         """One goal (Alg. 1 inner loop with Alg. 4): reach with the inverse model; when that does not
         come closer than the closest known outcome (Inefficient, Sec. 4.4.2), explore q synergies
-        around the best θ with noise ∝ its distance to the goal, keeping the best."""
+        around the best θ with noise ∝ its distance to the goal, keeping the best. The phase ends
+        early when an experiment reaches the goal (``stop_when_reached``) or after ``blocking_w``
+        consecutive experiments without progress (Sec. 3.7.6; the goal is then unreached)."""
         goal_seq, goal = yield GoalRequest(self.reports_sent)
         goal = np.asarray(goal, dtype=float)
         best_y = None
         last_y = None
         g = self.scale_y(goal)
         d_best = math.inf  # distance of best_y to the goal
+        eps_sim, w = self.p["eps_sim"], self.p["blocking_w"]
+        blocked = False
         for _ in range(self.p["rounds"]):
             # y_c, the closest known outcome (its index), and θ from the inverse model (Sec. 4.4.1);
             # L's first member is y_c (same search, same order)
@@ -435,8 +493,9 @@ class FixedContextLearner:
                 d_y = self.distance(goal, y)
                 if best_y is None or d_y < d_best:
                     best_y, d_best = y, d_y
-                self._report(KIND_REACHED, goal_seq, y, 0.0, y)
-                if is_reached(self.competence_of(goal, y), self.p["eps_sim"]):
+                c_y = self.competence_of(goal, y)
+                self._report(KIND_REACHED, goal_seq, y, self.outcome_gamma(c_y), y)
+                if is_reached(c_y, eps_sim):
                     break
             # Inefficient(M⁻¹, ỹ_j, y_j): the reach did not beat the closest known outcome
             if y is not None and d_y <= d_before:
@@ -451,30 +510,48 @@ class FixedContextLearner:
             else:
                 theta_k, y_k = self.thetas[k].copy(), self.outcomes[k].copy()
                 d_k = self.distance(goal, y_k)
+            idle = 0  # consecutive exploratory experiments without progress (blocking, Sec. 3.7.6)
             for _ in range(self.p["q"]):
                 if theta_k is None:
                     theta_i = self._uniform_theta()
                 else:
-                    tn = exploration_theta(self.norm_theta(theta_k), d_k, self.p["lambda"], self.rng)
+                    tn = exploration_theta(self.norm_theta(theta_k), self.explore_distance(goal, y_k),
+                                           self.p["lambda"], self.rng)
                     theta_i = self.denorm_theta(tn)
                 y_i = yield from self._execute(theta_i, "explore")
                 if y_i is None:
                     continue
                 last_y = y_i
-                self._report(KIND_EXPLORATION, goal_seq, y_i, 0.0, y_i)
+                c_i = self.competence_of(goal, y_i)
+                self._report(KIND_EXPLORATION, goal_seq, y_i, self.outcome_gamma(c_i), y_i)
                 d_i = self.distance(goal, y_i)
                 if y_k is None or d_i < d_k:
                     theta_k, y_k, d_k = self.thetas[len(self) - 1].copy(), y_i, d_i
+                    idle = 0
+                else:
+                    idle += 1
                 if best_y is None or d_i < d_best:
                     best_y, d_best = y_i, d_i
-            if best_y is not None and is_reached(self.competence_of(goal, best_y), self.p["eps_sim"]):
+                if self.p["stop_when_reached"] and is_reached(c_i, eps_sim):
+                    break
+                if w and idle >= w:
+                    blocked = True
+                    break
+            if blocked:
+                break
+            if best_y is not None and is_reached(self.competence_of(goal, best_y), eps_sim):
                 break
         final = best_y if self.p["goal_competence"] == "best" else last_y
         if final is None:  # no outcome at all in this attempt: the rest outcome stands in
             final = self.y_rest
         c = self.competence_of(goal, final)
-        self._report(KIND_GOAL, goal_seq, goal, gamma(c, self.p["eps_sim"]), final)
+        self._report(KIND_GOAL, goal_seq, goal, gamma(c, eps_sim), final)
         self.goals_done += 1
+        # how the attempt ended (statistics): its best outcome reached the goal, else the blocking
+        # test stopped it, else its budget (q, rounds) ran out
+        reached = best_y is not None and is_reached(self.competence_of(goal, best_y), eps_sim)
+        self.goals_reached += reached
+        self.goals_blocked += blocked and not reached
 
     def _actuator_babbling(self, riac: bool) -> Generator:
         """ACTUATOR-RANDOM (θ uniform in its bounds) and ACTUATOR-RIAC (θ regions of the normalised

@@ -110,6 +110,10 @@ def summarise(results: dict, points: list[int]) -> dict:
             cell["explore_share"] = float(np.mean([p["explore_share"] for p in ph]))
             cell["share_on_reachable_goals"] = float(np.mean(
                 [p["reachable_goals"]["share_of_micro_actions"] for p in ph]))
+            # the goal choice itself: share of the self-generated goals inside the reachable area
+            cell["goals_in_reachable_area"] = float(np.mean(
+                [p["reachable_goals"]["goals"] / max(1, p["reachable_goals"]["goals"] + p["unreachable_goals"]["goals"])
+                 for p in ph]))
         cov = [r["coverage"]["max"] for r in rs if r.get("coverage")]
         if cov:
             cell["coverage_max"] = _stats(cov)
@@ -170,6 +174,13 @@ def markdown(summary: dict, contexts, spaces: dict, strategies, points, config_n
         row = []
         for c, s in cols:
             cell = cells.get((c, space, s))
+            row.append("—" if cell is None or "goals_in_reachable_area" not in cell else
+                       f"{cell['goals_in_reachable_area']:.0%}")
+        lines.append("| goals in the reachable area (share of goals) | " + " | ".join(row) + " |"
+                     + (" |" if targets else ""))
+        row = []
+        for c, s in cols:
+            cell = cells.get((c, space, s))
             row.append("—" if cell is None or "coverage_max" not in cell else
                        f"{cell['coverage_max']['mean']:.4f}")
         lines.append("| test goal to nearest reached tip, max (mean over seeds) | " + " | ".join(row) + " |"
@@ -218,7 +229,8 @@ def bench_quality(config: str | Path, strategies, seeds: int, points, contexts=C
         if c not in CONTEXTS:
             raise ConfigError(f"--contexts: got {c!r}; allowed: {', '.join(CONTEXTS)}")
         check_context(config, c, overrides)
-    base = load_experiment_config(config, overrides)["sagg_learner"]
+    # the task space of the first context's runs (a fixed-context-only --set would fail the evolving load)
+    base = load_experiment_config(config, context_overrides(contexts[0], overrides))["sagg_learner"]
     spaces = {"config": (list(base["task_space.lower"]), list(base["task_space.upper"]))}
     if wide is not None:
         spaces["wide"] = ([float(wide[0]), float(wide[1])], [float(wide[2]), float(wide[3])])
