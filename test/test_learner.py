@@ -273,20 +273,3 @@ def test_actuator_riac_builds_regions_over_alpha_dalpha():
     tree = learner.riac_tree
     assert tree.dim == 6 and len(tree.leaves()) > 5
     assert sum(r.count for r in tree.leaves()) == 600
-
-
-@pytest.mark.parametrize("reading", ["maximal", "goal"])
-def test_outcome_competence_of_the_points_reached(reading):
-    """outcome_competence: every reached point is reported with competence 0 (Sec. 2.5, 3.7), or
-    with its own competence toward the (sub)goal being reached (Alg. 2/3 read literally), which is
-    below 0 while the arm is still far from it and never below -1."""
-    learner = make_learner(q=4, outcome_competence=reading)
-    arm = PlanarArm([1, 1, 1], np.full(3, 0.3))
-    reports = []
-    drive(learner, arm, [np.array([2.5, 2.5]), np.array([-1.0, 1.5])], 300, reports)
-    comp = np.array([r.competence for r in reports if r.kind in (KIND_REACHED, KIND_EXPLORATION)])
-    assert len(comp) == learner.micro_actions
-    if reading == "maximal":
-        assert np.all(comp == 0.0)
-    else:  # (2.5, 2.5) is out of reach of the 3-link arm: most of its points are far from it
-        assert (comp < 0).mean() > 0.5 and comp.min() >= -1.0

@@ -90,15 +90,6 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "'(including explorative movements)'. If false, a started exploration phase always runs "
           "its q micro-actions and the timeout is checked after it (Alg. 1 read literally: the "
           "timeout is tested once per loop iteration); the default before 2026-11-22."),
-    Param("outcome_competence", "str", "maximal",
-          "Competence Γ recorded (when the generator's count_reached) at the point reached by each "
-          "micro-action of a reaching attempt, reaching and exploratory: 'maximal' (default; the "
-          "arm's reading in the paper, Sec. 2.5 and 3.7: 'each experimented position of the "
-          "end-effector as if it was a goal reached with the maximal competence level', 0) or "
-          "'goal' (Alg. 2 and 3 read literally, as the fixed-context learner's default: 'Compute the "
-          "competence Γ_{ỹ_j}; UpdateRegions(R, ỹ_j, Γ_{ỹ_j})' after each micro-action toward y_j, "
-          "i.e. the competence of the reached point toward the current (sub)goal, Sec. 3.5's C, "
-          "recorded at the reached point).", choices=("maximal", "goal")),
     Param("neighbours", "int", 0,
           "k: nearest stored samples (in α) used for the local Jacobian (Sec. 3.3). 0 = 2 × joints. "
           "Not given in the paper.", low=0, high=100_000),
@@ -425,25 +416,15 @@ class EvolvingContextLearner:
         else:
             yield from self._actuator_babbling(riac=self.strategy == "actuator-riac")
 
-    def outcome_gamma(self, target: np.ndarray, start: np.ndarray) -> float:
-        """Γ recorded at the point just reached while heading for ``target`` from ``start``
-        (parameter ``outcome_competence``): 0 (Sec. 2.5, 3.7) or Γ(C(target, y, start)) of
-        Sec. 2.4.1 / 3.5 (Alg. 2 and 3's Γ_{ỹ_j})."""
-        if self.p["outcome_competence"] == "maximal":
-            return 0.0
-        return gamma(self.competence_of(target, self.y, start), self.p["eps_sim"])
-
-    def _explore(self, goal_seq: int, budget_left: int | None, target: np.ndarray,
-                 start: np.ndarray) -> Generator:
+    def _explore(self, goal_seq: int, budget_left: int | None) -> Generator:
         """Exploration phase (Alg. 3, Sec. 3.6.2): q random Δα around the current α, each stored and
         reported; the context evolves with each. At most ``budget_left`` micro-actions when given
-        (the distance timeout's counter, Sec. 3.6.2). ``target``/``start``: the (sub)goal being
-        reached, for the competence recorded at each point. Returns the micro-actions done."""
+        (the distance timeout's counter, Sec. 3.6.2). Returns the number of micro-actions done."""
         self.exploration_phases += 1
         n = self.p["q"] if budget_left is None else max(0, min(self.p["q"], budget_left))
         for _ in range(n):
             yield from self._act(self.alpha + self._random_step(), "explore")
-            self._report(KIND_EXPLORATION, goal_seq, self.y, self.y, self.outcome_gamma(target, start))
+            self._report(KIND_EXPLORATION, goal_seq, self.y, self.y, 0.0)
         return n
 
     def _sagg_attempt(self) -> Generator:
@@ -485,7 +466,7 @@ class EvolvingContextLearner:
                         dalpha = dalpha + self.rng.uniform(-a, a, self.robot.n)
                     dy = yield from self._act(self.alpha + dalpha, "reach")
                     used += 1
-                    self._report(KIND_REACHED, goal_seq, self.y, self.y, self.outcome_gamma(target, start))
+                    self._report(KIND_REACHED, goal_seq, self.y, self.y, 0.0)
                     need_explore = float(np.linalg.norm(dy - aim)) > self.eps_max
                 if need_explore:
                     # the timeout counter runs through both phases (Sec. 3.6.2); with
@@ -493,7 +474,7 @@ class EvolvingContextLearner:
                     # would get no micro-action is not started (the timeout ends the goal next)
                     left = budget - used if self.p["exploration_respects_timeout"] else None
                     if left is None or left > 0:
-                        used += yield from self._explore(goal_seq, left, target, start)
+                        used += yield from self._explore(goal_seq, left)
                         consecutive += 1
                 else:
                     consecutive = 0
