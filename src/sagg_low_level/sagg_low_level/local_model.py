@@ -1,6 +1,8 @@
 """Local linear models from the sample memory (paper Sec. 3.2-3.3, 3.6.1). ROS-free."""
 from __future__ import annotations
 
+from typing import Generator
+
 import numpy as np
 
 
@@ -56,6 +58,20 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     ``J⁺ Δy_next``. A joint at its limit whose solution moves it back inside stays free, so the
     arm can leave a limit again.
     """
+    rounds = clamp_rounds(jac, dy_next, alpha, lower, upper)
+    cols, target = next(rounds)
+    try:
+        while True:
+            cols, target = rounds.send(pinv(cols, rcond) @ target)
+    except StopIteration as done:
+        return done.value
+
+
+def clamp_rounds(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower: np.ndarray,
+                 upper: np.ndarray) -> Generator[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
+    """The rounds of :func:`clamped_step` as a coroutine, so that many rows can share their solves
+    (:func:`clamped_steps`): yields ``(cols, target)`` (the free joints' columns of J and the
+    displacement they must produce), receives ``J_free⁺ · target``, returns Δα."""
     n = jac.shape[1]
     free = np.ones(n, dtype=bool)
     dalpha = np.zeros(n)
@@ -63,7 +79,7 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     target, cols = dy_next, jac
     a, lo, up = alpha, lower, upper  # their rows (all of them in the first round)
     for _ in range(n):
-        step = pinv(cols, rcond) @ target
+        step = yield cols, target
         new = a + step
         over = (new > up) | (new < lo)
         dalpha[idx] = step
@@ -79,6 +95,41 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
         idx = np.flatnonzero(free)
         a, lo, up = alpha[idx], lower[idx], upper[idx]
     return dalpha
+
+
+def clamped_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: np.ndarray,
+                  upper: np.ndarray, rcond: float, steps: np.ndarray) -> np.ndarray:
+    """``clamped_step(jacs[i], dys[i], alphas[i], lower, upper, rcond)`` for every row i, bit for bit,
+    given ``steps[i] = J_i⁺ · dys[i]`` (the first round, e.g. from one stacked ``numpy.linalg.pinv``).
+    Rows whose first step stays within the limits keep it; the others run :func:`clamp_rounds`
+    together, each round's solves as one stacked ``numpy.linalg.pinv`` per number of free joints
+    (numpy solves a stack one matrix at a time with the same LAPACK call as :func:`pinv`; tested in
+    test/test_local_model_pinv.py)."""
+    out = np.array(steps, dtype=float)
+    new = alphas + out
+    rows = np.flatnonzero(((new > upper) | (new < lower)).any(axis=1))
+    live, answer = {}, {}
+    for i in rows.tolist():
+        live[i] = clamp_rounds(jacs[i], dys[i], alphas[i], lower, upper)
+        next(live[i])
+        answer[i] = out[i]
+    while live:
+        asks: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        for i in list(live):
+            try:
+                cols, target = live[i].send(answer[i])
+            except StopIteration as done:
+                out[i] = done.value
+                del live[i]
+                continue
+            asks.setdefault(cols.shape[1], []).append((i, cols, target))
+        for group in asks.values():
+            cols = np.stack([c for _, c, _ in group])
+            targets = np.stack([t for _, _, t in group])
+            solved = (np.linalg.pinv(cols, rcond=rcond) @ targets[:, :, None])[:, :, 0]
+            for (i, _, _), s in zip(group, solved):
+                answer[i] = s
+    return out
 
 
 def desired_displacement(y_current: np.ndarray, goal: np.ndarray, v: float) -> np.ndarray:

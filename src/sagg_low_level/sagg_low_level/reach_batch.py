@@ -14,8 +14,8 @@ floats, bit for bit), while the memory does not change (the evaluation freezes t
   one matrix at a time with the same LAPACK call, so each slice equals the single call; checked by
   test/test_eval_batch.py) and ``J⁺ · Δy_next`` as a stacked matmul;
 * ``reach_limits = clamp``: rows whose plain step leaves the joint limits are re-solved by
-  :func:`~sagg_low_level.local_model.clamped_step` itself, one row at a time (the others end after
-  its first round, which is the plain step).
+  :func:`~sagg_low_level.local_model.clamped_steps`: clamped_step's own rounds, the solves of all
+  rows in one round stacked (the others end after the first round, which is the plain step).
 
 Nothing here changes the reaching semantics: the per-goal functions stay the definition, this module
 reproduces them faster; test/test_eval_batch.py compares the two on several set-ups.
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .local_model import clamped_step, local_jacobian
+from .local_model import clamped_steps, local_jacobian
 from .memory_batch import neighbours_many
 
 
@@ -59,9 +59,4 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
     steps = (pinv @ dys[:, :, None])[:, :, 0]
     if p["reach_limits"] == "clip":
         return steps
-    lower, upper = learner.robot.lower, learner.robot.upper
-    new = alphas + steps
-    over = np.flatnonzero(((new > upper) | (new < lower)).any(axis=1))
-    for i in over:
-        steps[i] = clamped_step(jacs[i], dys[i], alphas[i], lower, upper, p["pinv_rcond"])
-    return steps
+    return clamped_steps(jacs, dys, alphas, learner.robot.lower, learner.robot.upper, p["pinv_rcond"], steps)
