@@ -8,7 +8,7 @@ learning from ``--start`` to ``--stop`` is timed twice: the first half as is (th
 half with the main parts wrapped in CPU-time counters (``time.process_time``; the wrappers add a
 little); with ``--eval``, the run is learned to ``--stop`` and its batched evaluation on the config's
 test goals is timed with the counters (best of 3). Parts nest (a region tree's split is inside its
-``add``): the shares are not meant to sum to 100 %.
+``add``, the RIAC compatible leaves inside the RIAC action choice): the shares do not sum to 100 %.
 """
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def learning_parts(c: Counters, run: InProcessRun) -> None:
     c.wrap(learner_mod, "clamped_step", "clamped reaching step")
     c.wrap(memory.SampleMemory, "add", "memory add (incl. index builds)")
     c.wrap(regions.RegionTree, "add", "region tree add (goal tree and RIAC tree)")
-    c.wrap(regions.RegionTree, "_split", "  of which splits")
+    c.wrap(regions.RegionTree, "_split", "region tree splits (inside region tree add)")
     c.wrap(regions.RegionTree, "interests", "goal tree interests (goal choice)")
     c.wrap(riac_leaves.RiacLeaves, "compatible", "RIAC compatible leaves")
     c.wrap(run.learner, "_riac_choice", "RIAC action choice (incl. compatible)")
