@@ -44,6 +44,13 @@ def test_interests_of_a_restored_tree_and_after_restoring_in_place():
     copy.interests()  # read once before the restore replaces its leaves
     restore_tree(copy, tree_arrays(tree))
     assert copy.interests().tobytes() == _fresh(copy).tobytes() == tree.interests().tobytes()
+    again = _tree(3, dim=3)
+    again.interests()
+    restore_tree(again, tree_arrays(tree))
+    for _ in range(60):  # points and splits on the restored leaves before the next read
+        again.add(rng.uniform(0, 1, 3), float(rng.normal()))
+    assert len(again.splits) > 0
+    assert again.interests().tobytes() == _fresh(again).tobytes()
     for _ in range(200):  # and keeps in step with further points (its own splits: a fresh split stream)
         copy.add(rng.uniform(0, 1, 3), float(rng.normal()))
         assert copy.interests().tobytes() == _fresh(copy).tobytes()

@@ -35,14 +35,20 @@ class LeafInterests:
         self._touched: dict[int, object] = {}
         return self._values
 
+    def _current(self) -> bool:
+        """The array describes the tree's leaf list (not one it had before a restore)."""
+        if self._values is not None and self._of is not self.tree.leaves():
+            self._values = None
+        return self._values is not None
+
     def touched(self, leaf) -> None:
         """``leaf`` received a point."""
-        if self._values is not None:
+        if self._current():
             self._touched[leaf.id] = leaf
 
     def split(self, parent, left, right) -> None:
         """``parent`` (a leaf) was replaced by ``left`` and ``right`` in the leaf list."""
-        if self._values is None:
+        if not self._current():
             return
         i = int(self._row[parent.id])
         self._row[parent.id] = -1
@@ -60,7 +66,7 @@ class LeafInterests:
     def get(self) -> np.ndarray:
         """``np.array([r.interest for r in tree.leaves()])``, a fresh array."""
         leaves = self.tree.leaves()
-        if (self._values is None or self._of is not leaves or self._count != len(leaves)
+        if (not self._current() or self._count != len(leaves)
                 or self._sets != type(self.tree.root).interest_sets):
             return self._build().copy()
         if self._touched:
