@@ -31,14 +31,17 @@ from ..setups import in_process_run
 
 
 class Counters:
-    """CPU seconds and calls per label, of the functions :meth:`wrap` replaced."""
+    """CPU seconds and calls per label, of the functions :meth:`wrap` replaced (until
+    :meth:`restore`)."""
 
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
         self.calls: dict[str, int] = defaultdict(int)
+        self._wrapped: list[tuple[object, str, object, bool]] = []
 
     def wrap(self, owner, name: str, label: str) -> None:
         f = getattr(owner, name)
+        self._wrapped.append((owner, name, f, name in vars(owner)))
 
         def timed(*args, **kwargs):
             t = time.process_time()
@@ -53,6 +56,15 @@ class Counters:
     def clear(self) -> None:
         self.seconds.clear()
         self.calls.clear()
+
+    def restore(self) -> None:
+        """Put the wrapped functions back (the last wrapped first)."""
+        for owner, name, f, own in reversed(self._wrapped):
+            if own:
+                setattr(owner, name, f)
+            else:  # it was inherited (or a class attribute seen through an instance)
+                delattr(owner, name)
+        self._wrapped.clear()
 
 
 def learning_parts(c: Counters, run: InProcessRun) -> None:
@@ -99,6 +111,20 @@ def main(argv=None) -> int:
         ap.error("time_parts measures the evolving-context arm (InProcessRun)")
     c = Counters()
     run.step_until(a.start)
+    try:
+        seconds, calls, total, unit, per = _measure(a, run, c)
+    finally:
+        c.restore()
+    print(f"| part | CPU s | share | {per} | calls |")
+    print("|---|---|---|---|---|")
+    for label, s in sorted(seconds.items(), key=lambda kv: -kv[1]):
+        print(f"| {label} | {s:.3f} | {100 * s / total:.1f} % | {s / unit:.2f} | {calls[label]} |")
+    print("load average (1, 5, 15 min): " + ", ".join(f"{x:.2f}" for x in os.getloadavg()))
+    return 0
+
+
+def _measure(a, run: InProcessRun, c: Counters):
+    """Time the learning window or the evaluation of ``a`` (see the module docstring)."""
     if a.eval:
         t = time.process_time()
         run.step_until(a.stop)
@@ -135,12 +161,7 @@ def main(argv=None) -> int:
         print(f"{a.config} {a.strategy} seed {a.seed}: {a.start}-{half} {(half - a.start) / plain:,.0f} micro-actions "
               f"per CPU-s; {half}-{a.stop} with counters {total:.2f} CPU-s")
         unit, per = n / 1e6, "us per micro-action"
-    print(f"| part | CPU s | share | {per} | calls |")
-    print("|---|---|---|---|---|")
-    for label, s in sorted(seconds.items(), key=lambda kv: -kv[1]):
-        print(f"| {label} | {s:.3f} | {100 * s / total:.1f} % | {s / unit:.2f} | {calls[label]} |")
-    print("load average (1, 5, 15 min): " + ", ".join(f"{x:.2f}" for x in os.getloadavg()))
-    return 0
+    return seconds, calls, total, unit, per
 
 
 if __name__ == "__main__":
