@@ -92,7 +92,7 @@ def clamp_rounds(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
             break
         target = dy_next - jac[:, ~free] @ dalpha[~free]
         cols = jac[:, free]
-        idx = np.flatnonzero(free)
+        idx = free.nonzero()[0]
         a, lo, up = alpha[idx], lower[idx], upper[idx]
     return dalpha
 
