@@ -209,7 +209,7 @@ class KnnSearch:
                 boxes = self._boxes[h]
                 g = boxes.reshape(3, n, boxes.shape[2] // fan, fan).take(groups, axis=2)
                 g -= q4
-                lb = g.max(axis=0)
+                lb = np.maximum.reduce(g, axis=0)  # = g.max(axis=0), no Python wrapper
                 lb *= lb
                 lb = np.add.reduce(lb, axis=0).ravel()  # squared box distances, canonical order
                 keep = (lb <= bound).nonzero()[0]
