@@ -97,6 +97,29 @@ def test_reach_steps_match_reach_step_rows():
     assert differs.any() and not differs.all()
 
 
+def test_reach_steps_posture_cache_gives_the_same_rows_without_searching(monkeypatch):
+    """Postures met again (in one call or a later one with the same cache) take their Jacobian from
+    the cache: the same rows as reach_step, and no neighbour search for them."""
+    import sagg_low_level.reach_batch as rb
+    run, _ = _run_and_goals("config/arm7_ratio15.yaml", {"strategy": "actuator-random"}, 1200)
+    learner = run.learner
+    rng = np.random.default_rng(2)
+    alphas = learner.memory.alpha[rng.integers(0, len(learner.memory), 20)] + rng.normal(0, 0.05, (20, 7))
+    alphas = np.clip(alphas, learner.robot.lower, learner.robot.upper)
+    alphas[10:] = alphas[:10]  # every posture twice in the first call
+    dys = rng.normal(0, 0.04, (20, 2))
+    searched = []
+    real = rb.neighbours_many
+    monkeypatch.setattr(rb, "neighbours_many", lambda mem, q, k: searched.append(len(q)) or real(mem, q, k))
+    cache: dict = {}
+    first = reach_steps(learner, alphas, dys, cache)
+    second = reach_steps(learner, alphas[::-1], dys, cache)  # all met before: no search at all
+    assert searched == [20]
+    for got, al in ((first, alphas), (second, alphas[::-1])):
+        want = np.stack([learner.reach_step(a, d) for a, d in zip(al, dys)])
+        assert got.tobytes() == want.tobytes()
+
+
 @pytest.mark.parametrize("cfg,ov,n", [
     ("config/arm15.yaml", {"context": "fixed", "strategy": "sagg-riac"}, 600),   # arm, fixed context
     ("config/arm8.yaml", {"context": "fixed", "strategy": "sagg-random"}, 300),  # noisy arm

@@ -8,8 +8,11 @@ RIAC's interest is the same absolute derivative over a sliding window.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
+
+from .leaf_interests import LeafInterests
 
 
 def interest(values: np.ndarray, zeta: int) -> float:
@@ -62,6 +65,7 @@ class Region:
     children: tuple["Region", "Region"] | None = None
     split_dim: int = -1
     split_value: float = 0.0
+    interest_sets: ClassVar[int] = 0  # interests set by hand, of any region (LeafInterests notices)
 
     def add(self, y: np.ndarray, value: float) -> None:
         if self.count == len(self.values):
@@ -84,6 +88,7 @@ class Region:
     def interest(self, value: float) -> None:  # for tests and restored snapshots
         self._interest = float(value)
         self._dirty = False
+        Region.interest_sets += 1
 
     @property
     def filled_points(self) -> np.ndarray:
@@ -179,6 +184,7 @@ class RegionTree:
         self._leaves: list[Region] = [self.root]
         self.splits: list[dict] = []  # history: one dict per split
         self.n_added = 0
+        self._interests = LeafInterests(self)  # the read path of interests()
 
     def _new_region(self, lower, upper, cap: int = 8) -> Region:
         r = Region(self._next_id, lower, upper, np.empty((cap, self.dim)), np.empty(cap),
@@ -214,6 +220,7 @@ class RegionTree:
             return None
         leaf = self.find(y)
         leaf.add(y, float(value))
+        self._interests.touched(leaf)
         self.n_added += 1
         if leaf.count > self.g_max:
             self._split(leaf, stamp)
@@ -245,13 +252,16 @@ class RegionTree:
         region.values = np.empty(0)
         idx = self._leaves.index(region)  # by identity (Region compares by identity)
         self._leaves[idx:idx + 1] = [left, right]
+        self._interests.split(region, left, right)
         self.splits.append({"stamp": stamp, "region": region.id, "dim": j, "value": v,
                             "quality": choice.quality, "left": left.id, "right": right.id,
                             "left_lower": left.lower.tolist(), "left_upper": left.upper.tolist(),
                             "right_lower": right.lower.tolist(), "right_upper": right.upper.tolist()})
 
     def interests(self) -> np.ndarray:
-        return np.array([r.interest for r in self._leaves])
+        """``np.array([r.interest for r in self.leaves()])``, kept up to date leaf by leaf
+        (:mod:`sagg_common.leaf_interests`)."""
+        return self._interests.get()
 
     def snapshot(self) -> list[dict]:
         """The leaves as JSON-able dicts (bounds, interest, count, mean value)."""

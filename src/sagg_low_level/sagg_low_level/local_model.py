@@ -1,6 +1,8 @@
 """Local linear models from the sample memory (paper Sec. 3.2-3.3, 3.6.1). ROS-free."""
 from __future__ import annotations
 
+from typing import Generator
+
 import numpy as np
 
 
@@ -35,6 +37,21 @@ def damped_steps(jacs: np.ndarray, dys: np.ndarray, damping: float) -> np.ndarra
     return (jacs * x).sum(axis=-2)
 
 
+def pinv(a: np.ndarray, rcond: float) -> np.ndarray:
+    """``numpy.linalg.pinv(a, rcond=rcond)`` of one real 2-D matrix, bit for bit, with less overhead.
+
+    The same steps as numpy's: the same SVD call (``full_matrices=False``), singular values at or
+    below ``rcond × σ_max`` dropped, the others inverted (the same IEEE divisions ``1 / σ``), and
+    the same product ``Vᵀ · (σ⁺ ⊙ Uᵀ)`` on operands of the same layouts (tested in
+    test/test_local_model_pinv.py). A stack of matrices: use ``numpy.linalg.pinv``.
+    """
+    u, s, vt = np.linalg.svd(a, full_matrices=False)
+    sv = s.tolist()
+    cutoff = rcond * max(sv)  # svd raises on NaN input, so the σ are real numbers
+    inv = np.array([1.0 / x if x > cutoff else 0.0 for x in sv])
+    return np.matmul(vt.T, np.multiply(inv[:, None], u.T))
+
+
 def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float,
                         damping: float = 0.0) -> np.ndarray:
     """Joint displacement for a desired effector displacement: paper Sec. 3.3, equation
@@ -47,7 +64,7 @@ def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float,
     """
     if damping:
         return damped_steps(jac[None], dy_next[None], damping)[0]
-    return np.linalg.pinv(jac, rcond=rcond) @ dy_next
+    return pinv(jac, rcond) @ dy_next
 
 
 def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower: np.ndarray,
@@ -66,16 +83,30 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     ``J⁺ Δy_next``. A joint at its limit whose solution moves it back inside stays free, so the
     arm can leave a limit again. Every solve is :func:`pseudo_inverse_step` with ``damping``.
     """
+    rounds = clamp_rounds(jac, dy_next, alpha, lower, upper)
+    cols, target = next(rounds)
+    try:
+        while True:
+            cols, target = rounds.send(pseudo_inverse_step(cols, target, rcond, damping))
+    except StopIteration as done:
+        return done.value
+
+
+def clamp_rounds(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower: np.ndarray,
+                 upper: np.ndarray) -> Generator[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
+    """The rounds of :func:`clamped_step` as a coroutine, so that many rows can share their solves
+    (:func:`clamped_steps`): yields ``(cols, target)`` (the free joints' columns of J and the
+    displacement they must produce), receives ``J_free⁺ · target``, returns Δα."""
     n = jac.shape[1]
     free = np.ones(n, dtype=bool)
     dalpha = np.zeros(n)
-    target = dy_next
-    cols = jac
+    idx = np.arange(n)  # the free joints
+    target, cols = dy_next, jac
+    a, lo, up = alpha, lower, upper  # their rows (all of them in the first round)
     for _ in range(n):
-        step = pseudo_inverse_step(cols, target, rcond, damping)
-        idx = np.flatnonzero(free)
-        new = alpha[idx] + step
-        over = (new > upper[idx]) | (new < lower[idx])
+        step = yield cols, target
+        new = a + step
+        over = (new > up) | (new < lo)
         dalpha[idx] = step
         if not over.any():
             break
@@ -86,7 +117,49 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
             break
         target = dy_next - jac[:, ~free] @ dalpha[~free]
         cols = jac[:, free]
+        idx = free.nonzero()[0]
+        a, lo, up = alpha[idx], lower[idx], upper[idx]
     return dalpha
+
+
+def clamped_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: np.ndarray,
+                  upper: np.ndarray, rcond: float, steps: np.ndarray, damping: float = 0.0) -> np.ndarray:
+    """``clamped_step(jacs[i], dys[i], alphas[i], lower, upper, rcond, damping)`` for every row i, bit
+    for bit, given ``steps[i]``, its first round (``J_i⁺ · dys[i]`` from one stacked
+    ``numpy.linalg.pinv``, or the stacked :func:`damped_steps`).
+    Rows whose first step stays within the limits keep it; the others run :func:`clamp_rounds`
+    together, each round's solves as one stacked ``numpy.linalg.pinv`` per number of free joints
+    (numpy solves a stack one matrix at a time with the same LAPACK call as :func:`pinv`; tested in
+    test/test_local_model_pinv.py), or with ``damping`` one stacked :func:`damped_steps` (a row gives
+    the same floats in any stack)."""
+    out = np.array(steps, dtype=float)
+    new = alphas + out
+    rows = np.flatnonzero(((new > upper) | (new < lower)).any(axis=1))
+    live, answer = {}, {}
+    for i in rows.tolist():
+        live[i] = clamp_rounds(jacs[i], dys[i], alphas[i], lower, upper)
+        next(live[i])
+        answer[i] = out[i]
+    while live:
+        asks: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        for i in list(live):
+            try:
+                cols, target = live[i].send(answer[i])
+            except StopIteration as done:
+                out[i] = done.value
+                del live[i]
+                continue
+            asks.setdefault(cols.shape[1], []).append((i, cols, target))
+        for group in asks.values():
+            cols = np.stack([c for _, c, _ in group])
+            targets = np.stack([t for _, _, t in group])
+            if damping:
+                solved = damped_steps(cols, targets, damping)
+            else:
+                solved = (np.linalg.pinv(cols, rcond=rcond) @ targets[:, :, None])[:, :, 0]
+            for (i, _, _), s in zip(group, solved):
+                answer[i] = s
+    return out
 
 
 def desired_displacement(y_current: np.ndarray, goal: np.ndarray, v: float) -> np.ndarray:

@@ -29,6 +29,17 @@ import numpy as np
 from .memory_distance import _sqdist_cols
 
 
+_FMAX = np.finfo(np.float64).max
+
+
+def _kth(d: np.ndarray, k: int) -> float:
+    """The k-th smallest entry of ``d`` (NaN last), ``np.partition(d, k - 1)[k - 1]`` without the
+    wrapper's dispatch (the method on a copy: the same selection)."""
+    c = d.copy()
+    c.partition(k - 1)
+    return c[k - 1]
+
+
 class KnnSearch:
     """Queries over the index and the trajectory cache (mixin of SampleMemory)."""
 
@@ -70,7 +81,7 @@ class KnnSearch:
             delta = math.sqrt(dq.dot(dq))
             if delta < self._cache_r:
                 d = _sqdist_cols(self._cache_t[:, :m], q)
-                kth = np.partition(d, k - 1)[k - 1]
+                kth = _kth(d, k)
                 # Any sample outside the cache is farther than r from the centre, so farther than
                 # r - delta from q; if that exceeds the k-th cached distance the cache holds the
                 # answer. The 1e-9 margins dwarf the float rounding of all these distances.
@@ -84,7 +95,7 @@ class KnnSearch:
         bd = _sqdist_cols(self._buf_t[:, :nb], q) if nb else np.empty(0)
         # tight: an upper bound of the k-th distance (any k stored samples give one). wide: the walk
         # also collects everything that far for the cache (capped at the leaves by cache_scan).
-        tight = np.partition(bd, k - 1)[k - 1] if nb >= k else np.inf
+        tight = _kth(bd, k) if nb >= k else np.inf
         if cache_kth < tight:
             tight = cache_kth
         grow = self._cache_expand**2 if self._cache_expand else 1.0
@@ -129,10 +140,10 @@ class KnnSearch:
                     # is then what the scanned leaves cover
                     need = int(self._cache_scan * np.count_nonzero(lb <= tight)) + 1
                     if np.count_nonzero(keep) > need:
-                        wide = max(tight, np.partition(lb, need)[need])
+                        wide = max(tight, _kth(lb, need + 1))
                         keep = lb <= wide
                 if slots is None:
-                    sel = np.flatnonzero(keep)
+                    sel = keep.nonzero()[0]
                     sel += r0
                 else:
                     sel = slots[keep]
@@ -157,7 +168,7 @@ class KnnSearch:
             cd, ci = self._expand_groups(cd, ci, k)
         if grow > 1.0:
             self._fill_cache(q, cd, ci, wide, k)
-            kth = np.partition(cd, k - 1)[k - 1]
+            kth = _kth(cd, k)
             keep = cd <= kth
             cd, ci = cd[keep], ci[keep]
         return ci[np.lexsort((ci, cd))[:k]]
@@ -180,7 +191,7 @@ class KnnSearch:
         bd = _sqdist_cols(self._buf_t[:, :nb], q) if nb else np.empty(0)
         # nodes farther than an upper bound of the k-th distance cannot contribute; with no bound
         # yet, the largest float still drops the empty (infinite) padding boxes
-        bound = np.partition(bd, k - 1)[k - 1] if nb >= k else np.finfo(np.float64).max
+        bound = _kth(bd, k) if nb >= k else _FMAX
         sel = None  # kept node ids at the height above (= their children's group ids here)
         if self._height >= 0:
             q4 = self._q3[:, :, :, None]  # (3, n, 1, 1)
@@ -198,13 +209,13 @@ class KnnSearch:
                 boxes = self._boxes[h]
                 g = boxes.reshape(3, n, boxes.shape[2] // fan, fan).take(groups, axis=2)
                 g -= q4
-                lb = g.max(axis=0)
+                lb = np.maximum.reduce(g, axis=0)  # = g.max(axis=0), no Python wrapper
                 lb *= lb
                 lb = np.add.reduce(lb, axis=0).ravel()  # squared box distances, canonical order
-                keep = np.flatnonzero(lb <= bound)
+                keep = (lb <= bound).nonzero()[0]
                 cap = self._widths[h]
                 if len(keep) > cap:
-                    keep = keep[np.argsort(lb[keep], kind="stable")[:cap]]
+                    keep = keep[lb[keep].argsort(kind="stable")[:cap]]
                 sel = groups[keep // fan] * fan + keep % fan
             if self._dupmap:
                 dups = self._dupmap.get((q + 0.0).tobytes())
@@ -224,14 +235,14 @@ class KnnSearch:
         if len(cd) < k:
             return None
         # a group code stands for >= 1 sample at its distance, so this k-th value bounds the answer
-        kth = np.partition(cd, k - 1)[k - 1]
+        kth = _kth(cd, k)
         if not kth <= np.inf:  # NaN: fewer than k samples scanned
             return None
         keep = cd <= kth
         cd, ci = cd[keep], ci[keep]
         if self._ngroups and ci.min() < -1:
             cd, ci = self._expand_groups(cd, ci, k)
-            kth = np.partition(cd, k - 1)[k - 1]
+            kth = _kth(cd, k)
             keep = cd <= kth
             cd, ci = cd[keep], ci[keep]
         return ci[np.lexsort((ci, cd))[:k]]
@@ -253,7 +264,7 @@ class KnnSearch:
         """Keep the samples within sqrt(r2) of q (all of them are in cd/ci when r2 <= bound)."""
         r2 = bound
         if len(cd) > self._cache_max:
-            r2 = np.partition(cd, self._cache_max - 1)[self._cache_max - 1]
+            r2 = _kth(cd, self._cache_max)
             keep = cd <= r2
             cd, ci = cd[keep], ci[keep]
         m = len(ci)
@@ -312,7 +323,7 @@ class KnnSearch:
         d = np.concatenate((bd, np.add.reduce(p, axis=0)))
         if len(d) < k:
             return np.inf
-        kth = np.partition(d, k - 1)[k - 1]
+        kth = _kth(d, k)
         return kth if kth == kth else np.inf  # NaN (empty leaf slots) -> no bound
 
     def _cache_add(self, i: int, a: np.ndarray) -> None:

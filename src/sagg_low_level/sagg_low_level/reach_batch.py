@@ -9,14 +9,16 @@ floats, bit for bit), while the memory does not change (the evaluation freezes t
 * the local Jacobian (:func:`~sagg_low_level.local_model.local_jacobian`, one least-squares fit per
   neighbour set, as the learner) is computed once per distinct ordered neighbour set and kept in
   ``cache``: the same input rows give the same floats, and along a reach (and at the common rest
-  posture) consecutive steps often share their neighbours;
+  posture) consecutive steps often share their neighbours; ``cache`` also keeps it by posture, so a
+  posture met again (a reach stuck at a joint limit repeats its posture) needs no search;
 * the pseudo-inverse for all rows with one stacked ``numpy.linalg.pinv`` (numpy computes a stack
   one matrix at a time with the same LAPACK call, so each slice equals the single call; checked by
-  test/test_eval_batch.py), or with ``reach_damping`` the stacked
-  :func:`~sagg_low_level.local_model.damped_steps`, which the single step calls with a stack of one and ``J⁺ · Δy_next`` as a stacked matmul;
+  test/test_eval_batch.py) and ``J⁺ · Δy_next`` as a stacked matmul; with ``reach_damping`` the
+  stacked :func:`~sagg_low_level.local_model.damped_steps` (the single step calls it with a stack
+  of one);
 * ``reach_limits = clamp``: rows whose plain step leaves the joint limits are re-solved by
-  :func:`~sagg_low_level.local_model.clamped_step` itself, one row at a time (the others end after
-  its first round, which is the plain step).
+  :func:`~sagg_low_level.local_model.clamped_steps`: clamped_step's own rounds, the solves of all
+  rows in one round stacked (the others end after the first round, which is the plain step).
 
 Nothing here changes the reaching semantics: the per-goal functions stay the definition, this module
 reproduces them faster; test/test_eval_batch.py compares the two on several set-ups.
@@ -25,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .local_model import clamped_step, damped_steps, local_jacobian
+from .local_model import clamped_steps, damped_steps, local_jacobian
 from .memory_batch import neighbours_many
 
 
@@ -39,7 +41,7 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
                 cache: dict | None = None) -> np.ndarray | None:
     """``learner.reach_step(alphas[i], dys[i])`` for every row i, as a (B, n) array; None when the
     memory is too small (reach_step returns None for every row then). ``cache`` (a dict, one per
-    frozen model) keeps the Jacobians by neighbour set across calls."""
+    frozen model) keeps the Jacobians by neighbour set and by posture across calls."""
     alphas = np.asarray(alphas, dtype=float)
     dys = np.asarray(dys, dtype=float)
     mem = learner.memory
@@ -47,15 +49,21 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
         return None
     p = learner.p
     cache = {} if cache is None else cache
-    idx = neighbours_many(mem, alphas, learner.k)
-    da, dy = mem.delta_alpha, mem.delta_y
     jacs = np.empty((len(alphas), learner.m, alphas.shape[1]))
-    for i, row in enumerate(idx):
-        key = row.tobytes()
-        jac = cache.get(key)
-        if jac is None:
-            jac = cache[key] = local_jacobian(da[row], dy[row], p["jacobian_rcond"])
-        jacs[i] = jac
+    # a posture met before (a reach stuck at a limit repeats its posture) has its Jacobian already
+    keys = [("posture", a.tobytes()) for a in alphas]
+    new = [i for i, key in enumerate(keys) if key not in cache]
+    if new:
+        idx = neighbours_many(mem, alphas[new], learner.k)
+        da, dy = mem.delta_alpha, mem.delta_y
+        for i, row in zip(new, idx):
+            key = ("set", row.tobytes())
+            jac = cache.get(key)
+            if jac is None:
+                jac = cache[key] = local_jacobian(da[row], dy[row], p["jacobian_rcond"])
+            cache[keys[i]] = jac
+    for i, key in enumerate(keys):
+        jacs[i] = cache[key]
     if learner.damping:
         steps = damped_steps(jacs, dys, learner.damping)
     else:
@@ -63,9 +71,5 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
         steps = (pinv @ dys[:, :, None])[:, :, 0]
     if p["reach_limits"] == "clip":
         return steps
-    lower, upper = learner.robot.lower, learner.robot.upper
-    new = alphas + steps
-    over = np.flatnonzero(((new > upper) | (new < lower)).any(axis=1))
-    for i in over:
-        steps[i] = clamped_step(jacs[i], dys[i], alphas[i], lower, upper, p["pinv_rcond"], learner.damping)
-    return steps
+    return clamped_steps(jacs, dys, alphas, learner.robot.lower, learner.robot.upper, p["pinv_rcond"], steps,
+                         learner.damping)

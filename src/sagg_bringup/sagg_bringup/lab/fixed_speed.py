@@ -17,8 +17,9 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
+
+from .base_tree import check_source, exported, pythonpath, repo_root
 
 _CHILD = r"""
 import json, sys, time
@@ -38,17 +39,12 @@ print(json.dumps({"cpu_rate": n / cpu, "wall_rate": n / wall, "digest": run.lear
 """
 
 
-def _pythonpath(src: Path) -> str:
-    return os.pathsep.join(str(p) for p in sorted(src.iterdir()) if p.is_dir())
-
-
 def _run(src: Path, config: str, strategy: str, seed: int, n: int, overrides: dict) -> dict:
-    env = dict(os.environ, PYTHONPATH=_pythonpath(src))
+    env = dict(os.environ, PYTHONPATH=pythonpath(src))
     out = subprocess.run([sys.executable, "-c", _CHILD, config, strategy, str(seed), str(n), json.dumps(overrides)],
                          env=env, capture_output=True, text=True, check=True)
     res = json.loads(out.stdout.strip().splitlines()[-1])
-    if not res["source"].startswith(str(src)):
-        raise RuntimeError(f"the run imported {res['source']}, not the sources under {src}")
+    check_source(res["source"], src)
     return res
 
 
@@ -70,12 +66,8 @@ def main(argv=None) -> int:
                     help="parameter override for both (e.g. m=8 for bit-identity with the old default)")
     a = ap.parse_args(argv)
     overrides = dict((k, _value(v)) for k, v in (s.split("=", 1) for s in a.set))
-    repo = Path(subprocess.run(["git", "rev-parse", "--show-toplevel"], capture_output=True, text=True,
-                               check=True).stdout.strip())
-    with tempfile.TemporaryDirectory(prefix="sagg_fixed_speed_") as tmp:
-        base = Path(tmp)
-        archive = subprocess.run(["git", "-C", str(repo), "archive", a.base, "src"], capture_output=True, check=True)
-        subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
+    repo = repo_root()
+    with exported(a.base, repo) as base_src:
         print(f"base {a.base} vs this tree ({repo}), {a.config}, {a.queries} queries, overrides {overrides}, "
               f"load {os.getloadavg()[0]:.1f}")
         print("| strategy | seed | base /CPU-s | new /CPU-s | ratio | base /s | new /s | ratio | same memory |")
@@ -83,7 +75,7 @@ def main(argv=None) -> int:
         tot = {"base": 0.0, "new": 0.0}
         for strategy in a.strategies:
             for seed in range(a.seeds):
-                b = _run(base / "src", a.config, strategy, seed, a.queries, overrides)
+                b = _run(base_src, a.config, strategy, seed, a.queries, overrides)
                 n = _run(repo / "src", a.config, strategy, seed, a.queries, overrides)
                 tot["base"] += a.queries / b["cpu_rate"]
                 tot["new"] += a.queries / n["cpu_rate"]

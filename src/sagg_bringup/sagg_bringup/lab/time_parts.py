@@ -1,0 +1,168 @@
+"""Where the CPU time of a learning window, or of one evaluation, goes::
+
+    python -m sagg_bringup.lab.time_parts --config config/arm15.yaml --strategy actuator-riac \\
+        --start 180000 --stop 200000 [--eval] [--set NAME=VALUE]
+
+One in-process run (evolving-context arm) is learned to ``--start``. Then, without ``--eval``, the
+learning from ``--start`` to ``--stop`` is timed twice: the first half as is (the rate), the second
+half with the main parts wrapped in CPU-time counters (``time.process_time``; the wrappers add a
+little); with ``--eval``, the run is learned to ``--stop`` and its batched evaluation on the config's
+test goals is timed with the counters (best of 3). Parts nest (a region tree's split is inside its
+``add``, the RIAC compatible leaves inside the RIAC action choice): the shares do not sum to 100 %.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from sagg_common import regions
+from sagg_low_level import learner as learner_mod, memory, memory_search, reach_batch, riac_leaves
+from sagg_low_level.evaluate import evaluate_batch
+from sagg_sim_bridge.arm import ArmSim, test_goals
+
+from ..arm_eval import eval_arms
+from ..experiment import InProcessRun, cached_reachable_area
+from ..setups import in_process_run
+
+
+class Counters:
+    """CPU seconds and calls per label, of the functions :meth:`wrap` replaced (until
+    :meth:`restore`)."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = defaultdict(float)
+        self.calls: dict[str, int] = defaultdict(int)
+        self._wrapped: list[tuple[object, str, object, bool]] = []
+
+    def wrap(self, owner, name: str, label: str) -> None:
+        f = getattr(owner, name)
+        self._wrapped.append((owner, name, f, name in vars(owner)))
+
+        def timed(*args, **kwargs):
+            t = time.process_time()
+            try:
+                return f(*args, **kwargs)
+            finally:
+                self.seconds[label] += time.process_time() - t
+                self.calls[label] += 1
+
+        setattr(owner, name, timed)
+
+    def clear(self) -> None:
+        self.seconds.clear()
+        self.calls.clear()
+
+    def restore(self) -> None:
+        """Put the wrapped functions back (the last wrapped first)."""
+        for owner, name, f, own in reversed(self._wrapped):
+            if own:
+                setattr(owner, name, f)
+            else:  # it was inherited (or a class attribute seen through an instance)
+                delattr(owner, name)
+        self._wrapped.clear()
+
+
+def learning_parts(c: Counters, run: InProcessRun) -> None:
+    c.wrap(memory_search.KnnSearch, "_knn_approx", "neighbour search (approximate)")
+    c.wrap(learner_mod, "local_jacobian", "least squares (local Jacobian)")
+    c.wrap(learner_mod, "clamped_step", "clamped reaching step")
+    c.wrap(memory.SampleMemory, "add", "memory add (incl. index builds)")
+    c.wrap(regions.RegionTree, "add", "region tree add (goal tree and RIAC tree)")
+    c.wrap(regions.RegionTree, "_split", "region tree splits (inside region tree add)")
+    c.wrap(regions.RegionTree, "interests", "goal tree interests (goal choice)")
+    c.wrap(riac_leaves.RiacLeaves, "compatible", "RIAC compatible leaves")
+    c.wrap(run.learner, "_riac_choice", "RIAC action choice (incl. compatible)")
+    c.wrap(run.generator, "next_goal", "goal generator next_goal")
+    c.wrap(run.sim, "command", "simulator")
+
+
+def eval_parts(c: Counters) -> None:
+    c.wrap(reach_batch, "neighbours_many", "neighbour search (batched)")
+    c.wrap(reach_batch, "local_jacobian", "least squares (one per distinct set)")
+    c.wrap(reach_batch, "clamped_steps", "clamping rounds")
+    c.wrap(ArmSim, "command", "robot commands")
+
+
+def _value(text: str):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m sagg_bringup.lab.time_parts", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--config", default="config/arm15.yaml")
+    ap.add_argument("--strategy", default="sagg-riac")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--start", type=int, default=0)
+    ap.add_argument("--stop", type=int, default=5000)
+    ap.add_argument("--eval", action="store_true", help="time one evaluation at --stop instead of learning")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
+    a = ap.parse_args(argv)
+    ov = dict((k, _value(v)) for k, v in (s.split("=", 1) for s in a.set))
+    run = in_process_run(a.config, dict(ov, strategy=a.strategy, seed=a.seed))
+    if not isinstance(run, InProcessRun):
+        ap.error("time_parts measures the evolving-context arm (InProcessRun)")
+    c = Counters()
+    run.step_until(a.start)
+    try:
+        seconds, calls, total, unit, per = _measure(a, run, c)
+    finally:
+        c.restore()
+    print(f"| part | CPU s | share | {per} | calls |")
+    print("|---|---|---|---|---|")
+    for label, s in sorted(seconds.items(), key=lambda kv: -kv[1]):
+        print(f"| {label} | {s:.3f} | {100 * s / total:.1f} % | {s / unit:.2f} | {calls[label]} |")
+    print("load average (1, 5, 15 min): " + ", ".join(f"{x:.2f}" for x in os.getloadavg()))
+    return 0
+
+
+def _measure(a, run: InProcessRun, c: Counters):
+    """Time the learning window or the evaluation of ``a`` (see the module docstring)."""
+    if a.eval:
+        t = time.process_time()
+        run.step_until(a.stop)
+        learn = time.process_time() - t
+        lp = run.config["sagg_learner"]
+        lower, upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
+        area = cached_reachable_area(run.spec, lower, upper, lp["eval.seed"])
+        goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
+        eval_arms(run.spec, run.seed, len(goals))
+        eval_parts(c)
+        best = None
+        for _ in range(3):
+            c.clear()
+            t = time.process_time()
+            evaluate_batch(run.learner, eval_arms(run.spec, run.seed, len(goals)), goals)
+            total = time.process_time() - t
+            if best is None or total < best[0]:
+                best = (total, dict(c.seconds), dict(c.calls))
+        total, seconds, calls = best
+        print(f"{a.config} {a.strategy} seed {a.seed}: learning {a.start}-{a.stop} {learn:.2f} CPU-s; one evaluation "
+              f"{total:.2f} CPU-s = {total / learn:.2f} x that learning (best of 3)")
+        unit, per = learn, "x learning"
+    else:
+        half = a.start + (a.stop - a.start) // 2
+        t = time.process_time()
+        run.step_until(half)
+        plain = time.process_time() - t
+        learning_parts(c, run)
+        t = time.process_time()
+        run.step_until(a.stop)
+        total = time.process_time() - t
+        seconds, calls = c.seconds, c.calls
+        n = a.stop - half
+        print(f"{a.config} {a.strategy} seed {a.seed}: {a.start}-{half} {(half - a.start) / plain:,.0f} micro-actions "
+              f"per CPU-s; {half}-{a.stop} with counters {total:.2f} CPU-s")
+        unit, per = n / 1e6, "us per micro-action"
+    return seconds, calls, total, unit, per
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

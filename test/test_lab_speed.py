@@ -1,0 +1,36 @@
+"""Smoke tests of the before/after speed tools (tiny budgets): the two trees are stepped and compared,
+the bit-identity check sees equal runs as equal, and the parts table is printed."""
+from pathlib import Path
+
+from sagg_bringup.lab import eval_cost, time_parts, window_speed
+from sagg_bringup.lab.base_tree import repo_root
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def test_window_speed_steps_both_trees_and_checks_identity():
+    lines = []
+    res = window_speed.compare(SRC, SRC, "config/arm15.yaml", {"strategy": "actuator-riac", "seed": 0},
+                               micro_actions=400, window=200, out=lines.append)
+    assert [r["micro_actions"] for r in res["rows"]] == [200, 400]
+    assert res["identical"] and res["ends"]["new"]["samples"] == 400
+    assert any(line.startswith("| whole run |") for line in lines)
+
+
+def test_eval_cost_against_a_commit_gives_the_same_errors(capsys):
+    assert repo_root() == SRC.parent
+    rows = eval_cost.compare_base("HEAD", ["arm7_ratio15"], "sagg-riac", 300, 0, 1)
+    assert rows[0]["same"] and rows[0]["new"]["after"] > 0
+    assert "| arm7_ratio15 |" in capsys.readouterr().out
+
+
+def test_time_parts_prints_learning_and_evaluation_parts(capsys):
+    from sagg_low_level import learner, memory_search, reach_batch
+    before = (memory_search.KnnSearch._knn_approx, learner.local_jacobian, reach_batch.neighbours_many)
+    assert time_parts.main(["--config", "config/arm7_ratio15.yaml", "--start", "0", "--stop", "600"]) == 0
+    out = capsys.readouterr().out
+    assert "neighbour search (approximate)" in out and "micro-actions per CPU-s" in out
+    assert time_parts.main(["--config", "config/arm7_ratio15.yaml", "--start", "0", "--stop", "300", "--eval"]) == 0
+    assert "least squares (one per distinct set)" in capsys.readouterr().out
+    # the counters are gone afterwards
+    assert (memory_search.KnnSearch._knn_approx, learner.local_jacobian, reach_batch.neighbours_many) == before
