@@ -286,3 +286,16 @@ def test_explore_length_measures_the_exploration_distance_whatever_the_box():
         mean_step[length] = float(np.mean(steps))
         assert max(steps) <= 0.5 * 6.0 / length + 1e-12  # D < 6, the diagonal of the reachable set
     assert mean_step[4.0] < 0.12 and mean_step[0.25] > 2.5 * mean_step[4.0], mean_step
+
+
+def test_least_spread_set_in_one_call_equals_per_set_spreads():
+    rng = np.random.default_rng(4)
+    theta = rng.uniform(0, 1, (200, 7))
+    for _ in range(50):
+        sets = [rng.choice(200, 16, replace=False) for _ in range(10)]
+        want = int(np.argmin([set_spread(theta[s]) for s in sets]))
+        assert least_spread_set(sets, theta) == want
+        assert least_spread_set(np.array(sets), theta) == want  # the sets as rows of one array
+    # ties go to the first set, as argmin over the list did
+    s = rng.choice(200, 16, replace=False)
+    assert least_spread_set([s, s.copy(), s[::-1].copy()], theta) == 0

@@ -35,8 +35,8 @@ from .learner import CONTEXT, EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Rep
 from .local_model import local_jacobian, pseudo_inverse_step
 from .memory import SampleMemory
 from .memory_distance import squared_distances
-from .neighbour_sets import NeighbourSets
 from .riac_leaves import RiacLeaves
+from .tree_knn import TreeKnn
 
 SCHEMA: Schema = SHARED_SCHEMA + (
     Param("l", "int", 10,
@@ -243,14 +243,14 @@ def set_spread(theta_norm: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.var(theta_norm, axis=0))))
 
 
-def least_spread_set(candidate_sets: list[np.ndarray], theta_norm: np.ndarray) -> int:
-    """``M_k = argmin_i σ(M_i)`` (Sec. 4.4.1, equation M_k); ties: the first (closest goal neighbour)."""
-    sizes = {len(s) for s in candidate_sets}
-    if len(sizes) != 1:
+def least_spread_set(candidate_sets: list[np.ndarray] | np.ndarray, theta_norm: np.ndarray) -> int:
+    """``M_k = argmin_i σ(M_i)`` (Sec. 4.4.1, equation M_k); ties: the first (closest goal neighbour).
+    ``candidate_sets``: index arrays, or one 2-D array of equal-sized sets by row."""
+    if not isinstance(candidate_sets, np.ndarray) and len({len(s) for s in candidate_sets}) != 1:
         return int(np.argmin([set_spread(theta_norm[s]) for s in candidate_sets]))
     # equal-sized sets (always, in the learner): all spreads in one call; the same sums in the same
     # order as set_spread per set (numpy reduces a non-last axis row after row)
-    stacked = theta_norm[np.stack(candidate_sets)]                       # (l, m, n)
+    stacked = theta_norm[np.asarray(candidate_sets)]                     # (l, m, n)
     spreads = np.sqrt(np.mean(np.var(stacked, axis=1), axis=1))
     return int(np.argmin(spreads))
 
@@ -298,12 +298,14 @@ class FixedContextLearner:
         self.l_nb = params["l"]
         self.m_nb = params["m"] or 2 * (n + 1)
         self.min_samples = params["min_samples"] or n + 1
-        # two indexes over the same samples (same insertion order, so index i is one experiment):
+        # two memories of the same samples (same insertion order, so index i is one experiment):
         # by normalised θ (m-neighbour sets, ACTUATOR-RIAC's forward model) and by rescaled y
-        # (l neighbours of the goal, closest reached outcome y_c); both exact k-NN (checks = 0)
+        # (l neighbours of the goal, closest reached outcome y_c); searched exactly (the memory's
+        # exact k-NN answers) by a tree index suited to these few dimensions
         self.by_theta = SampleMemory(n, n, self.mdim)
         self.by_y = SampleMemory(self.mdim, n, self.mdim)
-        self.theta_sets = NeighbourSets(self.by_theta, self.m_nb)  # the sets M_i, cached (exact)
+        self.theta_index = TreeKnn(self.by_theta)
+        self.y_index = TreeKnn(self.by_y)
         self.rng = stream(params["seed"], "fixed_context_learner")
         self.y_rest = np.zeros(self.mdim)
         self.experiments = 0       # stored experiments (with an outcome): the learning clock
@@ -361,7 +363,7 @@ class FixedContextLearner:
         """Index of the stored outcome y_c closest to ``goal`` (None while the memory is empty)."""
         if not len(self):
             return None
-        return int(self.by_y.neighbours(self.scale_y(goal), 1)[0])
+        return int(self.y_index.query(self.scale_y(goal)[None], 1)[0, 0])
 
     def inverse(self, goal) -> np.ndarray | None:
         """Reaching phase (Sec. 4.4.1): θ_g from the local inverse model on the neighbour set of least
@@ -369,12 +371,12 @@ class FixedContextLearner:
         if len(self) < self.min_samples:
             return None
         g = self.scale_y(goal)
-        return self._inverse_from(g, self.by_y.neighbours(g, self.l_nb))
+        return self._inverse_from(g, self.y_index.query(g[None], self.l_nb)[0])
 
     def _inverse_from(self, g: np.ndarray, seeds: np.ndarray) -> np.ndarray:
         """:meth:`inverse` for the rescaled goal ``g`` given L, its l nearest outcomes ``seeds``."""
         tn = self.by_theta.alpha                                        # normalised θ of every sample
-        sets = [self.theta_sets.get(int(i)) for i in seeds]              # M_i: m neighbours in θ
+        sets = self.theta_index.query(tn[seeds], self.m_nb)             # M_i: m neighbours in θ, by row
         best = sets[least_spread_set(sets, tn)]
         ys = self.by_y.alpha[best]
         return self.denorm_theta(local_inverse(tn[best], ys, g, self.p["jacobian_rcond"],
@@ -394,7 +396,7 @@ class FixedContextLearner:
         if len(self) < 2:
             return None
         tq = self.norm_theta(theta)
-        idx = self.by_theta.neighbours(tq, k)
+        idx = self.theta_index.query(tq[None], k)[0]
         tn = self.by_theta.alpha[idx]
         ys = self.by_y.alpha[idx]
         jac = local_jacobian(tn - tn.mean(axis=0), ys - ys.mean(axis=0), self.p["jacobian_rcond"])
@@ -479,7 +481,7 @@ class FixedContextLearner:
             # y_c, the closest known outcome (its index), and θ from the inverse model (Sec. 4.4.1);
             # L's first member is y_c (same search, same order)
             if len(self) >= self.min_samples:
-                seeds = self.by_y.neighbours(g, self.l_nb)
+                seeds = self.y_index.query(g[None], self.l_nb)[0]
                 c_before = int(seeds[0])
                 theta = self._inverse_from(g, seeds)
             else:

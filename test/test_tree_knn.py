@@ -1,0 +1,47 @@
+"""TreeKnn (sagg_low_level.tree_knn): the exact k nearest of a growing memory, many queries per call,
+must be the memory's own exact answer bit for bit (indices and order, ties by index)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sagg_low_level.memory import SampleMemory
+from sagg_low_level.tree_knn import TreeKnn
+
+
+def _want(mem, qs, k):
+    return np.array([mem.neighbours(q, k) for q in qs]).reshape(len(qs), -1)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3, 7, 24])
+def test_equals_the_memory_search_as_samples_arrive(dim):
+    rng = np.random.default_rng(dim)
+    mem = SampleMemory(dim, 1, 1)
+    knn = TreeKnn(mem, extra=2, min_recent=8, rebuild_share=0.25, leafsize=4)
+    assert knn.query(rng.uniform(0, 1, (3, dim)), 5).shape == (3, 0)  # empty memory
+    for step in range(60):
+        for _ in range(int(rng.integers(0, 30))):
+            # clustered points, some duplicated, some on a coarse grid (exact distance ties)
+            kind = rng.integers(0, 4)
+            if kind == 0 and len(mem):
+                a = mem.alpha[int(rng.integers(len(mem)))]
+            elif kind == 1:
+                a = np.round(rng.uniform(0, 1, dim) * 3) / 3
+            else:
+                a = rng.uniform(0, 1, dim) ** 3
+            mem.add(a, [0.0], [0.0])
+        for k in (1, 3, 16):
+            qs = np.concatenate((rng.uniform(0, 1, (4, dim)),
+                                 mem.alpha[rng.integers(0, len(mem), 4)] if len(mem) else np.empty((0, dim)),
+                                 np.round(rng.uniform(0, 1, (2, dim)) * 3) / 3))
+            np.testing.assert_array_equal(knn.query(qs, k), _want(mem, qs, k))
+    assert knn._nt > 0 and knn.scans > 0  # the tree was used, and ties sent some queries to the scan
+
+
+def test_duplicates_beyond_the_candidates_are_ranked_by_index():
+    mem = SampleMemory(2, 1, 1)
+    for i in range(300):
+        mem.add([0.5, 0.5] if i % 3 else [i / 300, 0.0], [0.0], [0.0])
+    knn = TreeKnn(mem, extra=1, min_recent=4)
+    q = np.array([[0.5, 0.5], [0.5, 0.49], [0.1, 0.0]])
+    np.testing.assert_array_equal(knn.query(q, 30), _want(mem, q, 30))
