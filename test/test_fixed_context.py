@@ -10,7 +10,8 @@ from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.fixed_context import (SCHEMA, SYNERGY_SCHEMA, Driver, Execute, FixedContextLearner,
                                           ThetaSpace, evaluate_fixed, exploration_theta, least_spread_set,
-                                          local_inverse, set_spread, spread_goals, synergy_from_params)
+                                          local_inverse, set_spread, set_spreads, spread_goals,
+                                          synergy_from_params)
 
 A = np.array([[0.8, -0.3, 0.5, 0.2, -0.6, 0.1],
               [0.1, 0.7, -0.4, 0.5, 0.3, -0.2]])
@@ -299,3 +300,22 @@ def test_least_spread_set_in_one_call_equals_per_set_spreads():
     # ties go to the first set, as argmin over the list did
     s = rng.choice(200, 16, replace=False)
     assert least_spread_set([s, s.copy(), s[::-1].copy()], theta) == 0
+
+
+def test_set_spreads_equal_numpy_var_and_mean_bit_for_bit():
+    rng = np.random.default_rng(5)
+    for shape in [(10, 16, 7), (1, 2, 1), (3, 9, 24), (10, 33, 4)]:
+        stacked = rng.uniform(0, 1, shape) ** 3
+        want = np.sqrt(np.mean(np.var(stacked, axis=1), axis=1))
+        np.testing.assert_array_equal(set_spreads(stacked), want)
+
+
+def test_competence_toward_a_goal_equals_competence():
+    from sagg_common.competence import competence, competence_toward
+    rng = np.random.default_rng(6)
+    for scale in (None, np.array([2.0, 0.5])):
+        for _ in range(200):
+            goal, start = rng.normal(size=2), rng.normal(size=2) * rng.choice([1.0, 1e-3])
+            of = competence_toward(goal, start, 0.01, scale)
+            for y in rng.normal(size=(5, 2)):
+                assert of(y) == competence(goal, y, start, 0.01, scale)
