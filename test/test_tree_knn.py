@@ -35,6 +35,8 @@ def test_equals_the_memory_search_as_samples_arrive(dim):
                                  mem.alpha[rng.integers(0, len(mem), 4)] if len(mem) else np.empty((0, dim)),
                                  np.round(rng.uniform(0, 1, (2, dim)) * 3) / 3))
             np.testing.assert_array_equal(knn.query(qs, k), _want(mem, qs, k))
+            for q in qs[:: len(qs) // 3]:  # one query per call
+                np.testing.assert_array_equal(knn.query(q[None], k), _want(mem, q[None], k))
     assert knn._nt > 0 and knn.scans > 0  # the tree was used, and ties sent some queries to the scan
 
 

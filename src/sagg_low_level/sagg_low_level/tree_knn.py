@@ -79,8 +79,9 @@ class TreeKnn:
         self._update(n)
         nt, nr = self._nt, self._nr
         qt = qs.T.copy()
-        # candidates, flattened: their row (query), canonical squared distance and sample index
-        rows, dist, index = [], [], []
+        # candidates, flattened row after row: canonical squared distance, sample index (and the
+        # row, i.e. the query, when there are several)
+        dist, index, rows = [], [], []
         bound = None  # per query, an upper bound of its k-th distance (the tree's candidates give it)
         if nt:
             kq = min(k + self.extra, nt)
@@ -90,28 +91,33 @@ class TreeKnn:
             diff.shape = (dim, b, kq)
             diff -= qt[:, :, None]
             td = sum_squares_rows(diff.reshape(dim, b * kq))
-            rows.append(np.repeat(np.arange(b), kq))
             dist.append(td)
             index.append(ti)
+            if b > 1:
+                rows.append(np.repeat(np.arange(b), kq))
             if kq >= k:
                 bound = td.reshape(b, kq)[:, :k].max(axis=1)
         if nr:
             diff = np.subtract(self._recent_t[:, None, :nr], qt[:, :, None], out=np.empty((dim, b, nr)))
             rd = sum_squares_rows(diff.reshape(dim, b * nr))
             if bound is None:
-                r, c = np.divmod(np.arange(b * nr), nr)
+                keep = np.arange(b * nr)
             else:  # only those not beyond the tree's bound can be among the k nearest
-                r, c = np.nonzero(rd.reshape(b, nr) <= bound[:, None])
-            rows.append(r)
-            dist.append(rd.reshape(b, nr)[r, c])
-            index.append(c + nt)
-        rows = np.concatenate(rows) if len(rows) > 1 else rows[0]
+                keep = np.flatnonzero(rd.reshape(b, nr) <= bound[:, None])
+            dist.append(rd[keep])
+            if b > 1:
+                r = keep // nr
+                rows.append(r)
+                keep -= r * nr
+            index.append(keep + nt)
         dist = np.concatenate(dist) if len(dist) > 1 else dist[0]
         index = np.concatenate(index) if len(index) > 1 else index[0]
-        order = np.lexsort((index, dist, rows))
-        counts = np.bincount(rows, minlength=b)
-        pick = (np.cumsum(counts) - counts)[:, None] + np.arange(k)
-        pick = order[pick]
+        if b == 1:
+            pick = np.lexsort((index, dist))[None, :k]
+        else:  # each row holds >= k candidates: its first k after sorting by (row, distance, index)
+            rows = np.concatenate(rows) if len(rows) > 1 else rows[0]
+            counts = np.bincount(rows, minlength=b)
+            pick = np.lexsort((index, dist, rows))[(np.cumsum(counts) - counts)[:, None] + np.arange(k)]
         out = index[pick]
         if nt and nt > kq:
             # a tree sample not proposed is at least the farthest candidate away (tree arithmetic):
