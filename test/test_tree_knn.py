@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sagg_low_level.memory import SampleMemory
+from sagg_low_level.memory import SampleMemory, SampleTable
 from sagg_low_level.tree_knn import TreeKnn
 
 
@@ -47,3 +47,19 @@ def test_duplicates_beyond_the_candidates_are_ranked_by_index():
     knn = TreeKnn(mem, extra=1, min_recent=4)
     q = np.array([[0.5, 0.5], [0.5, 0.49], [0.1, 0.0]])
     np.testing.assert_array_equal(knn.query(q, 30), _want(mem, q, 30))
+
+
+def test_over_an_index_free_table_with_the_same_digest():
+    rng = np.random.default_rng(11)
+    mem, table = SampleMemory(7, 7, 2), SampleTable(7, 7, 2, capacity=1)
+    knn = TreeKnn(table, min_recent=16)
+    for _ in range(40):
+        for _ in range(int(rng.integers(1, 40))):
+            a = rng.uniform(0, 1, 7) ** 2
+            assert mem.add(a, a, a[:2]) == table.add(a, a, a[:2])
+        qs = np.concatenate((rng.uniform(0, 1, (3, 7)), table.alpha[rng.integers(0, len(table), 3)]))
+        np.testing.assert_array_equal(knn.query(qs, 16), _want(mem, qs, 16))
+    assert table.digest() == mem.digest() and len(table) == len(mem)
+    np.testing.assert_array_equal(table.delta_y, mem.delta_y)
+    with pytest.raises(ValueError):
+        table.add(np.full(7, np.nan), np.zeros(7), np.zeros(2))

@@ -33,7 +33,7 @@ from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 
 from .learner import CONTEXT, EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
 from .local_model import local_jacobian, pseudo_inverse_step
-from .memory import SampleMemory
+from .memory import SampleTable
 from .memory_distance import squared_distances
 from .riac_leaves import RiacLeaves
 from .tree_knn import TreeKnn
@@ -321,10 +321,10 @@ class FixedContextLearner:
         self.min_samples = params["min_samples"] or n + 1
         # two memories of the same samples (same insertion order, so index i is one experiment):
         # by normalised θ (m-neighbour sets, ACTUATOR-RIAC's forward model) and by rescaled y
-        # (l neighbours of the goal, closest reached outcome y_c); searched exactly (the memory's
+        # (l neighbours of the goal, closest reached outcome y_c); searched exactly (SampleMemory's
         # exact k-NN answers) by a tree index suited to these few dimensions
-        self.by_theta = SampleMemory(n, n, self.mdim)
-        self.by_y = SampleMemory(self.mdim, n, self.mdim)
+        self.by_theta = SampleTable(n, n, self.mdim)
+        self.by_y = SampleTable(self.mdim, n, self.mdim)
         self.theta_index = TreeKnn(self.by_theta)
         self.y_index = TreeKnn(self.by_y)
         self._span = theta_space.upper - theta_space.lower

@@ -1,8 +1,8 @@
-"""Exact k nearest stored samples of a growing :class:`~sagg_low_level.memory.SampleMemory`, many
-queries per call: the fixed-context learner's searches (outcomes in 2-3 dims, synergies in 4-24).
-ROS-free.
+"""Exact k nearest stored samples of a growing sample store (:class:`~sagg_low_level.memory.SampleMemory`
+or the index-free :class:`~sagg_low_level.memory.SampleTable`), many queries per call: the
+fixed-context learner's searches (outcomes in 2-3 dims, synergies in 4-24). ROS-free.
 
-The answer is the memory's own exact one, ``memory.neighbours(q, k)`` bit for bit: the min(k, len)
+The answer is SampleMemory's exact one, ``neighbours(q, k)`` bit for bit: the min(k, len)
 stored alpha nearest to q in the canonical squared distance (:mod:`.memory_distance`), ordered by
 (distance, index), ties included (tested in test/test_tree_knn.py). It is found another way, for
 speed only (the memory's index is built for 15-30-D trajectories, one query per call):
@@ -25,16 +25,17 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .memory import SampleMemory
 from .memory_distance import sum_squares_rows
+from .memory_store import SampleStore
 
 _MARGIN = 1.0 - 1e-9
 
 
 class TreeKnn:
-    """``query(Q, k)[j]`` = ``memory.neighbours(Q[j], k)``, exact, for a growing memory."""
+    """``query(Q, k)[j]`` = ``SampleMemory.neighbours(Q[j], k)`` over the same samples, exact, for a
+    growing store."""
 
-    def __init__(self, memory: SampleMemory, extra: int = 1, min_recent: int = 64,
+    def __init__(self, memory: SampleStore, extra: int = 1, min_recent: int = 64,
                  rebuild_share: float = 1 / 32, leafsize: int = 16):
         self.memory = memory
         self.extra = int(extra)
