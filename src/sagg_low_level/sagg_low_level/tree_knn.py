@@ -23,7 +23,6 @@ The memory is read, never written; the index notices new samples by the memory's
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .memory_distance import sum_squares_rows
 from .memory_store import SampleStore
@@ -43,7 +42,7 @@ class TreeKnn:
         self.rebuild_share = float(rebuild_share)
         self.leafsize = int(leafsize)
         dim = memory.state_dim
-        self._tree: cKDTree | None = None
+        self._tree = None  # scipy.spatial.cKDTree of samples 0 .. _nt - 1, once built
         self._tree_t = np.empty((dim, 0))  # the tree's samples, dimension-major
         self._nt = 0  # samples in the tree: indices 0 .. _nt - 1
         self._recent_t = np.empty((dim, 0))  # the samples stored since (a prefix), dimension-major
@@ -55,6 +54,9 @@ class TreeKnn:
         copy the newest samples into the recent part."""
         nt = self._nt
         if n - nt > max(self.min_recent, int(self.rebuild_share * n)):
+            # lazy (heavy): scipy
+            from scipy.spatial import cKDTree
+
             alpha = self.memory.alpha
             self._tree = cKDTree(alpha, leafsize=self.leafsize, compact_nodes=False, balanced_tree=False,
                                  copy_data=True)
