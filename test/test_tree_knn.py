@@ -63,3 +63,12 @@ def test_over_an_index_free_table_with_the_same_digest():
     np.testing.assert_array_equal(table.delta_y, mem.delta_y)
     with pytest.raises(ValueError):
         table.add(np.full(7, np.nan), np.zeros(7), np.zeros(2))
+
+
+def test_bad_queries_are_refused():
+    mem = SampleMemory(2, 1, 1)
+    mem.add([0.0, 0.0], [0.0], [0.0])
+    knn = TreeKnn(mem)
+    for q in ([[np.nan, 0.0]], [[0.0, np.inf]], [[0.0, 0.0, 0.0]]):
+        with pytest.raises(ValueError):
+            knn.query(np.array(q), 1)
