@@ -41,6 +41,10 @@ class TreeKnn:
         self.min_recent = int(min_recent)
         self.rebuild_share = float(rebuild_share)
         self.leafsize = int(leafsize)
+        # lazy (heavy): scipy
+        from scipy.spatial import cKDTree
+
+        self._kdtree = cKDTree  # imported when the index is made, not at its first search
         dim = memory.state_dim
         self._tree = None  # scipy.spatial.cKDTree of samples 0 .. _nt - 1, once built
         self._tree_t = np.empty((dim, 0))  # the tree's samples, dimension-major
@@ -54,12 +58,9 @@ class TreeKnn:
         copy the newest samples into the recent part."""
         nt = self._nt
         if n - nt > max(self.min_recent, int(self.rebuild_share * n)):
-            # lazy (heavy): scipy
-            from scipy.spatial import cKDTree
-
             alpha = self.memory.alpha
-            self._tree = cKDTree(alpha, leafsize=self.leafsize, compact_nodes=False, balanced_tree=False,
-                                 copy_data=True)
+            self._tree = self._kdtree(alpha, leafsize=self.leafsize, compact_nodes=False,
+                                      balanced_tree=False, copy_data=True)
             self._tree_t = np.ascontiguousarray(alpha.T)
             self._nt, self._nr = n, 0
             return
