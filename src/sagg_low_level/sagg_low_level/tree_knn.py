@@ -76,8 +76,9 @@ class TreeKnn:
         """(B, min(k, len)) int64: row j = the memory's exact ``neighbours(queries[j], k)``."""
         qs = np.asarray(queries, dtype=np.float64)
         b, dim = qs.shape
-        if dim != self._tree_t.shape[0] or not np.isfinite(qs).all():
-            raise ValueError(f"queries must be finite, of shape (B, {self._tree_t.shape[0]}), got {qs.shape}")
+        want = self._tree_t.shape[0]
+        if dim != want or not np.isfinite(qs).all():
+            raise ValueError(f"queries must be finite, of shape (B, {want}), got {qs.shape}")
         n = len(self.memory)
         k = min(int(k), n)
         if k < 1 or not b:
