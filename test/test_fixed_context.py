@@ -319,3 +319,31 @@ def test_competence_toward_a_goal_equals_competence():
             of = competence_toward(goal, start, 0.01, scale)
             for y in rng.normal(size=(5, 2)):
                 assert of(y) == competence(goal, y, start, 0.01, scale)
+
+
+def test_the_learners_searches_are_the_memory_search_while_it_learns():
+    """Every query of the learner's two TreeKnn indexes (θ sets, the goal's outcome neighbours,
+    ACTUATOR-RIAC's predictor) during learning = SampleMemory's exact search over the same samples."""
+    from sagg_low_level.memory import SampleMemory
+    from sagg_low_level.tree_knn import TreeKnn
+
+    for strategy in ("sagg-riac", "actuator-riac"):
+        learner, driver = make(strategy, seed=2)
+        refs = {id(learner.theta_index): SampleMemory(6, 1, 1), id(learner.y_index): SampleMemory(2, 1, 1)}
+        asked = []
+        query = TreeKnn.query
+
+        def checked(index, queries, k, query=query, refs=refs, asked=asked):
+            got = query(index, queries, k)
+            ref, table = refs[id(index)], index.memory
+            for a in table.alpha[len(ref):]:
+                ref.add(a, [0.0], [0.0])
+            want = np.array([ref.neighbours(q, k) for q in queries]).reshape(got.shape)
+            np.testing.assert_array_equal(got, want)
+            asked.append(len(queries))
+            return got
+
+        for index in (learner.theta_index, learner.y_index):
+            index.query = checked.__get__(index)
+        driver.step_until(700)
+        assert sum(asked) > 600  # many queries checked, on a memory that outgrew several tree builds
