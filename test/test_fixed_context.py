@@ -10,7 +10,8 @@ from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.fixed_context import (SCHEMA, SYNERGY_SCHEMA, Driver, Execute, FixedContextLearner,
                                           ThetaSpace, evaluate_fixed, exploration_theta, least_spread_set,
-                                          local_inverse, set_spread, spread_goals, synergy_from_params)
+                                          local_inverse, set_spread, set_spreads, spread_goals,
+                                          synergy_from_params)
 
 A = np.array([[0.8, -0.3, 0.5, 0.2, -0.6, 0.1],
               [0.1, 0.7, -0.4, 0.5, 0.3, -0.2]])
@@ -286,3 +287,63 @@ def test_explore_length_measures_the_exploration_distance_whatever_the_box():
         mean_step[length] = float(np.mean(steps))
         assert max(steps) <= 0.5 * 6.0 / length + 1e-12  # D < 6, the diagonal of the reachable set
     assert mean_step[4.0] < 0.12 and mean_step[0.25] > 2.5 * mean_step[4.0], mean_step
+
+
+def test_least_spread_set_in_one_call_equals_per_set_spreads():
+    rng = np.random.default_rng(4)
+    theta = rng.uniform(0, 1, (200, 7))
+    for _ in range(50):
+        sets = [rng.choice(200, 16, replace=False) for _ in range(10)]
+        want = int(np.argmin([set_spread(theta[s]) for s in sets]))
+        assert least_spread_set(sets, theta) == want
+        assert least_spread_set(np.array(sets), theta) == want  # the sets as rows of one array
+    # ties go to the first set, as argmin over the list did
+    s = rng.choice(200, 16, replace=False)
+    assert least_spread_set([s, s.copy(), s[::-1].copy()], theta) == 0
+
+
+def test_set_spreads_equal_numpy_var_and_mean_bit_for_bit():
+    rng = np.random.default_rng(5)
+    for shape in [(10, 16, 7), (1, 2, 1), (3, 9, 24), (10, 33, 4)]:
+        stacked = rng.uniform(0, 1, shape) ** 3
+        want = np.sqrt(np.mean(np.var(stacked, axis=1), axis=1))
+        np.testing.assert_array_equal(set_spreads(stacked), want)
+
+
+def test_competence_toward_a_goal_equals_competence():
+    from sagg_common.competence import competence, competence_toward
+    rng = np.random.default_rng(6)
+    for scale in (None, np.array([2.0, 0.5])):
+        for _ in range(200):
+            goal, start = rng.normal(size=2), rng.normal(size=2) * rng.choice([1.0, 1e-3])
+            of = competence_toward(goal, start, 0.01, scale)
+            for y in rng.normal(size=(5, 2)):
+                assert of(y) == competence(goal, y, start, 0.01, scale)
+
+
+def test_the_learners_searches_are_the_memory_search_while_it_learns():
+    """Every query of the learner's two TreeKnn indexes (θ sets, the goal's outcome neighbours,
+    ACTUATOR-RIAC's predictor) during learning = SampleMemory's exact search over the same samples."""
+    from sagg_low_level.memory import SampleMemory
+    from sagg_low_level.tree_knn import TreeKnn
+
+    for strategy in ("sagg-riac", "actuator-riac"):
+        learner, driver = make(strategy, seed=2)
+        refs = {id(learner.theta_index): SampleMemory(6, 1, 1), id(learner.y_index): SampleMemory(2, 1, 1)}
+        asked = []
+        query = TreeKnn.query
+
+        def checked(index, queries, k, query=query, refs=refs, asked=asked):
+            got = query(index, queries, k)
+            ref, table = refs[id(index)], index.memory
+            for a in table.alpha[len(ref):]:
+                ref.add(a, [0.0], [0.0])
+            want = np.array([ref.neighbours(q, k) for q in queries]).reshape(got.shape)
+            np.testing.assert_array_equal(got, want)
+            asked.append(len(queries))
+            return got
+
+        for index in (learner.theta_index, learner.y_index):
+            index.query = checked.__get__(index)
+        driver.step_until(700)
+        assert sum(asked) > 600  # many queries checked, on a memory that outgrew several tree builds

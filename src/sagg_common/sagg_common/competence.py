@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -18,19 +19,32 @@ def competence(goal, reached, start, eps_c: float, scale=None) -> float:
     distances are taken: the "rescaled in [0;1]" variant of Sec. 4.3, where ``scale`` is the
     extent of the task space in each dimension so every dimension weighs the same.
     """
+    return competence_toward(goal, start, eps_c, scale)(reached)
+
+
+def competence_toward(goal, start, eps_c: float, scale=None) -> Callable[[np.ndarray], float]:
+    """``reached -> competence(goal, reached, start, eps_c, scale)``, the goal's part (its distance
+    to the start) computed once: for the many outcomes of one goal."""
     g = np.asarray(goal, dtype=float)
-    f = np.asarray(reached, dtype=float)
     s = np.asarray(start, dtype=float)
+    sc = None
     if scale is not None:
         sc = np.asarray(scale, dtype=float)
-        g, f, s = g / sc, f / sc, s / sc
+        g, s = g / sc, s / sc
     d_start = math.sqrt(float(np.dot(g - s, g - s)))
-    if d_start < eps_c:
-        return 0.0
-    d_final = math.sqrt(float(np.dot(g - f, g - f)))
-    if d_final > d_start:
-        return -1.0
-    return -d_final / d_start
+
+    def of(reached) -> float:
+        if d_start < eps_c:
+            return 0.0
+        f = np.asarray(reached, dtype=float)
+        if sc is not None:
+            f = f / sc
+        d_final = math.sqrt(float(np.dot(g - f, g - f)))
+        if d_final > d_start:
+            return -1.0
+        return -d_final / d_start
+
+    return of
 
 
 def gamma(c: float, eps_sim: float) -> float:

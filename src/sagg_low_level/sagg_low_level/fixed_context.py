@@ -23,7 +23,7 @@ from typing import Callable, Generator
 
 import numpy as np
 
-from sagg_common.competence import competence, gamma, is_reached
+from sagg_common.competence import competence, competence_toward, gamma, is_reached
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
 from sagg_common.regions import RegionTree, interest_probabilities
@@ -33,10 +33,10 @@ from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 
 from .learner import CONTEXT, EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
 from .local_model import local_jacobian, pseudo_inverse_step
-from .memory import SampleMemory
+from .memory import SampleTable
 from .memory_distance import squared_distances
-from .neighbour_sets import NeighbourSets
 from .riac_leaves import RiacLeaves
+from .tree_knn import TreeKnn
 
 SCHEMA: Schema = SHARED_SCHEMA + (
     Param("l", "int", 10,
@@ -243,16 +243,30 @@ def set_spread(theta_norm: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.var(theta_norm, axis=0))))
 
 
-def least_spread_set(candidate_sets: list[np.ndarray], theta_norm: np.ndarray) -> int:
-    """``M_k = argmin_i σ(M_i)`` (Sec. 4.4.1, equation M_k); ties: the first (closest goal neighbour)."""
-    sizes = {len(s) for s in candidate_sets}
-    if len(sizes) != 1:
+def least_spread_set(candidate_sets: list[np.ndarray] | np.ndarray, theta_norm: np.ndarray) -> int:
+    """``M_k = argmin_i σ(M_i)`` (Sec. 4.4.1, equation M_k); ties: the first (closest goal neighbour).
+    ``candidate_sets``: index arrays, or one 2-D array of equal-sized sets by row."""
+    if not isinstance(candidate_sets, np.ndarray) and len({len(s) for s in candidate_sets}) != 1:
         return int(np.argmin([set_spread(theta_norm[s]) for s in candidate_sets]))
     # equal-sized sets (always, in the learner): all spreads in one call; the same sums in the same
     # order as set_spread per set (numpy reduces a non-last axis row after row)
-    stacked = theta_norm[np.stack(candidate_sets)]                       # (l, m, n)
-    spreads = np.sqrt(np.mean(np.var(stacked, axis=1), axis=1))
-    return int(np.argmin(spreads))
+    return int(np.argmin(set_spreads(theta_norm[np.asarray(candidate_sets)])))
+
+
+def set_spreads(stacked: np.ndarray) -> np.ndarray:
+    """``np.sqrt(np.mean(np.var(stacked, axis=1), axis=1))`` for sets stacked (l, m, n): σ(M_i) of
+    every set, bit for bit (the same reductions numpy's var and mean make, without their
+    wrappers' overhead; tested in test/test_fixed_context.py)."""
+    m, n = stacked.shape[1], stacked.shape[2]
+    mean = np.add.reduce(stacked, axis=1, keepdims=True)
+    mean /= m
+    x = stacked - mean
+    np.square(x, out=x)
+    var = np.add.reduce(x, axis=1)
+    var /= m
+    ms = np.add.reduce(var, axis=1)
+    ms /= n
+    return np.sqrt(ms)
 
 
 def local_inverse(theta_norm: np.ndarray, y_scaled: np.ndarray, goal: np.ndarray,
@@ -264,11 +278,18 @@ def local_inverse(theta_norm: np.ndarray, y_scaled: np.ndarray, goal: np.ndarray
     (:func:`~sagg_low_level.local_model.local_jacobian`), then ``θ_g = θ_r + J⁺ (y_g − y_r)`` from the
     set member r whose outcome is closest to the goal (our choice of linearisation point; eq.
     jacobianPseudo of Sec. 3.3). Normalised θ, rescaled y in, normalised θ out (unclipped)."""
-    dth = theta_norm - theta_norm.mean(axis=0)
-    dy = y_scaled - y_scaled.mean(axis=0)
+    dth = theta_norm - _mean_rows(theta_norm)
+    dy = y_scaled - _mean_rows(y_scaled)
     jac = local_jacobian(dth, dy, jacobian_rcond)
-    r = int(np.argmin(np.sum((y_scaled - goal) ** 2, axis=1)))
+    r = int(np.argmin(np.add.reduce((y_scaled - goal) ** 2, axis=1)))
     return theta_norm[r] + pseudo_inverse_step(jac, goal - y_scaled[r], pinv_rcond)
+
+
+def _mean_rows(x: np.ndarray) -> np.ndarray:
+    """``x.mean(axis=0)`` of a 2-D array, bit for bit (numpy's mean: the sum, divided by the count)."""
+    s = np.add.reduce(x, axis=0)
+    s /= len(x)
+    return s
 
 
 def exploration_theta(theta_c: np.ndarray, distance: float, lam: float,
@@ -298,12 +319,16 @@ class FixedContextLearner:
         self.l_nb = params["l"]
         self.m_nb = params["m"] or 2 * (n + 1)
         self.min_samples = params["min_samples"] or n + 1
-        # two indexes over the same samples (same insertion order, so index i is one experiment):
+        # two memories of the same samples (same insertion order, so index i is one experiment):
         # by normalised θ (m-neighbour sets, ACTUATOR-RIAC's forward model) and by rescaled y
-        # (l neighbours of the goal, closest reached outcome y_c); both exact k-NN (checks = 0)
-        self.by_theta = SampleMemory(n, n, self.mdim)
-        self.by_y = SampleMemory(self.mdim, n, self.mdim)
-        self.theta_sets = NeighbourSets(self.by_theta, self.m_nb)  # the sets M_i, cached (exact)
+        # (l neighbours of the goal, closest reached outcome y_c); searched exactly (SampleMemory's
+        # exact k-NN answers) by a tree index suited to these few dimensions
+        self.by_theta = SampleTable(n, n, self.mdim)
+        self.by_y = SampleTable(self.mdim, n, self.mdim)
+        self.theta_index = TreeKnn(self.by_theta)
+        self.y_index = TreeKnn(self.by_y)
+        self._span = theta_space.upper - theta_space.lower
+        self.last_norm_theta: np.ndarray | None = None  # normalised θ of the newest sample
         self.rng = stream(params["seed"], "fixed_context_learner")
         self.y_rest = np.zeros(self.mdim)
         self.experiments = 0       # stored experiments (with an outcome): the learning clock
@@ -321,11 +346,11 @@ class FixedContextLearner:
 
     # ------------------------------------------------------------------ units
     def norm_theta(self, theta) -> np.ndarray:
-        return (np.asarray(theta, dtype=float) - self.space.lower) / (self.space.upper - self.space.lower)
+        return (np.asarray(theta, dtype=float) - self.space.lower) / self._span
 
     def denorm_theta(self, theta_norm) -> np.ndarray:
         t = np.clip(np.asarray(theta_norm, dtype=float), 0.0, 1.0)
-        return self.space.lower + t * (self.space.upper - self.space.lower)
+        return self.space.lower + t * self._span
 
     def scale_y(self, y) -> np.ndarray:
         return np.asarray(y, dtype=float) / self.scale
@@ -353,7 +378,8 @@ class FixedContextLearner:
         """Store one experiment (θ, y) in the memory M (Alg. 1: 'update M and M⁻¹')."""
         theta = np.asarray(theta, dtype=float)
         y = np.asarray(y, dtype=float)
-        i = self.by_theta.add(self.norm_theta(theta), theta, y)
+        self.last_norm_theta = self.norm_theta(theta)  # = by_theta.alpha[i] (read-only to callers)
+        i = self.by_theta.add(self.last_norm_theta, theta, y)
         self.by_y.add(self.scale_y(y), theta, y)
         return i
 
@@ -361,7 +387,7 @@ class FixedContextLearner:
         """Index of the stored outcome y_c closest to ``goal`` (None while the memory is empty)."""
         if not len(self):
             return None
-        return int(self.by_y.neighbours(self.scale_y(goal), 1)[0])
+        return int(self.y_index.query(self.scale_y(goal)[None], 1)[0, 0])
 
     def inverse(self, goal) -> np.ndarray | None:
         """Reaching phase (Sec. 4.4.1): θ_g from the local inverse model on the neighbour set of least
@@ -369,12 +395,12 @@ class FixedContextLearner:
         if len(self) < self.min_samples:
             return None
         g = self.scale_y(goal)
-        return self._inverse_from(g, self.by_y.neighbours(g, self.l_nb))
+        return self._inverse_from(g, self.y_index.query(g[None], self.l_nb)[0])
 
     def _inverse_from(self, g: np.ndarray, seeds: np.ndarray) -> np.ndarray:
         """:meth:`inverse` for the rescaled goal ``g`` given L, its l nearest outcomes ``seeds``."""
         tn = self.by_theta.alpha                                        # normalised θ of every sample
-        sets = [self.theta_sets.get(int(i)) for i in seeds]              # M_i: m neighbours in θ
+        sets = self.theta_index.query(tn[seeds], self.m_nb)             # M_i: m neighbours in θ, by row
         best = sets[least_spread_set(sets, tn)]
         ys = self.by_y.alpha[best]
         return self.denorm_theta(local_inverse(tn[best], ys, g, self.p["jacobian_rcond"],
@@ -394,7 +420,7 @@ class FixedContextLearner:
         if len(self) < 2:
             return None
         tq = self.norm_theta(theta)
-        idx = self.by_theta.neighbours(tq, k)
+        idx = self.theta_index.query(tq[None], k)[0]
         tn = self.by_theta.alpha[idx]
         ys = self.by_y.alpha[idx]
         jac = local_jacobian(tn - tn.mean(axis=0), ys - ys.mean(axis=0), self.p["jacobian_rcond"])
@@ -434,6 +460,11 @@ class FixedContextLearner:
     def competence_of(self, goal, y) -> float:
         return competence(goal, y, self.y_rest, self.p["eps_c"], self.scale if self.p["competence_rescale"] else None)
 
+    def competence_toward(self, goal) -> Callable[[np.ndarray], float]:
+        """``y -> competence_of(goal, y)`` (the same floats), for the outcomes of one goal."""
+        return competence_toward(goal, self.y_rest, self.p["eps_c"],
+                                 self.scale if self.p["competence_rescale"] else None)
+
     # ------------------------------------------------------------ main loop
     def run(self) -> Generator:
         """The learner's whole life: yields requests, receives answers, never returns."""
@@ -469,8 +500,9 @@ class FixedContextLearner:
         consecutive experiments without progress (Sec. 3.7.6; the goal is then unreached)."""
         goal_seq, goal = yield GoalRequest(self.reports_sent)
         goal = np.asarray(goal, dtype=float)
-        best_y = None
-        last_y = None
+        comp = self.competence_toward(goal)  # C(y_g, y) of this goal's outcomes
+        best_y = best_c = None
+        last_y = last_c = None
         g = self.scale_y(goal)
         d_best = math.inf  # distance of best_y to the goal
         eps_sim, w = self.p["eps_sim"], self.p["blocking_w"]
@@ -479,7 +511,7 @@ class FixedContextLearner:
             # y_c, the closest known outcome (its index), and θ from the inverse model (Sec. 4.4.1);
             # L's first member is y_c (same search, same order)
             if len(self) >= self.min_samples:
-                seeds = self.by_y.neighbours(g, self.l_nb)
+                seeds = self.y_index.query(g[None], self.l_nb)[0]
                 c_before = int(seeds[0])
                 theta = self._inverse_from(g, seeds)
             else:
@@ -489,11 +521,11 @@ class FixedContextLearner:
             y = yield from self._execute(theta, "reach")
             d_y = math.inf
             if y is not None:
-                last_y = y
+                c_y = comp(y)
+                last_y, last_c = y, c_y
                 d_y = self.distance(goal, y)
                 if best_y is None or d_y < d_best:
-                    best_y, d_best = y, d_y
-                c_y = self.competence_of(goal, y)
+                    best_y, best_c, d_best = y, c_y, d_y
                 self._report(KIND_REACHED, goal_seq, y, self.outcome_gamma(c_y), y)
                 if is_reached(c_y, eps_sim):
                     break
@@ -505,33 +537,34 @@ class FixedContextLearner:
                 k = self.closest(goal)
             else:
                 k = self._closer(g, c_before, len(self) - 1)
+            # the best experiment k so far: its normalised θ (= norm_theta(thetas[k]), as stored), y_k,
+            # D(y_g, y_k) and the exploration distance D of Sec. 4.4.2
             if k is None:  # nothing stored yet: bootstrap with uniform draws
-                theta_k, y_k, d_k = None, None, math.inf
+                tn_k, y_k, d_k = None, None, math.inf
             else:
-                theta_k, y_k = self.thetas[k].copy(), self.outcomes[k].copy()
-                d_k = self.distance(goal, y_k)
+                tn_k, y_k = self.by_theta.alpha[k].copy(), self.outcomes[k].copy()
+                d_k, e_k = self.distance(goal, y_k), self.explore_distance(goal, y_k)
             idle = 0  # consecutive exploratory experiments without progress (blocking, Sec. 3.7.6)
             for _ in range(self.p["q"]):
-                if theta_k is None:
+                if tn_k is None:
                     theta_i = self._uniform_theta()
                 else:
-                    tn = exploration_theta(self.norm_theta(theta_k), self.explore_distance(goal, y_k),
-                                           self.p["lambda"], self.rng)
-                    theta_i = self.denorm_theta(tn)
+                    theta_i = self.denorm_theta(exploration_theta(tn_k, e_k, self.p["lambda"], self.rng))
                 y_i = yield from self._execute(theta_i, "explore")
                 if y_i is None:
                     continue
-                last_y = y_i
-                c_i = self.competence_of(goal, y_i)
+                c_i = comp(y_i)
+                last_y, last_c = y_i, c_i
                 self._report(KIND_EXPLORATION, goal_seq, y_i, self.outcome_gamma(c_i), y_i)
                 d_i = self.distance(goal, y_i)
                 if y_k is None or d_i < d_k:
-                    theta_k, y_k, d_k = self.thetas[len(self) - 1].copy(), y_i, d_i
+                    tn_k, y_k, d_k = self.last_norm_theta, y_i, d_i
+                    e_k = self.explore_distance(goal, y_k)
                     idle = 0
                 else:
                     idle += 1
                 if best_y is None or d_i < d_best:
-                    best_y, d_best = y_i, d_i
+                    best_y, best_c, d_best = y_i, c_i, d_i
                 if self.p["stop_when_reached"] and is_reached(c_i, eps_sim):
                     break
                 if w and idle >= w:
@@ -539,17 +572,17 @@ class FixedContextLearner:
                     break
             if blocked:
                 break
-            if best_y is not None and is_reached(self.competence_of(goal, best_y), eps_sim):
+            if best_y is not None and is_reached(best_c, eps_sim):
                 break
-        final = best_y if self.p["goal_competence"] == "best" else last_y
+        final, c = (best_y, best_c) if self.p["goal_competence"] == "best" else (last_y, last_c)
         if final is None:  # no outcome at all in this attempt: the rest outcome stands in
             final = self.y_rest
-        c = self.competence_of(goal, final)
+            c = comp(final)
         self._report(KIND_GOAL, goal_seq, goal, gamma(c, eps_sim), final)
         self.goals_done += 1
         # how the attempt ended (statistics): its best outcome reached the goal, else the blocking
         # test stopped it, else its budget (q, rounds) ran out
-        reached = best_y is not None and is_reached(self.competence_of(goal, best_y), eps_sim)
+        reached = best_y is not None and is_reached(best_c, eps_sim)
         self.goals_reached += reached
         self.goals_blocked += blocked and not reached
 

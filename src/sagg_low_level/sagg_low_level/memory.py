@@ -54,7 +54,7 @@ from .memory_io import load_memory, memory_digest, params_array, save_memory
 from .memory_search import KnnSearch
 from .memory_store import SampleStore
 
-__all__ = ["SampleMemory", "squared_distances"]
+__all__ = ["SampleMemory", "SampleTable", "squared_distances"]
 
 
 def _is_pow2(x: int) -> bool:
@@ -69,6 +69,14 @@ def _check_int(name: str, value, low: int, high: int | None = None) -> int:
         raise ValueError(f"{name} must be an integer in [{low}, {high if high is not None else 'inf'}], got {value}")
     return value
 
+
+
+def _init_dims(mem, state_dim, action_dim, outcome_dim, capacity) -> int:
+    """Check and set the dimensions of a memory; return the checked capacity."""
+    mem._sd = _check_int("state_dim", state_dim, 1)
+    mem._ad = _check_int("action_dim", action_dim, 1)
+    mem._od = _check_int("outcome_dim", outcome_dim, 1)
+    return _check_int("capacity", capacity, 1)
 
 
 class SampleMemory(SampleStore, BlockIndex, KnnSearch):
@@ -129,10 +137,7 @@ class SampleMemory(SampleStore, BlockIndex, KnnSearch):
         checks: int = 0,
         beam_ratio: float = 0.5,
     ):
-        self._sd = _check_int("state_dim", state_dim, 1)
-        self._ad = _check_int("action_dim", action_dim, 1)
-        self._od = _check_int("outcome_dim", outcome_dim, 1)
-        cap = _check_int("capacity", capacity, 1)
+        cap = _init_dims(self, state_dim, action_dim, outcome_dim, capacity)
         self._leaf = _check_int("leaf_size", leaf_size, 2)
         if not _is_pow2(self._leaf):
             raise ValueError(f"leaf_size must be a power of two >= 2, got {leaf_size}")
@@ -237,3 +242,26 @@ class SampleMemory(SampleStore, BlockIndex, KnnSearch):
     def load(cls, path) -> "SampleMemory":
         """Read a file written by :meth:`save`; the index is rebuilt exactly as it was."""
         return load_memory(cls, path)
+
+
+class SampleTable(SampleStore):
+    """The rows of a :class:`SampleMemory` without its search index: the same storage, views and
+    digest (the same samples give the same :meth:`digest`), for a caller that searches them with its
+    own index (the fixed-context learner's :class:`~sagg_low_level.tree_knn.TreeKnn`), so that no
+    index is kept up to date for nothing."""
+
+    def __init__(self, state_dim: int, action_dim: int, outcome_dim: int, capacity: int = 1024):
+        self._init_store(_init_dims(self, state_dim, action_dim, outcome_dim, capacity))
+
+    def add(self, alpha, delta_alpha, delta_y) -> int:
+        """Store one sample; return its index. Raises ValueError on wrong shapes or non-finite values."""
+        return self._append(alpha, delta_alpha, delta_y)[0]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the sample arrays (allocated capacity included)."""
+        return int(self._alpha.nbytes + self._dalpha.nbytes + self._dy.nbytes)
+
+    def digest(self) -> str:
+        """sha256 hex over the dims, the length and the filled arrays (see memory_io.memory_digest)."""
+        return memory_digest(self)

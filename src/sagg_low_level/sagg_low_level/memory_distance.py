@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["squared_distances"]
+__all__ = ["squared_distances", "sum_squares_rows"]
 
 
 def squared_distances(points: np.ndarray, query: np.ndarray) -> np.ndarray:
@@ -33,7 +33,13 @@ def _sqdist_cols(xt: np.ndarray, q: np.ndarray) -> np.ndarray:
     numpy reduces axis 0 of a C-contiguous (n, c >= 2) array row after row (sequential over n). With a
     single column it would use pairwise summation over n instead, so that case is summed explicitly.
     """
-    d = xt - q[:, None]
+    return sum_squares_rows(xt - q[:, None])
+
+
+def sum_squares_rows(d: np.ndarray) -> np.ndarray:
+    """Canonical squared norms of the columns of the C-contiguous coordinate differences ``d`` (n, c),
+    overwritten (squared in place): coordinates summed in index order, sequentially. Differences
+    of many (query, point) pairs laid out as columns give their canonical distances in one call."""
     d *= d
     if d.shape[1] == 1:
         s = d[0].copy()

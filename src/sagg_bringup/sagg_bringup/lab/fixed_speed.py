@@ -8,7 +8,8 @@ machine load. Each run learns ``--queries`` experiments in-process (``SynergyRun
 and reports queries per CPU second of the process (``time.process_time``, less sensitive to other
 processes than wall time), queries per wall second, and the memory digest: with the same parameter
 values the two must learn bit-identical memories (``--set`` applies to both, e.g. ``m=8`` = the
-base's old default of m).
+base's old default of m). ``--wide`` also runs every case in the task space [-2,2]² (as
+``sagg bench quality``'s wide one); the load average is printed with every row.
 """
 from __future__ import annotations
 
@@ -64,24 +65,32 @@ def main(argv=None) -> int:
     ap.add_argument("--queries", type=int, default=20000)
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="parameter override for both (e.g. m=8 for bit-identity with the old default)")
+    ap.add_argument("--wide", action="store_true", help="also in the task space [-2,2]^2")
     a = ap.parse_args(argv)
     overrides = dict((k, _value(v)) for k, v in (s.split("=", 1) for s in a.set))
+    spaces = {"config": {}}
+    if a.wide:
+        spaces["wide"] = {"task_space.lower": [-2.0, -2.0], "task_space.upper": [2.0, 2.0]}
     repo = repo_root()
     with exported(a.base, repo) as base_src:
         print(f"base {a.base} vs this tree ({repo}), {a.config}, {a.queries} queries, overrides {overrides}, "
               f"load {os.getloadavg()[0]:.1f}")
-        print("| strategy | seed | base /CPU-s | new /CPU-s | ratio | base /s | new /s | ratio | same memory |")
-        print("|---|---|---|---|---|---|---|---|---|")
+        print("| Y | strategy | seed | base /CPU-s | new /CPU-s | ratio | base /s | new /s | ratio | same memory "
+              "| load |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         tot = {"base": 0.0, "new": 0.0}
-        for strategy in a.strategies:
-            for seed in range(a.seeds):
-                b = _run(base_src, a.config, strategy, seed, a.queries, overrides)
-                n = _run(repo / "src", a.config, strategy, seed, a.queries, overrides)
-                tot["base"] += a.queries / b["cpu_rate"]
-                tot["new"] += a.queries / n["cpu_rate"]
-                print(f"| {strategy} | {seed} | {b['cpu_rate']:,.0f} | {n['cpu_rate']:,.0f} | "
-                      f"{n['cpu_rate'] / b['cpu_rate']:.2f} | {b['wall_rate']:,.0f} | {n['wall_rate']:,.0f} | "
-                      f"{n['wall_rate'] / b['wall_rate']:.2f} | {b['digest'] == n['digest']} |", flush=True)
+        for space, space_ov in spaces.items():
+            for strategy in a.strategies:
+                for seed in range(a.seeds):
+                    ov = dict(overrides, **space_ov)
+                    b = _run(base_src, a.config, strategy, seed, a.queries, ov)
+                    n = _run(repo / "src", a.config, strategy, seed, a.queries, ov)
+                    tot["base"] += a.queries / b["cpu_rate"]
+                    tot["new"] += a.queries / n["cpu_rate"]
+                    print(f"| {space} | {strategy} | {seed} | {b['cpu_rate']:,.0f} | {n['cpu_rate']:,.0f} | "
+                          f"{n['cpu_rate'] / b['cpu_rate']:.2f} | {b['wall_rate']:,.0f} | {n['wall_rate']:,.0f} | "
+                          f"{n['wall_rate'] / b['wall_rate']:.2f} | {b['digest'] == n['digest']} | "
+                          f"{os.getloadavg()[0]:.1f} |", flush=True)
         print(f"whole: CPU seconds base {tot['base']:.1f}, new {tot['new']:.1f}, ratio {tot['base'] / tot['new']:.2f}; "
               f"load {os.getloadavg()[0]:.1f}")
     return 0
