@@ -56,6 +56,7 @@ from ..processes import pick_domain_id
 
 SEC = 1_000_000_000
 RESUME_LIMIT = 60.0  # s after a case within which learning must have gone on again
+MATCH_WAIT = 5.0  # s a new publisher of the fuzzer waits for the graph's subscriptions to match it
 FUZZ = "fuzz"  # frame_id of the fuzzer's stamped messages
 
 
@@ -150,8 +151,17 @@ class Fuzzer:
     # ------------------------------------------------------------------ publishing
     def _pub(self, topic: str, cls_name: str, transient_local: bool = False):
         if topic not in self.pubs:
-            self.pubs[topic] = self.node.create_publisher(_msg_class(cls_name), topic,
-                                                          reliable(1000, transient_local=transient_local))
+            pub = self.node.create_publisher(_msg_class(cls_name), topic,
+                                             reliable(1000, transient_local=transient_local))
+            # a volatile message published before discovery matched the graph's subscriptions is
+            # lost for them (seen in CI under load: a forged /sagg/sample never arrived, so nothing
+            # was there to reject): wait, up to MATCH_WAIT s, until every subscription the graph
+            # has on the topic matched this publisher
+            want = self.node.count_subscribers(topic)
+            t_end = time.monotonic() + MATCH_WAIT
+            while pub.get_subscription_count() < want and time.monotonic() < t_end:
+                self.spin(0.02)
+            self.pubs[topic] = pub
         return self.pubs[topic]
 
     def publish(self, topic: str, cls_name: str, data: bytes, transient_local: bool = False) -> None:
