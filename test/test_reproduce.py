@@ -142,6 +142,15 @@ def test_rerun_after_a_lost_run_redoes_only_that_run(tmp_path):
     before = {f: f.stat().st_mtime_ns for f in files}
     lost = files[0]
     lost.unlink()  # as if the driver had been killed before this run finished
+    # --no-run: an interim verdict on the runs finished so far, nothing run
+    r = reproduce(out, "fishing-riac-beats-random", "--no-run")
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "1 not run (--no-run)" in r.stdout and not lost.exists()
+    row = json.loads((out / "claims.json").read_text())[0]
+    strategy, seed = lost.parts[-3], int(lost.parts[-2].split("-")[1])
+    assert row["seeds"] == [s for s in (0, 1) if s != seed] and row["seeds_planned"] == 2
+    assert row["complete"] is False and row["ours"]["strategies"][strategy]["n"] == 1
+    assert "**interim**" in (out / "report.md").read_text()
     r = reproduce(out, "fishing-riac-beats-random")
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert "3 finished run(s) kept and skipped, 1 to run" in r.stdout
@@ -149,6 +158,7 @@ def test_rerun_after_a_lost_run_redoes_only_that_run(tmp_path):
     assert all(f.stat().st_mtime_ns == t for f, t in before.items() if f != lost)
     rows = json.loads((out / "claims.json").read_text())
     assert [row["id"] for row in rows] == ["fishing-riac-beats-random"]
+    assert rows[0]["seeds"] == [0, 1] and rows[0]["complete"] is True
     r = reproduce(out, "fishing-riac-beats-random")
     assert "0 to run" in r.stdout
 

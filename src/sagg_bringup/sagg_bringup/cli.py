@@ -164,6 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="keep every finished run, compacted, under DIR/<scale>/<experiment> and restore "
                          "the runs kept there before running (resume across machines and sessions; "
                          "docs/reproduction/archive is the committed one)")
+    rq.add_argument("--no-run", action="store_true",
+                    help="run nothing: decide on the runs finished so far (in --out, or restored from "
+                         "--archive); claims.json says per claim which seeds are in and whether all are")
     rq.add_argument("--choice", action="append", metavar="NAME",
                     help="with 'sensitivity': only this open choice (repeatable; default: all)")
     pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
@@ -407,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise ConfigError("--choice: only with 'sagg reproduce sensitivity'")
             else:
                 rows = run_reproduce(args.claims, args.scale, args.out, args.workers, args.ray,
-                                     archive=args.archive)
+                                     archive=args.archive, run=not args.no_run)
             return 0 if rows else 1
         if args.command == "params":
             if args.update_readme:

@@ -185,10 +185,14 @@ def decide(claim: dict, summary: dict, alpha: float) -> dict:
 def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None = None,
                   workers: int | None = None, ray_address: str | None = None,
                   registry: str | Path = REGISTRY, out_fn: Callable[[str], None] = print,
-                  archive: str | Path | None = None) -> list[dict]:
+                  archive: str | Path | None = None, run: bool = True) -> list[dict]:
     """Run (or resume) every experiment the selected claims need, then write claims.json and
     report.md with figures. Returns the claims.json list. ``archive``: a directory of archived runs
-    (:mod:`sagg_bringup.archive`) restored before and updated after every run."""
+    (:mod:`sagg_bringup.archive`) restored before and updated after every run. ``run=False``: run
+    nothing and decide on the runs finished so far (an interim verdict while paper-scale runs go
+    on): each row's ``seeds`` are then the seeds every strategy of the experiment has finished,
+    ``seeds_planned`` the scale's, ``complete`` whether they are all there, and ``ours`` gives each
+    strategy's own ``n``."""
 
     reg = load_registry(registry)
     claims = select(reg, which)
@@ -201,7 +205,7 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
     try:
         for i, name in enumerate(needed, 1):
             pool = run_claim_experiment(reg, name, i, len(needed), scale, out, workers, ray_address,
-                                        pool, summaries, settings, out_fn, archive)
+                                        pool, summaries, settings, out_fn, archive, run)
     finally:
         if pool is not None:
             pool.close()
@@ -212,12 +216,13 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
     for c in claims:
         e, st = reg["experiments"][c["experiment"]], settings[c["experiment"]]
         d = decide(c, summaries[c["experiment"]], alpha)
+        done = finished_seeds(out / "experiments" / c["experiment"], e["strategies"], st["seeds"])
         rows.append({"id": c["id"], "section": e["section"], "claim": c["claim"],
                      "setup": {"experiment": c["experiment"], "config": st["config"],
                                "overrides": st["overrides"], "eval_every": st["eval_every"]},
                      "strategies": list(e["strategies"]),
-                     "seeds": list(range(st["seeds"])), "micro_actions": st["micro_actions"],
-                     "paper": c["paper"], "ours": d["ours"], "p_value": d["p_value"],
+                     "seeds": done, "seeds_planned": st["seeds"], "complete": len(done) == st["seeds"],
+                     "micro_actions": st["micro_actions"], "paper": c["paper"], "ours": d["ours"], "p_value": d["p_value"],
                      "verdict": d["verdict"], "statistic": d["statistic"], "pairs": d["pairs"],
                      "mechanisms": mechanisms[c["experiment"]],
                      "alpha": alpha, "scale": scale,
@@ -230,8 +235,14 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
     return rows
 
 
+def finished_seeds(directory: Path, strategies: list[str], seeds: int) -> list[int]:
+    """The seeds 0..seeds-1 whose run is finished (result.json written) for every strategy."""
+    return [s for s in range(seeds)
+            if all((directory / "runs" / st / f"seed-{s}" / "result.json").is_file() for st in strategies)]
+
+
 def run_claim_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, summaries, settings,
-                         out_fn, archive=None):
+                         out_fn, archive=None, run=True):
     """One experiment through run_compare (on ``pool``, made here if None and runs are due);
     fills ``summaries`` / ``settings``; returns the pool. With ``archive``, the experiment's
     archived runs (``archive/<scale>/<experiment>``) are restored first and every run finished
@@ -251,12 +262,12 @@ def run_claim_experiment(reg, name, i, n, scale, out, workers, ray_address, pool
         if restored:
             out_fn(f"restored {restored} archived run(s) from {kept}")
         on_result = lambda f: archive_run(f, exp_dir, kept)  # noqa: E731
-    if pool is None:
+    if pool is None and run:
         pool = make_pool(workers, ray_address)
     summaries[name] = run_compare(resolve_config(e["config"]), e["strategies"], sc["seeds"],
                                   sc["micro_actions"], sc["eval_every"], exp_dir,
                                   workers=workers, ray_address=ray_address, overrides=overrides,
-                                  base_seed=0, out_fn=out_fn, pool=pool, on_result=on_result)
+                                  base_seed=0, out_fn=out_fn, pool=pool, on_result=on_result, run=run)
     if kept is not None:
         archive_experiment(exp_dir, kept)  # runs kept from before the archive existed, too
     settings[name] = {"config": e["config"], "overrides": overrides,
@@ -289,6 +300,10 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
           f"Code commit `{commit}`. Every number below comes from `DIR/experiments/<experiment>` "
           f"(one `sagg bench compare` each; seeds 0..n-1). Verdict rules: see "
           f"`sagg_bringup/reproduce.py` (alpha = {rows[0]['alpha'] if rows else '—'}).", ""]
+    partial = [r["id"] for r in rows if not r.get("complete", True)]
+    if partial:
+        md += [f"**Interim (`--no-run`)**: {len(partial)} of {len(rows)} claims are decided on fewer seeds "
+               "than planned (runs still going on); their rows say how many.", ""]
     if scale == "smoke":
         md += ["**Smoke scale: a wiring check, not a result.** With 2 seeds no two-sided "
                "Mann-Whitney p can fall below 0.33, so every verdict is inconclusive by design.", ""]
@@ -299,7 +314,8 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
         ours = "; ".join(f"{n} {fmt_number(v['mean'])}" for n, v in s.items() if n in named)
         if r["ours"]["metric"] != "final_mean_error":
             ours += f" ({r['ours']['metric']})"
-        md.append(f"| {r['id']} | {r['section']} | {r['paper']} | {ours} | {fmt_number(r['p_value'])} | "
+        seeds = "" if r.get("complete", True) else f" ({len(r['seeds'])} of {r['seeds_planned']} seeds)"
+        md.append(f"| {r['id']}{seeds} | {r['section']} | {r['paper']} | {ours} | {fmt_number(r['p_value'])} | "
                   f"**{r['verdict']}** |")
     md.append("")
     for exp in dict.fromkeys(r["setup"]["experiment"] for r in rows):
@@ -308,8 +324,11 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
         first = next(r for r in rows if r["setup"]["experiment"] == exp)
         md += [f"## {exp} (Sec. {first['section']})", "",
                f"`{first['setup']['config']}`, overrides {first['setup']['overrides'] or 'none'}; "
-               f"{len(first['seeds'])} seeds × {first['micro_actions']:,} micro-actions; "
-               f"runs computed at commit `{first['commit']}`; "
+               f"{len(first['seeds'])} seeds × {first['micro_actions']:,} micro-actions"
+               + ("; " if first.get("complete", True) else
+                  f" (**interim**: {first['seeds_planned']} planned; per strategy n = "
+                  + ", ".join(f"{k} {v['n']}" for k, v in first["ours"]["strategies"].items()) + "); ")
+               + f"runs computed at commit `{first['commit']}`; "
                f"details: `experiments/{exp}/summary.md`.", ""]
         for r in rows:
             if r["setup"]["experiment"] != exp:

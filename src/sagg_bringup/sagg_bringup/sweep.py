@@ -223,8 +223,9 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
                 eval_every: int, out: str | Path, workers: int | None = None,
                 ray_address: str | None = None, overrides: dict | None = None,
                 base_seed: int | None = None, out_fn: Callable[[str], None] = print,
-                pool=None, on_result: Callable[[Path], None] | None = None) -> dict:
+                pool=None, on_result: Callable[[Path], None] | None = None, run: bool = True) -> dict:
     """Run every (strategy, seed) not finished yet, then write the summary; returns it.
+    ``run=False``: run nothing, only summarise the runs finished so far (``sagg reproduce --no-run``).
 
     ``pool``: an open :func:`make_pool` pool to run on (left open; its workers stay warm for the
     next comparison, as ``sagg reproduce`` does); default: one made and closed here.
@@ -274,8 +275,11 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
     out_fn(f"compare: {len(strategies)} strategies x {seeds} seeds (seeds {seed_list[0]}.."
            f"{seed_list[-1]}) = {total} runs of {micro_actions} micro-actions; "
            + (f"resuming: {skipped} finished run(s) kept and skipped, " if resuming or skipped else "")
-           + f"{len(todo)} to run on "
-           + (f"Ray ({ray_address})" if ray_address else f"{workers} local worker process(es)"))
+           + (f"{len(todo)} not run (--no-run): summarising the finished ones" if not run else
+              f"{len(todo)} to run on "
+              + (f"Ray ({ray_address})" if ray_address else f"{workers} local worker process(es)")))
+    if not run:
+        todo = []
 
     failures: dict[str, str] = {}
     commit = code_commit()  # the code the runs compute with (workers import the same packages)
