@@ -24,6 +24,7 @@ import json
 
 import numpy as np
 
+from sagg_common.params import parse_set
 from sagg_common.regions import interest_probabilities
 
 from ..setups import in_process_run
@@ -71,13 +72,7 @@ def main(argv=None) -> int:
     ap.add_argument("--points", nargs="+", type=int, default=[5000, 20000])
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
     a = ap.parse_args(argv)
-    overrides = {}
-    for s in a.set:
-        k, v = s.split("=", 1)
-        try:
-            overrides[k] = json.loads(v)
-        except json.JSONDecodeError:
-            overrides[k] = v
+    overrides = parse_set(a.set)
     keys = ("inverse", "nn", "coverage", "coverage_max", "explore", "goals", "goals_inside",
             "interest_in", "interest_out", "mass_in")
     print(f"{a.config}, fixed context, overrides {overrides}, seeds 0-{a.seeds - 1} (mean over seeds)")

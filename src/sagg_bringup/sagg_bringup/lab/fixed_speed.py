@@ -20,6 +20,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from sagg_common.params import parse_set
+
 from .base_tree import check_source, exported, pythonpath, repo_root
 
 _CHILD = r"""
@@ -49,12 +51,6 @@ def _run(src: Path, config: str, strategy: str, seed: int, n: int, overrides: di
     return res
 
 
-def _value(text: str):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
-
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -67,7 +63,7 @@ def main(argv=None) -> int:
                     help="parameter override for both (e.g. m=8 for bit-identity with the old default)")
     ap.add_argument("--wide", action="store_true", help="also in the task space [-2,2]^2")
     a = ap.parse_args(argv)
-    overrides = dict((k, _value(v)) for k, v in (s.split("=", 1) for s in a.set))
+    overrides = parse_set(a.set)
     spaces = {"config": {}}
     if a.wide:
         spaces["wide"] = {"task_space.lower": [-2.0, -2.0], "task_space.upper": [2.0, 2.0]}

@@ -159,32 +159,19 @@ def markdown(summary: dict, contexts, spaces: dict, strategies, points, config_n
             t = ISSUE10_TARGETS.get((space, p))
             lines.append(f"| {p} | " + " | ".join(row) + " |" +
                          (f" ≤ {t} |" if targets and t is not None else (" — |" if targets else "")))
-        row = []
-        for c, s in cols:
-            cell = cells.get((c, space, s))
-            row.append("—" if cell is None else f"{cell['queries_per_second']['mean']:,.0f}/s")
-        lines.append("| queries/s | " + " | ".join(row) + " |" + (" ≥ 5,000/s |" if targets else ""))
-        row = []
-        for c, s in cols:
-            cell = cells.get((c, space, s))
-            row.append("—" if cell is None or "explore_share" not in cell else
-                       f"{cell['explore_share']:.0%} / {cell['share_on_reachable_goals']:.0%}")
-        lines.append("| exploration / on reachable goals (share of micro-actions) | " + " | ".join(row) + " |"
-                     + (" |" if targets else ""))
-        row = []
-        for c, s in cols:
-            cell = cells.get((c, space, s))
-            row.append("—" if cell is None or "goals_in_reachable_area" not in cell else
-                       f"{cell['goals_in_reachable_area']:.0%}")
-        lines.append("| goals in the reachable area (share of goals) | " + " | ".join(row) + " |"
-                     + (" |" if targets else ""))
-        row = []
-        for c, s in cols:
-            cell = cells.get((c, space, s))
-            row.append("—" if cell is None or "coverage_max" not in cell else
-                       f"{cell['coverage_max']['mean']:.4f}")
-        lines.append("| test goal to nearest reached tip, max (mean over seeds) | " + " | ".join(row) + " |"
-                     + (" ≤ 0.01 at 20k |" if targets else ""))
+        extra = [  # (row label, the cell's key, its text from the cell, the target column)
+            ("queries/s", "queries_per_second", lambda c: f"{c['queries_per_second']['mean']:,.0f}/s",
+             " ≥ 5,000/s |"),
+            ("exploration / on reachable goals (share of micro-actions)", "explore_share",
+             lambda c: f"{c['explore_share']:.0%} / {c['share_on_reachable_goals']:.0%}", " |"),
+            ("goals in the reachable area (share of goals)", "goals_in_reachable_area",
+             lambda c: f"{c['goals_in_reachable_area']:.0%}", " |"),
+            ("test goal to nearest reached tip, max (mean over seeds)", "coverage_max",
+             lambda c: f"{c['coverage_max']['mean']:.4f}", " ≤ 0.01 at 20k |")]
+        for label, key, text, target in extra:
+            row = ["—" if cells.get((c, space, s)) is None or key not in cells[(c, space, s)]
+                   else text(cells[(c, space, s)]) for c, s in cols]
+            lines.append(f"| {label} | " + " | ".join(row) + " |" + (target if targets else ""))
         lines.append("")
     if summary["tests"]:
         lines += ["SAGG-RIAC vs SAGG-RANDOM (per-seed mean test errors; compare.pairwise_tests)", "",

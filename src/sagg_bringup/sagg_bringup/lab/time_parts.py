@@ -21,6 +21,7 @@ from collections import defaultdict
 import numpy as np
 
 from sagg_common import regions
+from sagg_common.params import parse_set
 from sagg_low_level import learner as learner_mod, memory, memory_search, reach_batch, riac_leaves
 from sagg_low_level.evaluate import evaluate_batch
 from sagg_sim_bridge.arm import ArmSim, test_goals
@@ -88,12 +89,6 @@ def eval_parts(c: Counters) -> None:
     c.wrap(ArmSim, "command", "robot commands")
 
 
-def _value(text: str):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
-
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m sagg_bringup.lab.time_parts", description=__doc__.split("\n\n")[0])
@@ -105,7 +100,7 @@ def main(argv=None) -> int:
     ap.add_argument("--eval", action="store_true", help="time one evaluation at --stop instead of learning")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
     a = ap.parse_args(argv)
-    ov = dict((k, _value(v)) for k, v in (s.split("=", 1) for s in a.set))
+    ov = parse_set(a.set)
     run = in_process_run(a.config, dict(ov, strategy=a.strategy, seed=a.seed))
     if not isinstance(run, InProcessRun):
         ap.error("time_parts measures the evolving-context arm (InProcessRun)")

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sagg_common.params import parse_set
+
 from .base_tree import check_source, exported, pythonpath, repo_root
 
 _CHILD = r"""
@@ -82,12 +84,6 @@ class _Child:
         return out
 
 
-def _value(text: str):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
-
 
 def compare(base_src: Path, new_src: Path, config: str, overrides: dict, micro_actions: int, window: int,
             out=print) -> dict:
@@ -140,7 +136,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="parameter override for both runs (e.g. context=fixed)")
     a = ap.parse_args(argv)
-    overrides = dict((k, _value(v)) for k, v in (s.split("=", 1) for s in a.set))
+    overrides = parse_set(a.set)
     repo = repo_root()
     identical = True
     with exported(a.base, repo) as base_src:
