@@ -142,15 +142,22 @@ def test_rerun_after_a_lost_run_redoes_only_that_run(tmp_path):
     before = {f: f.stat().st_mtime_ns for f in files}
     lost = files[0]
     lost.unlink()  # as if the driver had been killed before this run finished
-    # --no-run: an interim verdict on the runs finished so far, nothing run
+    # --no-run: an interim verdict on the runs finished so far, nothing run; a run that does not
+    # match the settings is left out (not decided on)
+    other = next(f for f in files[1:] if f.parts[-2] == lost.parts[-2] and f.parts[-3] != lost.parts[-3])
+    kept_text = other.read_text()
+    other.write_text(json.dumps({**json.loads(kept_text), "micro_actions": 1}))
     r = reproduce(out, "fishing-riac-beats-random", "--no-run")
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    assert "1 not run (--no-run)" in r.stdout and not lost.exists()
+    assert "2 not run (--no-run)" in r.stdout and "left out (--no-run)" in r.stdout and not lost.exists()
     row = json.loads((out / "claims.json").read_text())[0]
-    strategy, seed = lost.parts[-3], int(lost.parts[-2].split("-")[1])
+    seed = int(lost.parts[-2].split("-")[1])
     assert row["seeds"] == [s for s in (0, 1) if s != seed] and row["seeds_planned"] == 2
-    assert row["complete"] is False and row["ours"]["strategies"][strategy]["n"] == 1
+    assert row["complete"] is False
+    assert all(v["n"] == 1 for v in row["ours"]["strategies"].values())  # the bad run is not in
     assert "**interim**" in (out / "report.md").read_text()
+    other.write_text(kept_text)
+    before[other] = other.stat().st_mtime_ns
     r = reproduce(out, "fishing-riac-beats-random")
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert "3 finished run(s) kept and skipped, 1 to run" in r.stdout
@@ -186,6 +193,13 @@ def test_archive_resumes_in_a_new_directory_and_decides_the_same(tmp_path):
     a, b = (json.loads((tmp_path / d / "claims.json").read_text()) for d in "ab")
     assert [(x["verdict"], x["p_value"], x["ours"]) for x in a] == [(x["verdict"], x["p_value"], x["ours"]) for x in b]
     assert (tmp_path / "b" / "figures" / "quadruped_goals.png").stat().st_size > 0
+    # an interim verdict (--no-run) from the archive decides the same and leaves the archive alone
+    stamps = {f: f.stat().st_mtime_ns for f in (arch / "smoke" / "quadruped").rglob("*.json")}
+    r = reproduce(tmp_path / "d", "quadruped-riac-best", "--archive", str(arch), "--no-run")
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    d = json.loads((tmp_path / "d" / "claims.json").read_text())
+    assert [(x["verdict"], x["p_value"], x["ours"]) for x in d] == [(x["verdict"], x["p_value"], x["ours"]) for x in b]
+    assert {f: f.stat().st_mtime_ns for f in stamps} == stamps
     # an archived run that does not match the settings is rerun, not trusted
     first = kept[0]
     bad = json.loads(first.read_text())

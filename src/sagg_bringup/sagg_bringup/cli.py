@@ -400,6 +400,8 @@ def main(argv: list[str] | None = None) -> int:
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "reproduce":
+            if args.no_run and (args.estimate or args.claims == ["sensitivity"]):
+                raise ConfigError("--no-run: only when deciding claims (not with --estimate or sensitivity)")
             if args.estimate:
                 estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
                 return 0

@@ -211,12 +211,13 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
             pool.close()
 
     alpha = float(reg.get("alpha", 0.05))
-    mechanisms = {name: experiment_mechanisms(out / "experiments" / name) for name in needed}
+    results = {name: summarised_results(out / "experiments" / name, summaries[name]) for name in needed}
+    mechanisms = {name: experiment_mechanisms(results[name]) for name in needed}
     rows = []
     for c in claims:
         e, st = reg["experiments"][c["experiment"]], settings[c["experiment"]]
         d = decide(c, summaries[c["experiment"]], alpha)
-        done = finished_seeds(out / "experiments" / c["experiment"], e["strategies"], st["seeds"])
+        done = finished_seeds(summaries[c["experiment"]], e["strategies"])
         rows.append({"id": c["id"], "section": e["section"], "claim": c["claim"],
                      "setup": {"experiment": c["experiment"], "config": st["config"],
                                "overrides": st["overrides"], "eval_every": st["eval_every"]},
@@ -228,17 +229,17 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
                      "alpha": alpha, "scale": scale,
                      **run_commits(out / "experiments" / c["experiment"], commit)})
     write_json_atomic(out / "claims.json", rows)
-    write_report(out, rows, reg, scale, commit)
+    write_report(out, rows, reg, scale, commit, results)
     counts = {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS}
     out_fn(f"wrote {out / 'claims.json'}, {out / 'report.md'}: "
            + ", ".join(f"{n} {v}" for v, n in counts.items()))
     return rows
 
 
-def finished_seeds(directory: Path, strategies: list[str], seeds: int) -> list[int]:
-    """The seeds 0..seeds-1 whose run is finished (result.json written) for every strategy."""
-    return [s for s in range(seeds)
-            if all((directory / "runs" / st / f"seed-{s}" / "result.json").is_file() for st in strategies)]
+def finished_seeds(summary: dict, strategies: list[str]) -> list[int]:
+    """The seeds an experiment's summary holds a finished, valid run of for every strategy."""
+    have = [set(summary["strategies"].get(st, {}).get("seeds", [])) for st in strategies]
+    return sorted(set.intersection(*have)) if have else []
 
 
 def run_claim_experiment(reg, name, i, n, scale, out, workers, ray_address, pool, summaries, settings,
@@ -268,19 +269,29 @@ def run_claim_experiment(reg, name, i, n, scale, out, workers, ray_address, pool
                                   sc["micro_actions"], sc["eval_every"], exp_dir,
                                   workers=workers, ray_address=ray_address, overrides=overrides,
                                   base_seed=0, out_fn=out_fn, pool=pool, on_result=on_result, run=run)
-    if kept is not None:
+    if kept is not None and run:
         archive_experiment(exp_dir, kept)  # runs kept from before the archive existed, too
     settings[name] = {"config": e["config"], "overrides": overrides,
                       **{k: sc[k] for k in ("seeds", "micro_actions", "eval_every")}}
     return pool
 
 
-def experiment_mechanisms(directory: Path) -> dict:
-    """:func:`mechanisms.strategy_mechanisms` of the finished runs of one experiment directory."""
+def summarised_results(directory: Path, summary: dict) -> list[dict]:
+    """The result.json of every run the experiment's summary is made of (finished and matching the
+    settings: a run left out by ``--no-run`` as not matching is left out here too)."""
     # lazy (heavy): scipy
-    from .compare import by_strategy, load_results
-    runs = directory / "runs"
-    return strategy_mechanisms(by_strategy(load_results([runs]))) if runs.is_dir() else {}
+    from .compare import load_results
+    out = []
+    for strategy, v in summary["strategies"].items():
+        out += load_results([directory / "runs" / strategy / f"seed-{s}" / "result.json" for s in v["seeds"]])
+    return out
+
+
+def experiment_mechanisms(results: list[dict]) -> dict:
+    """:func:`mechanisms.strategy_mechanisms` of one experiment's finished runs."""
+    # lazy (heavy): scipy
+    from .compare import by_strategy
+    return strategy_mechanisms(by_strategy(results)) if results else {}
 
 
 # --------------------------------------------------------------------------------------- report
@@ -288,12 +299,11 @@ def fmt_number(x, spec=".3g") -> str:
     return "—" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
 
 
-def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str) -> Path:
+def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str,
+                 results: dict[str, list[dict]]) -> Path:
     """report.md: the verdict table, then per experiment its curves (mean ± std over seeds, like the
     paper's Figs. 10-13, 17, 21) and a histogram of the self-generated goals of each goal-choosing
-    strategy (pooled over seeds; like Figs. 8, 15)."""
-    # lazy (heavy): scipy
-    from .compare import load_results
+    strategy (pooled over seeds; like Figs. 8, 15). ``results``: per experiment, the runs decided on."""
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
     md = [f"# Reproduction of the paper's claims ({scale} scale)", "",
@@ -320,7 +330,7 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
     md.append("")
     for exp in dict.fromkeys(r["setup"]["experiment"] for r in rows):
         d = out / "experiments" / exp
-        results = load_results([d / "runs"]) if (d / "runs").is_dir() else []
+        runs = results.get(exp, [])
         first = next(r for r in rows if r["setup"]["experiment"] == exp)
         md += [f"## {exp} (Sec. {first['section']})", "",
                f"`{first['setup']['config']}`, overrides {first['setup']['overrides'] or 'none'}; "
@@ -343,11 +353,11 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
         if first.get("mechanisms"):
             md += ["Where the micro-actions went (the evidence behind the verdicts; "
                    "sagg_bringup/mechanisms.py):", "", mechanism_table(first["mechanisms"]), ""]
-        if results:
+        if runs:
             # the comparison's own figure (mean ± std over seeds, drawn by write_summary)
             shutil.copyfile(d / "curves.png", figs / f"{exp}_curves.png")
             md += [f"![{exp} curves](figures/{exp}_curves.png)", ""]
-            if plot_goal_histograms(results, figs / f"{exp}_goals.png", exp):
+            if plot_goal_histograms(runs, figs / f"{exp}_goals.png", exp):
                 md += [f"![{exp} goals](figures/{exp}_goals.png)", ""]
     path = out / "report.md"
     path.write_text("\n".join(md) + "\n")

@@ -261,16 +261,17 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
     # the same seeds for every strategy, so it can already be decided on them
     specs = [RunSpec(st, s) for s in seed_list for st in strategies]
     todo = []
-    skipped = 0
+    valid = []  # the runs the summary is made of: finished and matching the settings
     for spec in specs:
         why = validate_result(run_dir(out, spec) / "result.json", spec, micro_actions, eval_every,
                               expected_config(config, spec, overrides))
         if why is None:
-            skipped += 1
+            valid.append(spec)
         else:
             if why != "missing":
-                out_fn(f"rerun {spec.name}: existing result.json {why}")
+                out_fn(f"{'rerun' if run else 'left out (--no-run)'} {spec.name}: existing result.json {why}")
             todo.append(spec)
+    skipped = len(valid)
     total = len(specs)
     out_fn(f"compare: {len(strategies)} strategies x {seeds} seeds (seeds {seed_list[0]}.."
            f"{seed_list[-1]}) = {total} runs of {micro_actions} micro-actions; "
@@ -301,6 +302,7 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
                     done_now += 1
                     if err is None:
                         write_json_atomic(d / "result.json", {**result, "commit": commit})
+                        valid.append(spec)
                         (d / "error.txt").unlink(missing_ok=True)
                         if on_result is not None:
                             on_result(d / "result.json")
@@ -320,20 +322,23 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
             if own:
                 pool.close()
 
-    summary = write_summary(out, fp, failures, out_fn)
+    summary = write_summary(out, fp, failures, out_fn, valid)
     return summary
 
 
-def write_summary(out: Path, fp: dict, failures: dict[str, str], out_fn=print) -> dict:
-    """summary.md, summary.json and curves.png from the finished results in ``out``."""
+def write_summary(out: Path, fp: dict, failures: dict[str, str], out_fn=print,
+                  specs: list[RunSpec] | None = None) -> dict:
+    """summary.md, summary.json and curves.png from the finished results in ``out`` (only those
+    of ``specs`` when given: the runs validated against the settings)."""
     # lazy (heavy): scipy
     from .compare import (curve_table, load_results, pairwise_table, plot_curves, summary_json,
                           summary_markdown)
     results = []
+    keep = None if specs is None else set(specs)
     for st in fp["strategies"]:
         for s in fp["seeds"]:
             f = run_dir(out, RunSpec(st, s)) / "result.json"
-            if f.exists():
+            if f.exists() and (keep is None or RunSpec(st, s) in keep):
                 results.extend(load_results([f]))
     summ = summary_json(results, fp["strategies"])
     summ["settings"] = {k: v for k, v in fp.items() if k != "parameters"}
