@@ -15,6 +15,10 @@ def test_window_speed_steps_both_trees_and_checks_identity():
     assert [r["micro_actions"] for r in res["rows"]] == [200, 400]
     assert res["identical"] and res["ends"]["new"]["samples"] == 400
     assert any(line.startswith("| whole run |") for line in lines)
+    # the check can fail: another seed for the new child is a different run
+    res = window_speed.compare(SRC, SRC, "config/arm15.yaml", {"strategy": "actuator-riac", "seed": 0},
+                               micro_actions=200, window=200, out=lines.append, new_overrides={"seed": 1})
+    assert not res["identical"] and lines[-1].count("bit-identical: NO") == 1
 
 
 def test_eval_cost_against_a_commit_gives_the_same_errors(capsys):

@@ -35,7 +35,6 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.diagnostics import sample_problem
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, read_config
 from sagg_common.progress import Progress
@@ -471,13 +470,11 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         samples: tuple[list, list, list] = ([], [], [])
         reached: list[np.ndarray] = []
 
-        j_lo, j_hi = lp["joint_limits.lower"], lp["joint_limits.upper"]
-        j_tol = lp["plausibility.joint_tolerance"]
+        sample_check = st.arm_sample_check(lp, len(t_lower))
 
         def on_sample(m) -> bool | None:
             # the checks of `sagg run`'s own recorder (RunState.accept_sample)
-            ok = st.accept_sample(m, lambda m: sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha,
-                                                              m.delta_y, j_lo, j_hi, len(t_lower), j_tol))
+            ok = st.accept_sample(m, sample_check)
             if ok:
                 a, da, dy = np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y)
                 for lst, v in zip(samples, (a, da, dy)):

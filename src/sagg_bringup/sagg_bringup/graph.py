@@ -35,7 +35,6 @@ from typing import Any
 import numpy as np
 from rclpy.serialization import deserialize_message
 
-from sagg_common.diagnostics import sample_problem
 from sagg_common.params import ConfigError
 from sagg_common.progress import Progress
 from sagg_msgs.msg import Evaluation
@@ -117,12 +116,10 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
             evaluator.curve.append({"micro_actions": at, "mean_error": float(errors.mean()),
                                     "median_error": float(np.median(errors))})
 
-        j_lo, j_hi = params["sagg_learner"]["joint_limits.lower"], params["sagg_learner"]["joint_limits.upper"]
-        j_tol, t_dim = params["sagg_learner"]["plausibility.joint_tolerance"], len(t_lower)
+        sample_check = st.arm_sample_check(params["sagg_learner"], len(t_lower))
 
         def on_sample(m) -> bool | None:
-            ok = st.accept_sample(m, lambda m: sample_problem(int(m.index), st.samples, m.alpha, m.delta_alpha,
-                                                              m.delta_y, j_lo, j_hi, t_dim, j_tol))
+            ok = st.accept_sample(m, sample_check)
             if ok:
                 evaluator.add(int(m.index), np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y))
             return ok

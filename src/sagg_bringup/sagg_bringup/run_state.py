@@ -5,7 +5,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from sagg_common.diagnostics import goal_problem, report_problem
+from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
 from sagg_goal_generator.core import MODE_NAMES
 
@@ -58,6 +58,15 @@ class RunState:
         self.sample_t1 = now
         self.samples += 1
         return True
+
+    def arm_sample_check(self, learner_params: dict, task_dim: int) -> Callable[[Any], str]:
+        """The ``problem`` of :meth:`accept_sample` for an evolving-context arm's /sagg/sample: the
+        next index and a plausible content (:func:`sagg_common.diagnostics.sample_problem` with the
+        learner's joint limits and plausibility tolerance)."""
+        lp = learner_params
+        lo, hi, tol = lp["joint_limits.lower"], lp["joint_limits.upper"], lp["plausibility.joint_tolerance"]
+        return lambda m: sample_problem(int(m.index), self.samples, m.alpha, m.delta_alpha, m.delta_y,
+                                        lo, hi, task_dim, tol)
 
     def on_goal(self, m) -> None:
         """/sagg/goal (keyed by seq)."""

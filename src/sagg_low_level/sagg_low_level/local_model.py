@@ -67,6 +67,15 @@ def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float,
     return pinv(jac, rcond) @ dy_next
 
 
+def pseudo_inverse_steps(jacs: np.ndarray, dys: np.ndarray, rcond: float, damping: float = 0.0) -> np.ndarray:
+    """:func:`pseudo_inverse_step` for a stack of rows, (B, m, n) and (B, m) -> (B, n): one stacked
+    ``numpy.linalg.pinv`` (numpy computes a stack one matrix at a time with the same LAPACK call, so
+    each row equals the single call; test/test_eval_batch.py), or the stacked :func:`damped_steps`."""
+    if damping:
+        return damped_steps(jacs, dys, damping)
+    return (np.linalg.pinv(jacs, rcond=rcond) @ dys[:, :, None])[:, :, 0]
+
+
 def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower: np.ndarray,
                  upper: np.ndarray, rcond: float, damping: float = 0.0) -> np.ndarray:
     """Pseudo-inverse step that respects joint limits by clamping and re-solving (the "joint
@@ -153,10 +162,7 @@ def clamped_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: 
         for group in asks.values():
             cols = np.stack([c for _, c, _ in group])
             targets = np.stack([t for _, _, t in group])
-            if damping:
-                solved = damped_steps(cols, targets, damping)
-            else:
-                solved = (np.linalg.pinv(cols, rcond=rcond) @ targets[:, :, None])[:, :, 0]
+            solved = pseudo_inverse_steps(cols, targets, rcond, damping)
             for (i, _, _), s in zip(group, solved):
                 answer[i] = s
     return out

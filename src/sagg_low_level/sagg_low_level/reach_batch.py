@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .local_model import clamped_steps, damped_steps, local_jacobian
+from .local_model import clamped_steps, local_jacobian, pseudo_inverse_steps
 from .memory_batch import neighbours_many
 
 
@@ -64,11 +64,7 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
             cache[keys[i]] = jac
     for i, key in enumerate(keys):
         jacs[i] = cache[key]
-    if learner.damping:
-        steps = damped_steps(jacs, dys, learner.damping)
-    else:
-        pinv = np.linalg.pinv(jacs, rcond=p["pinv_rcond"])
-        steps = (pinv @ dys[:, :, None])[:, :, 0]
+    steps = pseudo_inverse_steps(jacs, dys, p["pinv_rcond"], learner.damping)
     if p["reach_limits"] == "clip":
         return steps
     return clamped_steps(jacs, dys, alphas, learner.robot.lower, learner.robot.upper, p["pinv_rcond"], steps,

@@ -111,9 +111,10 @@ def summarise(results: dict, points: list[int]) -> dict:
             cell["share_on_reachable_goals"] = float(np.mean(
                 [p["reachable_goals"]["share_of_micro_actions"] for p in ph]))
             # the goal choice itself: share of the self-generated goals inside the reachable area
-            cell["goals_in_reachable_area"] = float(np.mean(
-                [p["reachable_goals"]["goals"] / max(1, p["reachable_goals"]["goals"] + p["unreachable_goals"]["goals"])
-                 for p in ph]))
+            # (no cell for a strategy that chooses no goals: ACTUATOR-*)
+            goals = [(p["reachable_goals"]["goals"], p["unreachable_goals"]["goals"]) for p in ph]
+            if any(a + b for a, b in goals):
+                cell["goals_in_reachable_area"] = float(np.mean([a / max(1, a + b) for a, b in goals]))
         cov = [r["coverage"]["max"] for r in rs if r.get("coverage")]
         if cov:
             cell["coverage_max"] = _stats(cov)

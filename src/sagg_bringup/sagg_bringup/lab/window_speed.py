@@ -40,7 +40,7 @@ for line in sys.stdin:
     cmd = line.strip()
     if cmd == "end":
         learner = run.learner
-        mem = getattr(learner, "memory", None) or learner.by_theta
+        mem = learner.memory if getattr(learner, "memory", None) is not None else learner.by_theta
         goals = np.array([g.position for g in run.generator.goals], dtype=float)
         riac = getattr(learner, "riac_tree", None)
         print(json.dumps({"memory": mem.digest(), "samples": len(mem),
@@ -86,10 +86,13 @@ class _Child:
 
 
 def compare(base_src: Path, new_src: Path, config: str, overrides: dict, micro_actions: int, window: int,
-            out=print) -> dict:
+            out=print, new_overrides: dict | None = None) -> dict:
     """Step a base and a new child alternately by ``window`` up to ``micro_actions``; print each
-    window's rates and ratios and the bit-identity check. Returns the rows and the check."""
-    kids = {"base": _Child(base_src, config, overrides), "new": _Child(new_src, config, overrides)}
+    window's rates and ratios and the bit-identity check. Returns the rows and the check.
+    ``new_overrides``: more overrides for the new child only (a parameter's A/B on one tree; the
+    check then says whether the parameter changes the run)."""
+    kids = {"base": _Child(base_src, config, overrides),
+            "new": _Child(new_src, config, dict(overrides, **(new_overrides or {})))}
     out("| micro-actions | leaves | base /s | new /s | ratio | base /CPU-s | new /CPU-s | ratio |")
     out("|---|---|---|---|---|---|---|---|")
     rows, tot, done = [], {k: [0.0, 0.0] for k in kids}, 0
@@ -135,8 +138,10 @@ def main(argv=None) -> int:
     ap.add_argument("--window", type=int, default=5000)
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="parameter override for both runs (e.g. context=fixed)")
+    ap.add_argument("--set-new", action="append", default=[], metavar="NAME=VALUE",
+                    help="parameter override for the new run only (with --base HEAD: a parameter's A/B)")
     a = ap.parse_args(argv)
-    overrides = parse_set(a.set)
+    overrides, new_overrides = parse_set(a.set), parse_set(a.set_new)
     repo = repo_root()
     identical = True
     with exported(a.base, repo) as base_src:
@@ -144,7 +149,7 @@ def main(argv=None) -> int:
             print(f"\n{strategy}, {a.config}, seed {a.seed}, overrides {overrides}: base {a.base} vs this tree "
                   f"({repo}); load average {', '.join(f'{x:.2f}' for x in os.getloadavg())} at start")
             res = compare(base_src, repo / "src", a.config, dict(overrides, strategy=strategy, seed=a.seed),
-                          a.micro_actions, a.window)
+                          a.micro_actions, a.window, new_overrides=new_overrides)
             identical = identical and res["identical"]
             print(f"load average {', '.join(f'{x:.2f}' for x in os.getloadavg())} at end")
     return 0 if identical else 1
