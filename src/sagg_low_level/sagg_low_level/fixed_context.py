@@ -92,7 +92,9 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "some low-level explorations, the exploration toward this precise goal stops'). In the "
           "fixed context every experiment is a whole movement from rest toward the goal, so the "
           "count is per experiment. Default 3: the paper's value (w = 3, 'typically w >= 2'); Alg. 4 "
-          "has no other timeout than its budget q. 0 disables it (Alg. 4 alone: always q).",
+          "has no other timeout than its budget q. 0 disables it (Alg. 4 alone: always q). The "
+          "evolving context's learner has the same key, counted per exploration phase of a reach "
+          "(default 0 there).",
           low=0, high=100_000),
     Param("goal_competence", "str", "best",
           "Outcome the goal's competence Γ is computed from: 'best' (the closest outcome of the "

@@ -73,7 +73,9 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           choices=("subgoal", "goal")),
     Param("blocking_w", "int", 0,
           "Blocking timeout (Sec. 3.7.6): stop a (sub)goal after w consecutive exploration phases "
-          "(no progress). 0 disables it; the paper uses w = 3 (with q = 5) for large Y.",
+          "(no progress). 0 disables it; the paper uses w = 3 (with q = 5) for large Y. The fixed "
+          "context's learner has the same key, counted per exploratory experiment and 3 by default: "
+          "a config's value keeps its name but changes its unit under context=fixed.",
           low=0, high=1_000_000),
     Param("blocking_scope", "str", "goal",
           "What the blocking timeout ends. 'goal' (paper, Sec. 3.7.6: 'when w consecutive low-level "
