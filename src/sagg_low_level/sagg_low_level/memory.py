@@ -50,7 +50,7 @@ from sagg_common.diagnostics import all_finite
 # _sqdist_cols is also imported from here by the memory benchmark
 from .memory_distance import _sqdist_cols, squared_distances  # noqa: F401
 from .memory_index import LEAF_ORDERS as _LEAF_ORDERS, BlockIndex
-from .memory_io import load_memory, memory_digest, params_array, save_memory
+from .memory_io import load_memory, params_array, save_memory
 from .memory_search import KnnSearch
 from .memory_store import SampleStore
 
@@ -227,10 +227,6 @@ class SampleMemory(SampleStore, BlockIndex, KnnSearch):
         return out
 
     # ------------------------------------------------------------------ persistence
-    def digest(self) -> str:
-        """sha256 hex over the dims, the length and the filled arrays (see memory_io.memory_digest)."""
-        return memory_digest(self)
-
     def _params(self) -> np.ndarray:
         return params_array(self)
 
@@ -261,7 +257,3 @@ class SampleTable(SampleStore):
     def nbytes(self) -> int:
         """Bytes held by the sample arrays (allocated capacity included)."""
         return int(self._alpha.nbytes + self._dalpha.nbytes + self._dy.nbytes)
-
-    def digest(self) -> str:
-        """sha256 hex over the dims, the length and the filled arrays (see memory_io.memory_digest)."""
-        return memory_digest(self)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .memory_io import memory_digest
+
 
 class SampleStore:
     """The stored rows (mixin of SampleMemory)."""
@@ -33,6 +35,11 @@ class SampleStore:
     @property
     def outcome_dim(self) -> int:
         return self._od
+
+    def digest(self) -> str:
+        """sha256 hex over the dims, the length and the filled arrays (see memory_io.memory_digest):
+        the same samples give the same digest in a SampleMemory and a SampleTable."""
+        return memory_digest(self)
 
     def _view(self, arr: np.ndarray) -> np.ndarray:
         v = arr[: self._n].view()
