@@ -269,6 +269,36 @@ def test_run_state_drops_nan_and_out_of_y_goals(position):
     assert st.rejected == {"/sagg/goal position not finite or outside Y": 1, "/sagg/goal seq out of window": 1}
 
 
+def test_run_state_counts_and_names_bad_samples_even_below_the_next_index():
+    """A re-published sample (an earlier index) is ignored only when its content is plausible; every
+    rejection is counted and handed to on_reject (sagg run's log) naming the field, value and range."""
+    from types import SimpleNamespace
+    logged = []
+    st = RunState(on_reject=lambda key, n, detail: logged.append((key, n, detail)))
+    check = st.arm_sample_check({"joint_limits.lower": [-1.0, -1.0], "joint_limits.upper": [1.0, 1.0],
+                                 "plausibility.joint_tolerance": 0.1}, 2)
+
+    def sample(i, alpha):
+        return SimpleNamespace(index=i, alpha=alpha, delta_alpha=[0.0, 0.0], delta_y=[0.0, 0.0])
+
+    assert st.accept_sample(sample(0, [0.1, 0.2]), check) is True
+    assert st.accept_sample(sample(1, [0.1, 0.2]), check) is True
+    assert st.accept_sample(sample(0, [0.1, 0.2]), check) is None  # re-published: ignored
+    assert st.rejected == {} and not logged
+    assert st.accept_sample(sample(0, [math.nan, 0.0]), check) is None  # earlier index, bad content
+    assert st.accept_sample(sample(5, [0.1, 0.2]), check) is None       # ahead of the next index
+    assert st.accept_sample(sample(2, [3.0, 0.0]), check) is None       # α beyond the limits
+    assert st.samples == 2
+    assert st.rejected == {"/sagg/sample content rejected (an earlier index)": 1,
+                           "/sagg/sample index or content rejected": 2}
+    assert "index 0: NaN/inf value" in logged[0][2]
+    assert "index 5; allowed: 2" in logged[1][2]
+    assert "alpha [3.0, 0.0]; allowed: within the joint limits ± 0.1" in logged[2][2]
+    st.task_lower, st.task_upper = np.array([-10.0, -10.0]), np.array([10.0, 10.0])
+    st.on_goal(goal_msg(1, (50.0, 0.0)))
+    assert logged[-1][:2] == ("/sagg/goal position not finite or outside Y", 1) and "50.0" in logged[-1][2]
+
+
 def test_learner_rejects_nan_and_out_of_y_goals_from_the_service(nodes):
     n = nodes["learner"]
 

@@ -373,14 +373,20 @@ class TopicRecorder:
             self.watch.refresh(topic)
 
     def _drop(self, topic: str, why: str, detail: str) -> None:
-        """Count a message not handed to its handler; logged at the first and then at most every 5 s."""
+        """Count a message not handed to its handler, and log it (:meth:`log_problem`)."""
         key = f"{topic} {why}"
         n = self.rejected.get(key, 0) + 1
         self.rejected[key] = n
+        self.log_problem(key, n, detail)
+
+    def log_problem(self, key: str, n: int, detail: str) -> None:
+        """Log the ``n``-th message of ``key`` ("<topic> <why>") not used, with what was wrong: at the
+        first and then at most every 5 s per key (also for the handlers' own rejections)."""
         now = time.monotonic()
         if n == 1 or now - self._logged.get(key, 0.0) >= 5.0:
             self._logged[key] = now
             self.problems[key] = detail
+            topic, why = key.split(" ", 1)
             self.node.get_logger().error(f"{topic}: message not used ({why}: {detail}); {n} so far")
 
     def destroy(self) -> None:

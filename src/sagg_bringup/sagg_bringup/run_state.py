@@ -34,23 +34,35 @@ class RunState:
     task_lower: Any = None  # Y, for checking goals (None: not checked)
     task_upper: Any = None
     window: int = 10000     # a goal or report seq further than this beyond the last is rejected
+    # called with ("<topic> <kind>", count so far, what was wrong) at every rejection (the log)
+    on_reject: Callable[[str, int, str], None] | None = None
 
-    def reject(self, topic: str, kind: str) -> None:
+    def reject(self, topic: str, kind: str, detail: str = "") -> None:
+        """Count a message not used (``rejected``) and pass it on to ``on_reject``."""
         key = f"{topic} {kind}"
-        self.rejected[key] = self.rejected.get(key, 0) + 1
+        n = self.rejected[key] = self.rejected.get(key, 0) + 1
+        if self.on_reject is not None:
+            self.on_reject(key, n, detail or kind)
 
-    def accept_sample(self, m, problem: Callable[[Any], str], republished_ok: bool = True) -> bool | None:
+    def accept_sample(self, m, problem: Callable[[Any, int], str], republished_ok: bool = True) -> bool | None:
         """/sagg/sample, one check for every recorder (``sagg run``'s graph, ``--driver external``,
-        the synergy graph): ``problem(m)`` names what is wrong ('' if nothing: the next index and a
-        plausible content, e.g. :func:`sagg_common.diagnostics.sample_problem`); a bad sample is
-        dropped and counted, so a forged one never takes the real one's index. A sample below the
-        next index is a re-publication by a resumed learner (same values) and is ignored when
-        ``republished_ok``. True = used (the caller stores it; the topic's publisher stream moves
-        on), None = not used. Stamps the sample rate's first and last arrival."""
-        if republished_ok and int(m.index) < self.samples:
+        the synergy graph): ``problem(m, expected)`` names what is wrong ('' if nothing: the index
+        ``expected`` and a plausible content, e.g. :func:`sagg_common.diagnostics.sample_problem`);
+        a bad sample is dropped and counted, so a forged one never takes the real one's index. A
+        sample below the next index is a re-publication by a resumed learner (same values) and is
+        ignored when ``republished_ok``, if its content is plausible (checked at its own index; an
+        implausible one is counted as the bad input it is). True = used (the caller stores it; the
+        topic's publisher stream moves on), None = not used. Stamps the sample rate's first and
+        last arrival."""
+        index = int(m.index)
+        if republished_ok and index < self.samples:
+            why = problem(m, index)
+            if why:
+                self.reject("/sagg/sample", "content rejected (an earlier index)", f"index {index}: {why}")
             return None
-        if problem(m):
-            self.reject("/sagg/sample", "index or content rejected")
+        why = problem(m, self.samples)
+        if why:
+            self.reject("/sagg/sample", "index or content rejected", why)
             return None
         now = time.perf_counter()
         if self.sample_t0 is None:
@@ -65,18 +77,20 @@ class RunState:
         learner's joint limits and plausibility tolerance)."""
         lp = learner_params
         lo, hi, tol = lp["joint_limits.lower"], lp["joint_limits.upper"], lp["plausibility.joint_tolerance"]
-        return lambda m: sample_problem(int(m.index), self.samples, m.alpha, m.delta_alpha, m.delta_y,
-                                        lo, hi, task_dim, tol)
+        return lambda m, expected: sample_problem(int(m.index), expected, m.alpha, m.delta_alpha, m.delta_y,
+                                                  lo, hi, task_dim, tol)
 
     def on_goal(self, m) -> None:
         """/sagg/goal (keyed by seq)."""
         if int(m.seq) in self.goals:
             return  # published again (a repeated goal request after a generator restart)
         if not 0 < int(m.seq) <= len(self.goals) + self.window:
-            self.reject("/sagg/goal", "seq out of window")
+            self.reject("/sagg/goal", "seq out of window",
+                        f"seq {int(m.seq)}; allowed: 1..{len(self.goals) + self.window}")
             return
-        if self.task_lower is not None and goal_problem(m.position, self.task_lower, self.task_upper)[1]:
-            self.reject("/sagg/goal", "position not finite or outside Y")
+        why = goal_problem(m.position, self.task_lower, self.task_upper)[1] if self.task_lower is not None else ""
+        if why:
+            self.reject("/sagg/goal", "position not finite or outside Y", f"position {why}")
             return
         if int(m.seq) != len(self.goals) + 1:
             self.gaps["/sagg/goal"] += 1
@@ -90,12 +104,14 @@ class RunState:
         if int(m.seq) <= self.reports:
             return  # republished by a resumed learner
         if int(m.seq) > self.reports + self.window:
-            self.reject("/sagg/competence", "seq out of window")
+            self.reject("/sagg/competence", "seq out of window",
+                        f"seq {int(m.seq)}; allowed: up to {self.reports + self.window}")
             return
         target = m.target if len(m.target) else m.reached
         dim = len(self.task_lower) if self.task_lower is not None else len(m.reached)
-        if report_problem(int(m.kind), target, float(m.competence), dim, KIND_NAMES):
-            self.reject("/sagg/competence", "invalid content")
+        why = report_problem(int(m.kind), target, float(m.competence), dim, KIND_NAMES)
+        if why:
+            self.reject("/sagg/competence", "invalid content", why)
             return
         if int(m.seq) != self.reports + 1:
             self.gaps["/sagg/competence"] += 1

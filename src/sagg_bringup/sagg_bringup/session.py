@@ -95,6 +95,7 @@ class GraphSession:
             handlers[topic] = h if topic not in handlers else _both(handlers[topic], h)
         self.recorder = TopicRecorder(self.node, self.bag, self.topics, handlers,
                                       gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+        self.st.on_reject = self.recorder.log_problem  # the handlers' rejections are logged too
 
     def acknowledge(self, source: Callable[[], int]) -> None:
         """Publish ``source()`` (how many samples, from index 0, are recorded and accepted) on

@@ -92,10 +92,10 @@ def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_di
     try:  # set-up: a failure or Ctrl-C before session.run still closes the bag and rclpy
         samples: list[tuple[np.ndarray, np.ndarray]] = []
 
-        def problem(m) -> str:
+        def problem(m, expected: int) -> str:
             # the next index and finite values only (DESIGN §8)
-            if int(m.index) != len(samples):
-                return f"index {int(m.index)}; allowed: {len(samples)} (the next sample)"
+            if int(m.index) != expected:
+                return f"index {int(m.index)}; allowed: {expected} (the next sample)"
             ok = np.isfinite(np.array(m.alpha, float)).all() and np.isfinite(np.array(m.delta_y, float)).all()
             return "" if ok else "NaN/inf value; allowed: finite values"
 

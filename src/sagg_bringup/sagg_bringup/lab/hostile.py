@@ -154,9 +154,8 @@ class Fuzzer:
             pub = self.node.create_publisher(_msg_class(cls_name), topic,
                                              reliable(1000, transient_local=transient_local))
             # a volatile message published before discovery matched the graph's subscriptions is
-            # lost for them (seen in CI under load: a forged /sagg/sample never arrived, so nothing
-            # was there to reject): wait, up to MATCH_WAIT s, until every subscription the graph
-            # has on the topic matched this publisher
+            # lost for them: wait, up to MATCH_WAIT s, until every subscription the graph has on the
+            # topic matched this publisher (and see drop_publishers)
             want = self.node.count_subscribers(topic)
             t_end = time.monotonic() + MATCH_WAIT
             while pub.get_subscription_count() < want and time.monotonic() < t_end:
@@ -169,7 +168,14 @@ class Fuzzer:
         self.sent[topic] = self.sent.get(topic, 0) + 1
 
     def drop_publishers(self) -> None:
+        """Destroy the case's publishers once every matched reliable subscription acknowledged what
+        they sent (up to MATCH_WAIT s each): a writer destroyed first takes its unacknowledged
+        messages with it. Seen on a loaded machine: the publisher had matched the recorder, but the
+        recorder had not matched it yet when the writer went, and the forged /sagg/sample burst
+        never arrived (so nothing was there to reject and the case counted 0)."""
+        from rclpy.duration import Duration
         for p in self.pubs.values():
+            p.wait_for_all_acked(Duration(seconds=MATCH_WAIT))
             self.node.destroy_publisher(p)
         self.pubs = {}
 
