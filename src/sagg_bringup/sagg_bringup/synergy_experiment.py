@@ -308,7 +308,7 @@ def run_synergy_experiment(adapter, config_path: str | Path, strategy: str | Non
     outcomes = learner.outcomes.copy()
     result = result_dict(run, curve, area, micro_actions, eval_seconds, learner.experiments,
                          {"samples": len(learner), "digest": learner.by_theta.digest(),
-                          "bytes": int(learner.by_theta.nbytes + learner.by_y.nbytes)})
+                          "bytes": learner.memory_bytes})
     result.update({
         "eval_metrics": frame_summary(frame),
         "test_goals": goals.tolist(),

@@ -150,7 +150,7 @@ def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_di
     memory = {"samples": len(samples)}
     if run is not None and len(run.learner) == len(samples):
         memory.update(digest=run.learner.by_theta.digest(),
-                      bytes=int(run.learner.by_theta.nbytes + run.learner.by_y.nbytes))
+                      bytes=run.learner.memory_bytes)
     summary = session.summary(
         lp, {name: {k: v for k, v in values.items()} for name, values in full.items()}, params, params_file,
         timing, micro_actions, curve, area, t_start,

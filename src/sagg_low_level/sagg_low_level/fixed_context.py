@@ -367,6 +367,11 @@ class FixedContextLearner:
         return len(self.by_theta)
 
     @property
+    def memory_bytes(self) -> int:
+        """Bytes held by the two sample memories and their search indexes."""
+        return int(self.by_theta.nbytes + self.by_y.nbytes + self.theta_index.nbytes + self.y_index.nbytes)
+
+    @property
     def thetas(self) -> np.ndarray:
         """Stored synergies θ (raw units), in experiment order."""
         return self.by_theta.delta_alpha

@@ -53,6 +53,13 @@ class TreeKnn:
         self._nr = 0
         self.scans = 0  # queries answered by a scan of every sample (statistics only)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the index: the tree's copy of the samples and its index array (its node
+        structure is not exposed by scipy, so not counted), and the two dimension-major copies."""
+        tree = 0 if self._tree is None else self._tree.data.nbytes + self._tree.indices.nbytes
+        return int(tree + self._tree_t.nbytes + self._recent_t.nbytes)
+
     def _update(self, n: int) -> None:
         """Rebuild the tree when the samples stored since its build exceed the allowed share, else
         copy the newest samples into the recent part."""
