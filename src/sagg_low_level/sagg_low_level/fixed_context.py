@@ -241,8 +241,9 @@ class ThetaSpace:
 def set_spread(theta_norm: np.ndarray) -> float:
     """σ(M_j) of Sec. 4.4.1: the standard deviation of the synergy parameters of a neighbour set.
     The paper does not say how the std of vectors is taken; ours: the RMS over dimensions of the
-    per-dimension standard deviations (normalised θ), i.e. the RMS distance to the set's mean / √n."""
-    return float(np.sqrt(np.mean(np.var(theta_norm, axis=0))))
+    per-dimension standard deviations (normalised θ), i.e. the RMS distance to the set's mean / √n:
+    ``np.sqrt(np.mean(np.var(theta_norm, axis=0)))``, computed by :func:`set_spreads` (one set)."""
+    return float(set_spreads(np.asarray(theta_norm, dtype=float)[None])[0])
 
 
 def least_spread_set(candidate_sets: list[np.ndarray] | np.ndarray, theta_norm: np.ndarray) -> int:
