@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.params import WILDCARD, ConfigError, read_config, resolve_nodes
+from sagg_common.params import ConfigError, is_given, read_config, resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.rng import stream, substream_seed
 from sagg_common.synergy import transported_outcome
@@ -187,10 +187,7 @@ class ArmPostureSetup:
                    "synergy.kind": "posture"})
         # the exploration noise per arm length (Param explore_length), unless the config or an
         # override gives explore_length (0 included: the competence's units)
-        sections = read_config(path)
-        given = "explore_length" in (overrides or {}) or any(
-            "explore_length" in sections.get(name, {}) for name in (WILDCARD, "sagg_learner"))
-        if not given:
+        if not is_given(read_config(path), "sagg_learner", "explore_length", overrides):
             lp["explore_length"] = float(spec.total_length)
         return out
 

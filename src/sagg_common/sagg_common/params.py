@@ -244,6 +244,13 @@ def node_params(
     return resolve(schema, merged, where=f"section '{node}'")
 
 
+def is_given(sections: Mapping[str, Mapping[str, Any]], node: str, name: str,
+             overrides: Mapping[str, Any] | None = None) -> bool:
+    """Whether ``name`` of ``node`` is set by the config (``/**`` or the node's section) or an
+    override, i.e. does not come from the schema's default (the precedence of :func:`node_params`)."""
+    return name in (overrides or {}) or any(name in sections.get(s, {}) for s in (WILDCARD, node))
+
+
 def check_wildcard(sections: Mapping[str, Mapping[str, Any]], schemas: Iterable[Schema]) -> None:
     """Raise if a ``/**`` parameter is declared by none of the given schemas (a likely typo)."""
     known = {p.name for s in schemas for p in s}
