@@ -173,6 +173,7 @@ class Fuzzer:
         messages with it. Seen on a loaded machine: the publisher had matched the recorder, but the
         recorder had not matched it yet when the writer went, and the forged /sagg/sample burst
         never arrived (so nothing was there to reject and the case counted 0)."""
+        # lazy (heavy): ROS
         from rclpy.duration import Duration
         for p in self.pubs.values():
             p.wait_for_all_acked(Duration(seconds=MATCH_WAIT))
