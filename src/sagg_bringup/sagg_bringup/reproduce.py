@@ -307,7 +307,8 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
     figs = out / "figures"
     figs.mkdir(parents=True, exist_ok=True)
     md = [f"# Reproduction of the paper's claims ({scale} scale)", "",
-          f"Code commit `{commit}`. Every number below comes from `DIR/experiments/<experiment>` "
+          f"Written at commit `{commit}`; each experiment below names the commit its runs computed at. "
+          f"Every number below comes from `DIR/experiments/<experiment>` "
           f"(one `sagg bench compare` each; seeds 0..n-1). Verdict rules: see "
           f"`sagg_bringup/reproduce.py` (alpha = {rows[0]['alpha'] if rows else '—'}).", ""]
     partial = [r["id"] for r in rows if not r.get("complete", True)]
