@@ -202,7 +202,9 @@ def test_evaluation_on_the_robot_during_learning_pauses_and_resumes(tmp_path):
     assert len(at) == 3 and 60 <= at[0] < at[1] < n and at[1] >= 120 and at[2] == n, at
     assert s["micro_actions"] == n and s["bag"]["topics"]["/sagg/sample"]["count"] == n
     log = (out / "logs" / "learner.log").read_text()
-    assert log.count("paused by the /sagg/pause service") == 2 and log.count("resuming") == 2
+    # (counted per cause: on a loaded machine a stale joint state may also hold and release the
+    # learner once, a "driver hold released: resuming" of its own)
+    assert log.count("paused by the /sagg/pause service") == 2 and log.count("service hold released") == 2
     # every evaluation command is in the trace, answered by a settled state that shows the motion
     trace = json.loads((out / "robot_evaluation.json").read_text())["trace"]
     assert len(trace) == r["commands"] and sum(t["settled"] and t["moved"] for t in trace) >= 0.9 * len(trace)

@@ -265,11 +265,13 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
     return code
 
 
-def flush_publishers(node, seconds: float = 3.0) -> None:
+def flush_publishers(node, seconds: float = 1.0) -> None:
     """Before a node goes: wait (at most ``seconds`` in all) until every reliable subscription has
     acknowledged what the node's publishers sent (``Publisher.wait_for_all_acked``). A node that
     exits first may take its last messages with it: seen on a loaded machine, the bridge's answer
-    to the last command missing from the bag (published 820 joint states, the bag 819)."""
+    to the last command missing from the bag (published 820 joint states, the bag 819). Bounded
+    short: a subscriber that left without being unmatched yet never acknowledges, and the
+    orchestrator kills a node that takes longer than its stop timeout to exit."""
     # lazy (heavy): ROS
     from rclpy.duration import Duration
     t_end = time.monotonic() + seconds
