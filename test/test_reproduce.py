@@ -310,6 +310,36 @@ def test_sensitivity_registry_has_every_open_choice_at_the_issue_scale():
         variants(reg, ["no such choice"])
 
 
+def test_sensitivity_strategies_left_out_of_a_choice_do_not_read_it(tmp_path):
+    """A choice that names the strategies reading its parameters lets the default's runs stand for
+    the others: each of the others, run with each of the choice's values, must give the default's
+    memory and errors bit for bit (and a strategy that does read it must not, or the check is blind)."""
+    from sagg_bringup.experiment import run_arm_experiment
+    from sagg_bringup.sensitivity import load_sensitivity
+    reg = load_registry()
+    sens = load_sensitivity(reg)
+    base = reg["experiments"][sens["experiment"]]
+    config = resolve_config(base["config"])
+    small = {**base["set"], "eval.goals": 8}
+
+    def run(strategy, extra, name):
+        r = run_arm_experiment(config, strategy, 3, 600, 600, tmp_path / name, progress=False,
+                               overrides={**small, **extra})
+        return r["memory"]["digest"], r["final_errors"]
+
+    declared = [c for c in sens["choices"] if "strategies" in c]
+    assert declared, "no choice declares its strategies"
+    defaults = {}
+    for c in declared:
+        left_out = [s for s in base["strategies"] if s not in c["strategies"]]
+        for s in left_out:
+            defaults.setdefault(s, run(s, {}, f"default-{s}"))
+            for i, v in enumerate(c["values"]):
+                assert run(s, v["set"], f"{s}-{c['name']}-{i}") == defaults[s], (c["name"], v["label"], s)
+    # the check can fail: a strategy that reads a value (SAGG-RIAC and a larger exploration step)
+    assert run("sagg-riac", {"explore_amplitude": 0.1}, "reads") != run("sagg-riac", {}, "reads-default")
+
+
 def test_sensitivity_flips_on_known_inputs():
     from sagg_bringup.sensitivity import flips
     default = {"verdict": "reproduced", "pairs": [{"a": "x", "b": "y", "verdict": "reproduced"},
@@ -340,9 +370,14 @@ def test_sensitivity_smoke_one_choice_end_to_end(tmp_path):
                                      .read_text())["config"]["sagg_goal_generator"]["count_reached"]
            for row in rows}
     assert cfg == {"default": False, "reached points": True}
-    assert all(row["run_commits"] == {row["commit"]: 8} for row in rows)  # 4 strategies x 2 seeds
+    # the default ran 4 strategies x 2 seeds; the variant only the two that read count_reached, the
+    # default's ACTUATOR runs stand for the others (and are in its decision)
+    assert [row["run_commits"] for row in rows] == [{rows[0]["commit"]: 8}, {rows[1]["commit"]: 4}]
+    assert rows[1]["reused"] == ["actuator-random", "actuator-riac"] and rows[0]["reused"] == []
+    assert rows[1]["strategies"]["actuator-riac"] == rows[0]["strategies"]["actuator-riac"]
+    assert not (out / "experiments" / rows[1]["experiment"] / "runs" / "actuator-riac").exists()
     md = (out / "sensitivity.md").read_text()
-    assert "| reached points | on (Sec. 3.7" in md and "| default |" in md
+    assert "| reached points | on (Sec. 3.7" in md and "| default |" in md and "(default's runs)" in md
 
 
 def test_run_commits_says_when_an_experiment_spans_several_commits(tmp_path):

@@ -7,6 +7,13 @@ on/off. Each value is the claim's experiment with that one choice changed (``set
 experiment itself at the same scale. Every variant is one ``sagg bench compare`` directory (the
 same resumable runs as ``sagg reproduce``), decided with the same rules (:func:`reproduce.decide`).
 
+A choice may name the ``strategies`` that read its parameters (e.g. ε_sim, ε_max, the blocking
+timeout and reached points are read by the goal-directed learner and the goal generator only, never
+by ACTUATOR-RANDOM or ACTUATOR-RIAC). Its variants then run only those; every other strategy's runs
+would be the default's bit for bit, so the default's runs stand for them (the row says so in
+``reused``). ``test_reproduce`` checks each such declaration: the strategies left out, run with the
+variant's change, give the default's memory and curve.
+
 A conclusion *flips* when a pair [A, B] of the claim ("A better than B") has another verdict under
 the variant than under the default (e.g. reproduced → inconclusive), or the claim's verdict changes.
 
@@ -30,7 +37,7 @@ from sagg_common.params import ConfigError
 from .reproduce import REGISTRY, decide, fmt_number, load_registry, run_claim_experiment
 from .results import code_commit, run_commits
 
-SENSITIVITY_FIELDS = ("choice", "value", "overrides", "experiment", "claim", "strategies", "verdict",
+SENSITIVITY_FIELDS = ("choice", "value", "overrides", "experiment", "claim", "strategies", "reused", "verdict",
                       "p_value", "pairs", "flips", "seeds", "micro_actions", "scale", "commit")
 DEFAULT = "default"
 
@@ -53,7 +60,12 @@ def load_sensitivity(reg: dict) -> dict:
     names = [c.get("name") for c in sens.get("choices") or []]
     if not names or len(set(names)) != len(names) or DEFAULT in names:
         raise ConfigError(f"sensitivity: choice names {names} must be unique, non-empty, not {DEFAULT!r}")
+    every = reg["experiments"][exp]["strategies"]
     for c in sens["choices"]:
+        reads = c.get("strategies", every)
+        if not reads or any(s not in every for s in reads):
+            raise ConfigError(f"sensitivity: choice {c['name']!r}: strategies {reads} must be a non-empty "
+                              f"subset of {every}")
         for v in c.get("values") or [None]:
             if not isinstance(v, dict) or not v.get("label") or not isinstance(v.get("set"), dict) \
                     or not v["set"]:
@@ -80,11 +92,23 @@ def variants(reg: dict, choices: list[str] | None = None) -> list[dict]:
     for c in sens["choices"]:
         if choices and c["name"] not in choices:
             continue
-        out += [{"choice": c["name"], "value": v["label"], "set": dict(v["set"]),
+        reads = [s for s in base["strategies"] if s in c.get("strategies", base["strategies"])]
+        out += [{"choice": c["name"], "value": v["label"], "set": dict(v["set"]), "strategies": reads,
                  "name": f"sens-{slug(c['name'])}-{i}"} for i, v in enumerate(c["values"], 1)]
     for v in out:
-        v["experiment"] = {**base, "set": {**base["set"], **v["set"]}, "paper": dict(sens["paper"])}
+        v.setdefault("strategies", list(base["strategies"]))
+        v["reused"] = [s for s in base["strategies"] if s not in v["strategies"]]
+        v["experiment"] = {**base, "set": {**base["set"], **v["set"]}, "strategies": v["strategies"],
+                           "paper": dict(sens["paper"])}
     return out
+
+
+def with_reused(summary: dict, default: dict, reused: list[str]) -> dict:
+    """A variant's summary with the default's results for the strategies it did not run (they do
+    not read the variant's parameters)."""
+    strategies = {**summary["strategies"], **{s: default["strategies"][s] for s in reused
+                                               if s in default["strategies"]}}
+    return {**summary, "strategies": strategies}
 
 
 def flips(default: dict, variant: dict) -> list[str]:
@@ -125,10 +149,10 @@ def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers
             pool.close()
     rows = []
     for v in vs:
-        d = decide(claim, summaries[v["name"]], alpha)
+        d = decide(claim, with_reused(summaries[v["name"]], summaries[vs[0]["name"]], v["reused"]), alpha)
         st = settings[v["name"]]
         rows.append({"choice": v["choice"], "value": v["value"], "overrides": v["set"],
-                     "experiment": v["name"], "claim": claim["id"],
+                     "experiment": v["name"], "claim": claim["id"], "reused": v["reused"],
                      "strategies": d["ours"]["strategies"], "verdict": d["verdict"],
                      "p_value": d["p_value"], "pairs": d["pairs"], "seeds": list(range(st["seeds"])),
                      "micro_actions": st["micro_actions"], "scale": scale,
@@ -153,13 +177,16 @@ def sensitivity_table(rows: list[dict], sens: dict, reg: dict) -> str:
             f"overrides {base['set']}), {len(r0['seeds'])} seeds × {r0['micro_actions']:,} "
             f"micro-actions per variant, code commit `{r0['commit']}`. One choice changed at a time; "
             "final mean test error, mean ± std over seeds; verdict and p as `sagg reproduce` "
-            "(sagg_bringup/reproduce.py); *flips*: pairs whose verdict differs from the default's.", "",
+            "(sagg_bringup/reproduce.py); *flips*: pairs whose verdict differs from the default's; "
+            "*default's runs*: a strategy that does not read the choice's parameters (the default's "
+            "runs are its runs under the variant, bit for bit).", "",
             "| choice | value | " + " | ".join(strategies) + " | verdict | p | flips vs default |",
             "|---|---|" + "---|" * len(strategies) + "---|---|---|"]
     defaults = {c["name"]: c["default"] for c in sens["choices"]}
     lines = []
     for r in rows:
         cells = [f"{fmt_number(r['strategies'][s]['mean'])} ± {fmt_number(r['strategies'][s]['std'], '.2g')}"
+                 + (" (default's runs)" if s in r.get("reused", ()) else "")
                  if s in r["strategies"] else "—" for s in strategies]
         value = r["value"] if r["choice"] != DEFAULT else "paper / registry defaults"
         lines.append(f"| {r['choice']} | {value} | " + " | ".join(cells) + f" | {r['verdict']} | "
