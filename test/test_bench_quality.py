@@ -33,6 +33,9 @@ def test_bench_quality_smoke(tmp_path, capsys, monkeypatch):
     assert ana["clamp"]["mean"] < ana["clip"]["mean"] and ana["clamp"]["missed"] < ana["clip"]["missed"]
     assert "Y = wide" in text and "queries/s" in text and "Mann-Whitney" in text
     assert 0 <= cell["goals_in_reachable_area"] <= 1 and "goals in the reachable area" in text
+    # coverage: the worst test goal is at least as far from the reached tips as the mean one
+    assert all(v["coverage_mean"]["mean"] <= v["coverage_max"]["mean"] for v in res["cells"].values())
+    assert "nearest reached tip, mean over goals" in text and "nearest reached tip, max over goals" in text
     # SAGG-RANDOM's goals are uniform in Y: in [-2,2]² far fewer of them fall in the reachable area
     assert res["cells"]["evolving/wide/sagg-random"]["goals_in_reachable_area"] < \
         res["cells"]["evolving/config/sagg-random"]["goals_in_reachable_area"]

@@ -115,9 +115,12 @@ def summarise(results: dict, points: list[int]) -> dict:
             goals = [(p["reachable_goals"]["goals"], p["unreachable_goals"]["goals"]) for p in ph]
             if any(a + b for a, b in goals):
                 cell["goals_in_reachable_area"] = float(np.mean([a / max(1, a + b) for a, b in goals]))
-        cov = [r["coverage"]["max"] for r in rs if r.get("coverage")]
-        if cov:
-            cell["coverage_max"] = _stats(cov)
+        # test goal to the nearest reached tip: the worst goal, and the mean over goals (the issue's
+        # peer figure, 0.005, is its mean error, which for one-shot nearest neighbours is this mean)
+        for key in ("max", "mean"):
+            cov = [r["coverage"][key] for r in rs if r.get("coverage")]
+            if cov:
+                cell[f"coverage_{key}"] = _stats(cov)
         cells[(context, space, strategy)] = cell
     for (context, space, strategy) in results:
         if strategy != "sagg-riac" or (context, space, "sagg-random") not in results:
@@ -167,8 +170,10 @@ def markdown(summary: dict, contexts, spaces: dict, strategies, points, config_n
              lambda c: f"{c['explore_share']:.0%} / {c['share_on_reachable_goals']:.0%}", " |"),
             ("goals in the reachable area (share of goals)", "goals_in_reachable_area",
              lambda c: f"{c['goals_in_reachable_area']:.0%}", " |"),
-            ("test goal to nearest reached tip, max (mean over seeds)", "coverage_max",
-             lambda c: f"{c['coverage_max']['mean']:.4f}", " ≤ 0.01 at 20k |")]
+            ("test goal to nearest reached tip, max over goals (mean over seeds)", "coverage_max",
+             lambda c: f"{c['coverage_max']['mean']:.4f}", " ≤ 0.01 at 20k |"),
+            ("test goal to nearest reached tip, mean over goals (mean over seeds)", "coverage_mean",
+             lambda c: f"{c['coverage_mean']['mean']:.4f}", " ≤ 0.01 at 20k |")]
         for label, key, text, target in extra:
             row = ["—" if cells.get((c, space, s)) is None or key not in cells[(c, space, s)]
                    else text(cells[(c, space, s)]) for c, s in cols]
