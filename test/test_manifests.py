@@ -32,8 +32,9 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "std_srvs", "sensor_msgs"
                 "trajectory_msgs", "diagnostic_msgs", "builtin_interfaces", "rosgraph_msgs",
                 "visualization_msgs", "launch", "launch_ros", "ament_index_python"}
 # imported only behind an optional extra (`sagg bench compare --ray`, `pip install sagg_bringup[ray]`),
-# not a dependency of the ROS package
-OPTIONAL = {"ray"}
+# not a dependency of the ROS package; explauto only by lab/peer_explauto.py, a script run under the
+# peer's own interpreter (issue 10's peer comparison), never imported by sagg
+OPTIONAL = {"ray", "explauto"}
 DEP_TAGS = ("depend", "exec_depend", "build_depend", "build_export_depend", "buildtool_depend", "test_depend")
 
 
