@@ -378,6 +378,20 @@ def test_sensitivity_smoke_one_choice_end_to_end(tmp_path):
     assert not (out / "experiments" / rows[1]["experiment"] / "runs" / "actuator-riac").exists()
     md = (out / "sensitivity.md").read_text()
     assert "| reached points | on (Sec. 3.7" in md and "| default |" in md and "(default's runs)" in md
+    assert all(row["complete"] and row["seeds_planned"] == 2 for row in rows)
+    # --no-run: an interim table on the runs finished so far, nothing rerun; a variant missing a
+    # seed of one strategy is decided on the seeds all its strategies (reused ones too) have
+    lost = out / "experiments" / rows[1]["experiment"] / "runs" / "sagg-random" / "seed-1"
+    for f in lost.iterdir():
+        f.unlink()
+    lost.rmdir()
+    r = subprocess.run([str(SAGG), "reproduce", "sensitivity", "--choice", "reached points", "--scale",
+                        "smoke", "--out", str(out), "--no-run"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    interim = json.loads((out / "sensitivity.json").read_text())
+    assert [(row["seeds"], row["complete"]) for row in interim] == [([0, 1], True), ([0], False)]
+    assert not lost.exists()  # nothing was run
+    assert "(interim: 1 of 2 seeds)" in (out / "sensitivity.md").read_text()
 
 
 def test_run_commits_says_when_an_experiment_spans_several_commits(tmp_path):

@@ -166,7 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "docs/reproduction/archive is the committed one)")
     rq.add_argument("--no-run", action="store_true",
                     help="run nothing: decide on the runs finished so far (in --out, or restored from "
-                         "--archive); claims.json says per claim which seeds are in and whether all are")
+                         "--archive); claims.json (sensitivity.json) says per claim (variant) which seeds "
+                         "are in and whether all are")
     rq.add_argument("--choice", action="append", metavar="NAME",
                     help="with 'sensitivity': only this open choice (repeatable; default: all)")
     pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
@@ -400,14 +401,14 @@ def main(argv: list[str] | None = None) -> int:
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "reproduce":
-            if args.no_run and (args.estimate or args.claims == ["sensitivity"]):
-                raise ConfigError("--no-run: only when deciding claims (not with --estimate or sensitivity)")
+            if args.no_run and args.estimate:
+                raise ConfigError("--no-run: only when deciding claims or the sensitivity (not with --estimate)")
             if args.estimate:
                 estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
                 return 0
             if args.claims == ["sensitivity"]:
                 rows = run_sensitivity(args.scale, args.out, args.workers, args.ray, args.choice,
-                                       archive=args.archive)
+                                       archive=args.archive, run=not args.no_run)
             elif args.choice:
                 raise ConfigError("--choice: only with 'sagg reproduce sensitivity'")
             else:

@@ -34,11 +34,12 @@ from typing import Callable
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError
 
-from .reproduce import REGISTRY, decide, fmt_number, load_registry, run_claim_experiment
+from .reproduce import REGISTRY, decide, finished_seeds, fmt_number, load_registry, run_claim_experiment
 from .results import code_commit, run_commits
 
 SENSITIVITY_FIELDS = ("choice", "value", "overrides", "experiment", "claim", "strategies", "reused", "verdict",
-                      "p_value", "pairs", "flips", "seeds", "micro_actions", "scale", "commit")
+                      "p_value", "pairs", "flips", "seeds", "seeds_planned", "complete", "micro_actions",
+                      "scale", "commit")
 DEFAULT = "default"
 
 
@@ -125,10 +126,12 @@ def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers
                     ray_address: str | None = None, choices: list[str] | None = None,
                     registry: str | Path = REGISTRY,
                     out_fn: Callable[[str], None] = print,
-                    archive: str | Path | None = None) -> list[dict]:
+                    archive: str | Path | None = None, run: bool = True) -> list[dict]:
     """Run (or resume) the default and every variant, decide the claim on each, write
-    sensitivity.json and sensitivity.md. Returns the rows. ``archive``: as
-    :func:`~sagg_bringup.reproduce.run_reproduce`."""
+    sensitivity.json and sensitivity.md. Returns the rows. ``archive`` and ``run=False`` (decide
+    on the runs finished so far, run nothing): as :func:`~sagg_bringup.reproduce.run_reproduce`;
+    each row's ``seeds`` are then the seeds every strategy of the variant (its own runs and the
+    default's it reuses) has finished, ``complete`` whether all the scale's are there."""
     reg = load_registry(registry)
     sens = load_sensitivity(reg)
     claim = next(c for c in reg["claims"] if c["id"] == sens["claim"])
@@ -143,18 +146,21 @@ def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers
         for i, v in enumerate(vs, 1):
             out_fn(f"-- sensitivity {i}/{len(vs)}: {v['choice']} = {v['value']}")
             pool = run_claim_experiment(reg, v["name"], i, len(vs), scale, out, workers, ray_address,
-                                        pool, summaries, settings, out_fn, archive)
+                                        pool, summaries, settings, out_fn, archive, run)
     finally:
         if pool is not None:
             pool.close()
     rows = []
     for v in vs:
-        d = decide(claim, with_reused(summaries[v["name"]], summaries[vs[0]["name"]], v["reused"]), alpha)
+        summary = with_reused(summaries[v["name"]], summaries[vs[0]["name"]], v["reused"])
+        d = decide(claim, summary, alpha)
         st = settings[v["name"]]
+        done = finished_seeds(summary, list(v["experiment"]["strategies"]) + v["reused"])
         rows.append({"choice": v["choice"], "value": v["value"], "overrides": v["set"],
                      "experiment": v["name"], "claim": claim["id"], "reused": v["reused"],
                      "strategies": d["ours"]["strategies"], "verdict": d["verdict"],
-                     "p_value": d["p_value"], "pairs": d["pairs"], "seeds": list(range(st["seeds"])),
+                     "p_value": d["p_value"], "pairs": d["pairs"], "seeds": done,
+                     "seeds_planned": st["seeds"], "complete": len(done) == st["seeds"],
                      "micro_actions": st["micro_actions"], "scale": scale,
                      **run_commits(out / "experiments" / v["name"], commit)})
     for r in rows:
@@ -174,7 +180,7 @@ def sensitivity_table(rows: list[dict], sens: dict, reg: dict) -> str:
     r0 = rows[0] if rows else {"seeds": [], "micro_actions": 0, "commit": "?", "scale": "?"}
     head = [f"# Sensitivity of claim `{sens['claim']}` to the open choices ({r0['scale']} scale)", "",
             f"Experiment `{sens['experiment']}` (Sec. {base['section']}, `{base['config']}`, "
-            f"overrides {base['set']}), {len(r0['seeds'])} seeds × {r0['micro_actions']:,} "
+            f"overrides {base['set']}), {r0.get('seeds_planned', len(r0['seeds']))} seeds × {r0['micro_actions']:,} "
             f"micro-actions per variant, code commit `{r0['commit']}`. One choice changed at a time; "
             "final mean test error, mean ± std over seeds; verdict and p as `sagg reproduce` "
             "(sagg_bringup/reproduce.py); *flips*: pairs whose verdict differs from the default's; "
@@ -185,11 +191,16 @@ def sensitivity_table(rows: list[dict], sens: dict, reg: dict) -> str:
     defaults = {c["name"]: c["default"] for c in sens["choices"]}
     lines = []
     for r in rows:
+        value = r["value"] if r["choice"] != DEFAULT else "paper / registry defaults"
+        if not r["seeds"]:
+            lines.append(f"| {r['choice']} | {value} | " + " | ".join("—" for _ in strategies)
+                         + " | not run yet | — | — |")
+            continue
         cells = [f"{fmt_number(r['strategies'][s]['mean'])} ± {fmt_number(r['strategies'][s]['std'], '.2g')}"
                  + (" (default's runs)" if s in r.get("reused", ()) else "")
                  if s in r["strategies"] else "—" for s in strategies]
-        value = r["value"] if r["choice"] != DEFAULT else "paper / registry defaults"
-        lines.append(f"| {r['choice']} | {value} | " + " | ".join(cells) + f" | {r['verdict']} | "
+        interim = "" if r.get("complete", True) else f" (interim: {len(r['seeds'])} of {r['seeds_planned']} seeds)"
+        lines.append(f"| {r['choice']} | {value} | " + " | ".join(cells) + f" | {r['verdict']}{interim} | "
                      f"{fmt_number(r['p_value'])} | {'; '.join(r['flips']) or '—'} |")
     notes = ["", "Defaults of each choice: " + "; ".join(f"{k}: {v}" for k, v in defaults.items()) + "."]
     return "\n".join(head + lines + notes)
