@@ -379,6 +379,7 @@ def test_sensitivity_smoke_one_choice_end_to_end(tmp_path):
     md = (out / "sensitivity.md").read_text()
     assert "| reached points | on (Sec. 3.7" in md and "| default |" in md and "(default's runs)" in md
     assert all(row["complete"] and row["seeds_planned"] == 2 for row in rows)
+    assert (out / "sensitivity.png").stat().st_size > 0 and "](sensitivity.png)" in md
     # --no-run: an interim table on the runs finished so far, nothing rerun; a variant missing a
     # seed of one strategy is decided on the seeds all its strategies (reused ones too) have
     lost = out / "experiments" / rows[1]["experiment"] / "runs" / "sagg-random" / "seed-1"

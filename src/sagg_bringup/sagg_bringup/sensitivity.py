@@ -23,6 +23,7 @@ Layout of ``--out DIR``::
     DIR/sensitivity.json                      one row per variant (SENSITIVITY_FIELDS)
     DIR/sensitivity.md                        the table: per variant the strategies' final errors,
                                               the claim's verdict and p, and what flipped
+    DIR/sensitivity.png                       the same as a picture: each variant's final errors
 """
 from __future__ import annotations
 
@@ -30,6 +31,8 @@ import os
 import re
 from pathlib import Path
 from typing import Callable
+
+import numpy as np
 
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError
@@ -163,10 +166,13 @@ def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers
                      "seeds_planned": st["seeds"], "complete": len(done) == st["seeds"],
                      "micro_actions": st["micro_actions"], "scale": scale,
                      **run_commits(out / "experiments" / v["name"], commit)})
-    for r in rows:
-        r["flips"] = flips(rows[0], r)
+    for r in rows:  # a variant with no finished run (--no-run) has nothing to flip
+        r["flips"] = flips(rows[0], r) if r["seeds"] and rows[0]["seeds"] else []
     write_json_atomic(out / "sensitivity.json", rows)
-    (out / "sensitivity.md").write_text(sensitivity_table(rows, sens, reg) + "\n")
+    text = sensitivity_table(rows, sens, reg)
+    if plot_sensitivity(rows, out / "sensitivity.png", f"claim {sens['claim']}"):
+        text += "\n\n![final mean test error per variant](sensitivity.png)"
+    (out / "sensitivity.md").write_text(text + "\n")
     flipped = sum(bool(r["flips"]) for r in rows)
     out_fn(f"wrote {out / 'sensitivity.json'}, {out / 'sensitivity.md'}: {len(rows)} variants, "
            f"{flipped} with a flipped conclusion")
@@ -204,3 +210,43 @@ def sensitivity_table(rows: list[dict], sens: dict, reg: dict) -> str:
                      f"{fmt_number(r['p_value'])} | {'; '.join(r['flips']) or '—'} |")
     notes = ["", "Defaults of each choice: " + "; ".join(f"{k}: {v}" for k, v in defaults.items()) + "."]
     return "\n".join(head + lines + notes)
+
+
+def plot_sensitivity(rows: list[dict], path: Path, title: str) -> bool:
+    """One row per variant, the strategies' final mean test errors (mean ± std over seeds) side by
+    side, the default's as vertical lines, a variant that flips a conclusion in red. False when no
+    variant has runs (nothing drawn)."""
+    done = [r for r in rows if r["seeds"]]
+    if not done:
+        return False
+    # lazy (heavy): matplotlib
+    import matplotlib
+    matplotlib.use("Agg")
+    # lazy (heavy): matplotlib
+    import matplotlib.pyplot as plt
+
+    strategies = list(done[0]["strategies"])
+    fig, ax = plt.subplots(figsize=(8.5, 0.42 * len(done) + 1.6))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, s in enumerate(strategies):
+        c = colours[k % len(colours)]
+        ys = [i + (k - (len(strategies) - 1) / 2) * 0.15 for i in range(len(done))]
+        mean = [r["strategies"][s]["mean"] if s in r["strategies"] else np.nan for r in done]
+        std = [r["strategies"][s]["std"] if s in r["strategies"] else np.nan for r in done]
+        ax.errorbar(mean, ys, xerr=std, fmt="o", ms=4, capsize=2, color=c, label=s)
+        if DEFAULT == done[0]["choice"] and s in done[0]["strategies"]:
+            ax.axvline(done[0]["strategies"][s]["mean"], color=c, lw=0.6, ls=":")
+    labels = [("default" if r["choice"] == DEFAULT else f"{r['choice']}: {r['value']}")
+              + ("" if r.get("complete", True) else f" ({len(r['seeds'])} seeds)") for r in done]
+    ax.set_yticks(range(len(done)), labels, fontsize=7)
+    for t, r in zip(ax.get_yticklabels(), done):
+        if r.get("flips"):
+            t.set_color("red")
+    ax.invert_yaxis()
+    ax.set_xlabel("final mean test error (mean ± std over seeds)")
+    ax.set_title(f"{title}: one open choice changed at a time (red: a conclusion flips)", fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
