@@ -222,6 +222,8 @@ def test_run_resume_continues_the_run(run_dir, tmp_path):
     ck = json.loads((run / "checkpoint" / "learner.json").read_text())
     r = relearn([run / "bag", run / "bag2"], tmp_path / "re", out=lambda _: None)
     assert r["memory"]["digest"] == s["memory"]["digest"] == ck["memory_digest"]
+    # every report the learner counts is in the bags (a run used to end before a slow tail came)
+    assert s["learner_status"]["reports"] == s["reports"] and not s["bag"]["dropped"], s["bag"]
     assert r["goals_match"] and r["regions_match"] and r["reports"] == s["reports"], {
         k: r.get(k) for k in ("goals_match", "goal_mismatches", "regions_match", "regions_snapshots_checked",
                               "regions_snapshots_differing", "last_regions_snapshot_reports", "reports", "goals", "rejected",

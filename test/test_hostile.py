@@ -329,6 +329,28 @@ def test_run_state_drops_reports_far_ahead_and_invalid_ones_without_consuming_th
     assert st.rejected == {"/sagg/competence seq out of window": 1, "/sagg/competence invalid content": 1}
 
 
+def test_run_state_waits_for_every_report_the_learner_counts_and_names_a_missing_tail():
+    """A recorder behind on /sagg/competence (a resumed learner's re-published history on a loaded
+    machine) must not let the run end when the samples are in: the nodes would take the reports
+    still in flight with them, a tail no sequence gap shows (a CI failure: 586 reports missing from
+    a resumed run's bag, counted nowhere)."""
+    from rclpy.serialization import deserialize_message
+    from sagg_msgs.msg import LearnerStatus
+    st = RunState(task_lower=np.array([-10.0, -10.0]), task_upper=np.array([10.0, 10.0]))
+    st.on_status(LearnerStatus(samples=0, reports=3))
+    for seq in (1, 2):
+        st.on_report(deserialize_message(report_bytes(seq), CompetenceReport))
+    now = st.report_t
+    assert not st.all_recorded(now + 0.1, patience=5.0)  # samples in, a report still on its way
+    assert st.unrecorded() == {"/sagg/competence": 1}
+    assert st.all_recorded(now + 5.1, patience=5.0)  # none for `patience` s: it will not come
+    st.on_report(deserialize_message(report_bytes(3), CompetenceReport))
+    assert st.all_recorded(st.report_t, patience=5.0) and st.unrecorded() == {}
+    st.on_status(LearnerStatus(samples=4, reports=3))
+    assert not st.all_recorded(st.report_t + 100, patience=5.0)  # samples are always waited for
+    assert st.unrecorded() == {"/sagg/sample": 4}
+
+
 # ------------------------------------------------------------------ row 9: a second publisher
 def wait_for(cond, timeout=10.0):
     t_end = time.monotonic() + timeout

@@ -95,7 +95,7 @@ MESSAGES = {
                              delta_y=[0.1 + 0.2, -0.0]),
     'LearnerStatus': lambda: LearnerStatus(
         header=_header(frame=''), strategy='SAGG-RIAC', micro_actions=30_000, goals=U64_MAX,
-        samples=29_999, last_competence=-0.0, micro_actions_per_second=0.1 + 0.2, paused=True,
+        samples=29_999, reports=41_234, last_competence=-0.0, micro_actions_per_second=0.1 + 0.2, paused=True,
         pause_reason='waiting for /joint_states \u00e9'),
     'Evaluation': lambda: Evaluation(header=_header(), micro_actions=U64_MAX, mean_error=0.1 + 0.2,
                                      median_error=NAN_PAYLOAD, errors=TRICKY * 3),
@@ -156,7 +156,7 @@ def test_field_types():
         'delta_alpha': 'sequence<double>', 'delta_y': 'sequence<double>'}
     assert LearnerStatus.get_fields_and_field_types() == {
         'header': 'std_msgs/Header', 'strategy': 'string', 'micro_actions': 'uint64',
-        'goals': 'uint64', 'samples': 'uint64', 'last_competence': 'double',
+        'goals': 'uint64', 'samples': 'uint64', 'reports': 'uint64', 'last_competence': 'double',
         'micro_actions_per_second': 'double', 'paused': 'boolean', 'pause_reason': 'string'}
     assert Evaluation.get_fields_and_field_types() == {
         'header': 'std_msgs/Header', 'micro_actions': 'uint64', 'mean_error': 'double',

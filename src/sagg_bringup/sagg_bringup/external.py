@@ -557,7 +557,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                     raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} micro-actions); "
                                      f"node logs in {out / 'logs'}; driver: "
                                      + ("; ".join(monitor.missing(session.node)) or "meets the contract"))
-                if done and st.samples >= st.status["samples"]:
+                if done and st.all_recorded(now, stall_timeout):
                     if evaluator is None or evaluator.finished(st.samples):
                         break
             bar.update(st.samples, force=True, **st.progress())
@@ -594,8 +594,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         memory=_memory_info(samples),
         test_goals=robot_summary["goals"],
         splits=tracker.splits,
-        bag={"path": str(out / "bag"), "paths": [str(out / "bag")], "storage": "mcap",
-             "topics": bag_topics, "sequence_gaps": st.gaps},
+        bag=session.bag_summary([out / "bag"], st.gaps),
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0},
         driver="external", robot_evaluation=robot_summary,
         curve_source="simulated (offline, from the recorded samples)" if simulated else "on the robot",

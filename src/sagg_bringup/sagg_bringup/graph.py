@@ -208,9 +208,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         memory={"samples": len(memory), "digest": memory.digest(), "bytes": int(memory.nbytes)},
         test_goals=evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
         splits=tracker.splits,
-        bag={"path": str(bag_path), "paths": [str(b) for b in prior_bags + [bag_path]], "storage": "mcap",
-             "topics": bag_topics, "sequence_gaps": st.gaps, "rejected": session.rejected(),
-             "dropped": dict(recorder.dropped), "dropped_not_estimated": sorted(recorder.drops_unknown)},
+        bag=session.bag_summary(list(prior_bags) + [bag_path], st.gaps),
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
 
     def report_now() -> None:

@@ -22,6 +22,7 @@ class RunState:
     goal_competence: dict[int, float] = field(default_factory=dict)
     report_ma: dict[int, int] = field(default_factory=dict)
     reports: int = 0
+    report_t: float = field(default_factory=time.perf_counter)  # last /sagg/competence arrival
     last_regions: Any = None
     last_competence: float = float("nan")
     last_error: float = float("nan")
@@ -101,6 +102,7 @@ class RunState:
 
     def on_report(self, m) -> None:
         """/sagg/competence: the micro-actions at each report, the competence of each goal."""
+        self.report_t = time.perf_counter()  # the stream moves (a resumed learner's re-publications too)
         if int(m.seq) <= self.reports:
             return  # republished by a resumed learner
         if int(m.seq) > self.reports + self.window:
@@ -130,6 +132,27 @@ class RunState:
         self.status = _status_dict(m, self.status_rate)
         return True
 
+    def unrecorded(self) -> dict[str, int]:
+        """What the learner's last /sagg/status counts as published and the recorder has not taken:
+        {"/sagg/sample": n, "/sagg/competence": n}, topics with n > 0 only."""
+        if self.status is None:
+            return {}
+        missing = {"/sagg/sample": self.status["samples"] - self.samples,
+                   "/sagg/competence": self.status.get("reports", 0) - self.reports}
+        return {t: n for t, n in missing.items() if n > 0}
+
+    def all_recorded(self, now: float, patience: float) -> bool:
+        """Whether the recorder has taken every sample and competence report the learner's last
+        status counts, so the nodes may stop. Reports are not held back by the learner (samples
+        are, by the recorder's acknowledgements): a recorder that fell behind on /sagg/competence,
+        e.g. behind a resumed learner's re-published history on a loaded machine, takes them at
+        the reliable transport's repair rate, and they would be lost with the learner's process.
+        They are waited for while they keep coming; after ``patience`` s without one the run
+        ends and the rest are counted as dropped (:meth:`unrecorded`)."""
+        if self.status is None or self.samples < self.status["samples"]:
+            return False
+        return self.reports >= self.status.get("reports", 0) or now - self.report_t >= patience
+
     def progress(self) -> dict:
         """The progress bar's fields."""
         return {"goals": len(self.goals),
@@ -158,7 +181,7 @@ class RunState:
 
 def _status_dict(m, rate: bool = True) -> dict:
     out = {"strategy": m.strategy, "micro_actions": int(m.micro_actions), "goals": int(m.goals),
-           "samples": int(m.samples), "last_competence": float(m.last_competence)}
+           "samples": int(m.samples), "reports": int(m.reports), "last_competence": float(m.last_competence)}
     if rate:
         out["micro_actions_per_second"] = float(m.micro_actions_per_second)
     out.update(paused=bool(m.paused), pause_reason=m.pause_reason)

@@ -176,7 +176,7 @@ class GraphSession:
             elif not learner_done and now - last_progress[1] > stall_timeout:
                 raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} {unit}); "
                                  f"node logs in {self.out / 'logs'}")
-            if learner_done and st.samples >= st.status["samples"]:
+            if learner_done and st.all_recorded(now, stall_timeout):
                 if done_at is None:
                     done_at = now
                 if may_end(now - done_at):
@@ -209,7 +209,7 @@ class GraphSession:
                 paused = paused or bool(st.status and st.status.get("paused"))
                 if st.samples != last:
                     last, t_last = st.samples, now
-                elif paused and st.status and st.samples >= st.status["samples"] and now - t_last >= 0.5:
+                elif paused and st.all_recorded(now, 0.5) and now - t_last >= 0.5:
                     break
         finally:
             self.node.destroy_client(cli)
@@ -280,6 +280,23 @@ class GraphSession:
         self.executor.shutdown()
         self.node.destroy_node()
         self._rclpy.shutdown(context=self.ctx)
+
+    def dropped(self) -> dict[str, int]:
+        """Messages published but never recorded: the gaps the recorder counted in the publishers'
+        sequence numbers, and what the learner's last status counts beyond what came (a tail has
+        no gap to show)."""
+        out = dict(self.recorder.dropped) if self.recorder is not None else {}
+        for topic, n in self.st.unrecorded().items():
+            out[topic] = max(out.get(topic, 0), n)
+        return out
+
+    def bag_summary(self, paths: list[Path], sequence_gaps: dict[str, int]) -> dict:
+        """summary.json's ``bag``: this run's bag (the last of ``paths``, the earlier segments' first),
+        the recorded topics, the sequence gaps the handlers saw, the messages rejected and dropped."""
+        return {"path": str(paths[-1]), "paths": [str(b) for b in paths], "storage": "mcap",
+                "topics": self.bag.topics(), "sequence_gaps": sequence_gaps, "rejected": self.rejected(),
+                "dropped": self.dropped(),
+                "dropped_not_estimated": sorted(self.recorder.drops_unknown) if self.recorder else []}
 
     def summary(self, learner_params: dict, config: dict, params: dict, params_file: Path, timing: str,
                 micro_actions: int, curve: list[dict], area, t_start: float, prior_samples: int = 0,

@@ -158,10 +158,7 @@ def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_di
         memory=memory,
         test_goals=goals_test.tolist() if goals_test is not None else None,
         splits=[],
-        bag={"path": str(out / "bag"), "storage": "mcap", "topics": session.bag.topics(),
-             "sequence_gaps": {"/sagg/sample": st.gaps["/sagg/sample"]}, "rejected": session.rejected(),
-             "dropped": dict(session.recorder.dropped),
-             "dropped_not_estimated": sorted(session.recorder.drops_unknown)},
+        bag=session.bag_summary([out / "bag"], {"/sagg/sample": st.gaps["/sagg/sample"]}),
         synergy={"setup": setup_name, "outcome_extents": outcome_extents(outcomes)})
     return session.finish(summary, (lambda: write_synergy_report(summary, out)) if report else None)
 

@@ -134,6 +134,7 @@ class LearnerNodeBase(Node):
         msg.micro_actions = micro_actions
         msg.goals = self.goals_received
         msg.samples = samples
+        msg.reports = int(self.learner.reports_sent)
         msg.last_competence = float(self.learner.last_competence)
         msg.micro_actions_per_second = rate
         msg.paused = paused
