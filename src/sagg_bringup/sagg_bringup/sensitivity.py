@@ -244,9 +244,9 @@ def plot_sensitivity(rows: list[dict], path: Path, title: str) -> bool:
             t.set_color("red")
     ax.invert_yaxis()
     ax.set_xlabel("final mean test error (mean ± std over seeds)")
-    ax.set_title(f"{title}: one open choice changed at a time (red: a conclusion flips)", fontsize=9)
+    ax.set_title(f"{title}: one open choice changed at a time\n(red: a conclusion flips)", fontsize=9)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
     return True
