@@ -147,8 +147,23 @@ def test_fingerprint_names_config_file_changes(tmp_path):
     with pytest.raises(ConfigError, match=r"parameters\.sagg_learner\.q: 20 -> 25"):
         check_fingerprint(tmp_path / "out", fp2)
     fp3 = make_fingerprint(CONFIG, ["sagg-riac"], [0, 1, 2], 100, 50, {})
-    with pytest.raises(ConfigError, match=r"seeds: \[0, 1\] -> \[0, 1, 2\]"):
-        check_fingerprint(tmp_path / "out", fp3)
+    assert check_fingerprint(tmp_path / "out", fp3) is True  # the same settings, one seed more
+
+
+def test_more_seeds_and_strategies_extend_a_comparison(tmp_path):
+    """The run set may grow on a restart (each run is validated on its own); the stored
+    fingerprint follows it, and any other setting still refuses."""
+    out = tmp_path / "out"
+    fp = make_fingerprint(CONFIG, ["sagg-riac"], [0, 1], 100, 50, {})
+    assert check_fingerprint(out, fp) is False
+    fp2 = make_fingerprint(CONFIG, ["sagg-riac", "sagg-random"], [0, 1, 2, 3], 100, 50, {})
+    assert check_fingerprint(out, fp2) is True
+    stored = json.loads((out / "compare.json").read_text())
+    assert stored["seeds"] == [0, 1, 2, 3] and stored["strategies"] == ["sagg-riac", "sagg-random"]
+    fp3 = make_fingerprint(CONFIG, ["sagg-riac"], [0, 1, 2, 3, 4], 200, 50, {})
+    with pytest.raises(ConfigError, match=r"micro_actions: 100 -> 200"):
+        check_fingerprint(out, fp3)
+    assert json.loads((out / "compare.json").read_text())["seeds"] == [0, 1, 2, 3]
 
 
 def test_bad_arguments_name_the_field(tmp_path):

@@ -76,11 +76,18 @@ def make_fingerprint(config: str | Path, strategies: list[str], seeds: list[int]
             "overrides": _jsonable(dict(overrides or {})), "parameters": base}
 
 
-def fingerprint_differences(old: dict, new: dict) -> list[str]:
-    """Names of the settings that differ (``parameters.<node>.<name>`` for node parameters)."""
+# Which runs a comparison holds, not what any run computes: every run's result.json is checked
+# against its own strategy, seed and settings (validate_result) and the summary reads the requested
+# runs only, so a restart may add (or leave out) seeds and strategies.
+RUN_SET_KEYS = ("seeds", "strategies")
+
+
+def fingerprint_differences(old: dict, new: dict, ignore: tuple[str, ...] = ()) -> list[str]:
+    """Names of the settings that differ (``parameters.<node>.<name>`` for node parameters),
+    top-level keys in ``ignore`` left out."""
     diffs = []
     for key in sorted(set(old) | set(new)):
-        if key == "config_file":
+        if key == "config_file" or key in ignore:
             continue  # the same settings from a moved/copied file are the same experiment
         if key == "parameters":
             po, pn = old.get(key, {}), new.get(key, {})
@@ -97,7 +104,8 @@ def fingerprint_differences(old: dict, new: dict) -> list[str]:
 
 def check_fingerprint(out: Path, fp: dict) -> bool:
     """Write ``DIR/compare.json`` on the first start; on a restart raise ConfigError naming every
-    differing setting. Returns True when resuming."""
+    differing setting, other than the run set (RUN_SET_KEYS: more seeds or strategies extend the
+    comparison, and compare.json is rewritten to the new set). Returns True when resuming."""
     path = Path(out) / "compare.json"
     if not path.exists():
         Path(out).mkdir(parents=True, exist_ok=True)
@@ -107,10 +115,12 @@ def check_fingerprint(out: Path, fp: dict) -> bool:
         old = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise ConfigError(f"{path}: unreadable fingerprint ({exc}); use a new --out") from exc
-    diffs = fingerprint_differences(old, fp)
+    diffs = fingerprint_differences(old, fp, ignore=RUN_SET_KEYS)
     if diffs:
         raise ConfigError(f"--out {out} holds a comparison with different settings; differing: "
                           + "; ".join(diffs) + ". Use a new --out or the original settings.")
+    if fingerprint_differences(old, fp):
+        write_json_atomic(path, fp)
     return True
 
 
