@@ -205,3 +205,35 @@ def test_graph_session_closed_before_run_leaves_a_readable_bag_and_no_context(tm
     assert not session.ctx.ok()
     with AnyReader([tmp_path / "bag"], default_typestore=make_typestore()) as reader:
         assert reader.message_count == 0
+
+
+def test_final_drain_takes_the_stopped_nodes_backlog_and_not_a_live_drivers_stream(tmp_path):
+    # after the nodes stop, sagg run drains the recorder until the nodes' topics fall silent; an
+    # external driver's joint states and task point never do, and must not hold the run to the
+    # drain's limit (it did: every `--driver external` run ended with a 60 s wait)
+    from sagg_bringup.session import GraphSession
+
+    params = graph_params(load_graph_config(ROOT / "config/arm8.yaml"), 100, "lockstep")
+    session = GraphSession([], None, graph_topics(params["sagg_learner"], "lockstep"), tmp_path / "bag",
+                           tmp_path, drain=10, live_topics=("/joint_states", "/tip_position"))
+    spins = []
+
+    class Stream:
+        """A driver publishing for ever; the stopped learner's backlog: 30 more samples."""
+        def spin_once(self, timeout_sec):  # noqa: ARG002
+            spins.append(1)
+            time.sleep(0.01)
+            session.bag.counts["/joint_states"] += 1
+            session.bag.counts["/tip_position"] += 1
+            if len(spins) <= 30:
+                session.bag.counts["/sagg/sample"] += 1
+
+    real = session.executor
+    session.executor, session.recorder = Stream(), object()
+    try:
+        session.drain_recorder(quiet=0.2, limit=60.0)
+    finally:
+        session.executor, session.recorder = real, None
+        session.close()
+    assert session.bag.counts["/sagg/sample"] == 30  # the whole backlog was taken
+    assert 31 <= len(spins) < 1000  # then it stopped, ~0.2 s later (at the limit: ~6,000 spins)

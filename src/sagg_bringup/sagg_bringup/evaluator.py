@@ -178,7 +178,10 @@ class Evaluator:
         """Every checkpoint up to ``upto`` micro-actions is evaluated."""
         return all(c in self.errors for c in self.checkpoints if c <= upto)
 
-    def stop(self, timeout: float = 5.0) -> None:
+    def stop(self, timeout: float = 1.0) -> None:
+        """Stop the process: it exits at once when idle (every checkpoint done: the end of a run);
+        one still evaluating (a failed or interrupted run, whose results nobody reads any more) is
+        killed after ``timeout`` s."""
         try:
             self.inbox.put(("stop",))
         except (OSError, ValueError):

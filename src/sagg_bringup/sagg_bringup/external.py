@@ -459,7 +459,9 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     # the driver runs in the environment's domain and discovery range (not a private one)
     if domain_id is None:
         domain_id = int(os.environ.get("ROS_DOMAIN_ID") or 0)
-    session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False)
+    # the driver's state streams go on after the nodes stop: the final drain does not wait for them
+    session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False,
+                           live_topics=("/joint_states", task_topic))
     st = session.st
     try:
         monitor = DriverMonitor(lp["joints"], task_topic, cmd_topic, lp["settle_velocity"])

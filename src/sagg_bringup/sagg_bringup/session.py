@@ -47,11 +47,15 @@ class GraphSession:
     and its recorder (feeding :attr:`st`, a :class:`RunState`); Ctrl-C / SIGTERM as a flag; the wait
     for the learner to finish (a node exiting or a stall is a :class:`GraphError`); the cleanup in
     every case; the summary's common keys. ``drain``: at most this many queued callbacks are taken
-    per loop before the bookkeeping."""
+    per loop before the bookkeeping. ``live_topics``: recorded topics whose publishers outlive the
+    nodes (an external driver's joint states and task point), which the final drain does not wait
+    to fall silent."""
 
     def __init__(self, procs: list[NodeProcess], domain_id: int | None, topics: list[TopicSpec],
-                 bag_path: Path, out: Path, drain: int, status_rate: bool = True, localhost: bool = True):
+                 bag_path: Path, out: Path, drain: int, status_rate: bool = True, localhost: bool = True,
+                 live_topics: tuple[str, ...] = ()):
         self.procs, self.topics, self.out, self.drain = procs, topics, out, drain
+        self.live_topics = frozenset(live_topics)
         self.nodes = NodeGroup(procs, domain_id, localhost)
         self.domain, self.env = self.nodes.domain, self.nodes.env
         # lazy (heavy): ROS
@@ -217,16 +221,22 @@ class GraphSession:
     def drain_recorder(self, quiet: float = 0.5, limit: float = 60.0) -> None:
         """After the nodes stopped: take what the recorder's subscriptions still hold (a recorder
         that fell behind, e.g. on an interrupted run on a loaded machine, would otherwise lose its
-        backlog), until nothing came for ``quiet`` s (at most ``limit`` s)."""
+        backlog), until nothing came on the stopped nodes' topics (all but :attr:`live_topics`)
+        for ``quiet`` s (at most ``limit`` s)."""
         if self.recorder is None or self.bag.closed:
             return
+
+        def stopped_nodes_messages() -> int:
+            return sum(n for t, n in self.bag.counts.items() if t not in self.live_topics)
+
         t_end = time.perf_counter() + limit
-        last, t_last = self.bag.written, time.perf_counter()
+        last, t_last = stopped_nodes_messages(), time.perf_counter()
         while time.perf_counter() < t_end:
             self.executor.spin_once(timeout_sec=0.05)
             now = time.perf_counter()
-            if self.bag.written != last:
-                last, t_last = self.bag.written, now
+            written = stopped_nodes_messages()
+            if written != last:
+                last, t_last = written, now
             elif now - t_last >= quiet:
                 break
 
