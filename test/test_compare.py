@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -121,6 +122,23 @@ def test_a_third_start_runs_nothing(resumed):
     assert r.returncode == 0, r.stderr
     assert f"{len(STRATS) * SEEDS} finished run(s) kept and skipped, 0 to run" in r.stdout
     assert {f: f.stat().st_mtime_ns for f in result_files(out)} == before
+
+
+def test_more_seeds_extend_a_finished_comparison(resumed, tmp_path):
+    """`--seeds` raised on a finished comparison (as `sagg reproduce` does when the registry asks
+    more seeds): the finished runs are kept, only the new seed runs, the summary has every seed."""
+    out = tmp_path / "out"
+    shutil.copytree(resumed["out"], out)
+    before = {f.relative_to(out): f.read_bytes() for f in result_files(out)}
+    cmd = compare_cmd(out)
+    cmd[cmd.index("--seeds") + 1] = str(SEEDS + 1)
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert f"{len(STRATS) * SEEDS} finished run(s) kept and skipped, {len(STRATS)} to run" in r.stdout
+    assert {f.relative_to(out): f.read_bytes() for f in result_files(out) if f.relative_to(out) in before} == before
+    summ = json.loads((out / "summary.json").read_text())
+    assert all(summ["strategies"][st]["seeds"] == list(range(SEEDS + 1)) for st in STRATS)
+    assert json.loads((out / "compare.json").read_text())["seeds"] == list(range(SEEDS + 1))
 
 
 def test_resuming_with_other_settings_is_refused(resumed):
