@@ -88,7 +88,7 @@ def fingerprint_differences(old: dict, new: dict, ignore: tuple[str, ...] = ()) 
     diffs = []
     for key in sorted(set(old) | set(new)):
         if key == "config_file" or key in ignore:
-            continue  # the same settings from a moved/copied file are the same experiment
+            continue  # (config_file: the same settings from a moved/copied file are the same experiment)
         if key == "parameters":
             po, pn = old.get(key, {}), new.get(key, {})
             for node in sorted(set(po) | set(pn)):
