@@ -119,7 +119,7 @@ def check_fingerprint(out: Path, fp: dict) -> bool:
     if diffs:
         raise ConfigError(f"--out {out} holds a comparison with different settings; differing: "
                           + "; ".join(diffs) + ". Use a new --out or the original settings.")
-    if fingerprint_differences(old, fp):
+    if any(old.get(k) != fp.get(k) for k in RUN_SET_KEYS):
         write_json_atomic(path, fp)
     return True
 
