@@ -11,8 +11,9 @@
 # Each step leaves a stamp file in .venv, so a second call only redoes what changed:
 #   requirements.txt             -> reinstall wheels (then rebuild msgs, reinstall packages)
 #   any file under src/sagg_msgs -> rebuild and reinstall sagg_msgs
-#   setup.py/setup.cfg/package.xml/resource of a Python package, or the set of installed
-#   launch/config files          -> reinstall the editable Python packages
+#   setup.py/setup.cfg/package.xml/resource or a C source (the compiled neighbour search) of a
+#   Python package, or the set of installed launch/config files
+#                                -> reinstall the editable Python packages (rebuilding C sources)
 # Needs only Python 3.11 (falls back to python3), gcc, cmake and make.
 
 SHELL := /bin/bash
@@ -28,6 +29,8 @@ MSGS_BUILD := $(VENV)/build/sagg_msgs
 
 PY_PKGS := sagg_common sagg_goal_generator sagg_low_level sagg_sim_bridge sagg_bringup
 PY_PKG_META := $(foreach p,$(PY_PKGS),src/$(p)/setup.py src/$(p)/setup.cfg src/$(p)/package.xml src/$(p)/resource/$(p))
+# compiled sources (setup.py ext_modules): a changed one is rebuilt by the editable reinstall
+PY_PKG_C := $(wildcard $(foreach p,$(PY_PKGS),src/$(p)/$(p)/*.c))
 MSGS_SRCS := $(shell find src/sagg_msgs -type f -not -name '*.pyc' 2>/dev/null | sort)
 
 STAMP_VENV := $(VENV)/.stamp-venv
@@ -102,7 +105,7 @@ $(DATA_LIST): FORCE $(STAMP_VENV)
 
 # Editable installs (PEP 660). pip puts the console scripts in .venv/bin; the setup.cfg
 # [develop]/[install] script dirs (lib/<pkg>, for `ros2 run`) only apply to colcon/setup.py.
-$(STAMP_PKGS): $(STAMP_WHEELS) $(PY_PKG_META) $(DATA_LIST)
+$(STAMP_PKGS): $(STAMP_WHEELS) $(PY_PKG_META) $(PY_PKG_C) $(DATA_LIST)
 	@# PYTHONWARNINGS: hide setuptools' generic "editable installation" banner (a UserWarning).
 	PYTHONWARNINGS=ignore::UserWarning $(PIP) install --no-input -q --no-deps --no-build-isolation $(foreach p,$(PY_PKGS),-e src/$(p))
 	@touch $@
@@ -127,5 +130,6 @@ lock:
 clean:
 	rm -rf $(VENV) $(VENV)-lock
 	rm -rf $(foreach p,$(PY_PKGS),src/$(p)/$(p).egg-info src/$(p)/build)
+	rm -f $(foreach p,$(PY_PKGS),src/$(p)/$(p)/*.so)
 
 FORCE:

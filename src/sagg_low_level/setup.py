@@ -1,4 +1,4 @@
-from setuptools import find_packages, setup
+from setuptools import Extension, find_packages, setup
 
 PACKAGE = 'sagg_low_level'
 
@@ -9,13 +9,23 @@ DATA_FILES = [
     ('share/' + PACKAGE, ['package.xml']),
 ]
 
+# The sample memory's approximate neighbour search, compiled (sagg_low_level/knn_kernel.c; plain C99
+# against the CPython API, no numpy headers). -ffp-contract=off: no fused multiply-add, so its
+# distances are the canonical ones numpy computes (memory_distance), bit for bit.
+KNN_KERNEL = Extension(
+    PACKAGE + '.knn_kernel',
+    sources=[PACKAGE + '/knn_kernel.c'],
+    extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
+)
+
 setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
     data_files=DATA_FILES,
     install_requires=['setuptools'],
-    zip_safe=True,
+    ext_modules=[KNN_KERNEL],
+    zip_safe=False,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',
     description='SAGG-RIAC low level: sample memory, local inverse models, reacher, synergy optimiser, actuator babbling, and the learner node.',

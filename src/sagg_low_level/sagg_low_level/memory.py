@@ -173,7 +173,8 @@ class SampleMemory(SampleStore, BlockIndex, KnnSearch):
             raise ValueError(f"beam_ratio must be in (0, 1], got {beam_ratio!r}")
         self._beam_ratio = float(beam_ratio)
         # approximate search: nodes kept per box height (0 = leaves; heights stay far below 64)
-        self._widths = [max(1, math.ceil(self._checks * self._beam_ratio**h)) for h in range(64)]
+        self._widths = np.array([max(1, math.ceil(self._checks * self._beam_ratio**h)) for h in range(64)],
+                                dtype=np.int64)
 
         self._init_store(cap)
         self._init_index()

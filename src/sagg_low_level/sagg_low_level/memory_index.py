@@ -101,6 +101,7 @@ class BlockIndex:
         self._pts = np.empty((n, 0))  # leaf slot j holds points j*b .. j*b + b - 1, dimension-major
         self._pidx = np.empty(0, dtype=np.int64)  # their sample indices
         self._roots: list[tuple[int, int]] = []  # per height: slot range of root nodes
+        self._root_groups: list[np.ndarray] = []  # per height: F-wide groups of the root nodes
         self._height = -1  # highest height in use
         # Exact duplicates of alpha (the rest posture after every reset!) would be spread by the
         # median splits over almost every leaf of a block, each leaf box then reaching from the

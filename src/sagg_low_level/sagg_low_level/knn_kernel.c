@@ -1,0 +1,424 @@
+/* The approximate k-nearest-neighbour search of the sample memory, compiled.
+ *
+ * One function, approx(), the search that sagg_low_level.memory_search.KnnSearch._knn_approx
+ * documents (a bounded best-bin-first walk of the memory's static-block index, FLANN's "checks",
+ * paper Sec. 3.3), over the arrays that sagg_low_level.memory_index keeps. It exists for speed
+ * only: the numpy walk it replaces cost 100-240 us per query in ~60 numpy calls (7-15 dims,
+ * 5k-40k samples); this is one call. Its answers are that walk's, bit for bit:
+ *
+ *   - every distance is the memory's canonical one (sagg_low_level.memory_distance): the
+ *     coordinates' squared differences summed in index order, sequentially, with the same IEEE
+ *     operations numpy performs (subtract, multiply, add; no fused multiply-add: built with
+ *     -ffp-contract=off), so boxes, points and ties compare exactly as before;
+ *   - a box's lower bound per coordinate is max(lo - q, (-hi) - (-q), 0 - 0), as the walk formed
+ *     it from the stored rows (lo, -hi, 0) and the query rows (q, -q, 0);
+ *   - per box height the candidates are the kept nodes of the height above (in their order) and
+ *     then the root groups; a node is kept when its bound is <= the buffer's k-th distance; when
+ *     more than widths[h] are kept, those of smallest bound, ties by candidate order (the stable
+ *     sort the walk used), in that order;
+ *   - the answer is the first k of every scanned sample (buffer, kept leaves, the leaves of the
+ *     query's exact duplicates) in (distance, index) order, a duplicate group's code standing for
+ *     its members (at most k of them, the smallest indices): the walk's k-th-distance cut,
+ *     group expansion and lexsort give exactly these.
+ *
+ * test/test_knn_kernel.py checks it against the numpy walk (kept there as the reference) on
+ * random memories with duplicates, ties and every index height.
+ *
+ * Plain C99 against the CPython API and the buffer protocol (no numpy headers).
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <float.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct {
+    Py_buffer view;
+    int held;
+} Buf;
+
+static int get_buf(PyObject *obj, Buf *b, const char *name, const char *fmt, Py_ssize_t itemsize,
+                   int writable) {
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, &b->view, flags) < 0) {
+        PyErr_Format(PyExc_TypeError, "knn_kernel.approx: %s must be a C-contiguous %s array", name,
+                     fmt[0] == 'd' ? "float64" : "int64");
+        return -1;
+    }
+    b->held = 1;
+    const char *f = b->view.format ? b->view.format : "B";
+    if (f[0] == '<' || f[0] == '=' || f[0] == '@') f++;
+    int ok = b->view.itemsize == itemsize &&
+             (fmt[0] == 'd' ? (f[0] == 'd' && f[1] == 0) : ((f[0] == 'l' || f[0] == 'q') && f[1] == 0));
+    if (!ok) {
+        PyErr_Format(PyExc_TypeError, "knn_kernel.approx: %s must be %s, got format '%s'", name,
+                     fmt[0] == 'd' ? "float64" : "int64", b->view.format ? b->view.format : "B");
+        return -1;
+    }
+    return 0;
+}
+
+static void release(Buf *b) {
+    if (b->held) PyBuffer_Release(&b->view);
+    b->held = 0;
+}
+
+/* numpy.maximum of two non-NaN doubles (the walk's boxes and queries hold no NaN) */
+static inline double dmax(double a, double b) { return a >= b ? a : b; }
+
+/* the k-th smallest of a[0..n) (1 <= k <= n, no NaN); reorders a (Hoare quickselect: the value,
+   an order statistic, does not depend on the algorithm) */
+static double select_kth(double *a, Py_ssize_t n, Py_ssize_t k) {
+    Py_ssize_t lo = 0, hi = n - 1;
+    const Py_ssize_t t = k - 1;
+    while (lo < hi) {
+        const double pivot = a[lo + (hi - lo) / 2];
+        Py_ssize_t i = lo, j = hi;
+        while (i <= j) {
+            while (a[i] < pivot) i++;
+            while (a[j] > pivot) j--;
+            if (i <= j) {
+                double x = a[i];
+                a[i++] = a[j];
+                a[j--] = x;
+            }
+        }
+        if (t <= j)
+            hi = j;
+        else if (t >= i)
+            lo = i;
+        else
+            break;
+    }
+    return a[t];
+}
+
+/* candidates of the answer: (distance, sample index), every one within the bound */
+typedef struct {
+    double d;
+    int64_t i;
+} Cand;
+
+typedef struct {
+    Cand *c;
+    Py_ssize_t n, cap;
+} Cands;
+
+static int cands_push(Cands *v, double d, int64_t i) {
+    if (v->n == v->cap) {
+        Py_ssize_t cap = v->cap ? 2 * v->cap : 256;
+        Cand *c = realloc(v->c, sizeof(Cand) * cap);
+        if (!c) return -1;
+        v->c = c;
+        v->cap = cap;
+    }
+    v->c[v->n].d = d;
+    v->c[v->n++].i = i;
+    return 0;
+}
+
+static int cmp_cand(const void *a, const void *b) {
+    const Cand *x = a, *y = b;
+    if (x->d < y->d) return -1;
+    if (x->d > y->d) return 1;
+    return x->i < y->i ? -1 : (x->i > y->i);
+}
+
+/* stable order of keep[0..m) by lb[keep[.]] (ties: keep order) */
+static const double *g_sort_lb;
+static int cmp_pos(const void *a, const void *b) {
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    double dx = g_sort_lb[x], dy = g_sort_lb[y];
+    if (dx < dy) return -1;
+    if (dx > dy) return 1;
+    return x < y ? -1 : (x > y);
+}
+
+static int cmp_i64(const void *a, const void *b) {
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return x < y ? -1 : (x > y);
+}
+
+PyDoc_STRVAR(approx_doc,
+"approx(q, k, buf_t, nb, ns, height, boxes, root_groups, widths, fan, leaf, pts, pidx, extra, dup,\n"
+"       dup_off, out) -> int\n\n"
+"The approximate k nearest of q (see KnnSearch._knn_approx) written into out[:k]. Returns the\n"
+"number of leaves scanned s, or -1 - s when fewer than k samples were scanned (no answer).");
+
+static PyObject *approx(PyObject *self, PyObject *args) {
+    PyObject *oq, *obuf, *oboxes, *oroots, *owidths, *opts, *opidx, *oextra, *odup, *odupoff, *oout;
+    Py_ssize_t k, nb, ns, height, fan, leaf;
+    if (!PyArg_ParseTuple(args, "OnOnnnOOOnnOOOOOO", &oq, &k, &obuf, &nb, &ns, &height, &oboxes, &oroots,
+                          &owidths, &fan, &leaf, &opts, &opidx, &oextra, &odup, &odupoff, &oout))
+        return NULL;
+    if (!PyList_Check(oboxes) || !PyList_Check(oroots)) {
+        PyErr_SetString(PyExc_TypeError, "knn_kernel.approx: boxes and root_groups must be lists");
+        return NULL;
+    }
+    if (k < 1 || fan < 1 || leaf < 1 || nb < 0 || height >= PyList_GET_SIZE(oboxes) ||
+        height >= PyList_GET_SIZE(oroots)) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.approx: bad sizes");
+        return NULL;
+    }
+    Buf bq = {0}, bbuf = {0}, bw = {0}, bpts = {0}, bpidx = {0}, bextra = {0}, bdup = {0}, bdoff = {0},
+        bout = {0}, bbox = {0}, broot = {0};
+    double *bd = NULL, *lb = NULL, *scratch = NULL;
+    int64_t *sel = NULL, *groups = NULL, *keep = NULL;
+    Cands cands = {NULL, 0, 0};
+    PyObject *result = NULL;
+    if (get_buf(oq, &bq, "q", "d", 8, 0) || get_buf(obuf, &bbuf, "buf_t", "d", 8, 0) ||
+        get_buf(owidths, &bw, "widths", "q", 8, 0) || get_buf(opts, &bpts, "pts", "d", 8, 0) ||
+        get_buf(opidx, &bpidx, "pidx", "q", 8, 0) || get_buf(oextra, &bextra, "extra", "q", 8, 0) ||
+        get_buf(odup, &bdup, "dup", "q", 8, 0) || get_buf(odupoff, &bdoff, "dup_off", "q", 8, 0) ||
+        get_buf(oout, &bout, "out", "q", 8, 1))
+        goto done;
+    const Py_ssize_t n = bq.view.len / 8;
+    const double *q = bq.view.buf;
+    if (bbuf.view.ndim != 2 || bbuf.view.shape[0] != n || nb > bbuf.view.shape[1] ||
+        bout.view.len / 8 < k || bpts.view.ndim != 2 || bpts.view.shape[0] != n ||
+        bpidx.view.len / 8 != bpts.view.shape[1] || bw.view.len / 8 <= height) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.approx: array shapes do not match");
+        goto done;
+    }
+    const Py_ssize_t bcols = bbuf.view.shape[1];
+    const double *buf = bbuf.view.buf;
+    const int64_t *widths = bw.view.buf;
+
+    /* the buffer: canonical distances of samples ns .. ns + nb - 1 */
+    bd = malloc(sizeof(double) * (nb ? nb : 1));
+    scratch = malloc(sizeof(double) * (nb ? nb : 1));
+    if (!bd || !scratch) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    /* coordinate-major loops (as numpy's): the rows of these arrays are often a multiple of 4 KiB
+       apart, so a point-major loop would thrash a set of the L1 cache */
+    for (Py_ssize_t j = 0; j < nb; j++) {
+        const double t = buf[j] - q[0];
+        bd[j] = t * t;
+    }
+    for (Py_ssize_t d = 1; d < n; d++) {
+        const double *row = buf + d * bcols, qd = q[d];
+        for (Py_ssize_t j = 0; j < nb; j++) {
+            const double t = row[j] - qd;
+            bd[j] += t * t;
+        }
+    }
+    /* nodes farther than an upper bound of the k-th distance cannot contribute; with no bound yet,
+       the largest float still drops the empty (infinite) padding boxes */
+    if (nb >= k) memcpy(scratch, bd, sizeof(double) * nb);
+    const double bound = nb >= k ? select_kth(scratch, nb, k) : DBL_MAX;
+
+    Py_ssize_t nsel = -1; /* -1: no kept nodes (None) */
+    for (Py_ssize_t h = height; h >= 0; h--) {
+        if (get_buf(PyList_GET_ITEM(oroots, h), &broot, "root_groups[h]", "q", 8, 0) ||
+            get_buf(PyList_GET_ITEM(oboxes, h), &bbox, "boxes[h]", "d", 8, 0))
+            goto done;
+        const int64_t *roots = broot.view.buf;
+        const Py_ssize_t r = broot.view.len / 8;
+        const Py_ssize_t ng = (nsel > 0 ? nsel : 0) + r;
+        if (ng == 0) {
+            nsel = -1;
+            release(&broot);
+            release(&bbox);
+            continue;
+        }
+        int64_t *g2 = malloc(sizeof(int64_t) * ng);
+        double *lb2 = malloc(sizeof(double) * ng * fan);
+        int64_t *k2 = malloc(sizeof(int64_t) * ng * fan);
+        free(groups);
+        free(lb);
+        free(keep);
+        groups = g2;
+        lb = lb2;
+        keep = k2;
+        if (!groups || !lb || !keep) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        Py_ssize_t m = 0;
+        for (Py_ssize_t j = 0; j < nsel; j++) groups[m++] = sel[j];
+        for (Py_ssize_t j = 0; j < r; j++) groups[m++] = roots[j];
+        const Py_ssize_t slots = bbox.view.len / 8 / (3 * n);
+        const double *lo = bbox.view.buf, *nhi = lo + n * slots, *zero = nhi + n * slots;
+        for (Py_ssize_t gi = 0; gi < ng; gi++)
+            if (groups[gi] < 0 || ((Py_ssize_t)groups[gi] + 1) * fan > slots) {
+                PyErr_SetString(PyExc_IndexError, "knn_kernel.approx: node group out of range");
+                goto done;
+            }
+        for (Py_ssize_t d = 0; d < n; d++) {
+            const Py_ssize_t o = d * slots;
+            const double qd = q[d], nqd = -q[d];
+            for (Py_ssize_t gi = 0; gi < ng; gi++) {
+                const Py_ssize_t s0 = o + (Py_ssize_t)groups[gi] * fan;
+                double *out_lb = lb + gi * fan;
+                for (Py_ssize_t f = 0; f < fan; f++) {
+                    const double a = lo[s0 + f] - qd;
+                    const double b = nhi[s0 + f] - nqd;
+                    const double c = zero[s0 + f] - 0.0;
+                    double v = dmax(dmax(a, b), c);
+                    v = v * v;
+                    out_lb[f] = d ? out_lb[f] + v : v;
+                }
+            }
+        }
+        Py_ssize_t nk = 0;
+        for (Py_ssize_t p = 0; p < ng * fan; p++)
+            if (lb[p] <= bound) keep[nk++] = p;
+        const Py_ssize_t cap = (Py_ssize_t)widths[h];
+        if (nk > cap) {
+            g_sort_lb = lb;
+            qsort(keep, nk, sizeof(int64_t), cmp_pos);
+            nk = cap;
+        }
+        int64_t *s2 = malloc(sizeof(int64_t) * (nk ? nk : 1));
+        if (!s2) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        for (Py_ssize_t j = 0; j < nk; j++) s2[j] = groups[keep[j] / fan] * fan + keep[j] % fan;
+        free(sel);
+        sel = s2;
+        nsel = nk;
+        release(&broot);
+        release(&bbox);
+    }
+    /* the leaves holding exact duplicates of the query are always scanned */
+    const Py_ssize_t nextra = bextra.view.len / 8;
+    if (nextra) {
+        int64_t *s2 = malloc(sizeof(int64_t) * ((nsel > 0 ? nsel : 0) + nextra));
+        if (!s2) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        Py_ssize_t m = 0;
+        for (Py_ssize_t j = 0; j < nsel; j++) s2[m++] = sel[j];
+        memcpy(s2 + m, bextra.view.buf, sizeof(int64_t) * nextra);
+        m += nextra;
+        qsort(s2, m, sizeof(int64_t), cmp_i64);
+        Py_ssize_t u = 0;
+        for (Py_ssize_t j = 0; j < m; j++)
+            if (!u || s2[j] != s2[u - 1]) s2[u++] = s2[j];
+        free(sel);
+        sel = s2;
+        nsel = u;
+    }
+    if (nsel < 0) nsel = 0;
+    /* fewer than k samples scanned (empty leaf slots, NaN, count as unscanned): no answer */
+    const Py_ssize_t npts = bpts.view.shape[1];
+    const double *pts = bpts.view.buf;
+    const int64_t *pidx = bpidx.view.buf;
+    Py_ssize_t finite = nb;
+    for (Py_ssize_t j = 0; j < nsel && finite < k; j++)
+        for (Py_ssize_t e = 0; e < leaf; e++) {
+            const Py_ssize_t slot = (Py_ssize_t)sel[j] * leaf + e;
+            if (slot >= npts) {
+                PyErr_SetString(PyExc_IndexError, "knn_kernel.approx: leaf out of range");
+                goto done;
+            }
+            if (pts[slot] == pts[slot]) finite++;
+        }
+    if (finite < k) {
+        result = PyLong_FromSsize_t(-1 - nsel);
+        goto done;
+    }
+    /* the answer is the first k in (distance, index) order; the buffer's k-th distance is at least
+       its k-th distance (k buffer samples are within it), so only candidates within it are kept
+       (every scanned one, NaN excepted, when the buffer holds fewer than k) */
+    const double within = nb >= k ? bound : INFINITY;
+    for (Py_ssize_t j = 0; j < nb; j++)
+        if (bd[j] <= within && cands_push(&cands, bd[j], ns + j)) goto nomem;
+    const int64_t *dup = bdup.view.buf, *dup_off = bdoff.view.buf;
+    const Py_ssize_t ngroups = bdoff.view.len / 8 - 1;
+    double *ld = malloc(sizeof(double) * leaf);
+    if (!ld) goto nomem;
+    for (Py_ssize_t j = 0; j < nsel; j++) {
+        const Py_ssize_t s0 = (Py_ssize_t)sel[j] * leaf;
+        if (sel[j] < 0 || s0 + leaf > npts) {
+            free(ld);
+            PyErr_SetString(PyExc_IndexError, "knn_kernel.approx: leaf out of range");
+            goto done;
+        }
+        for (Py_ssize_t e = 0; e < leaf; e++) {
+            const double t = pts[s0 + e] - q[0];
+            ld[e] = t * t;
+        }
+        for (Py_ssize_t d = 1; d < n; d++) {
+            const double *row = pts + d * npts + s0, qd = q[d];
+            for (Py_ssize_t e = 0; e < leaf; e++) {
+                const double t = row[e] - qd;
+                ld[e] += t * t;
+            }
+        }
+        for (Py_ssize_t e = 0; e < leaf; e++) {
+            const double s = ld[e];
+            const int64_t id = pidx[s0 + e];
+            if (!(s <= within)) continue; /* beyond the bound, or an empty slot (NaN) */
+            int fail = 0;
+            if (id >= 0) {
+                fail = cands_push(&cands, s, id);
+            } else if (id < -1) { /* a duplicate group: its (first k) members */
+                const int64_t g = -id - 2;
+                if (g >= ngroups) {
+                    free(ld);
+                    PyErr_SetString(PyExc_IndexError, "knn_kernel.approx: duplicate group out of range");
+                    goto done;
+                }
+                int64_t a = dup_off[g], b = dup_off[g + 1];
+                if (b > a + k) b = a + k;
+                for (int64_t x = a; x < b && !fail; x++) fail = cands_push(&cands, s, dup[x]);
+            }
+            if (fail) {
+                free(ld);
+                goto nomem;
+            }
+        }
+    }
+    free(ld);
+    qsort(cands.c, cands.n, sizeof(Cand), cmp_cand);
+    if (cands.n < k) { /* cannot happen: k scanned samples lie within the bound */
+        PyErr_SetString(PyExc_RuntimeError, "knn_kernel.approx: fewer than k candidates");
+        goto done;
+    }
+    int64_t *out = bout.view.buf;
+    for (Py_ssize_t j = 0; j < k; j++) out[j] = cands.c[j].i;
+    result = PyLong_FromSsize_t(nsel);
+    goto done;
+nomem:
+    PyErr_NoMemory();
+done:
+    free(bd);
+    free(lb);
+    free(scratch);
+    free(cands.c);
+    free(sel);
+    free(groups);
+    free(keep);
+    release(&bq);
+    release(&bbuf);
+    release(&bw);
+    release(&bpts);
+    release(&bpidx);
+    release(&bextra);
+    release(&bdup);
+    release(&bdoff);
+    release(&bout);
+    release(&bbox);
+    release(&broot);
+    return result;
+}
+
+static PyMethodDef methods[] = {
+    {"approx", approx, METH_VARARGS, approx_doc},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "sagg_low_level.knn_kernel",
+    "The sample memory's approximate k-nearest-neighbour search, compiled (see knn_kernel.c).", -1,
+    methods,
+};
+
+PyMODINIT_FUNC PyInit_knn_kernel(void) { return PyModule_Create(&module); }
