@@ -9,7 +9,7 @@ from sagg_common.params import resolve
 from sagg_common.report_kinds import KIND_GOAL, KIND_SUBGOAL
 from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
-from sagg_low_level.local_model import clamped_step, damped_steps, pseudo_inverse_step
+from sagg_low_level.local_model import clamp_rounds, clamped_step, damped_steps, pseudo_inverse_step
 from sagg_sim_bridge.arm import GOLDEN_RATIO, ArmSim, ArmSpec, forward_kinematics, tip_jacobian
 
 from test_learner import StuckRobot, drive, make_learner
@@ -100,6 +100,36 @@ def test_clamped_step_stops_a_joint_at_its_limit_and_redistributes():
     clipped = np.clip(a + plain, lower, upper) - a         # the old reacher: clipped, not re-solved
     assert np.linalg.norm(jac @ clipped - dy) > 1e-3
 
+
+
+def _rounds_only(jac, dy, a, lower, upper, rcond, damping):
+    """clamped_step as it was before its shortcut (2026-11-27): every step through the rounds."""
+    rounds = clamp_rounds(jac, dy, a, lower, upper)
+    cols, target = next(rounds)
+    try:
+        while True:
+            cols, target = rounds.send(pseudo_inverse_step(cols, target, rcond, damping))
+    except StopIteration as done:
+        return done.value
+
+
+@pytest.mark.parametrize("damping", [0.0, 0.3])
+def test_clamped_step_shortcut_gives_the_rounds_floats(damping):
+    # steps inside the limits take the shortcut, the others the rounds started with that step:
+    # both must equal the rounds alone, bit for bit (the learning runs before/after are identical)
+    rng = np.random.default_rng(5)
+    lower, upper = np.full(7, -1.0), np.full(7, 1.0)
+    inside = beyond = 0
+    for _ in range(300):
+        jac = rng.normal(size=(2, 7))
+        dy = rng.normal(size=2) * rng.choice([0.01, 0.5])
+        a = rng.uniform(-1.0, 1.0, 7)
+        plain = pseudo_inverse_step(jac, dy, 1e-10, damping)
+        beyond_now = bool(((a + plain > upper) | (a + plain < lower)).any())
+        inside, beyond = inside + (not beyond_now), beyond + beyond_now
+        got = clamped_step(jac, dy, a, lower, upper, 1e-10, damping)
+        assert got.tobytes() == _rounds_only(jac, dy, a, lower, upper, 1e-10, damping).tobytes()
+    assert inside > 30 and beyond > 30
 
 def _limit_goals(sim, count, joint, seed):
     """Tips of random postures with ``joint`` at its upper limit: goals that need it there."""

@@ -91,12 +91,21 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     free joint violates a limit (at most n rounds). Without limits in the way it is exactly
     ``J⁺ Δy_next``. A joint at its limit whose solution moves it back inside stays free, so the
     arm can leave a limit again. Every solve is :func:`pseudo_inverse_step` with ``damping``.
+    A step that leaves no joint beyond its limit is returned as it is, without the rounds (their
+    first round would return the same floats; most steps are such, and the rounds cost ~25 µs);
+    the others start the rounds with it.
     """
+    step = pseudo_inverse_step(jac, dy_next, rcond, damping)
+    new = alpha + step
+    if not ((new > upper) | (new < lower)).any():
+        return step
     rounds = clamp_rounds(jac, dy_next, alpha, lower, upper)
-    cols, target = next(rounds)
+    next(rounds)  # its first solve, J⁺ Δy_next, is the step above
+    answer = step
     try:
         while True:
-            cols, target = rounds.send(pseudo_inverse_step(cols, target, rcond, damping))
+            cols, target = rounds.send(answer)
+            answer = pseudo_inverse_step(cols, target, rcond, damping)
     except StopIteration as done:
         return done.value
 
