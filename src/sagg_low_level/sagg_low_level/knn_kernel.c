@@ -1,10 +1,11 @@
-/* The approximate k-nearest-neighbour search of the sample memory, compiled.
+/* The inner loops of the neighbour searches, compiled (for speed only: each replaces ~20-60 numpy
+ * calls of a few microseconds by one call, with the same answers bit for bit).
  *
- * One function, approx(), the search that sagg_low_level.memory_search.KnnSearch._knn_approx
- * documents (a bounded best-bin-first walk of the memory's static-block index, FLANN's "checks",
- * paper Sec. 3.3), over the arrays that sagg_low_level.memory_index keeps. It exists for speed
- * only: the numpy walk it replaces cost 100-240 us per query in ~60 numpy calls (7-15 dims,
- * 5k-40k samples); this is one call. Its answers are that walk's, bit for bit:
+ * approx(): the approximate k-nearest-neighbour search of the sample memory,
+ * sagg_low_level.memory_search.KnnSearch._knn_approx (a bounded best-bin-first walk of the memory's
+ * static-block index, FLANN's "checks", paper Sec. 3.3), over the arrays that
+ * sagg_low_level.memory_index keeps. The numpy walk it replaced cost 100-240 us per query (7-15
+ * dims, 5k-40k samples); this is one call. Its answers are that walk's:
  *
  *   - every distance is the memory's canonical one (sagg_low_level.memory_distance): the
  *     coordinates' squared differences summed in index order, sequentially, with the same IEEE
@@ -20,11 +21,17 @@
  *     query's exact duplicates) in (distance, index) order, a duplicate group's code standing for
  *     its members (at most k of them, the smallest indices): the walk's k-th-distance cut,
  *     group expansion and lexsort give exactly these.
+ *   test/test_knn_kernel.py checks it against the numpy walk (kept there as the reference) on
+ *   random memories with duplicates, ties and every index height.
  *
- * test/test_knn_kernel.py checks it against the numpy walk (kept there as the reference) on
- * random memories with duplicates, ties and every index height.
+ * tree_answers(): the exact search of the fixed-context learner (sagg_low_level.tree_knn.TreeKnn)
+ * after its scipy cKDTree call: the proposals' and the recent samples' canonical distances, the
+ * (distance, index) order, the check against the tree's farthest proposal and the full scans
+ * (tested against the exact search by test/test_tree_knn.py).
  *
- * Plain C99 against the CPython API and the buffer protocol (no numpy headers).
+ * Loops run coordinate-major where they sweep many points (numpy's order, and the rows of these
+ * arrays are often a multiple of 4 KiB apart: a point-major loop would thrash a set of the L1
+ * cache). Plain C99 against the CPython API and the buffer protocol (no numpy headers).
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -410,14 +417,123 @@ done:
     return result;
 }
 
+/* canonical squared distance of column c of the dimension-major x (rows of `stride` doubles) to q */
+static inline double col_dist(const double *x, Py_ssize_t stride, Py_ssize_t c, const double *q, Py_ssize_t n) {
+    double t = x[c] - q[0];
+    double s = t * t;
+    for (Py_ssize_t d = 1; d < n; d++) {
+        t = x[d * stride + c] - q[d];
+        s += t * t;
+    }
+    return s;
+}
+
+PyDoc_STRVAR(tree_answers_doc,
+"tree_answers(qs, k, far, ti, tree_t, nt, recent_t, nr, margin, out) -> int\n\n"
+"TreeKnn.query after its cKDTree call (see tree_knn.py): out[j] = the first k by (canonical\n"
+"distance, index) of row j's candidates (the tree's proposals ti, then the recent samples within\n"
+"the bound of the first k proposals); a row whose farthest proposal `far` is not clearly beyond\n"
+"that k-th distance is answered by a scan of every sample. Returns the number of such scans.");
+
+/* TreeKnn.query's answer from the tree's proposals: the numpy steps of tree_knn.py (canonical
+   distances of the proposals and of the recent samples, the bound, the (distance, index) order,
+   the check against the tree's farthest proposal, the full scan) in one call, the same floats and
+   the same answers (test/test_tree_knn.py checks the answers against the exact search). */
+static PyObject *tree_answers(PyObject *self, PyObject *args) {
+    PyObject *oqs, *ofar, *oti, *otree, *orecent, *oout;
+    Py_ssize_t k, nt, nr;
+    double margin;
+    if (!PyArg_ParseTuple(args, "OnOOOnOndO", &oqs, &k, &ofar, &oti, &otree, &nt, &orecent, &nr, &margin, &oout))
+        return NULL;
+    Buf bq = {0}, bfar = {0}, bti = {0}, btree = {0}, brec = {0}, bout = {0};
+    Cands cands = {NULL, 0, 0};
+    PyObject *result = NULL;
+    if (get_buf(oqs, &bq, "qs", "d", 8, 0) || get_buf(ofar, &bfar, "far", "d", 8, 0) ||
+        get_buf(oti, &bti, "ti", "q", 8, 0) || get_buf(otree, &btree, "tree_t", "d", 8, 0) ||
+        get_buf(orecent, &brec, "recent_t", "d", 8, 0) || get_buf(oout, &bout, "out", "q", 8, 1))
+        goto done;
+    if (bq.view.ndim != 2 || btree.view.ndim != 2 || brec.view.ndim != 2) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.tree_answers: qs, tree_t and recent_t must be 2-D");
+        goto done;
+    }
+    const Py_ssize_t b = bq.view.shape[0], n = bq.view.shape[1];
+    const Py_ssize_t tcols = btree.view.shape[1], rcols = brec.view.shape[1];
+    const Py_ssize_t kq = b ? bti.view.len / 8 / b : 0;
+    if (k < 1 || btree.view.shape[0] != n || brec.view.shape[0] != n || nt > tcols || nr > rcols ||
+        nr < 0 || nt < 0 || bout.view.len / 8 != b * k || bfar.view.len / 8 != b * kq ||
+        (nt && kq < 1) || (kq && b * kq * 8 != bti.view.len) || nt + nr < k) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.tree_answers: array shapes do not match");
+        goto done;
+    }
+    const double *qs = bq.view.buf, *far = bfar.view.buf, *tree = btree.view.buf, *rec = brec.view.buf;
+    const int64_t *ti = bti.view.buf;
+    int64_t *out = bout.view.buf;
+    Py_ssize_t scans = 0;
+    for (Py_ssize_t j = 0; j < b; j++) {
+        const double *q = qs + j * n;
+        cands.n = 0;
+        double bound = INFINITY; /* no bound while the tree proposes fewer than k */
+        double top = -INFINITY;
+        for (Py_ssize_t c = 0; c < kq; c++) {
+            const int64_t i = ti[j * kq + c];
+            if (i < 0 || i >= nt) {
+                PyErr_SetString(PyExc_IndexError, "knn_kernel.tree_answers: tree index out of range");
+                goto done;
+            }
+            const double d = col_dist(tree, tcols, i, q, n);
+            if (c < k && d > top) top = d;
+            if (cands_push(&cands, d, i)) goto nomem;
+        }
+        if (kq >= k) bound = top;
+        for (Py_ssize_t r = 0; r < nr; r++) {
+            const double d = col_dist(rec, rcols, r, q, n);
+            if (d <= bound && cands_push(&cands, d, nt + r)) goto nomem;
+        }
+        qsort(cands.c, cands.n, sizeof(Cand), cmp_cand);
+        if (cands.n < k) {
+            PyErr_SetString(PyExc_RuntimeError, "knn_kernel.tree_answers: fewer than k candidates");
+            goto done;
+        }
+        if (nt > kq) {
+            /* a tree sample not proposed is at least the farthest proposal away (tree arithmetic): it
+               can neither beat nor tie a k-th distance clearly smaller; else scan every sample */
+            const double f = far[j * kq + kq - 1];
+            if (!(f * f * margin > cands.c[k - 1].d)) {
+                scans++;
+                cands.n = 0;
+                for (Py_ssize_t i = 0; i < nt; i++)
+                    if (cands_push(&cands, col_dist(tree, tcols, i, q, n), i)) goto nomem;
+                for (Py_ssize_t r = 0; r < nr; r++)
+                    if (cands_push(&cands, col_dist(rec, rcols, r, q, n), nt + r)) goto nomem;
+                qsort(cands.c, cands.n, sizeof(Cand), cmp_cand);
+            }
+        }
+        for (Py_ssize_t e = 0; e < k; e++) out[j * k + e] = cands.c[e].i;
+    }
+    result = PyLong_FromSsize_t(scans);
+    goto done;
+nomem:
+    PyErr_NoMemory();
+done:
+    free(cands.c);
+    release(&bq);
+    release(&bfar);
+    release(&bti);
+    release(&btree);
+    release(&brec);
+    release(&bout);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"approx", approx, METH_VARARGS, approx_doc},
+    {"tree_answers", tree_answers, METH_VARARGS, tree_answers_doc},
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "sagg_low_level.knn_kernel",
-    "The sample memory's approximate k-nearest-neighbour search, compiled (see knn_kernel.c).", -1,
+    "The neighbour searches' inner loops, compiled (see knn_kernel.c).", -1,
     methods,
 };
 

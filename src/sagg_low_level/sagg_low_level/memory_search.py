@@ -26,11 +26,7 @@ import math
 
 import numpy as np
 
-try:
-    from . import knn_kernel
-except ImportError as exc:  # a source checkout used without its build step
-    raise ImportError("sagg_low_level.knn_kernel (knn_kernel.c) is not built: run `make setup`, "
-                      "`pip install -e src/sagg_low_level` or `colcon build`") from exc
+from .compiled import knn_kernel
 from .memory_distance import _sqdist_cols
 
 

@@ -11,7 +11,9 @@ speed only (the memory's index is built for 15-30-D trajectories, one query per 
   k + ``extra`` nearest of every query (one call for all queries); the samples stored since (fewer
   than ``rebuild_share`` of the memory, or ``min_recent``) are scanned;
 * the canonical distances of all these candidates are computed and the k smallest by (distance,
-  index) kept;
+  index) kept (this step, the check below and its scans are one compiled call per query batch,
+  ``knn_kernel.tree_answers`` in knn_kernel.c, since 2026-11-27: the numpy steps it replaced cost
+  ~90 µs a call beside the tree's own query);
 * the tree's own distances only choose candidates. A tree sample it did not return is at least as
   far, in the tree's arithmetic, as its farthest candidate; when that is not beyond the answer's
   k-th distance by a relative 1e-9 (far above the rounding of either distance: exact ties, e.g.
@@ -24,10 +26,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .memory_distance import sum_squares_rows
+from .compiled import knn_kernel
 from .memory_store import SampleStore
 
 _MARGIN = 1.0 - 1e-9
+_NO_DISTANCES = np.empty(0)
+_NO_INDICES = np.empty(0, dtype=np.int64)
 
 
 class TreeKnn:
@@ -92,62 +96,14 @@ class TreeKnn:
             return np.empty((b, max(k, 0)), dtype=np.int64)
         self._update(n)
         nt, nr = self._nt, self._nr
-        qt = qs.T.copy()
-        # candidates, flattened row after row: canonical squared distance, sample index (and the
-        # row, i.e. the query, when there are several)
-        dist, index, rows = [], [], []
-        bound = None  # per query, an upper bound of its k-th distance (the tree's candidates give it)
         if nt:
             kq = min(k + self.extra, nt)
             far, ti = self._tree.query(qs, k=kq)
-            ti = ti.reshape(-1)
-            diff = self._tree_t.take(ti, axis=1)
-            diff.shape = (dim, b, kq)
-            diff -= qt[:, :, None]
-            td = sum_squares_rows(diff.reshape(dim, b * kq))
-            dist.append(td)
-            index.append(ti)
-            if b > 1:
-                rows.append(np.repeat(np.arange(b), kq))
-            if kq >= k:
-                bound = td.reshape(b, kq)[:, :k].max(axis=1)
-        if nr:
-            diff = np.subtract(self._recent_t[:, None, :nr], qt[:, :, None], out=np.empty((dim, b, nr)))
-            rd = sum_squares_rows(diff.reshape(dim, b * nr))
-            if bound is None:
-                keep = np.arange(b * nr)
-            else:  # only those not beyond the tree's bound can be among the k nearest
-                keep = np.flatnonzero(rd.reshape(b, nr) <= bound[:, None])
-            dist.append(rd[keep])
-            if b > 1:
-                r = keep // nr
-                rows.append(r)
-                keep -= r * nr
-            index.append(keep + nt)
-        dist = np.concatenate(dist) if len(dist) > 1 else dist[0]
-        index = np.concatenate(index) if len(index) > 1 else index[0]
-        if b == 1:
-            pick = np.lexsort((index, dist))[None, :k]
-        else:  # each row holds >= k candidates: its first k after sorting by (row, distance, index)
-            rows = np.concatenate(rows) if len(rows) > 1 else rows[0]
-            counts = np.bincount(rows, minlength=b)
-            pick = np.lexsort((index, dist, rows))[(np.cumsum(counts) - counts)[:, None] + np.arange(k)]
-        out = index[pick]
-        if nt and nt > kq:
-            # a tree sample not proposed is at least the farthest candidate away (tree arithmetic):
-            # it can neither beat nor tie a k-th distance clearly smaller
-            kth = dist[pick[:, -1]]
-            far = far.reshape(b, kq)[:, -1]
-            bad = ~(far * far * _MARGIN > kth)
-            if bad.any():
-                for j in np.flatnonzero(bad):
-                    out[j] = self._scan(qt[:, j], k)
+        else:
+            far, ti = _NO_DISTANCES, _NO_INDICES
+        out = np.empty((b, k), dtype=np.int64)
+        # the candidates' canonical distances, the bound, the (distance, index) order, the check
+        # against the farthest proposal and the full scans: one compiled call (knn_kernel.c)
+        self.scans += knn_kernel.tree_answers(np.ascontiguousarray(qs), k, far, ti, self._tree_t, nt,
+                                              self._recent_t, nr, _MARGIN, out)
         return out
-
-    def _scan(self, q: np.ndarray, k: int) -> np.ndarray:
-        """The k nearest of every sample to q (canonical distances, (distance, index) order)."""
-        self.scans += 1
-        d = sum_squares_rows(self._tree_t - q[:, None])
-        if self._nr:
-            d = np.concatenate((d, sum_squares_rows(self._recent_t[:, : self._nr] - q[:, None])))
-        return np.lexsort((np.arange(len(d)), d))[:k]
