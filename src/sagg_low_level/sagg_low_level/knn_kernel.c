@@ -133,14 +133,37 @@ static int cmp_cand(const void *a, const void *b) {
     return x->i < y->i ? -1 : (x->i > y->i);
 }
 
-/* stable order of keep[0..m) by lb[keep[.]] (ties: keep order) */
-static const double *g_sort_lb;
-static int cmp_pos(const void *a, const void *b) {
-    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
-    double dx = g_sort_lb[x], dy = g_sort_lb[y];
-    if (dx < dy) return -1;
-    if (dx > dy) return 1;
-    return x < y ? -1 : (x > y);
+static inline int cand_before(const Cand *x, const Cand *y) {
+    return x->d < y->d || (x->d == y->d && x->i < y->i);
+}
+
+/* c[0..m) in (d, i) order = the m first of c[0..n) in that order (m <= n; keys distinct, no NaN):
+   a quickselect moves them to the front, then only they are sorted */
+static void first_sorted(Cand *c, Py_ssize_t n, Py_ssize_t m) {
+    if (m < n) {
+        Py_ssize_t lo = 0, hi = n - 1;
+        const Py_ssize_t t = m - 1;
+        while (lo < hi) {
+            const Cand pivot = c[lo + (hi - lo) / 2];
+            Py_ssize_t i = lo, j = hi;
+            while (i <= j) {
+                while (cand_before(&c[i], &pivot)) i++;
+                while (cand_before(&pivot, &c[j])) j--;
+                if (i <= j) {
+                    Cand x = c[i];
+                    c[i++] = c[j];
+                    c[j--] = x;
+                }
+            }
+            if (t <= j)
+                hi = j;
+            else if (t >= i)
+                lo = i;
+            else
+                break;
+        }
+    }
+    qsort(c, m, sizeof(Cand), cmp_cand);
 }
 
 static int cmp_i64(const void *a, const void *b) {
@@ -275,10 +298,14 @@ static PyObject *approx(PyObject *self, PyObject *args) {
         for (Py_ssize_t p = 0; p < ng * fan; p++)
             if (lb[p] <= bound) keep[nk++] = p;
         const Py_ssize_t cap = (Py_ssize_t)widths[h];
-        if (nk > cap) {
-            g_sort_lb = lb;
-            qsort(keep, nk, sizeof(int64_t), cmp_pos);
+        if (nk > cap) { /* the cap of smallest bound, ties by candidate order, in that order */
+            cands.n = 0;
+            for (Py_ssize_t j = 0; j < nk; j++)
+                if (cands_push(&cands, lb[keep[j]], keep[j])) goto nomem;
+            first_sorted(cands.c, nk, cap);
+            for (Py_ssize_t j = 0; j < cap; j++) keep[j] = cands.c[j].i;
             nk = cap;
+            cands.n = 0;
         }
         int64_t *s2 = malloc(sizeof(int64_t) * (nk ? nk : 1));
         if (!s2) {
@@ -384,11 +411,11 @@ static PyObject *approx(PyObject *self, PyObject *args) {
         }
     }
     free(ld);
-    qsort(cands.c, cands.n, sizeof(Cand), cmp_cand);
     if (cands.n < k) { /* cannot happen: k scanned samples lie within the bound */
         PyErr_SetString(PyExc_RuntimeError, "knn_kernel.approx: fewer than k candidates");
         goto done;
     }
+    first_sorted(cands.c, cands.n, k);
     int64_t *out = bout.view.buf;
     for (Py_ssize_t j = 0; j < k; j++) out[j] = cands.c[j].i;
     result = PyLong_FromSsize_t(nsel);
@@ -489,11 +516,11 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
             const double d = col_dist(rec, rcols, r, q, n);
             if (d <= bound && cands_push(&cands, d, nt + r)) goto nomem;
         }
-        qsort(cands.c, cands.n, sizeof(Cand), cmp_cand);
         if (cands.n < k) {
             PyErr_SetString(PyExc_RuntimeError, "knn_kernel.tree_answers: fewer than k candidates");
             goto done;
         }
+        first_sorted(cands.c, cands.n, k);
         if (nt > kq) {
             /* a tree sample not proposed is at least the farthest proposal away (tree arithmetic): it
                can neither beat nor tie a k-th distance clearly smaller; else scan every sample */
@@ -505,7 +532,7 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
                     if (cands_push(&cands, col_dist(tree, tcols, i, q, n), i)) goto nomem;
                 for (Py_ssize_t r = 0; r < nr; r++)
                     if (cands_push(&cands, col_dist(rec, rcols, r, q, n), nt + r)) goto nomem;
-                qsort(cands.c, cands.n, sizeof(Cand), cmp_cand);
+                first_sorted(cands.c, cands.n, k);
             }
         }
         for (Py_ssize_t e = 0; e < k; e++) out[j * k + e] = cands.c[e].i;
