@@ -75,31 +75,40 @@ static void release(Buf *b) {
 /* numpy.maximum of two non-NaN doubles (the walk's boxes and queries hold no NaN) */
 static inline double dmax(double a, double b) { return a >= b ? a : b; }
 
-/* the k-th smallest of a[0..n) (1 <= k <= n, no NaN); reorders a (Hoare quickselect: the value,
-   an order statistic, does not depend on the algorithm) */
+/* Hoare quickselect: moves the m first of a[0..n) in BEFORE's order to a[0..m), a[m - 1] the m-th
+   (1 <= m <= n; keys distinct or plain values, no NaN). The m-th is an order statistic: the same
+   whatever the algorithm. One body for doubles and candidates. */
+#define QUICKSELECT(T, a, n, m, BEFORE)                      \
+    do {                                                     \
+        Py_ssize_t lo_ = 0, hi_ = (n) - 1;                   \
+        const Py_ssize_t t_ = (m) - 1;                       \
+        while (lo_ < hi_) {                                  \
+            const T pivot_ = (a)[lo_ + (hi_ - lo_) / 2];     \
+            Py_ssize_t i_ = lo_, j_ = hi_;                   \
+            while (i_ <= j_) {                               \
+                while (BEFORE((a)[i_], pivot_)) i_++;        \
+                while (BEFORE(pivot_, (a)[j_])) j_--;        \
+                if (i_ <= j_) {                              \
+                    T x_ = (a)[i_];                          \
+                    (a)[i_++] = (a)[j_];                     \
+                    (a)[j_--] = x_;                          \
+                }                                            \
+            }                                                \
+            if (t_ <= j_)                                    \
+                hi_ = j_;                                    \
+            else if (t_ >= i_)                               \
+                lo_ = i_;                                    \
+            else                                             \
+                break;                                       \
+        }                                                    \
+    } while (0)
+
+#define DOUBLE_BEFORE(x, y) ((x) < (y))
+
+/* the k-th smallest of a[0..n) (1 <= k <= n, no NaN); reorders a */
 static double select_kth(double *a, Py_ssize_t n, Py_ssize_t k) {
-    Py_ssize_t lo = 0, hi = n - 1;
-    const Py_ssize_t t = k - 1;
-    while (lo < hi) {
-        const double pivot = a[lo + (hi - lo) / 2];
-        Py_ssize_t i = lo, j = hi;
-        while (i <= j) {
-            while (a[i] < pivot) i++;
-            while (a[j] > pivot) j--;
-            if (i <= j) {
-                double x = a[i];
-                a[i++] = a[j];
-                a[j--] = x;
-            }
-        }
-        if (t <= j)
-            hi = j;
-        else if (t >= i)
-            lo = i;
-        else
-            break;
-    }
-    return a[t];
+    QUICKSELECT(double, a, n, k, DOUBLE_BEFORE);
+    return a[k - 1];
 }
 
 /* candidates of the answer: (distance, sample index), every one within the bound */
@@ -133,36 +142,12 @@ static int cmp_cand(const void *a, const void *b) {
     return x->i < y->i ? -1 : (x->i > y->i);
 }
 
-static inline int cand_before(const Cand *x, const Cand *y) {
-    return x->d < y->d || (x->d == y->d && x->i < y->i);
-}
+#define CAND_BEFORE(x, y) ((x).d < (y).d || ((x).d == (y).d && (x).i < (y).i))
 
-/* c[0..m) in (d, i) order = the m first of c[0..n) in that order (m <= n; keys distinct, no NaN):
-   a quickselect moves them to the front, then only they are sorted */
+/* c[0..m) = the m first of c[0..n) in (d, i) order (m <= n; keys distinct, no NaN), sorted: a
+   quickselect moves them to the front, then only they are sorted */
 static void first_sorted(Cand *c, Py_ssize_t n, Py_ssize_t m) {
-    if (m < n) {
-        Py_ssize_t lo = 0, hi = n - 1;
-        const Py_ssize_t t = m - 1;
-        while (lo < hi) {
-            const Cand pivot = c[lo + (hi - lo) / 2];
-            Py_ssize_t i = lo, j = hi;
-            while (i <= j) {
-                while (cand_before(&c[i], &pivot)) i++;
-                while (cand_before(&pivot, &c[j])) j--;
-                if (i <= j) {
-                    Cand x = c[i];
-                    c[i++] = c[j];
-                    c[j--] = x;
-                }
-            }
-            if (t <= j)
-                hi = j;
-            else if (t >= i)
-                lo = i;
-            else
-                break;
-        }
-    }
+    if (m < n) QUICKSELECT(Cand, c, n, m, CAND_BEFORE);
     qsort(c, m, sizeof(Cand), cmp_cand);
 }
 
