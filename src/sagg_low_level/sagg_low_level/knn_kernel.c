@@ -351,6 +351,7 @@ static PyObject *approx(PyObject *self, PyObject *args) {
         if (bd[j] <= within && cands_push(&cands, bd[j], ns + j)) goto nomem;
     const int64_t *dup = bdup.view.buf, *dup_off = bdoff.view.buf;
     const Py_ssize_t ngroups = bdoff.view.len / 8 - 1;
+    const Py_ssize_t ndup = bdup.view.len / 8;
     double *ld = malloc(sizeof(double) * leaf);
     if (!ld) goto nomem;
     for (Py_ssize_t j = 0; j < nsel; j++) {
@@ -380,12 +381,12 @@ static PyObject *approx(PyObject *self, PyObject *args) {
                 fail = cands_push(&cands, s, id);
             } else if (id < -1) { /* a duplicate group: its (first k) members */
                 const int64_t g = -id - 2;
-                if (g >= ngroups) {
+                int64_t a = g < ngroups ? dup_off[g] : 0, b = g < ngroups ? dup_off[g + 1] : -1;
+                if (a < 0 || b < a || b > ndup) {
                     free(ld);
                     PyErr_SetString(PyExc_IndexError, "knn_kernel.approx: duplicate group out of range");
                     goto done;
                 }
-                int64_t a = dup_off[g], b = dup_off[g + 1];
                 if (b > a + k) b = a + k;
                 for (int64_t x = a; x < b && !fail; x++) fail = cands_push(&cands, s, dup[x]);
             }
