@@ -11,7 +11,7 @@
 # Each step leaves a stamp file in .venv, so a second call only redoes what changed:
 #   requirements.txt             -> reinstall wheels (then rebuild msgs, reinstall packages)
 #   any file under src/sagg_msgs -> rebuild and reinstall sagg_msgs
-#   setup.py/setup.cfg/package.xml/resource or a C source (the compiled neighbour search) of a
+#   setup.py/setup.cfg/package.xml/resource or a C source (the compiled neighbour searches) of a
 #   Python package, or the set of installed launch/config files
 #                                -> reinstall the editable Python packages (rebuilding C sources)
 # Needs only Python 3.11 (falls back to python3), gcc, cmake and make.

@@ -9,8 +9,8 @@ DATA_FILES = [
     ('share/' + PACKAGE, ['package.xml']),
 ]
 
-# The sample memory's approximate neighbour search, compiled (sagg_low_level/knn_kernel.c; plain C99
-# against the CPython API, no numpy headers). -ffp-contract=off: no fused multiply-add, so its
+# The neighbour searches' inner loops, compiled (sagg_low_level/knn_kernel.c; plain C99 against
+# the CPython API, no numpy headers). -ffp-contract=off: no fused multiply-add, so its
 # distances are the canonical ones numpy computes (memory_distance), bit for bit.
 KNN_KERNEL = Extension(
     PACKAGE + '.knn_kernel',

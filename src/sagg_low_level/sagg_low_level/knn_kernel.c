@@ -29,9 +29,9 @@
  * (distance, index) order, the check against the tree's farthest proposal and the full scans
  * (tested against the exact search by test/test_tree_knn.py).
  *
- * Loops run coordinate-major where they sweep many points (numpy's order, and the rows of these
- * arrays are often a multiple of 4 KiB apart: a point-major loop would thrash a set of the L1
- * cache). Plain C99 against the CPython API and the buffer protocol (no numpy headers).
+ * Loops run coordinate-major where they sweep runs of points (run_dists: numpy's order, and the
+ * rows of these arrays are often a multiple of 4 KiB apart: a point-major loop would thrash a set
+ * of the L1 cache). Plain C99 against the CPython API and the buffer protocol (no numpy headers).
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -50,7 +50,7 @@ static int get_buf(PyObject *obj, Buf *b, const char *name, const char *fmt, Py_
                    int writable) {
     int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
     if (PyObject_GetBuffer(obj, &b->view, flags) < 0) {
-        PyErr_Format(PyExc_TypeError, "knn_kernel.approx: %s must be a C-contiguous %s array", name,
+        PyErr_Format(PyExc_TypeError, "knn_kernel: %s must be a C-contiguous %s array", name,
                      fmt[0] == 'd' ? "float64" : "int64");
         return -1;
     }
@@ -60,7 +60,7 @@ static int get_buf(PyObject *obj, Buf *b, const char *name, const char *fmt, Py_
     int ok = b->view.itemsize == itemsize &&
              (fmt[0] == 'd' ? (f[0] == 'd' && f[1] == 0) : ((f[0] == 'l' || f[0] == 'q') && f[1] == 0));
     if (!ok) {
-        PyErr_Format(PyExc_TypeError, "knn_kernel.approx: %s must be %s, got format '%s'", name,
+        PyErr_Format(PyExc_TypeError, "knn_kernel: %s must be %s, got format '%s'", name,
                      fmt[0] == 'd' ? "float64" : "int64", b->view.format ? b->view.format : "B");
         return -1;
     }
@@ -70,6 +70,27 @@ static int get_buf(PyObject *obj, Buf *b, const char *name, const char *fmt, Py_
 static void release(Buf *b) {
     if (b->held) PyBuffer_Release(&b->view);
     b->held = 0;
+}
+
+/* canonical squared distances to q of the columns c0 .. c0 + count - 1 of the dimension-major x
+   (n rows of `stride` doubles) into out[0..count): coordinate-major (numpy's order, and the rows of
+   these arrays are often a multiple of 4 KiB apart, so a point-major loop would thrash a set of the
+   L1 cache); per column the squares are summed in coordinate order, as memory_distance defines */
+static void run_dists(const double *x, Py_ssize_t stride, Py_ssize_t c0, Py_ssize_t count, const double *q,
+                      Py_ssize_t n, double *out) {
+    const double *row = x + c0;
+    for (Py_ssize_t j = 0; j < count; j++) {
+        const double t = row[j] - q[0];
+        out[j] = t * t;
+    }
+    for (Py_ssize_t d = 1; d < n; d++) {
+        row = x + d * stride + c0;
+        const double qd = q[d];
+        for (Py_ssize_t j = 0; j < count; j++) {
+            const double t = row[j] - qd;
+            out[j] += t * t;
+        }
+    }
 }
 
 /* numpy.maximum of two non-NaN doubles (the walk's boxes and queries hold no NaN) */
@@ -208,19 +229,7 @@ static PyObject *approx(PyObject *self, PyObject *args) {
         PyErr_NoMemory();
         goto done;
     }
-    /* coordinate-major loops (as numpy's): the rows of these arrays are often a multiple of 4 KiB
-       apart, so a point-major loop would thrash a set of the L1 cache */
-    for (Py_ssize_t j = 0; j < nb; j++) {
-        const double t = buf[j] - q[0];
-        bd[j] = t * t;
-    }
-    for (Py_ssize_t d = 1; d < n; d++) {
-        const double *row = buf + d * bcols, qd = q[d];
-        for (Py_ssize_t j = 0; j < nb; j++) {
-            const double t = row[j] - qd;
-            bd[j] += t * t;
-        }
-    }
+    run_dists(buf, bcols, 0, nb, q, n, bd);
     /* nodes farther than an upper bound of the k-th distance cannot contribute; with no bound yet,
        the largest float still drops the empty (infinite) padding boxes */
     if (nb >= k) memcpy(scratch, bd, sizeof(double) * nb);
@@ -325,24 +334,10 @@ static PyObject *approx(PyObject *self, PyObject *args) {
         nsel = u;
     }
     if (nsel < 0) nsel = 0;
-    /* fewer than k samples scanned (empty leaf slots, NaN, count as unscanned): no answer */
     const Py_ssize_t npts = bpts.view.shape[1];
     const double *pts = bpts.view.buf;
     const int64_t *pidx = bpidx.view.buf;
-    Py_ssize_t finite = nb;
-    for (Py_ssize_t j = 0; j < nsel && finite < k; j++)
-        for (Py_ssize_t e = 0; e < leaf; e++) {
-            const Py_ssize_t slot = (Py_ssize_t)sel[j] * leaf + e;
-            if (slot >= npts) {
-                PyErr_SetString(PyExc_IndexError, "knn_kernel.approx: leaf out of range");
-                goto done;
-            }
-            if (pts[slot] == pts[slot]) finite++;
-        }
-    if (finite < k) {
-        result = PyLong_FromSsize_t(-1 - nsel);
-        goto done;
-    }
+    Py_ssize_t scanned = nb; /* samples scanned: empty leaf slots (NaN) do not count */
     /* the answer is the first k in (distance, index) order; the buffer's k-th distance is at least
        its k-th distance (k buffer samples are within it), so only candidates within it are kept
        (every scanned one, NaN excepted, when the buffer holds fewer than k) */
@@ -361,20 +356,11 @@ static PyObject *approx(PyObject *self, PyObject *args) {
             PyErr_SetString(PyExc_IndexError, "knn_kernel.approx: leaf out of range");
             goto done;
         }
-        for (Py_ssize_t e = 0; e < leaf; e++) {
-            const double t = pts[s0 + e] - q[0];
-            ld[e] = t * t;
-        }
-        for (Py_ssize_t d = 1; d < n; d++) {
-            const double *row = pts + d * npts + s0, qd = q[d];
-            for (Py_ssize_t e = 0; e < leaf; e++) {
-                const double t = row[e] - qd;
-                ld[e] += t * t;
-            }
-        }
+        run_dists(pts, npts, s0, leaf, q, n, ld);
         for (Py_ssize_t e = 0; e < leaf; e++) {
             const double s = ld[e];
             const int64_t id = pidx[s0 + e];
+            scanned += s == s;
             if (!(s <= within)) continue; /* beyond the bound, or an empty slot (NaN) */
             int fail = 0;
             if (id >= 0) {
@@ -397,6 +383,10 @@ static PyObject *approx(PyObject *self, PyObject *args) {
         }
     }
     free(ld);
+    if (scanned < k) { /* fewer than k samples scanned: no answer */
+        result = PyLong_FromSsize_t(-1 - nsel);
+        goto done;
+    }
     if (cands.n < k) { /* cannot happen: k scanned samples lie within the bound */
         PyErr_SetString(PyExc_RuntimeError, "knn_kernel.approx: fewer than k candidates");
         goto done;
@@ -430,7 +420,8 @@ done:
     return result;
 }
 
-/* canonical squared distance of column c of the dimension-major x (rows of `stride` doubles) to q */
+/* canonical squared distance of one column c of the dimension-major x (rows of `stride` doubles)
+   to q (the tree's proposals: scattered columns) */
 static inline double col_dist(const double *x, Py_ssize_t stride, Py_ssize_t c, const double *q, Py_ssize_t n) {
     double t = x[c] - q[0];
     double s = t * t;
@@ -460,6 +451,7 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
         return NULL;
     Buf bq = {0}, bfar = {0}, bti = {0}, btree = {0}, brec = {0}, bout = {0};
     Cands cands = {NULL, 0, 0};
+    double *dist = NULL;
     PyObject *result = NULL;
     if (get_buf(oqs, &bq, "qs", "d", 8, 0) || get_buf(ofar, &bfar, "far", "d", 8, 0) ||
         get_buf(oti, &bti, "ti", "q", 8, 0) || get_buf(otree, &btree, "tree_t", "d", 8, 0) ||
@@ -481,6 +473,8 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
     const double *qs = bq.view.buf, *far = bfar.view.buf, *tree = btree.view.buf, *rec = brec.view.buf;
     const int64_t *ti = bti.view.buf;
     int64_t *out = bout.view.buf;
+    dist = malloc(sizeof(double) * (nt > nr ? nt : nr > 0 ? nr : 1));
+    if (!dist) goto nomem;
     Py_ssize_t scans = 0;
     for (Py_ssize_t j = 0; j < b; j++) {
         const double *q = qs + j * n;
@@ -498,10 +492,9 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
             if (cands_push(&cands, d, i)) goto nomem;
         }
         if (kq >= k) bound = top;
-        for (Py_ssize_t r = 0; r < nr; r++) {
-            const double d = col_dist(rec, rcols, r, q, n);
-            if (d <= bound && cands_push(&cands, d, nt + r)) goto nomem;
-        }
+        run_dists(rec, rcols, 0, nr, q, n, dist);
+        for (Py_ssize_t r = 0; r < nr; r++)
+            if (dist[r] <= bound && cands_push(&cands, dist[r], nt + r)) goto nomem;
         if (cands.n < k) {
             PyErr_SetString(PyExc_RuntimeError, "knn_kernel.tree_answers: fewer than k candidates");
             goto done;
@@ -514,10 +507,12 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
             if (!(f * f * margin > cands.c[k - 1].d)) {
                 scans++;
                 cands.n = 0;
+                run_dists(tree, tcols, 0, nt, q, n, dist);
                 for (Py_ssize_t i = 0; i < nt; i++)
-                    if (cands_push(&cands, col_dist(tree, tcols, i, q, n), i)) goto nomem;
+                    if (cands_push(&cands, dist[i], i)) goto nomem;
+                run_dists(rec, rcols, 0, nr, q, n, dist);
                 for (Py_ssize_t r = 0; r < nr; r++)
-                    if (cands_push(&cands, col_dist(rec, rcols, r, q, n), nt + r)) goto nomem;
+                    if (cands_push(&cands, dist[r], nt + r)) goto nomem;
                 first_sorted(cands.c, cands.n, k);
             }
         }
@@ -529,6 +524,7 @@ nomem:
     PyErr_NoMemory();
 done:
     free(cands.c);
+    free(dist);
     release(&bq);
     release(&bfar);
     release(&bti);
