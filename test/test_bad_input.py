@@ -124,15 +124,19 @@ def test_random_bytes_never_crash_any_callback(nodes, data):
 def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos, vel):
     n = nodes["learner"]
     fresh_stamps(n)  # this test's messages are all stamped 1 s: never "out of order"
-    before, total = learner_state(n), n.guard.total
+    before, total, ignored = learner_state(n), n.guard.total, sum(n.other_joints.values())
     n.on_joint_state(js_bytes(names, pos, vel))
     where = {nm: i for i, nm in enumerate(names)}
-    valid = (len(pos) == len(names) and len(vel) in (0, len(names)) and len(where) == len(names)
-             and all(j in where for j in JOINTS)
+    well_formed = len(pos) == len(names) and len(vel) in (0, len(names)) and len(where) == len(names)
+    valid = (well_formed and all(j in where for j in JOINTS)
              and all(-1.1 <= pos[where[j]] <= 1.1 for j in JOINTS)  # (NaN fails)
              and (not vel or all(-1000.0 <= vel[where[j]] <= 1000.0 for j in JOINTS)))
     if valid:
         assert np.array_equal(n.js_alpha, [pos[where[j]] for j in JOINTS]) and n.guard.total == total
+    elif well_formed and not any(j in where for j in JOINTS):
+        # another driver's joints only (a gripper's): ignored, counted apart, not an error (issue 24)
+        assert n.guard.total == total and sum(n.other_joints.values()) == ignored + 1
+        assert learner_state(n)[0] == before[0]
     else:
         assert n.guard.total == total + 1 and learner_state(n)[0] == before[0]
 

@@ -96,7 +96,8 @@ def graph_params(base: Path, out: Path, arm: dict, learner: dict | None = None,
     lower, upper = spec.limits()
     lp = data.setdefault("sagg_learner", {"ros__parameters": {}})["ros__parameters"]
     lp.update({"joints": spec.joint_names(), "joint_limits": {"lower": lower.tolist(), "upper": upper.tolist()},
-               "rest_posture": spec.rest_posture().tolist()})
+               "rest_posture": spec.rest_posture().tolist(),
+               "rest_return": "direct"})  # (the lockstep simulator's one-command return to rest, as sagg run sets it)
     lp.update(learner or {})
     data.setdefault("sagg_goal_generator", {"ros__parameters": {}})["ros__parameters"].update(generator or {})
     data["/**"]["ros__parameters"].update(everyone or {})

@@ -209,13 +209,22 @@ def test_graph_session_closed_before_run_leaves_a_readable_bag_and_no_context(tm
 
 def test_final_drain_takes_the_stopped_nodes_backlog_and_not_a_live_drivers_stream(tmp_path):
     # after the nodes stop, sagg run drains the recorder until the nodes' topics fall silent; an
-    # external driver's joint states and task point never do, and must not hold the run to the
-    # drain's limit (it did: every `--driver external` run ended with a 60 s wait)
+    # external driver's joint states and task point never do (nor a gripper driver's joint states
+    # beside the simulated arm), and must not hold the run to the drain's limit (it did: every
+    # `--driver external` run ended with a 60 s wait; with a gripper publishing, every run): a topic
+    # another node still publishes on is not waited on
+    import rclpy
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import JointState
+
     from sagg_bringup.session import GraphSession
 
     params = graph_params(load_graph_config(ROOT / "config/arm8.yaml"), 100, "lockstep")
     session = GraphSession([], None, graph_topics(params["sagg_learner"], "lockstep"), tmp_path / "bag",
-                           tmp_path, drain=10, live_topics=("/joint_states", "/tip_position"))
+                           tmp_path, drain=10)
+    driver = rclpy.create_node("some_driver", context=session.ctx)  # (its publishers outlive our nodes)
+    driver.create_publisher(JointState, "/joint_states", 10)
+    driver.create_publisher(PointStamped, "/tip_position", 10)
     spins = []
 
     class Stream:
@@ -234,6 +243,7 @@ def test_final_drain_takes_the_stopped_nodes_backlog_and_not_a_live_drivers_stre
         session.drain_recorder(quiet=0.2, limit=60.0)
     finally:
         session.executor, session.recorder = real, None
+        driver.destroy_node()
         session.close()
     assert session.bag.counts["/sagg/sample"] == 30  # the whole backlog was taken
     assert 31 <= len(spins) < 1000  # then it stopped, ~0.2 s later (at the limit: ~6,000 spins)

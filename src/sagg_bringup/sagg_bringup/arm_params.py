@@ -75,6 +75,10 @@ def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str,
     bp = params["sagg_sim_bridge"]
     if "timing" in bp:
         bp["timing"] = timing
+    # lockstep: the simulator's one-command return to rest, as in-process (the graph equals the
+    # in-process run); the learner still steps whenever anything but the simulator listens
+    if timing == "lockstep" and "rest_return" in lp:
+        lp["rest_return"] = "direct"
     # real-time bridge: a joint state sampled before a command arrived must not be taken for its
     # settled result; the learner's own advice is about two publish periods (0 = lockstep value)
     if timing == "realtime" and lp.get("observation_delay") == 0.0 and "publish_rate" in bp:

@@ -27,7 +27,9 @@ import time
 import numpy as np
 
 from sagg_common.params import ConfigError
+from sagg_common.publishers import describe
 from sagg_common.ros_params import HW_DEPTH, reliable
+from sagg_common.sources import with_message_info
 
 from .external import DriverMonitor, explicit_joints, external_params
 from .arm_params import load_graph_config
@@ -43,22 +45,49 @@ class _Probe:
 
     def __init__(self, lp: dict):
         task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
-        self.mon = DriverMonitor(lp["joints"], task, f"/{lp['controller'].strip('/')}/commands", lp["settle_velocity"])
+        self.mon = DriverMonitor(lp["joints"], task, f"/{lp['controller'].strip('/')}/commands", lp["settle_velocity"],
+                                 lp["plausibility.source_grace"])
         self.js: list[tuple[float, int, np.ndarray | None]] = []
         self.tips: list[tuple[float, int, np.ndarray]] = []
         self.index: list[int] | None = None
 
-    def on_js(self, msg) -> None:
-        self.mon.on_joint_state(msg)
+    def on_js(self, msg, info: dict) -> None:
+        self.mon.on_joint_state(msg, info)
         names = list(msg.name)
+        if not any(j in names for j in self.mon.joints):
+            return  # another driver's joints (e.g. a gripper's): the learner ignores them
         if all(j in names for j in self.mon.joints):
             self.index = [names.index(j) for j in self.mon.joints]
         self.js.append((time.time(), DriverMonitor._stamp(msg),
                         self.mon.alpha.copy() if self.mon.alpha is not None else None))
 
-    def on_tip(self, msg) -> None:
-        self.mon.on_task_point(msg)
+    def on_tip(self, msg, info: dict) -> None:
+        self.mon.on_task_point(msg, info)
         self.tips.append((time.time(), DriverMonitor._stamp(msg), np.array([msg.point.x, msg.point.y])))
+
+
+def publishers_report(node, mon: DriverMonitor, say) -> dict:
+    """Every publisher of the watched inputs and how the learner would take their messages (said
+    and returned): rclpy names no publisher per message, so per topic the publishers (node, GID),
+    the joint-name lists seen on /joint_states with what the learner does with each, and the
+    number of sources sending what the learner uses (one: accepted; more: the learner holds)."""
+    out: dict = {}
+    now = time.monotonic()
+    for topic, chains, what in (("/joint_states", mon.js_sources, "the learner's joints"),
+                                (mon.task_topic, mon.tip_sources, "task points")):
+        pubs = [describe(i) for i in node.get_publishers_info_by_topic(topic)]
+        sources = chains.live(now)
+        verdict = ("accepted (one source)" if sources <= 1 and not chains.ambiguous(now) else
+                   f"NOT accepted: {sources} sources send {what}; the learner holds while they do")
+        out[topic] = {"publishers": pubs, "sources": sources, "verdict": verdict}
+        say(f"{topic}: {len(pubs)} publisher(s): {'; '.join(pubs) or 'none'}; {what}: {verdict}")
+    lists = {", ".join(mon.js_names or []): "every learner joint: used"} if mon.js_names else {}
+    for names, n in mon.other_names.items():
+        lists[", ".join(names) or "(no joint)"] = f"none of the learner's joints: ignored ({n} messages)"
+    out["joint_lists"] = lists
+    for names, how in lists.items():
+        say(f"  /joint_states naming [{names}]: {how}")
+    return out
 
 
 def check_driver(config: str, joint: str | None = None, step: float = 0.05, seconds: float = 2.0,
@@ -91,8 +120,8 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     ex.add_node(node)
     probe = _Probe(lp)
     mon = probe.mon
-    node.create_subscription(JointState, "/joint_states", probe.on_js, reliable(100))
-    node.create_subscription(PointStamped, mon.task_topic, probe.on_tip, reliable(100))
+    node.create_subscription(JointState, "/joint_states", with_message_info(probe.on_js), reliable(100))
+    node.create_subscription(PointStamped, mon.task_topic, with_message_info(probe.on_tip), reliable(100))
     pub = node.create_publisher(Float64MultiArray, mon.cmd_topic, reliable(HW_DEPTH))
     problems: list[str] = []
     res: dict = {"joints": joints, "moved_joint": joint, "step": step, "problems": problems}
@@ -139,6 +168,9 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
         res["joint_noise"] = dict(zip(joints, pos.std(axis=0).tolist()))
         res["task_point_noise"] = np.array([t for _, _, t in tips]).std(axis=0).tolist()
         say(f"rates: joint states {res['joint_state_rate']:.1f}/s, task points {res['task_point_rate']:.1f}/s")
+        res["publishers"] = publishers_report(node, mon, say)
+        problems += [f"{t}: {v['verdict']}" for t, v in res["publishers"].items()
+                     if isinstance(v, dict) and v.get("verdict", "").startswith("NOT")]
         say(f"delay stamp -> arrival (same clock): joint states {1e3 * res['joint_state_delay']:.1f} ms, "
             f"task points {1e3 * res['task_point_delay']:.1f} ms")
         say("name mapping (learner joint -> index in /joint_states): "

@@ -107,6 +107,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--robot-eval-every", type=int, default=0, metavar="K",
                    help="--driver external: also evaluate on the robot every K micro-actions, pausing "
                         "learning (default 0: only at the end)")
+    r.add_argument("--stall-timeout", type=float, default=None, metavar="S",
+                   help="give up after S seconds without a new sample (default 600); the progress line "
+                        "shows why the learner holds meanwhile, and the error names it")
     r.add_argument("--driver-timeout", type=float, default=120.0,
                    help="--driver external: seconds to wait for the driver's topics (default 120)")
 
@@ -271,6 +274,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _stall(args) -> dict:
+    """``--stall-timeout`` for run_graph (its default when not given)."""
+    if args.stall_timeout is None:
+        return {}
+    if not args.stall_timeout > 0:
+        raise ConfigError(f"--stall-timeout: got {args.stall_timeout}; allowed: a number > 0 (seconds)")
+    return {"stall_timeout": args.stall_timeout}
+
+
 def _run(args) -> int:
     # lazy (heavy): ROS, mujoco
     from .setups import run_graph, setup_of
@@ -292,11 +304,11 @@ def _run(args) -> int:
                           strategy=args.strategy, eval_every=args.eval_every, overrides=parse_set(args.set),
                           progress=not args.quiet, domain_id=args.domain_id,
                           robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
-                          driver_timeout=args.driver_timeout)
+                          driver_timeout=args.driver_timeout, **_stall(args))
         else:
             s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
                           timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
-                          progress=not args.quiet, domain_id=args.domain_id)
+                          progress=not args.quiet, domain_id=args.domain_id, **_stall(args))
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
@@ -345,7 +357,7 @@ def _resume(args) -> int:
     timing = bridge.get("timing", args.timing)
     try:
         s = run_graph(params_file, micro, out, timing=timing, eval_every=eval_every,
-                      progress=not args.quiet, domain_id=args.domain_id, resume=True)
+                      progress=not args.quiet, domain_id=args.domain_id, resume=True, **_stall(args))
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code

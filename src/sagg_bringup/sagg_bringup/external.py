@@ -39,16 +39,17 @@ from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, read_config
 from sagg_common.progress import Progress
 from sagg_common.ros_params import HW_DEPTH, reliable
+from sagg_common.sources import ACCEPT, AMBIGUOUS, NO_INFO, SourceChains, with_message_info
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.evaluate import reach_frozen
-from sagg_low_level.learner import EvolvingContextLearner, SCHEMA
+from sagg_low_level.learner import EvolvingContextLearner, SCHEMA, step_toward
 from sagg_low_level.memory import SampleMemory
 
 from .arm_params import NODES, core_config, graph_params, resolve_arm
 from .evaluator import Evaluator
 from .params_files import run_only_params, set_checkpoint_dirs, write_params_file
 from .processes import GraphError, check_domain_id, node_processes
-from .session import GraphSession
+from .session import REPORT_PATIENCE, STALL_TIMEOUT, GraphSession
 from .split_tracker import SplitTracker
 from .report import arm_rows, write_report
 from .results import run_overrides
@@ -80,7 +81,11 @@ def external_params(full: dict[str, dict], micro_actions: int, own_joints: bool,
     the caller has it."""
     # lazy (heavy): ROS
     from sagg_low_level.node import robot_from_params
+    if full["sagg_learner"].get("rest_return") == "direct":
+        raise ConfigError("parameter 'rest_return': 'direct' (one command across the range to the rest "
+                          "posture) is for the simulated bridge only; allowed with --driver external: 'stepped'")
     params = graph_params(full, micro_actions, "lockstep", spec)
+    params["sagg_learner"]["rest_return"] = "stepped"
     if own_joints:
         lp = params["sagg_learner"]
         for k in ("joints", "joint_limits.lower", "joint_limits.upper", "rest_posture"):
@@ -103,15 +108,22 @@ def sim_model_matches(learner_params: dict, spec) -> bool:
 
 # ------------------------------------------------------------------------------ the driver
 class DriverMonitor:
-    """What the driver publishes, from the recorder's deserialized messages: joint states mapped
-    by name (positions, velocities, stamp), the newest task point and its stamp, receive times;
-    and :meth:`missing`, the contract items not yet met, each naming topic, type or joints."""
+    """What the driver publishes, from this process's own subscriptions (:meth:`subscribe`): joint
+    states mapped by name (positions, velocities, stamp), the newest task point and its stamp,
+    receive times; and :meth:`missing`, the contract items not yet met, each naming topic, type
+    or joints. The learner's rules for its inputs hold here too (DESIGN §8): a JointState naming
+    none of the joints is another driver's and ignored (its name list is kept for the report),
+    and while the joints (or the task points) come from two sources
+    (:class:`~sagg_common.sources.SourceChains`) nothing of that stream is taken: the evaluation on
+    the robot commands from these readings."""
 
-    def __init__(self, joints: list[str], task_topic: str, cmd_topic: str, settle_velocity: float):
+    def __init__(self, joints: list[str], task_topic: str, cmd_topic: str, settle_velocity: float,
+                 source_grace: float = 2.0):
         self.joints = list(joints)
         self.task_topic, self.cmd_topic = task_topic, cmd_topic
         self.settle_velocity = settle_velocity
-        self.js_names: list[str] | None = None   # names of the last joint state
+        self.js_names: list[str] | None = None   # names of the last joint state carrying our joints
+        self.other_names: dict[tuple, int] = {}  # name lists without any of our joints -> messages
         self.alpha: np.ndarray | None = None
         self.js_stamp = -1
         self.settled = False
@@ -121,16 +133,36 @@ class DriverMonitor:
         self.cmd_rx = 0.0  # receive time (monotonic) of the last message on the commands topic
         self.js_rx: list[float] = []  # receive times (monotonic) of the last joint states
         self.tip_rx: list[float] = []
+        self.js_sources = SourceChains(source_grace)
+        self.tip_sources = SourceChains(source_grace)
+        self.rejected_sources = {"/joint_states": 0, task_topic: 0}  # messages refused: two sources
+        self.on_tip = None  # called with each accepted task point (xyz array)
+
+    def subscribe(self, node) -> None:
+        """This monitor's subscriptions on ``node`` (with the message info: the sources)."""
+        # lazy (heavy): ROS
+        from geometry_msgs.msg import PointStamped
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64MultiArray
+        node.create_subscription(JointState, "/joint_states", with_message_info(self.on_joint_state), reliable(100))
+        node.create_subscription(PointStamped, self.task_topic, with_message_info(self.on_task_point), reliable(100))
+        node.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(100))
 
     @staticmethod
     def _stamp(msg) -> int:
         return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
-    def on_joint_state(self, msg) -> None:
+    def on_joint_state(self, msg, info: dict = NO_INFO) -> None:
         names = list(msg.name)
+        if not any(j in names for j in self.joints):
+            key = tuple(names)
+            self.other_names[key] = self.other_names.get(key, 0) + 1
+            return
         self.js_names = names
         self.js_count += 1
         self.js_rx = (self.js_rx + [time.monotonic()])[-200:]
+        if self._refused(self.js_sources, "/joint_states", info):
+            return
         where = {n: i for i, n in enumerate(names)}
         if any(j not in where for j in self.joints) or len(msg.position) != len(names):
             return
@@ -146,13 +178,31 @@ class DriverMonitor:
     def on_command(self, msg) -> None:  # noqa: ARG002 - only its time matters
         self.cmd_rx = time.monotonic()
 
-    def on_task_point(self, msg) -> None:
+    def on_task_point(self, msg, info: dict = NO_INFO) -> None:
         p = np.array([msg.point.x, msg.point.y, msg.point.z])
         st = self._stamp(msg)
         self.tip_count += 1
         self.tip_rx = (self.tip_rx + [time.monotonic()])[-200:]
+        if self._refused(self.tip_sources, self.task_topic, info):
+            return
         if np.all(np.isfinite(p)) and st >= self.tip_stamp:
             self.tip, self.tip_stamp = p, st
+            if self.on_tip is not None:
+                self.on_tip(p)
+
+    def _refused(self, chains: SourceChains, topic: str, info: dict) -> bool:
+        """Whether a message is not taken for its source (two sources: counted; a gap: not)."""
+        verdict = chains.classify(info["publication_sequence_number"], time.monotonic())
+        if verdict == AMBIGUOUS:
+            self.rejected_sources[topic] += 1
+        return verdict != ACCEPT
+
+    def two_sources(self) -> list[str]:
+        """The streams that have two live sources now, in words (empty: none)."""
+        now = time.monotonic()
+        return [f"{t}: {what} from two sources" for t, what, c in (
+            ("/joint_states", "the joints " + ", ".join(self.joints), self.js_sources),
+            (self.task_topic, "task points", self.tip_sources)) if c.ambiguous(now)]
 
     def missing(self, node, own_node: str = "sagg_run") -> list[str]:
         """The contract items not met yet (empty: the driver is ready), in words."""
@@ -175,6 +225,7 @@ class DriverMonitor:
             elif self.alpha is None:
                 out.append("/joint_states: no valid message yet (one finite position per name, stamps not "
                            "decreasing)")
+        out += self.two_sources()
         subs = [s for s in node.get_subscriptions_info_by_topic(self.cmd_topic) if s.node_name != own_node]
         wrong = sorted({s.topic_type for s in subs if s.topic_type != CMD_TYPE})
         if not subs:
@@ -216,18 +267,22 @@ class ContractRobot:
     before it, once settled (every |velocity| < ``settle_velocity``) and, stricter than the learner
     node, with a task point sampled no earlier than that joint state and once some joint has moved at least half the largest commanded displacement (when that is
     at least :data:`MOTION_FLOOR`); or
-    ``settle_timeout`` s after the command (then the latest fresh state). Targets are clipped to the joint limits (and, by
-    ``reach_frozen``, to ``max_joint_step`` from the measured posture)."""
+    ``settle_timeout`` s after the command (then the latest fresh state). Every target is clipped to
+    the joint limits and to ``max_joint_step`` from the newest measured posture (as the learner's
+    commands are); a return to rest, or to where learning paused, is a sequence of such commands
+    (:meth:`move_to`), never one jump (issue 24)."""
 
     def __init__(self, session: GraphSession, monitor: DriverMonitor, learner_params: dict,
                  answer_timeout: float = 30.0):
         # lazy (heavy): ROS
         from std_msgs.msg import Float64MultiArray
+        from sagg_low_level.node import robot_from_params
         lp = learner_params
         self.session, self.monitor = session, monitor
-        self.lower = np.asarray(lp["joint_limits.lower"], float)
-        self.upper = np.asarray(lp["joint_limits.upper"], float)
-        self.rest = np.asarray(lp["rest_posture"], float)
+        self.arm = robot_from_params(lp)
+        self.lower, self.upper, self.rest = self.arm.lower, self.arm.upper, self.arm.rest
+        self.max_step = float(lp["max_joint_step"])
+        self.move_steps = 0  # commands of moves done in steps (returns to rest or to a paused posture)
         self.m = len(lp["task_space.lower"])
         self.delay_ns = int(round(lp["observation_delay"] * 1e9))
         self.settle_timeout = lp["settle_timeout"]
@@ -237,22 +292,18 @@ class ContractRobot:
         self.commands = 0
         self.timeouts = 0  # answers taken after settle_timeout (not settled, or no motion seen)
         self.trace: list[dict] = []  # every command and its answer (DIR/robot_evaluation.json)
-        # a return to rest is a long move: it may take this long before its state is taken unsettled
-        self.reset_timeout = max(10.0, 5.0 * self.settle_timeout)
         self.rest_tip: np.ndarray | None = None  # the task point at the last reset
 
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
         return self.monitor.alpha.copy(), self.monitor.tip[: self.m].copy()
 
-    def command(self, target: np.ndarray, settle_timeout: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Publish ``target`` and return the answering (posture, task point); ``settle_timeout``:
-        this command's (default the learner's ``settle_timeout``)."""
-        settle_timeout = self.settle_timeout if settle_timeout is None else settle_timeout
+    def command(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Publish ``target`` (bounded as the class says) and return the answering (posture, task point)."""
         mon = self.monitor
-        target = np.minimum(np.maximum(np.asarray(target, float), self.lower), self.upper)
         # take what is queued first: freshness is judged against the newest state the driver has
-        # sent, not an older one still waiting in our queue
+        # sent, not an older one still waiting in our queue (and the step bound against the newest posture)
         self.session.spin()
+        target = step_toward(mon.alpha, np.asarray(target, float), self.max_step + 1e-9, self.arm)
         js_min, tip_min = mon.js_stamp + self.delay_ns, mon.tip_stamp + self.delay_ns
         before = mon.alpha.copy()
         asked = float(np.abs(target - before).max())
@@ -277,7 +328,7 @@ class ContractRobot:
             # moving arm may still be queued behind it (measured under load: a reset answered by
             # the rest posture and the tip of half-way)
             done = settled_at is not None and mon.tip_stamp >= settled_at
-            if done or (fresh and waited > settle_timeout):
+            if done or (fresh and waited > self.settle_timeout):
                 if not done:
                     self.timeouts += 1
                 self.trace.append({"t": time.time(), "target": target.tolist(), "before": before.tolist(),
@@ -288,8 +339,22 @@ class ContractRobot:
                 raise GraphError(f"no fresh joint state and task point {waited:.0f} s after a command on "
                                  f"{mon.cmd_topic}: the driver stopped answering")
 
+    def move_to(self, posture: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Go to ``posture`` in commands of at most ``max_joint_step`` per joint from the measured
+        posture; answered by the observation after the command that reaches it (or after as many
+        steps as the learner's return to rest allows: a joint that does not follow)."""
+        posture = np.asarray(posture, float)
+        span = float((self.upper - self.lower).max())
+        for _ in range(max(50, 4 * int(np.ceil(span / self.max_step)))):
+            target = step_toward(self.monitor.alpha, posture, self.max_step, self.arm)
+            self.move_steps += 1
+            alpha, y = self.command(target)
+            if (target == posture).all():
+                break
+        return alpha, y
+
     def reset(self) -> tuple[np.ndarray, np.ndarray]:
-        alpha, y = self.command(self.rest, self.reset_timeout)
+        alpha, y = self.move_to(self.rest)
         self.rest_tip = y
         return alpha, y
 
@@ -380,7 +445,8 @@ class RobotEvaluation:
                 "final_within_share": self.curve[-1]["within_share"] if self.curve else float("nan"),
                 "band_mean_errors": self.curve[-1]["band_mean_errors"] if self.curve else None,
                 "eval_metrics": None if self.goals is None else frame_summary(self.frame()),
-                "commands": self.robot.commands, "settle_timeouts": self.robot.timeouts, "seconds": self.seconds}
+                "commands": self.robot.commands, "move_steps": self.robot.move_steps,
+                "settle_timeouts": self.robot.timeouts, "seconds": self.seconds}
 
 
 class Pauser:
@@ -423,7 +489,7 @@ class Pauser:
 def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
                        seed: int | None = None, strategy: str | None = None, eval_every: int = 1000,
                        overrides: dict[str, Any] | None = None, progress: bool = True,
-                       domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True,
+                       domain_id: int | None = None, stall_timeout: float = STALL_TIMEOUT, report: bool = True,
                        robot_eval_goals: int = 10, robot_eval_every: int = 0,
                        driver_timeout: float = 120.0) -> dict:
     """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
@@ -459,12 +525,13 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     # the driver runs in the environment's domain and discovery range (not a private one)
     if domain_id is None:
         domain_id = int(os.environ.get("ROS_DOMAIN_ID") or 0)
-    # the driver's state streams go on after the nodes stop: the final drain does not wait for them
-    session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False,
-                           live_topics=("/joint_states", task_topic))
+    # (the driver's state streams go on after the nodes stop: the final drain does not wait for them)
+    session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False)
     st = session.st
     try:
-        monitor = DriverMonitor(lp["joints"], task_topic, cmd_topic, lp["settle_velocity"])
+        monitor = DriverMonitor(lp["joints"], task_topic, cmd_topic, lp["settle_velocity"],
+                                lp["plausibility.source_grace"])
+        monitor.subscribe(session.node)
         evaluator = None
         checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
         if simulated:
@@ -485,10 +552,11 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                     evaluator.add(int(m.index), a, da, dy)
             return ok
 
-        def on_tip(m) -> None:
-            monitor.on_task_point(m)
-            if st.samples and monitor.tip is not None and len(reached) < 200_000:
-                reached.append(monitor.tip[:2].copy())
+        def on_tip(p) -> None:
+            if st.samples and len(reached) < 200_000:
+                reached.append(p[:2].copy())
+
+        monitor.on_tip = on_tip
 
         tracker = SplitTracker(t_lower, t_upper)
 
@@ -497,8 +565,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
             tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
 
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
-                        "/sagg/regions": on_regions, "/sagg/status": st.on_status,
-                        "/joint_states": monitor.on_joint_state, task_topic: on_tip, cmd_topic: monitor.on_command})
+                        "/sagg/regions": on_regions, "/sagg/status": st.on_status})
         robot = ContractRobot(session, monitor, lp)
         sim_goals = None
         if simulated:
@@ -518,8 +585,8 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                 posture = monitor.alpha.copy()
             errors = robot_eval.run(at, *samples, reached)
             session.view.set_test_goals(robot_eval.goals)
-            if not final:  # back where learning paused, then resume
-                robot.command(posture)
+            if not final:  # back where learning paused (in steps), then resume
+                robot.move_to(posture)
                 pauser.set(False)
             st.last_error = float(errors.mean())
 
@@ -556,10 +623,10 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                 if st.samples != last[0]:
                     last = (st.samples, now)
                 elif not done and now - last[1] > stall_timeout:
-                    raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} micro-actions); "
-                                     f"node logs in {out / 'logs'}; driver: "
+                    raise GraphError(f"{st.stall_text(stall_timeout, 'micro-actions')}; node logs in "
+                                     f"{out / 'logs'}; driver: "
                                      + ("; ".join(monitor.missing(session.node)) or "meets the contract"))
-                if done and st.all_recorded(now, stall_timeout):
+                if done and st.all_recorded(now, min(stall_timeout, REPORT_PATIENCE)):
                     if evaluator is None or evaluator.finished(st.samples):
                         break
             bar.update(st.samples, force=True, **st.progress())

@@ -49,7 +49,7 @@ from .processes import GraphError, check_domain_id, node_processes
 from .recorder import _msg_class
 from .report import arm_rows, write_report
 from .results import run_overrides
-from .session import GraphSession
+from .session import STALL_TIMEOUT, GraphSession
 from .split_tracker import SplitTracker
 from .topics import graph_topics
 
@@ -57,7 +57,7 @@ from .topics import graph_topics
 def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
               seed: int | None = None, strategy: str | None = None, timing: str = "lockstep",
               eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
-              domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True,
+              domain_id: int | None = None, stall_timeout: float = STALL_TIMEOUT, report: bool = True,
               resume: bool = False) -> dict:
     """Run the graph for ``micro_actions`` micro-actions; returns the summary (also in DIR).
 

@@ -10,6 +10,9 @@ from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
 from sagg_goal_generator.core import MODE_NAMES
 
 
+HELD_WIDTH = 72  # characters of the hold reason on the progress line
+
+
 @dataclass
 class RunState:
     """What the orchestrator learns from the topics."""
@@ -154,10 +157,28 @@ class RunState:
         return self.reports >= self.status.get("reports", 0) or now - self.report_t >= patience
 
     def progress(self) -> dict:
-        """The progress bar's fields."""
-        return {"goals": len(self.goals),
-                "regions": len(self.last_regions.regions) if self.last_regions is not None else 1,
-                "competence": self.last_competence, "error": self.last_error}
+        """The progress bar's fields; ``held``: why the learner holds, shortened (the full text is
+        in /sagg/status, /diagnostics and the learner's log)."""
+        out = {"goals": len(self.goals),
+               "regions": len(self.last_regions.regions) if self.last_regions is not None else 1,
+               "competence": self.last_competence, "error": self.last_error}
+        reason = self.hold_reason()
+        if reason:
+            out["held"] = reason if len(reason) <= HELD_WIDTH else reason[:HELD_WIDTH - 1] + "…"
+        return out
+
+    def hold_reason(self) -> str:
+        """Why the learner does not act now, from its last /sagg/status ('' while it acts)."""
+        s = self.status
+        if s is None or not s.get("paused") or s.get("pause_reason", "").startswith("max_micro_actions"):
+            return ""  # (acting, or done: not a hold)
+        return s.get("pause_reason", "")
+
+    def stall_text(self, seconds: float, unit: str) -> str:
+        """The error of a run that got no new sample for ``seconds`` s: with what the learner says."""
+        why = self.hold_reason()
+        return (f"no new sample for {seconds:.0f} s (at {self.samples} {unit}); the learner "
+                + (f"holds: {why}" if why else "does not say it holds (a node stalled or died?)"))
 
     def goal_list(self) -> list[dict]:
         """The goals in seq order, with their final competence and the micro-actions done when

@@ -19,6 +19,16 @@ from .recorder import BagWriter, TopicRecorder, TopicSpec
 from .results import goal_share_stats
 from .run_state import RunState
 
+# s without a new competence report after which a finished run stops waiting for the missing ones
+# (they are counted as dropped; RunState.all_recorded)
+REPORT_PATIENCE = 60.0
+# default of `sagg run --stall-timeout`: s without a new sample before a run gives up (a hold the
+# learner names lasts as long as its cause: a second source, a stopped driver, a pause)
+STALL_TIMEOUT = 600.0
+
+# the goal generator's second node, which serves /sagg/next_goal (sagg_goal_generator.node.GoalServer)
+GOAL_SERVER_NODE = "sagg_goal_generator_goals"
+
 # the keys of summary.json, in order (a run writes those it has)
 SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_file", "timing", "domain_id",
                 "micro_actions", "micro_actions_requested", "micro_actions_per_second", "eval_every",
@@ -47,15 +57,11 @@ class GraphSession:
     and its recorder (feeding :attr:`st`, a :class:`RunState`); Ctrl-C / SIGTERM as a flag; the wait
     for the learner to finish (a node exiting or a stall is a :class:`GraphError`); the cleanup in
     every case; the summary's common keys. ``drain``: at most this many queued callbacks are taken
-    per loop before the bookkeeping. ``live_topics``: recorded topics whose publishers outlive the
-    nodes (an external driver's joint states and task point), which the final drain does not wait
-    to fall silent."""
+    per loop before the bookkeeping."""
 
     def __init__(self, procs: list[NodeProcess], domain_id: int | None, topics: list[TopicSpec],
-                 bag_path: Path, out: Path, drain: int, status_rate: bool = True, localhost: bool = True,
-                 live_topics: tuple[str, ...] = ()):
+                 bag_path: Path, out: Path, drain: int, status_rate: bool = True, localhost: bool = True):
         self.procs, self.topics, self.out, self.drain = procs, topics, out, drain
-        self.live_topics = frozenset(live_topics)
         self.nodes = NodeGroup(procs, domain_id, localhost)
         self.domain, self.env = self.nodes.domain, self.nodes.env
         # lazy (heavy): ROS
@@ -178,9 +184,8 @@ class GraphSession:
             if st.samples != last_progress[0]:
                 last_progress = (st.samples, now)
             elif not learner_done and now - last_progress[1] > stall_timeout:
-                raise GraphError(f"no new sample for {stall_timeout:.0f} s (at {st.samples} {unit}); "
-                                 f"node logs in {self.out / 'logs'}")
-            if learner_done and st.all_recorded(now, stall_timeout):
+                raise GraphError(f"{st.stall_text(stall_timeout, unit)}; node logs in {self.out / 'logs'}")
+            if learner_done and st.all_recorded(now, min(stall_timeout, REPORT_PATIENCE)):
                 if done_at is None:
                     done_at = now
                 if may_end(now - done_at):
@@ -221,24 +226,35 @@ class GraphSession:
     def drain_recorder(self, quiet: float = 0.5, limit: float = 60.0) -> None:
         """After the nodes stopped: take what the recorder's subscriptions still hold (a recorder
         that fell behind, e.g. on an interrupted run on a loaded machine, would otherwise lose its
-        backlog), until nothing came on the stopped nodes' topics (all but :attr:`live_topics`)
-        for ``quiet`` s (at most ``limit`` s)."""
+        backlog), until nothing came on the stopped nodes' topics for ``quiet`` s (at most ``limit``
+        s). A topic that another node still publishes on (an external driver's joint states, a
+        gripper driver beside the simulated arm, a bag playing) is not waited on: its traffic goes
+        on after ours stopped (:meth:`_foreign_live`)."""
         if self.recorder is None or self.bag.closed:
             return
+        live, t_live = self._foreign_live(), time.perf_counter()
 
         def stopped_nodes_messages() -> int:
-            return sum(n for t, n in self.bag.counts.items() if t not in self.live_topics)
+            return sum(n for t, n in self.bag.counts.items() if t not in live)
 
         t_end = time.perf_counter() + limit
         last, t_last = stopped_nodes_messages(), time.perf_counter()
         while time.perf_counter() < t_end:
             self.executor.spin_once(timeout_sec=0.05)
             now = time.perf_counter()
+            if now - t_live >= 1.0:
+                live, t_live = self._foreign_live(), now
             written = stopped_nodes_messages()
             if written != last:
                 last, t_last = written, now
             elif now - t_last >= quiet:
                 break
+
+    def _foreign_live(self) -> frozenset[str]:
+        """The recorded topics that a node other than ours (the run's nodes, this process) publishes on."""
+        ours = {p.name for p in self.procs} | {GOAL_SERVER_NODE, self.node.get_name()}
+        return frozenset(t.name for t in self.topics
+                         if any(i.node_name not in ours for i in self.node.get_publishers_info_by_topic(t.name)))
 
     def final_drain(self, seconds: float = 0.3) -> None:
         """Spin a little longer: the recorder takes the final Evaluation message (and view)."""

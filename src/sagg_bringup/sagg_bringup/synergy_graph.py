@@ -32,7 +32,7 @@ from sagg_low_level.eval_metrics import error_metrics, metric_frame
 from .params_files import run_only_params, write_params_file
 from .processes import check_domain_id, node_processes
 from .results import run_overrides
-from .session import GraphSession
+from .session import STALL_TIMEOUT, GraphSession
 from .synergy_experiment import SynergyRun, load_synergy_config, outcome_extents
 
 
@@ -65,7 +65,7 @@ def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, d
 def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
                       seed: int | None = None, strategy: str | None = None, timing: str = "lockstep",
                       eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
-                      domain_id: int | None = None, stall_timeout: float = 60.0, report: bool = True) -> dict:
+                      domain_id: int | None = None, stall_timeout: float = STALL_TIMEOUT, report: bool = True) -> dict:
     """Run the graph of the fixed-context set-up ``setup`` (a registry entry: its nodes, schemas,
     adapter and topics) for ``micro_actions`` experiments; returns the summary (also in DIR)."""
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)

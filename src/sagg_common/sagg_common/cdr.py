@@ -200,20 +200,28 @@ class JointStateEncoder:
 
 class JointStateDecoder:
     """Decodes stamp, names, positions and velocities; the names tuple is cached and returned as
-    the same object while the publisher's name list does not change (cheap re-mapping check).
-    Fast path: when the frame_id and name list bytes equal the previous message's, their parsing
-    is skipped (one bytes comparison)."""
+    the same object while a publisher's name list does not change (cheap re-mapping check).
+    Fast path: when the frame_id and name list bytes equal those of one of the last few distinct
+    lists seen (several drivers may publish their own joints on /joint_states, interleaved), their
+    parsing is skipped (one bytes comparison each)."""
+
+    KEEP = 4  # distinct (frame_id, names) lists remembered
 
     def __init__(self):
-        self._blob = b""       # bytes of frame_id + names of the last message (payload offsets 8..end)
-        self._end = 0          # payload offset just after the names
+        # (bytes of frame_id + names (payload offsets 8..end), end, names), most recent first
+        self._seen: list[tuple[bytes, int, tuple[str, ...]]] = []
         self.names: tuple[str, ...] = ()
 
     def decode(self, data: bytes) -> tuple[int, tuple[str, ...], np.ndarray, np.ndarray]:
         r = Reader(data)
         stamp = r.stamp()
-        end = self._end
-        if not (end and data[12:4 + end] == self._blob):
+        seen = self._seen
+        for i, (blob, end, names) in enumerate(seen):
+            if data[12:4 + end] == blob:
+                if i:
+                    seen.insert(0, seen.pop(i))
+                break
+        else:
             r.skip_string()  # frame_id
             start = r.o
             count = r.u32()
@@ -222,12 +230,14 @@ class JointStateDecoder:
             end = r.o
             r2 = Reader(data)
             r2.o = start
-            self.names = tuple(r2.string() for _ in range(r2.u32()))
-            self._blob, self._end = bytes(data[12:4 + end]), end
+            names = tuple(r2.string() for _ in range(r2.u32()))
+            seen.insert(0, (bytes(data[12:4 + end]), end, names))
+            del seen[self.KEEP:]
+        self.names = names
         r.o = end
         position = r.f64_seq()
         velocity = r.f64_seq()
-        return stamp, self.names, position, velocity
+        return stamp, names, position, velocity
 
 
 # ------------------------------------------------------------------ geometry_msgs/PointStamped

@@ -52,6 +52,7 @@ class Param:
     choices: tuple[str, ...] | None = None
     length: int | None = None
     low_open: bool = False  # True: value must be > low instead of >= low
+    deprecated: str = ""    # non-empty: kept so that old parameter files load; why, said once when set
 
     def allowed(self) -> str:
         """Human-readable description of the allowed values."""
@@ -156,7 +157,8 @@ def dataclass_schema(prefix: str, cls, doc: Mapping[str, str] | Callable[[str], 
 
 
 def schema_defaults(schema: Schema) -> dict[str, Any]:
-    return {p.name: p.default for p in schema}
+    """Every parameter's default, but a deprecated one's (it is in a config only when given)."""
+    return {p.name: p.default for p in schema if not p.deprecated}
 
 
 def resolve(schema: Schema, values: Mapping[str, Any], where: str = "") -> dict[str, Any]:

@@ -144,7 +144,10 @@ def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[
     check_own_sections(node, schema, args)
     values: dict[str, Any] = {}
     for p in schema:
-        value = p.validate(_plain(_override(node, p.name, p.default)))
+        raw = _override(node, p.name, _UNSET)
+        if p.deprecated and raw is not _UNSET:
+            node.get_logger().warning(f"parameter '{p.name}' is deprecated: {p.deprecated}")
+        value = p.validate(_plain(p.default if raw is _UNSET else raw))
         node.declare_parameter(p.name, value, descriptor(p), ignore_override=True)
         values[p.name] = value
     # '/**' parameters are meant for every node that declares them (seed, strategy, task_space.*):
@@ -155,6 +158,9 @@ def declare_schema(node, schema: Schema, args: list[str] | None = None) -> dict[
         # They may come from the '/**' section meant for other nodes: not an error (as in ROS).
         node.get_logger().info(f"parameters not used by this node: {', '.join(unused)}")
     return values
+
+
+_UNSET = object()  # no override given
 
 
 def _override(node, name: str, default: Any) -> Any:

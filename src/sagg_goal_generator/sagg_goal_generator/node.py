@@ -32,7 +32,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sagg_common.msg_codecs import decode_report, encode_region_tree
 from sagg_common.diagnostics import InputGuard, diagnostic_array, report_problem
 from sagg_common.params import ConfigError
-from sagg_common.publishers import PublisherWatch
+from sagg_common import sources
+from sagg_common.publishers import describe
 from sagg_common.report_kinds import KIND_NAMES
 from sagg_common.ros_params import declare_schema, reliable, run_node, spin
 from sagg_msgs.msg import CompetenceReport, Goal, RegionTree
@@ -111,13 +112,14 @@ class GoalGeneratorNode(Node):
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
         # transient_local: after a restart, the reports missed come again from the learner's history
-        # reports only from the learner (DESIGN §8): while /sagg/competence has another publisher
-        # (or its only one is not the learner), reports are dropped and named; once it is gone the
-        # subscription is made again, and the learner's transient_local history (10000 reports, the
-        # report_window) delivers the real reports dropped meanwhile (duplicates are dropped by seq).
-        # (Per-message publisher numbers would need message info, which the events executor does
-        # not hand to callbacks.)
-        self.watch = PublisherWatch(self)
+        # reports from one source (DESIGN §8; sagg_common.sources, told apart by the publishers'
+        # sequence numbers): while a second source sends well-formed reports, every report is
+        # dropped (which is real cannot be told) and named; once one source has been quiet for
+        # source_grace the subscription is made again, and the learner's transient_local history
+        # (10000 reports, the report_window) delivers the real reports dropped meanwhile (duplicates
+        # are dropped by seq). A publisher that sends nothing changes nothing.
+        self.report_sources: sources.SourceChains | None = None
+        self.source_hold = ""  # the current second source, in words ('' = none)
         self.report_sub = None
         self.resubscribe_due = False  # reports were dropped for a foreign publisher
         self.resubscriptions = 0
@@ -141,21 +143,37 @@ class GoalGeneratorNode(Node):
         if self.report_sub is not None:
             self.destroy_subscription(self.report_sub)
         self.report_sub = self.create_subscription(CompetenceReport, "/sagg/competence",
-                                                   _locked(self.cond, self.on_report),
+                                                   sources.with_message_info(_locked(self.cond, self.on_report)),
                                                    reliable(10000, transient_local=True), raw=True)
-        self.watch.watch("/sagg/competence", self.report_sub, "sagg_learner")
+        # a new subscription's messages are new chains: the learner's history first
+        self.report_sources = sources.SourceChains(self.params["plausibility.source_grace"])
 
-    def _check_report_publishers(self) -> None:
-        """After reports were dropped for a foreign publisher: once it is gone, subscribe again."""
-        if self.resubscribe_due and not self.watch.refresh("/sagg/competence") \
-                and self.count_publishers("/sagg/competence") == 1:
+    def _check_report_sources(self) -> None:
+        """After reports were dropped for a second source: once one source has been quiet for
+        ``source_grace``, subscribe again (the learner's history brings the dropped reports back)."""
+        if self.resubscribe_due and not self.report_sources.ambiguous(time.monotonic()):
             self.resubscribe_due = False
             self.resubscriptions += 1
-            self.get_logger().info("/sagg/competence has the learner as its only publisher again: "
-                                   "subscribing again for the reports dropped meanwhile")
+            self.source_hold = ""
+            self.get_logger().info("/sagg/competence has one source again: subscribing again for the "
+                                   "reports dropped meanwhile")
             self._subscribe_reports()
 
-    def on_report(self, raw: bytes) -> None:
+    def _second_source(self, seq: int, verdict: int) -> None:
+        """A well-formed report while /sagg/competence has two sources (or after skipped publisher
+        numbers): dropped, named, and taken again from the learner's history later."""
+        if not self.source_hold:
+            pubs = "; ".join(describe(i) for i in self.get_publishers_info_by_topic("/sagg/competence")) or "none"
+            self.source_hold = (f"/sagg/competence: reports from two sources (the topic's publishers: {pubs}); "
+                                f"reports are dropped until one has been quiet for {self.params['plausibility.source_grace']:g} s "
+                                "(plausibility.source_grace), then taken again from the learner's history")
+        kind = "report.second_source" if verdict == sources.AMBIGUOUS else "report.sequence_gap"
+        self.guard.reject(kind, f"report {seq} dropped: " + (self.source_hold if verdict == sources.AMBIGUOUS else
+                                                             "publisher numbers skipped (messages missed or another "
+                                                             "publisher); taken again from the learner's history"))
+        self.resubscribe_due = True
+
+    def on_report(self, raw: bytes, info: dict = sources.NO_INFO) -> None:
         gen = self.gen
         try:
             msg = decode_report(raw)
@@ -176,16 +194,15 @@ class GoalGeneratorNode(Node):
             # rejected before its seq is consumed: the real report with this number is still taken
             self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; dropped")
             return
+        # a well-formed report: from one source only (duplicates too: they are part of the chain)
+        verdict = self.report_sources.classify(info["publication_sequence_number"], time.monotonic())
+        if verdict != sources.ACCEPT:
+            self._second_source(msg.seq, verdict)
+            return
         if msg.seq <= gen.reports:
             # already processed: re-sent from the learner's history after a restart, or a duplicate
             self.guard.reject("report.duplicate", f"competence report {msg.seq}: already have reports "
                                                   f"1..{gen.reports}; dropped")
-            return
-        problem = self.watch.problem("/sagg/competence")  # a well-formed new report: from the learner only
-        if problem:
-            self.guard.reject("report.publishers", f"/sagg/competence has {problem}; report {msg.seq} dropped "
-                                                   "(taken again from the learner's history once it is gone)")
-            self.resubscribe_due = True
             return
         if msg.seq != gen.reports + 1:
             # early: kept until the reports before it come (reordered, or re-delivered from the
@@ -239,7 +256,10 @@ class GoalGeneratorNode(Node):
         gen = self.gen
         state = {"reports": str(gen.reports), "skipped_reports": str(gen.skipped_reports),
                  "goals": str(len(gen.goals)), "regions": str(len(gen.tree.leaves()))}
-        state.update({f"publishers {t}": p for t, p in self.watch.all_problems().items()})
+        state["publishers /sagg/competence"] = "; ".join(
+            describe(i) for i in self.get_publishers_info_by_topic("/sagg/competence")) or "none"
+        if self.source_hold:
+            state["second source"] = self.source_hold
         state["report_resubscriptions"] = str(self.resubscriptions)
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
@@ -376,7 +396,7 @@ class GoalGeneratorNode(Node):
     # ------------------------------------------------------------ regions
     def on_regions_timer(self) -> None:
         if self.resubscribe_due:
-            self._check_report_publishers()
+            self._check_report_sources()
         if self.early:
             self._check_early()
         if self.goals_to_publish and self._goal_subscribers_ok():

@@ -279,6 +279,15 @@ def safe_target(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: R
     return np.minimum(np.maximum(alpha + step, robot.lower), robot.upper)
 
 
+def step_toward(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: Robot) -> np.ndarray:
+    """``target`` clipped per joint to at most ``max_step`` from ``alpha`` and to the joint limits:
+    the next command of a move done in steps (the return to rest on a real arm, issue 24: one
+    position command across the range is a jump at full speed on a position controller). It
+    equals ``target`` once every joint is within a step of it."""
+    return np.minimum(np.maximum(target, np.maximum(robot.lower, alpha - max_step)),
+                      np.minimum(robot.upper, alpha + max_step))
+
+
 class EvolvingContextLearner:
     """Low-level goal-directed exploration with evolving context (Alg. 3) + actuator baselines."""
 

@@ -37,15 +37,20 @@ from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
 from sagg_common.envelope import ACCEPT, FUTURE, OUT_OF_ORDER, RejectRun, StampTracker
 from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_common.params import ConfigError, Param, Schema
-from sagg_common.publishers import PublisherWatch
+from sagg_common import sources
+from sagg_common.publishers import UNKNOWN_NODE, PublisherWatch, describe
 from sagg_common.ros_params import HW_DEPTH, reliable, run_node
 from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .checkpoint import LearnerCheckpointer
-from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot
+from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot, step_toward
+from .recorder_acks import RecorderAcks
 from .node_base import NODE_NAME, LearnerNodeBase
 from .schema import LEARNER_CORE_SCHEMA as CORE_SCHEMA, LEARNER_SCHEMA as SCHEMA
+
+SIM_BRIDGE = "sagg_sim_bridge"       # the simulated bridge's node (rest_return 'direct' is for it only)
+RECORDERS = ("sagg_run", "sagg_record")  # sagg's recorders: they subscribe to the commands, never act on them
 
 
 
@@ -108,29 +113,45 @@ class LearnerNode(LearnerNodeBase):
         self.published = {self.cmd_topic: 0, "/sagg/sample": 0, "/sagg/competence": 0}
         self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
         self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
-        # hot path: raw CDR in and out (sagg_common.cdr), no message objects
-        js_sub = self.create_subscription(JointState, "/joint_states", self.on_joint_state, reliable(10), raw=True)
-        tip_sub = self.create_subscription(PointStamped, p["task_topic"], self.on_task_point, reliable(10), raw=True)
-        # one publisher per input and per /sagg output (DESIGN §8; sagg_common.publishers)
-        self.single_publisher = p["plausibility.single_publisher"]
-        self.watch = PublisherWatch(self)
+        # hot path: raw CDR in and out (sagg_common.cdr), no message objects; with the message info
+        # (the publishers' sequence numbers tell the sources apart)
+        js_sub = self.create_subscription(JointState, "/joint_states", sources.with_message_info(self.on_joint_state),
+                                          reliable(10), raw=True)
+        tip_sub = self.create_subscription(PointStamped, p["task_topic"], sources.with_message_info(self.on_task_point),
+                                           reliable(10), raw=True)
+        # one source per input (DESIGN §8, sagg_common.sources): judged by the messages that arrive,
+        # never by who merely publishes; the messages of /joint_states without any of our joints
+        # (a gripper's) are not part of the stream
+        self.check_sources = p["plausibility.check_sources"]
+        self.js_sources = sources.SourceChains(p["plausibility.source_grace"])
+        self.tip_sources = sources.SourceChains(p["plausibility.source_grace"])
+        self.other_joints: dict[tuple, int] = {}  # name lists without any of our joints -> messages ignored
+        self.source_text: dict[str, str] = {}     # topic -> its current source hold, in words
+        self._maps: dict[tuple, tuple] = {}      # name list -> how its messages are mapped (_name_map)
+        self.watch = PublisherWatch(self)        # (names the publishers in holds and on /diagnostics)
         self.watch.watch("/joint_states", js_sub)
         self.watch.watch(p["task_topic"], tip_sub)
-        for topic, owner in (("/sagg/competence", NODE_NAME), ("/sagg/sample", NODE_NAME),
-                             ("/sagg/status", NODE_NAME), ("/sagg/goal", "sagg_goal_generator"),
-                             ("/sagg/regions", "sagg_goal_generator")):
-            self.watch.watch(topic, None, owner)
         self.js_decoder = JointStateDecoder()
+        # the return to rest (rest_return): stepped unless the simulator is the only listener
+        self.rest_return = p["rest_return"]
+        self.rest_steps = 0         # rest-return commands sent (not micro-actions)
+        self.rest_final = True      # the command in flight answers the pending request
+        self.rest_step_count = 0    # steps of the return to rest in progress
+        self._cmd_subs = (-1, None)  # (subscriber count, only the simulator listens) of the commands topic
+        span = float((self.robot.upper - self.robot.lower).max())
+        self.rest_step_limit = max(50, 4 * math.ceil(span / self.learner.p["max_joint_step"]))
         self.create_service(SetBool, "/sagg/pause", self.on_pause)
         # backpressure: a recorder's acknowledgements (recorder_max_lag)
         self.rec_max_lag = p["recorder_max_lag"]
-        self.rec_acked = 0          # the largest valid acknowledgement (samples recorded from index 0)
+        self.rec_acks = RecorderAcks(p["recorder_timeout"])  # per recorder (told apart by its publisher)
+        self.rec_acked = 0          # what the slowest live recorder acknowledged (samples from index 0)
         self.rec_waiting = False    # a command waits for the recorder
         self.rec_waits = 0          # how often, and for how long in all
         self.rec_wait_seconds = 0.0
         self.rec_wait_t0 = 0.0
         self.samples_published = 0  # samples published (index of the last one + 1)
-        self.rec_sub = self.create_subscription(UInt64, "/sagg/recorded", self.on_recorded, reliable(10))
+        self.rec_sub = self.create_subscription(UInt64, "/sagg/recorded", sources.with_message_info(self.on_recorded),
+                                                reliable(10))
 
         # --- observation state
         self._names: tuple | None = None     # joint-name order of the last JointState seen (cached)
@@ -172,10 +193,10 @@ class LearnerNode(LearnerNodeBase):
             + (f", stops at {self.max_micro_actions} micro-actions" if self.max_micro_actions else ""))
 
     # ------------------------------------------------------------------ observations
-    def on_joint_state(self, data: bytes) -> None:
-        if self.single_publisher and self.watch.problem("/joint_states"):
-            self._foreign("/joint_states", "joint_states")
-            return
+    def on_joint_state(self, data: bytes, info: dict = sources.NO_INFO) -> None:
+        """A JointState: decoded, mapped to our joints by name (a message without any of them is
+        another driver's: ignored), checked (limits, finite, velocity), then its source (one
+        publisher for our joints) and its stamp; only then it is the newest measured posture."""
         try:
             st, names, pos, vel = self.js_decoder.decode(data)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
@@ -200,6 +221,13 @@ class LearnerNode(LearnerNodeBase):
             if not (-self.max_velocity <= vlo and vhi <= self.max_velocity):
                 self._reject_js_values(alpha, v)
                 return
+        if self.check_sources:
+            verdict = self.js_sources.classify(info["publication_sequence_number"], time.monotonic())
+            if verdict != sources.ACCEPT:
+                if verdict == sources.AMBIGUOUS:
+                    self._second_source("/joint_states", "joint_states", self.js_sources,
+                                        "joints " + ", ".join(self.robot.joint_names))
+                return  # (a gap: the chain's next message is taken)
         verdict = self.js_track.check(st, time.monotonic_ns())
         if verdict != ACCEPT:
             if not self._stamp_verdict(verdict, "joint_states", "/joint_states", self.js_track, st):
@@ -274,23 +302,45 @@ class LearnerNode(LearnerNodeBase):
         return True
 
     def _map_names(self, names: tuple) -> bool:
-        where = {n: i for i, n in enumerate(names)}
-        missing = [j for j in self.robot.joint_names if j not in where]
-        if missing or len(where) != len(names):
-            why = (f"lacks joint(s) {', '.join(missing)}" if missing else "names a joint twice")
-            self._reject_js("joint_states.names",
-                              f"/joint_states {why}; allowed: every joint of the 'joints' parameter "
-                              f"({', '.join(self.robot.joint_names)}) once, other joints are ignored")
+        """Map a name list to our joints (cached per list: several drivers may publish their own
+        joints on /joint_states). False: the message is not used (ignored or rejected here)."""
+        how = self._maps.get(names)
+        if how is None:
+            if len(self._maps) >= 32:  # (a fuzzer's random names must not grow the cache)
+                self._maps.clear()
+            how = self._maps[names] = self._name_map(names)
+        if how[0] == "ok":
+            self._names, self._idx = names, how[1]
+            return True
+        if how[0] == "other":
+            n = self.other_joints[names] = self.other_joints.get(names, 0) + 1
+            if n == 1:  # (once per name list: not an error)
+                self.get_logger().info(
+                    f"/joint_states: messages naming {', '.join(names) or 'no joint'} carry none of the "
+                    "learner's joints: ignored (another driver's joints, e.g. a gripper)")
             return False
-        self._names = names
-        self._idx = np.array([where[j] for j in self.robot.joint_names], dtype=np.intp)
-        return True
+        self._reject_js(how[1], how[2])
+        return False
 
-    def on_task_point(self, data: bytes) -> None:
+    def _name_map(self, names: tuple) -> tuple:
+        """("ok", index array) for a list naming each of our joints once; ("other",) for one that
+        names none of them; else ("bad", kind, message)."""
+        where = {n: i for i, n in enumerate(names)}
+        ours = self.robot.joint_names
+        if len(where) != len(names):
+            return ("bad", "joint_states.names", f"/joint_states names a joint twice ({', '.join(names)}); "
+                    f"allowed: every joint of the 'joints' parameter ({', '.join(ours)}) once")
+        missing = [j for j in ours if j not in where]
+        if len(missing) == len(ours):
+            return ("other",)
+        if missing:
+            return ("bad", "joint_states.names",
+                    f"/joint_states lacks joint(s) {', '.join(missing)}; allowed: every joint of the 'joints' "
+                    f"parameter ({', '.join(ours)}) in one message, other joints are ignored")
+        return ("ok", np.array([where[j] for j in ours], dtype=np.intp))
+
+    def on_task_point(self, data: bytes, info: dict = sources.NO_INFO) -> None:
         topic = self.params["task_topic"]
-        if self.single_publisher and self.watch.problem(topic):
-            self._foreign(topic, "task_point")
-            return
         try:
             st, xyz = decode_point_stamped(data)
         except (ValueError, IndexError, struct.error) as exc:
@@ -307,6 +357,12 @@ class LearnerNode(LearnerNodeBase):
                 else:
                     self._reject_tip("task_point.non_finite",
                                      f"{topic}: NaN/inf coordinate {list(xyz)}; allowed: finite values")
+                return
+        if self.check_sources:
+            verdict = self.tip_sources.classify(info["publication_sequence_number"], time.monotonic())
+            if verdict != sources.ACCEPT:
+                if verdict == sources.AMBIGUOUS:
+                    self._second_source(topic, "task_point", self.tip_sources, "task points")
                 return
         verdict = self.tip_track.check(st, time.monotonic_ns())
         if verdict != ACCEPT:
@@ -325,22 +381,25 @@ class LearnerNode(LearnerNodeBase):
             self.tip_fresh = True
             self._try_answer_command(False)
 
-    def _foreign(self, topic: str, key: str) -> None:
-        """A message on a topic with an unexpected publisher: rejected, and the learner holds."""
-        problem = self.watch.problems[topic]
-        self.guard.reject(f"{key}.publishers", f"{topic}: {problem}; message dropped")
-        if "publishers" not in self.holds:  # (the status timer keeps the full list up to date)
-            self._set_hold("publishers", f"{topic} has {problem}")
+    def _second_source(self, topic: str, key: str, chains: sources.SourceChains, what: str) -> None:
+        """A message while ``topic``'s stream has two live sources: rejected (counted, logged), and
+        the learner holds (named) until one source has been quiet for ``plausibility.source_grace``
+        s (:meth:`_check_sources`)."""
+        hold = f"sources {topic}"
+        if hold not in self.holds:  # (the publishers are read once per episode, not per message)
+            pubs = "; ".join(describe(i) for i in self.get_publishers_info_by_topic(topic)) or "none left"
+            self.source_text[topic] = (f"{topic}: {what} from 2 sources (rclpy names no publisher per message; "
+                                       f"the topic's publishers: {pubs}); held until one has been quiet for "
+                                       f"{chains.grace:g} s (plausibility.source_grace)")
+            self._set_hold(hold, self.source_text[topic])
+        self.guard.reject(f"{key}.second_source", f"{self.source_text[topic]}; message dropped")
 
-    def _check_publishers(self) -> None:
-        """Hold while a watched topic has an unexpected publisher (named), release when it is gone."""
-        if not self.single_publisher:
-            return
-        problems = self.watch.all_problems()
-        if problems:
-            self._set_hold("publishers", "; ".join(f"{t} has {p}" for t, p in sorted(problems.items())))
-        elif "publishers" in self.holds:
-            self._set_hold("publishers", None)
+    def _check_sources(self) -> None:
+        """Release a source hold once its stream is no longer ambiguous (it ends by itself)."""
+        now = time.monotonic()
+        for topic, chains in (("/joint_states", self.js_sources), (self.task_topic, self.tip_sources)):
+            if f"sources {topic}" in self.holds and not chains.ambiguous(now):
+                self._set_hold(f"sources {topic}", None)
 
     def _reject_tip(self, kind: str, message: str) -> None:
         self.guard.reject(kind, message)
@@ -353,6 +412,11 @@ class LearnerNode(LearnerNodeBase):
             return
         if not self.js_settled and not timed_out:
             return
+        if not self.rest_final:  # a step of the return to rest: the next one, from the measured posture
+            self.state = None
+            self.dispatch(self.pending)
+            return
+        self.rest_step_count = 0
         self.advance((self.js_alpha, self.tip))
 
     # ------------------------------------------------------------------ coroutine driving
@@ -378,6 +442,8 @@ class LearnerNode(LearnerNodeBase):
                     self.get_logger().warning(
                         f"no fresh joint_states/task point {time.monotonic() - self.cmd_time:.1f} s after "
                         f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
+        if self.source_text and any(k.startswith("sources ") for k in self.holds):
+            self._check_sources()
         if self.state not in (self.STARTING, self.STOPPED):
             self._check_driver()
         if self.rec_waiting and not self._recorder_behind():  # e.g. the recorder is gone
@@ -395,9 +461,9 @@ class LearnerNode(LearnerNodeBase):
         limit = self.params["joint_state_timeout"]
         stale = [name for name, t in (("joint_states", self.js_rx), ("task point", self.tip_rx)) if now - t > limit]
         if stale:
-            # (while a topic has a second publisher every message of it is rejected: name that cause)
-            why = (f"rejected: {self.holds['publishers']}" if "publishers" in self.holds
-                   else "driver stopped or disconnected?")
+            # (while a stream has two sources every message of it is rejected: name that cause)
+            two = [t for k, t in self.holds.items() if k.startswith("sources ")]
+            why = f"rejected: {'; '.join(two)}" if two else "driver stopped or disconnected?"
             self._set_hold("driver", f"no valid {' or '.join(stale)} for more than {limit} s ({why})")
         elif self.count_publishers("/joint_states") == 0:
             self._set_hold("driver", "/joint_states has no publisher (driver gone)")
@@ -433,7 +499,18 @@ class LearnerNode(LearnerNodeBase):
                  "samples": str(len(learner.memory)), "holds": "; ".join(self.holds.values())}
         state.update({f"published {t}": str(n) for t, n in self.published.items()})
         state.update({"recorder waits": str(self.rec_waits), "recorder wait seconds": f"{self.rec_wait_seconds:.3f}",
-                      "recorder acknowledged samples": str(self.rec_acked)})
+                      "recorder acknowledged samples": str(self.rec_acks.largest()),
+                      "recorders seen": str(self.rec_acks.recorders_seen)})
+        state["rest-return commands"] = str(self.rest_steps)
+        ignored = sum(self.other_joints.values())
+        if ignored:
+            state["ignored /joint_states without the learner's joints"] = str(ignored)
+            state["other joint lists on /joint_states"] = "; ".join(", ".join(n) for n in list(self.other_joints)[:4])
+        state["sequence gaps (messages not taken)"] = str(self.js_sources.gaps + self.tip_sources.gaps)
+        state["second-source episodes"] = str(self.js_sources.episodes + self.tip_sources.episodes)
+        for topic in ("/joint_states", self.task_topic):
+            state[f"publishers {topic}"] = "; ".join(
+                describe(i) for i in self.get_publishers_info_by_topic(topic)) or "none"
         fault = "; ".join(v for k, v in self.holds.items() if k != "service")
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state, fault))
 
@@ -478,6 +555,7 @@ class LearnerNode(LearnerNodeBase):
                     self._set_hold("fault", "the learner produced an invalid command (see /diagnostics)")
                     self.pending, self.state = req, self.PAUSED
                     return
+                self.pending = req  # (a stepped return to rest sends it again until the rest is reached)
                 data = encode_f64_array(target)
                 self.js_min = self.js_stamp + self.delay_ns
                 self.tip_min = self.tip_stamp + self.delay_ns
@@ -505,11 +583,18 @@ class LearnerNode(LearnerNodeBase):
             raise TypeError(f"unknown learner request {req!r}")
 
     # ------------------------------------------------------------------ recorder backpressure
-    def _recorder_behind(self) -> bool:
-        """More than ``recorder_max_lag`` published samples not yet acknowledged,
-        while a recorder acknowledges on /sagg/recorded."""
-        return (self.samples_published - self.rec_acked > self.rec_max_lag
-                and self.rec_sub.get_publisher_count() > 0)
+    def _recorder_behind(self, lag: int | None = None) -> bool:
+        """More than ``lag`` (default ``recorder_max_lag``) published samples not yet acknowledged by
+        the slowest recorder alive (:class:`~sagg_low_level.recorder_acks.RecorderAcks`; none alive:
+        no wait)."""
+        lag = self.rec_max_lag if lag is None else lag
+        if self.samples_published <= lag or self.rec_sub.get_publisher_count() == 0:
+            return False  # (no recorder left on /sagg/recorded: none to wait for)
+        slowest = self.rec_acks.slowest(time.monotonic())
+        if slowest is None:
+            return False
+        self.rec_acked = slowest
+        return self.samples_published - slowest > lag
 
     def _wait_for_recorder(self, req: Command) -> None:
         """Keep ``req`` until the recorder caught up (:meth:`on_recorded`); counted, logged at most every 10 s."""
@@ -523,21 +608,20 @@ class LearnerNode(LearnerNodeBase):
         self.rec_wait_t0 = time.monotonic()
         self.get_logger().info(
             f"waiting for the recorder: {self.samples_published} samples published, {self.rec_acked} "
-            f"acknowledged on /sagg/recorded (recorder_max_lag {self.rec_max_lag}); {self.rec_waits} waits so far",
-            throttle_duration_sec=10.0)
+            f"acknowledged on /sagg/recorded by the slowest recorder (recorder_max_lag {self.rec_max_lag}); "
+            f"{self.rec_waits} waits so far", throttle_duration_sec=10.0)
 
-    def on_recorded(self, msg: UInt64) -> None:
-        """A recorder's acknowledgement: the number of samples it has recorded from index 0. One
-        larger than what was published is impossible: rejected (counted, logged); a smaller one than
-        the largest so far changes nothing (a slower second recorder, or a stale message)."""
+    def on_recorded(self, msg: UInt64, info: dict = sources.NO_INFO) -> None:
+        """A recorder's acknowledgement: the number of samples it has recorded from index 0, per
+        recorder (its publisher's sequence numbers). One larger than what was published is
+        impossible: rejected (counted, logged)."""
         n = int(msg.data)
         if n > self.samples_published:
             self.guard.reject("recorded.ahead", f"/sagg/recorded: data = {n}; allowed: <= {self.samples_published} "
                                                 "(the samples published so far)")
             return
-        if n > self.rec_acked:
-            self.rec_acked = n
-        if self.rec_waiting and self.samples_published - self.rec_acked <= self.rec_max_lag // 2:
+        self.rec_acks.ack(info["publication_sequence_number"], n, time.monotonic())
+        if self.rec_waiting and not self._recorder_behind(self.rec_max_lag // 2):
             self._recorder_caught_up()
 
     def _recorder_caught_up(self) -> None:
@@ -548,27 +632,73 @@ class LearnerNode(LearnerNodeBase):
             self.dispatch(self.pending)
 
     def _safe_command(self, req: Command) -> np.ndarray:
-        """Last check before a command leaves: within the joint limits and, for a micro-action,
-        at most ``max_joint_step`` from the newest MEASURED posture. The core guarantees both
-        relative to the posture it believes (``safe_target``); they differ only if its belief came
-        from a stale observation (e.g. ``observation_delay`` too short for a real-time driver), and
-        then the measured posture wins: the arm never moves more than a step. Clipped commands are
-        counted on /diagnostics. A return to rest is not a micro-action: limits only."""
+        """Last check before a command leaves: within the joint limits and at most
+        ``max_joint_step`` from the newest MEASURED posture. The core guarantees both for a
+        micro-action relative to the posture it believes (``safe_target``); they differ only if its
+        belief came from a stale observation (e.g. ``observation_delay`` too short for a real-time
+        driver), and then the measured posture wins: the arm never moves more than a step. Clipped
+        micro-actions are counted on /diagnostics. A return to rest is sent in such steps too
+        (``rest_return`` 'stepped'; :meth:`_rest_command`)."""
         target = np.asarray(req.target, dtype=float)
         robot = self.robot
         if target.shape != robot.lower.shape or not all_finite(target):
             self.guard.reject("command.invalid", f"the learner produced the command {target.tolist()}; "
                                                  f"allowed: {robot.n} finite values")
             return None
-        lo, hi = robot.lower, robot.upper
-        if req.kind != "reset":  # (1e-9 rad: the core's own rounding of alpha + step)
-            step = self.learner.p["max_joint_step"] + 1e-9
-            lo, hi = np.maximum(lo, self.js_alpha - step), np.minimum(hi, self.js_alpha + step)
+        if req.kind == "reset":
+            return self._rest_command(target)
+        self.rest_final = True
+        # (1e-9 rad: the core's own rounding of alpha + step)
+        step = self.learner.p["max_joint_step"] + 1e-9
+        lo, hi = np.maximum(robot.lower, self.js_alpha - step), np.minimum(robot.upper, self.js_alpha + step)
         if (target < lo).any() or (target > hi).any():
             self.guard.reject("command.clipped", f"command {target.tolist()} outside the joint limits or "
                                                  "max_joint_step from the current posture: clipped")
             return np.minimum(np.maximum(target, lo), hi)
         return target
+
+    def _rest_command(self, rest: np.ndarray) -> np.ndarray:
+        """The next command of the return to rest: the rest posture itself with ``rest_return``
+        'direct' while only the simulator listens (:meth:`_direct_rest`), else one step toward it
+        from the newest measured posture (:func:`~sagg_low_level.learner.step_toward`); the request
+        is answered by the observation after the step that reaches the rest (``rest_final``), or
+        after ``rest_step_limit`` steps (a joint that does not follow: logged)."""
+        robot = self.robot
+        if self._direct_rest():
+            self.rest_final = True
+            return np.minimum(np.maximum(rest, robot.lower), robot.upper)
+        target = step_toward(self.js_alpha, rest, self.learner.p["max_joint_step"], robot)
+        self.rest_steps += 1
+        self.rest_step_count += 1
+        self.rest_final = bool((target == rest).all())
+        if not self.rest_final and self.rest_step_count >= self.rest_step_limit:
+            self.rest_final = True
+            worst = int(np.argmax(np.abs(rest - self.js_alpha)))
+            self.get_logger().warning(
+                f"return to rest incomplete after {self.rest_step_count} steps of at most max_joint_step: "
+                f"{robot.joint_names[worst]} at {float(self.js_alpha[worst]):.4f} rad, rest "
+                f"{float(rest[worst]):.4f}; going on from there", throttle_duration_sec=10.0)
+        return target
+
+    def _direct_rest(self) -> bool:
+        """``rest_return`` 'direct' applies: the commands topic is listened to by the simulated
+        bridge and otherwise only by sagg's recorders (re-read when its subscriber count changes).
+        Anything else (a real driver) gets the stepped return, logged once."""
+        if self.rest_return != "direct":
+            return False
+        n = self.cmd_pub.get_subscription_count()
+        if n != self._cmd_subs[0]:
+            infos = self.get_subscriptions_info_by_topic(self.cmd_topic)
+            others = [i for i in infos if i.node_name not in (SIM_BRIDGE,) + RECORDERS]
+            ok = any(i.node_name == SIM_BRIDGE for i in infos) and not others
+            if others and self._cmd_subs[1] is not False:
+                self.get_logger().warning(
+                    f"rest_return 'direct' ignored: {self.cmd_topic} is subscribed by "
+                    f"{'; '.join(describe(i) for i in others)}, not only the simulator: returning to rest "
+                    "in steps of max_joint_step")
+            unknown = any(i.node_name == UNKNOWN_NODE for i in infos)
+            self._cmd_subs = (-1 if unknown else n, ok)
+        return self._cmd_subs[1]
 
     def _goal_retry_seconds(self) -> float:
         return self.params["goal_retry"]
@@ -581,8 +711,6 @@ class LearnerNode(LearnerNodeBase):
     def flush(self) -> None:
         """Publish the queued reports (Report) and samples (memory index), in order. Encoding is
         skipped for a topic nobody subscribes to (the message would be dropped anyway)."""
-        if "publishers" in self.holds:
-            return  # withheld while another node publishes on our topics: receivers reject meanwhile
         box = self.outbox
         samples = self.sample_pub.get_subscription_count() > 0
         reports = self.report_pub.get_subscription_count() > 0
@@ -675,7 +803,6 @@ class LearnerNode(LearnerNodeBase):
             self.now_ns(), idx, mem.alpha[idx], mem.delta_alpha[idx], mem.delta_y[idx]))
 
     def publish_status(self) -> None:
-        self._check_publishers()
         learner = self.learner
         now = time.monotonic()
         self.rate_window.append((now, learner.micro_actions))

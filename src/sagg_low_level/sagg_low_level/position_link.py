@@ -53,6 +53,7 @@ class PositionLink:
         self.response_timeout = p["response_timeout"]
         self._names = None
         self._idx = None
+        self.other_joints = 0  # /joint_states messages naming none of our joints (ignored)
         self.alpha = None
         self.js_stamp = self.tip_stamp = -1
         self.js_settled = False
@@ -121,6 +122,9 @@ class PositionLink:
         if names is not self._names:
             where = {n: i for i, n in enumerate(names)}
             missing = [j for j in self.synergy.joint_names if j not in where]
+            if len(missing) == len(self.synergy.joint_names):
+                self.other_joints += 1  # another driver's joints (e.g. a gripper's): not ours, ignored
+                return
             if missing or len(where) != len(names):
                 guard.reject("joint_states.names", f"/joint_states lacks or repeats joints ({', '.join(missing)}); "
                                                    f"allowed: every joint of 'joints' once")

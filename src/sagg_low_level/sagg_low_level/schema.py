@@ -74,14 +74,29 @@ LEARNER_NODE_SCHEMA: Schema = (
           "generator was restarted and lost it). The generator answers a repeated request "
           "(same after_report) with the same goal, so a retry never changes the run. Our choice.",
           low=0.0, high=3600.0, low_open=True),
+    Param("rest_return", "str", "stepped",
+          "How the learner returns to rest_posture (after every reset_every attempts): 'stepped' = a "
+          "sequence of position commands, each at most max_joint_step from the newest measured posture "
+          "(not micro-actions: nothing is stored; counted on /diagnostics as rest steps), the safe "
+          "default for a real arm; 'direct' = one command to the rest posture, as the paper's "
+          "simulation does: only for the simulated lockstep bridge (`sagg run` sets it there, so the "
+          "graph equals the in-process run bit for bit). 'direct' is refused with --driver external and "
+          "ignored (stepped instead, logged) whenever a node other than sagg_sim_bridge subscribes to "
+          "the commands.", choices=("stepped", "direct")),
     Param("recorder_max_lag", "int", 500,
           "Backpressure for a recorder that acknowledges on /sagg/recorded (std_msgs/UInt64: how many "
           "samples, from index 0, it has recorded; `sagg run` does): before a command the learner waits "
           "while more than this many published samples are unacknowledged, so a recorder that falls "
           "behind on a loaded machine never lets its queues overflow (the bag holds every message). "
-          "Only while /sagg/recorded has a publisher; the largest acknowledgement counts. 0 = never "
+          "Each recorder is told apart by its publisher's sequence numbers; the learner waits for the "
+          "slowest one that acknowledged, and moved its count, within recorder_timeout. 0 = never "
           "wait. Our choice: 500 micro-actions are ~2,000 hardware messages, far below the "
           "publishers' and the recorder's history depths (10,000 and more).", low=0, high=1_000_000_000),
+    Param("recorder_timeout", "float", 10.0,
+          "A recorder that sent no acknowledgement on /sagg/recorded, or did not move its count, for "
+          "this long (s) is no longer waited for (logged): a recorder that stopped or died never "
+          "stalls learning. Our choice: recorders acknowledge at least every 0.5 s.",
+          low=0.0, high=86400.0, low_open=True),
     # the plausibility envelope of the measurements (DESIGN §8; sagg_common.envelope)
     Param("plausibility.joint_tolerance", "float", 0.1,
           "A joint state is rejected when a position lies outside the joint limits by more than this "
@@ -103,11 +118,24 @@ LEARNER_NODE_SCHEMA: Schema = (
           "arrived plus this (s) is rejected as 'in the future' (the newest stamp stays). Above the "
           "longest settle in simulation time of a lockstep bridge (1000 steps x 0.01 s).",
           low=0.0, high=1e9, low_open=True),
+    Param("plausibility.source_grace", "float", 2.0,
+          "One source per input (DESIGN §8): the messages of /joint_states that carry the learner's "
+          "joints, and those of the task topic, must come from one publisher (told apart by the "
+          "publishers' sequence numbers; sagg_common.sources). While a second source sends them, every "
+          "such message is rejected and the learner holds, naming the topic's publishers; the hold "
+          "ends this many seconds (s) after the second source's last message. Messages without any "
+          "of the learner's joints (a gripper driver's) are ignored, and a publisher that sends "
+          "nothing changes nothing. Our choice: above the publish period of real-time drivers, short "
+          "enough for a restarted driver to be taken again quickly.", low=0.0, high=3600.0,
+          low_open=True),
+    Param("plausibility.check_sources", "bool", True,
+          "Apply the one-source rule above. False only to test the other checks with a second "
+          "publisher (sagg bench hostile's content phase); never on a robot."),
     Param("plausibility.single_publisher", "bool", True,
-          "Hold (no command, no report or sample published) while /joint_states or the task topic has "
-          "more than one publisher, or a /sagg topic a publisher other than its node, naming them "
-          "(node and GID); their messages are rejected meanwhile. False for a robot whose joint "
-          "states come from several drivers."),
+          "Deprecated (issue 24): ignored. It held learning while a second publisher merely existed "
+          "on a watched topic; the learner now judges messages (plausibility.source_grace).",
+          deprecated="ignored since issue 24: a second publisher is judged by its messages "
+                     "(plausibility.source_grace), not by its existence"),
     Param("plausibility.resync_after", "int", 5,
           "This many messages in a row older than the newest accepted stamp are a clock jump back "
           "(driver or sim-time restart): logged, and the stream re-synchronised on them.",
