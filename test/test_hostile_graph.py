@@ -113,12 +113,23 @@ def test_hostile_bench_short(tmp_path):
     survived, was counted and logged, learning went on, and every invariant holds."""
     from sagg_bringup.lab.hostile import bench_hostile
     lines: list[str] = []
-    res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=1.5, eval_every=200, drain=5.0,
+    res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=2.5, eval_every=200, drain=5.0,
                         out=lines.append, only=["joint states 3.0 rad", "report seq +10^12", "NaN sample",
                                                 "2,000 joint states/s from a second publisher",
                                                 "forged sample with the next index",
-                                                "forged report at the next seq"])
+                                                "forged report at the next seq",
+                                                "gripper publisher (other joints only)",
+                                                "idle publishers on every watched topic",
+                                                "burst, then an idle publisher", "a replayed bag"],
+                        rate_targets=False)
     assert res["ok"], "\n".join(lines)
+    cases = res["phases"]["publishers"]["cases"]
+    # issue 24: a gripper driver and idle publishers leave learning at speed (the bench's own target,
+    # 90 %, is for a quiet machine; a hold would make this ~0); the others are held and resume
+    for name in ("gripper publisher (other joints only)", "idle publishers on every watched topic"):
+        assert min(cases[name]["shares"]) >= 0.5, "\n".join(lines)
+    for name in ("2,000 joint states/s from a second publisher", "burst, then an idle publisher", "a replayed bag"):
+        assert cases[name]["learning"] == cases[name]["runs"] >= 1, "\n".join(lines)
     content = res["phases"]["content"]
     assert set(content["cases"]) == {"joint states 3.0 rad", "report seq +10^12", "NaN sample"}
     # the NaN sample reached sagg run's handler and was dropped there, counted (no crash, no summary lost)

@@ -238,6 +238,8 @@ class LearnerNode(LearnerNodeBase):
         settled = v is None or bool(-sv < vlo and vhi < sv)  # every |velocity| < settle_velocity
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
         self.js_rx = time.monotonic()
+        if self.source_text:
+            self._source_settled("/joint_states")
         if self.js_run.ok():
             self._set_hold("joint_states", None)
         if self.holds:
@@ -373,6 +375,8 @@ class LearnerNode(LearnerNodeBase):
         self.tip = np.array(xyz)
         self.tip_stamp = st
         self.tip_rx = time.monotonic()
+        if self.source_text:
+            self._source_settled(topic)
         if self.tip_run.ok():
             self._set_hold("task_point", None)
         if self.holds:
@@ -384,22 +388,25 @@ class LearnerNode(LearnerNodeBase):
     def _second_source(self, topic: str, key: str, chains: sources.SourceChains, what: str) -> None:
         """A message while ``topic``'s stream has two live sources: rejected (counted, logged), and
         the learner holds (named) until one source has been quiet for ``plausibility.source_grace``
-        s (:meth:`_check_sources`)."""
+        s and a message of the remaining one is taken (:meth:`_source_settled`): no command goes out
+        from a posture measured before the hold."""
         hold = f"sources {topic}"
-        if hold not in self.holds:  # (the publishers are read once per episode, not per message)
-            pubs = "; ".join(describe(i) for i in self.get_publishers_info_by_topic(topic)) or "none left"
-            self.source_text[topic] = (f"{topic}: {what} from 2 sources (rclpy names no publisher per message; "
-                                       f"the topic's publishers: {pubs}); held until one has been quiet for "
-                                       f"{chains.grace:g} s (plausibility.source_grace)")
+        # (the publishers are read once per episode, not per message; again while one is not known yet)
+        if hold not in self.holds or UNKNOWN_NODE in self.source_text.get(topic, ""):
+            infos = self.get_publishers_info_by_topic(topic)
+            names = ", ".join(f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos) or "none left"
+            self.source_text[topic] = (
+                f"2 sources on {topic} (publishers: {names}): {what} from both; held until one has been "
+                f"quiet for {chains.grace:g} s (plausibility.source_grace); rclpy names no publisher per "
+                f"message, the topic's publishers: {'; '.join(describe(i) for i in infos) or 'none'}")
             self._set_hold(hold, self.source_text[topic])
         self.guard.reject(f"{key}.second_source", f"{self.source_text[topic]}; message dropped")
 
-    def _check_sources(self) -> None:
-        """Release a source hold once its stream is no longer ambiguous (it ends by itself)."""
-        now = time.monotonic()
-        for topic, chains in (("/joint_states", self.js_sources), (self.task_topic, self.tip_sources)):
-            if f"sources {topic}" in self.holds and not chains.ambiguous(now):
-                self._set_hold(f"sources {topic}", None)
+    def _source_settled(self, topic: str) -> None:
+        """A message of ``topic``'s one remaining source was taken: its hold ends (learning resumes)."""
+        if topic in self.source_text:
+            del self.source_text[topic]
+            self._set_hold(f"sources {topic}", None)
 
     def _reject_tip(self, kind: str, message: str) -> None:
         self.guard.reject(kind, message)
@@ -442,8 +449,6 @@ class LearnerNode(LearnerNodeBase):
                     self.get_logger().warning(
                         f"no fresh joint_states/task point {time.monotonic() - self.cmd_time:.1f} s after "
                         f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
-        if self.source_text and any(k.startswith("sources ") for k in self.holds):
-            self._check_sources()
         if self.state not in (self.STARTING, self.STOPPED):
             self._check_driver()
         if self.rec_waiting and not self._recorder_behind():  # e.g. the recorder is gone

@@ -3,16 +3,21 @@
 Two phases, each a real ``sagg run`` (lockstep, its own ROS domain, recorder and evaluator) and a
 fuzzer node in this process publishing the hostile cases of issue 11's table on the graph's topics:
 
-- ``content``: the learner's ``plausibility.single_publisher`` off, so that each content check is
+- ``content``: the learner's ``plausibility.check_sources`` off, so that each content check is
   what meets the fuzzer's messages (joint states outside the limits / 1e308 / NaN / unknown joint /
   wrong length / a future stamp, task points 1e308 / NaN, reports with seq +10^12 / NaN / a bad
   kind at the next seq, NaN samples and goals, bad commands to the bridge), and random mixtures;
-- ``publishers``: the defaults: a second publisher flooding /joint_states with 2,000 valid-looking
-  states/s, forged valid samples at each of the next 300 indices, a forged valid report at the next
-  seq, a second publisher on /sagg/goal.
+- ``publishers``: the defaults, on a run with the next seed: a second source flooding
+  /joint_states with 2,000 valid-looking states/s, forged valid samples at each of the next 300
+  indices, a forged valid report at the next seq, a second publisher on /sagg/goal; and the
+  ordinary neighbours of a real graph (issue 24): a gripper driver publishing only its own joint,
+  idle publishers on every watched topic, a burst from a publisher that then stays (idle), and the
+  content phase's bag replayed into the live graph by ``sagg replay``.
 
 Each case is active for a few seconds (or sent once), then the fuzzer's publishers are destroyed
-and the graph is watched for a few quiet seconds. Per case: **survived** (the run and its nodes
+and the graph is watched for a few quiet seconds. Per case: **rate**: micro-actions per second
+while the case is active as a share of the rate in as long a quiet window just before it (at
+least ``target`` for the gripper and the idle publishers); **survived** (the run and its nodes
 alive, /sagg/status fresh), **counted** (the expected rejection counter on /diagnostics grew, or
 for `sagg run`'s own handlers the summary's ``bag.rejected``), **logged** (the node logs name the
 kind), **learning went on** (micro-actions grew after the case: in the quiet seconds, or later
@@ -30,6 +35,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections import Counter
 import re
 import signal
 import subprocess
@@ -70,6 +76,10 @@ class Case:
     seconds: float = 3.0            # active time (bursts every `period` s); once: one burst
     once: bool = False
     period: float = 0.02
+    target: float = 0.0             # the rate while active, as a share of the quiet rate, at least
+    keep: bool = False              # the case's publishers stay (idle) through the quiet seconds
+    stop: Callable | None = None    # stop(fuzzer): ends what the case started (e.g. a replay)
+    log: str = ""                   # a line the node logs must hold (e.g. the hold's naming)
 
 
 @dataclass
@@ -80,13 +90,14 @@ class Outcome:
     learning: int = 0
     reports_lost: int = 0
     longest_resume: float = 0.0  # s from the case's end until micro-actions grew again (largest)
+    shares: list = field(default_factory=list)  # micro-actions/s while active / quiet rate, per run
 
 
 class Fuzzer:
     """The hostile node: publishers created per case (and destroyed after it), and what it
     watches (/diagnostics counters, /sagg/status, the bridge's newest stamp)."""
 
-    def __init__(self, domain: int, learner: dict):
+    def __init__(self, domain: int, learner: dict, replay_bag: Path | None = None):
         # lazy (heavy): ROS
         import rclpy
         from rclpy.context import Context
@@ -97,6 +108,7 @@ class Fuzzer:
         from sagg_msgs.msg import LearnerStatus
 
         self.rclpy = rclpy
+        self.domain, self.replay_bag, self.replaying = domain, replay_bag, None
         self.ctx = Context()
         rclpy.init(context=self.ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("sagg_fuzzer", context=self.ctx)
@@ -139,6 +151,13 @@ class Fuzzer:
             return int(self.diag.get(node, {}).get(key, 0))
         except ValueError:
             return 0
+
+    def input_rejections(self) -> int:
+        """The learner's rejected joint states and task points and both nodes' second-source
+        rejections so far (what a gripper or an idle publisher must not cause)."""
+        return sum(int(v) for node in ("sagg_learner", "sagg_goal_generator")
+                   for k, v in self.diag.get(node, {}).items()
+                   if k.startswith(("rejected.joint_states.", "rejected.task_point.")) or k.endswith(".second_source"))
 
     def micro_actions(self) -> int:
         return int(self.status.micro_actions) if self.status is not None else 0
@@ -210,6 +229,37 @@ class Fuzzer:
     def command(self, values) -> None:
         self.publish(self.cmd_topic, "std_msgs/msg/Float64MultiArray", encode_f64_array(np.asarray(values, float)))
 
+    def idle_publishers(self) -> None:
+        """A publisher on every topic the graph watches, sending nothing (issue 24: it changes nothing)."""
+        for topic, cls, latched in (("/joint_states", "sensor_msgs/msg/JointState", False),
+                                    (self.task_topic, "geometry_msgs/msg/PointStamped", False),
+                                    (self.cmd_topic, "std_msgs/msg/Float64MultiArray", False),
+                                    ("/sagg/competence", "sagg_msgs/msg/CompetenceReport", True),
+                                    ("/sagg/sample", "sagg_msgs/msg/Sample", False),
+                                    ("/sagg/goal", "sagg_msgs/msg/Goal", False),
+                                    ("/sagg/regions", "sagg_msgs/msg/RegionTree", True),
+                                    ("/sagg/status", "sagg_msgs/msg/LearnerStatus", False),
+                                    ("/sagg/recorded", "std_msgs/msg/UInt64", False)):
+            self._pub(topic, cls, latched)
+
+    def replay(self) -> None:
+        """``sagg replay`` of :attr:`replay_bag` (another run's bag) into the graph's domain, as a
+        user would start it beside a live run (its defaults: no command topic)."""
+        cmd = [str(Path(sys.executable).parent / "sagg"), "replay", str(self.replay_bag), "--quiet",
+               "--domain-id", str(self.domain)]
+        self.replaying = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                          start_new_session=True)
+
+    def stop_replay(self) -> None:
+        p, self.replaying = self.replaying, None
+        if p is not None and p.poll() is None:
+            os.killpg(p.pid, signal.SIGINT)
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
     def pause(self, on: bool) -> None:
         """/sagg/pause (std_srvs/SetBool), waiting up to 10 s for the answer."""
         # lazy (heavy): ROS
@@ -223,6 +273,7 @@ class Fuzzer:
         self.node.destroy_client(cli)
 
     def close(self) -> None:
+        self.stop_replay()
         self.drop_publishers()
         self.ex.shutdown()
         self.node.destroy_node()
@@ -272,30 +323,55 @@ def cases() -> list[Case]:
         Case("bad commands to the bridge", "content", "already fine: keep so",
              (f"{B}:command.non_finite", f"{B}:command.length"),
              lambda f, k: [f.command([float("nan")] * f.n), f.command([0.0] * (f.n + 3))], seconds=1.0),
-        Case("2,000 joint states/s from a second publisher", "publishers", "a second publisher, named",
-             (f"{L}:joint_states.publishers",),
+        Case("2,000 joint states/s from a second publisher", "publishers", "the same joints from two sources",
+             (f"{L}:joint_states.second_source",),
              lambda f, k: [f.joint_state([0.1] * f.n) for _ in range(20)], period=0.01),
         Case("forged sample with the next index", "publishers", "a forged sample never takes the real index",
              ("run:/sagg/sample",),  # (every index of the next 300: the learner's count is up to 0.5 s old)
              lambda f, k: [f.sample(_next_sample(f) + d) for d in range(300)], once=True),
         Case("forged report at the next seq", "publishers", "a forged report never takes the real seq",
-             (f"{G}:report.publishers",),  # (spread: the generator's report count is up to 1 s old)
+             (f"{G}:report.second_source",),  # (spread: the generator's report count is up to 1 s old)
              lambda f, k: [f.report(_next_report(f) + d) for d in (0, 20, 50, 100, 200, 400, 800)], once=True),
         Case("second publisher on /sagg/goal", "publishers", "a forged goal",
              ("run:/sagg/goal",), lambda f, k: f.goal(10**6, [10.0, 0.0]), once=True),
+        Case("gripper publisher (other joints only)", "publishers", "issue 24: a gripper driver on /joint_states",
+             (), lambda f, k: f.joint_state([0.01 * (k % 10)], [0.0], names=["gripper_finger"]),
+             seconds=8.0, period=0.05, target=0.9, log="carry none of the learner's joints: ignored"),
+        Case("idle publishers on every watched topic", "publishers", "issue 24: publishers that send nothing",
+             (), lambda f, k: f.idle_publishers() if k == 0 else None, seconds=8.0, period=0.5, target=0.9),
+        Case("burst, then an idle publisher", "publishers", "issue 24: a burst, then the publisher stays",
+             (f"{L}:joint_states.second_source",),
+             lambda f, k: [f.joint_state([0.1] * f.n) for _ in range(50)], once=True, keep=True,
+             log="2 sources on /joint_states (publishers: "),
+        Case("a replayed bag", "publishers", "issue 24: `sagg replay` of another run into the live graph",
+             (f"{L}:joint_states.second_source",), lambda f, k: f.replay() if k == 0 else None,
+             seconds=6.0, period=0.5, stop=lambda f: f.stop_replay(), log="/sagg_replay"),
     ]
 
 
 def _run_case(f: Fuzzer, case: Case, proc, out: Outcome, quiet: float) -> None:
     node_kinds = [k.split(":", 1) for k in case.kinds if not k.startswith("run:")]
     before = {tuple(k): f.count(*k) for k in node_kinds}
+    totals = f.input_rejections()
     skipped0 = f.value("sagg_goal_generator", "skipped_reports")
     bursts = 1 if case.once else max(1, int(case.seconds / case.period))
+    # the quiet rate just before, over as long a window as the case is active (at least 2 s)
+    window = max(2.0, 0.0 if case.once else case.seconds)
+    ma_q, t_q = f.micro_actions(), time.monotonic()
+    f.spin(window)
+    quiet_rate = (f.micro_actions() - ma_q) / (time.monotonic() - t_q)
+    ma_a, t_a = f.micro_actions(), time.monotonic()
     for k in range(bursts):
         case.send(f, k)
         f.spin(case.period)
+    active = time.monotonic() - t_a
+    if not case.once and quiet_rate > 0:  # (a case sent once is active for a moment: no rate)
+        out.shares.append(round((f.micro_actions() - ma_a) / active / quiet_rate, 3))
+    if case.stop is not None:
+        case.stop(f)
     f.spin(0.3)
-    f.drop_publishers()
+    if not case.keep:
+        f.drop_publishers()
     f.spin(1.2)  # /diagnostics comes once a second
     ma0 = f.micro_actions()
     t0 = time.monotonic()
@@ -309,10 +385,14 @@ def _run_case(f: Fuzzer, case: Case, proc, out: Outcome, quiet: float) -> None:
     waited = time.monotonic() - t0
     if resumed and waited > quiet + 0.3:  # (resumed only after the quiet seconds)
         out.longest_resume = max(out.longest_resume, round(waited, 1))
+    if case.keep:
+        f.drop_publishers()
     out.runs += 1
     alive = proc.poll() is None and time.monotonic() - f.status_t < 3.0
     out.survived += alive
-    out.counted += all(f.count(*k) > before[tuple(k)] for k in node_kinds) if node_kinds else 0
+    # (a case that must be rejected: its counters grew; one that must be ignored: no new rejection)
+    out.counted += (all(f.count(*k) > before[tuple(k)] for k in node_kinds) if node_kinds
+                    else case.target > 0 and f.input_rejections() == totals)
     out.learning += resumed
     out.reports_lost += f.value("sagg_goal_generator", "skipped_reports") - skipped0
 
@@ -340,8 +420,9 @@ def published_counts(logs: Path) -> dict[str, int]:
     return counts
 
 
-def invariants(run_dir: Path, sent: dict[str, int]) -> dict[str, object]:
-    """The end-of-phase invariants, from the run's summary, checkpoint, bag and logs."""
+def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None) -> dict[str, object]:
+    """The end-of-phase invariants, from the run's summary, checkpoint, bag and logs; ``replayed``:
+    a bag replayed into the run (its messages in the run's bag are not the driver's)."""
 
     s = json.loads((run_dir / "summary.json").read_text())
     lp = yaml.safe_load((run_dir / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]
@@ -373,8 +454,14 @@ def invariants(run_dir: Path, sent: dict[str, int]) -> dict[str, object]:
     driver_postures: set[bytes] = set()
     micro: list[np.ndarray] = []
     counts: dict[str, int] = {}
+    # the replayed bag's messages, as many of each as it holds (the runs' first messages may be
+    # byte-identical: a posture at rest, stamped with the same simulation time)
+    foreign = Counter(bytes(raw) for _, _, _, raw in bag_messages([replayed])) if replayed is not None else Counter()
     for topic, _, _, raw in bag_messages([run_dir / "bag"]):
         fuzz = FUZZ.encode() in bytes(raw[:64])
+        if not fuzz and foreign[bytes(raw)] > 0:
+            foreign[bytes(raw)] -= 1
+            fuzz = True
         if topic == "/joint_states":
             st, names, pos, _ = dec.decode(raw)
             if not fuzz:
@@ -434,13 +521,19 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
               eval_every: int = 5000, drain: float = 20.0) -> tuple[dict[str, Outcome], dict, dict]:
     domain = pick_domain_id()
     run_dir = out / phase
-    phase_sets = list(sets) + (["plausibility.single_publisher=false"] if phase == "content" else [])
+    if phase == "content":
+        phase_sets = list(sets) + ["plausibility.check_sources=false"]
+    else:  # (the next seed: the content phase's bag, replayed here, is another run)
+        seed = graph_params(load_graph_config(config, parse_set(sets)), 1, "lockstep")["sagg_learner"]["seed"]
+        phase_sets = list(sets) + [f"seed={seed + 1}"]
+    replay_bag = out / "content" / "bag" if phase == "publishers" else None
     proc, fh, cmd = _start_run(config, run_dir, domain, phase_sets, micro_actions=2_000_000, eval_every=eval_every)
     log(f"[{phase}] {' '.join(cmd)}")
     params = graph_params(load_graph_config(config, parse_set(phase_sets)), 1, "lockstep")
-    f = Fuzzer(domain, params["sagg_learner"])
+    f = Fuzzer(domain, params["sagg_learner"], replay_bag)
     outcomes: dict[str, Outcome] = {}
-    my_cases = [c for c in cases() if c.phase == phase and (only is None or c.name in only)]
+    my_cases = [c for c in cases() if c.phase == phase and (only is None or c.name in only)
+                and (c.name != "a replayed bag" or (replay_bag / "metadata.yaml").is_file())]
     try:
         t0 = time.monotonic()
         while f.micro_actions() < 200 and time.monotonic() - t0 < 180 and proc.poll() is None:
@@ -479,7 +572,7 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
         fh.close()
-    inv = invariants(run_dir, sent)
+    inv = invariants(run_dir, sent, replay_bag if any(c.name == "a replayed bag" for c in my_cases) else None)
     logs_text = "\n".join(p.read_text(errors="replace") for p in (run_dir / "logs").glob("*.log"))
     logs_text += (out / f"{phase}.sagg_run.log").read_text(errors="replace")
     logged = {}
@@ -488,7 +581,7 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
     for c in my_cases:
         node_kinds = [k.split(":", 1)[1] for k in c.kinds if not k.startswith("run:")]
         run_keys = [k.split(":", 1)[1] for k in c.kinds if k.startswith("run:")]
-        logged[c.name] = (all(f"[{k}]" in logs_text for k in node_kinds)
+        logged[c.name] = (all(f"[{k}]" in logs_text for k in node_kinds) and c.log in logs_text
                           and all(any(r.startswith(k) for r in rejected) for k in run_keys))
         if run_keys and c.name in outcomes:  # counted by sagg run's handlers (summary)
             outcomes[c.name].counted = outcomes[c.name].runs if all(any(r.startswith(k) for r in rejected)
@@ -498,10 +591,11 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
 
 def bench_hostile(config: str, minutes: float, out_dir: str | None, sets: list[str] | None = None,
                   quiet: float = 3.0, out: Callable[[str], None] = print, only: list[str] | None = None,
-                  eval_every: int = 5000, drain: float = 20.0) -> dict:
+                  eval_every: int = 5000, drain: float = 20.0, rate_targets: bool = True) -> dict:
     """Both phases (half of ``minutes`` each); prints the per-case table and the invariants;
     writes OUT/hostile.json. Returns it (``ok``: every case survived, counted, logged and learning
-    went on, and every invariant holds)."""
+    went on, at its rate target (``rate_targets``: a timing target, for a quiet machine), and every
+    invariant holds)."""
     outp = Path(out_dir or f"runs/hostile-{time.strftime('%Y%m%d-%H%M%S')}")
     outp.mkdir(parents=True, exist_ok=True)
     result = {"config": config, "minutes": minutes, "sets": sets or [], "phases": {}}
@@ -512,17 +606,23 @@ def bench_hostile(config: str, minutes: float, out_dir: str | None, sets: list[s
                                           eval_every, drain)
         result["phases"][phase] = {"cases": {k: vars(v) for k, v in outcomes.items()}, "logged": logged,
                                    "invariants": inv}
+        targets = {c.name: c.target for c in cases()}
         for name, o in outcomes.items():
-            good = o.survived == o.runs and (o.counted == o.runs) and o.learning == o.runs
+            target = targets.get(name, 0.0) if rate_targets else 0.0
+            fast = all(sh >= target for sh in o.shares)
+            good = o.survived == o.runs and (o.counted == o.runs) and o.learning == o.runs and fast
             lg = logged.get(name, True)
             ok &= good and lg
+            share = f"{min(o.shares):.2f}" if o.shares else "-"
             rows.append(f"| {phase} | {name} | {o.runs} | {o.survived}/{o.runs} | {'yes' if lg else 'NO'} | "
-                        f"{o.counted}/{o.runs} | {o.learning}/{o.runs} | {o.longest_resume:g} | {o.reports_lost} |")
+                        f"{o.counted}/{o.runs} | {o.learning}/{o.runs} | {o.longest_resume:g} | {o.reports_lost} | "
+                        f"{share}{f' (>= {target:g})' if target else ''}{'' if fast else ' NO'} |")
         ok &= all(v or v is None for k, v in inv.items() if k.startswith((
             "all nodes", "final test", "no stored", "nothing", "no command", "every stored", "bag complete",
             "relearn rebuilds")))
-    table = ["| phase | case | times | survived | logged | counted | learning went on | longest wait (s) | reports lost |",
-             "|---|---|---:|---:|---|---:|---:|---:|---:|"] + rows
+    table = ["| phase | case | times | survived | logged | counted | learning went on | longest wait (s) | reports lost "
+             "| rate while active / quiet (lowest) |",
+             "|---|---|---:|---:|---|---:|---:|---:|---:|---:|"] + rows
     out("\n".join(table))
     for phase, r in result["phases"].items():
         out(f"\ninvariants ({phase}):")
