@@ -10,7 +10,9 @@ def open_bag(path: Path):
     # lazy (heavy): rosbags
     from rosbags.rosbag2 import Reader
     if not (path / "metadata.yaml").is_file():
-        raise ConfigError(f"bag '{path}': no metadata.yaml; allowed: a rosbag2 directory written by `sagg run`")
+        raise ConfigError(f"bag '{path}': no metadata.yaml; allowed: a rosbag2 directory written by `sagg run` "
+                          "(an unfinished one, whose recorder was killed, is recovered by `sagg relearn`, "
+                          "`sagg replay` and `sagg run --resume`)")
     reader = Reader(path)
     reader.open()
     return reader

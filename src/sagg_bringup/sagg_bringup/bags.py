@@ -41,6 +41,7 @@ from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
 
 from .bag_reader import bag_messages, open_bag
+from .bag_recover import is_unfinished, recover_bag
 from .arm_params import node_schemas
 from .evaluator import evaluate_frozen, evaluation_setup
 from .recorder import BagWriter, _msg_class
@@ -83,6 +84,8 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
         raise ConfigError(f"--wait-subscribers: got {wait_subscribers}; allowed: an integer >= 0")
     out = out or (lambda s: print(s, file=sys.stderr, flush=True))
     path = Path(bag)
+    if is_unfinished(path):  # a recording whose recorder was killed: recovered first, saying so
+        recover_bag(path, out)
     reader = open_bag(path)
     try:
         conns = {c.topic: c for c in reader.connections}
@@ -198,10 +201,12 @@ def foreign_messages(paths: list[Path]) -> set[tuple[str, int]]:
 def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path | None = None,
             evaluate: bool = True, report: bool = True, out: Callable[[str], None] = print) -> dict:
     """Rebuild memory and region tree from ``bags``; write DIR/memory.npz, regions.json, summary.json
-    (and, with ``report``, report.md + figures of the relearned run via :mod:`.report`)."""
+    (and, with ``report``, report.md + figures of the relearned run via :mod:`.report`). An
+    unfinished bag (its recorder was killed) is recovered first (:mod:`.bag_recover`), saying so."""
     paths = [Path(b) for b in bags]
     if not paths:
         raise ConfigError("relearn: no bag given")
+    recovered = [recover_bag(p, out) for p in paths if is_unfinished(p)]
     full = _params_from(paths[0], params_file)
     gp = {p.name: full["sagg_goal_generator"][p.name] for p in GEN_SCHEMA}
     lp = {p.name: full["sagg_learner"][p.name] for p in LEARNER_SCHEMA}
@@ -345,7 +350,8 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         frame = metric_frame(test_goals, np.zeros(test_goals.shape[1]))  # the arm's base (eval_metrics)
         curve.append({"micro_actions": len(mem), **error_metrics(errors, frame)})
     summary = {
-        "format": "sagg.relearn/1", "bags": [str(p) for p in paths], "strategy": lp["strategy"], "seed": lp["seed"],
+        "format": "sagg.relearn/1", "bags": [str(p) for p in paths], "recovered": recovered,
+        "strategy": lp["strategy"], "seed": lp["seed"],
         "memory": {"samples": len(mem), "digest": mem.digest(), "bytes": int(mem.nbytes)},
         "reports": gen.reports, "goals": len(gen.goals), "regions": len(gen.tree.leaves()),
         "splits": len(gen.tree.splits), "duplicates_dropped": dup, "rejected": dropped,

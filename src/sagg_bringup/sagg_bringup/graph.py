@@ -43,11 +43,13 @@ from sagg_sim_bridge.arm import reachable_area
 
 from .arm_params import NODES, TIMINGS, core_config, graph_params, resolve_arm
 from .bag_reader import bag_messages
+from .bag_recover import recover_run_bags
 from .evaluator import Evaluator
 from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file
 from .processes import GraphError, check_domain_id, node_processes
 from .recorder import _msg_class
 from .report import arm_rows, write_report
+from .resume_check import compare
 from .results import run_overrides
 from .session import STALL_TIMEOUT, GraphSession
 from .split_tracker import SplitTracker
@@ -65,13 +67,17 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     then DIR/params.yaml): the nodes resume from DIR/checkpoint, this segment is recorded into a new
     bag (``bag2``, ``bag3``, ...; logs ``logs/<node>.<k>.log``), and the earlier bags are read first,
     so the evaluation, the summary and the report cover the whole run (samples, reports and goals
-    republished by the resumed nodes are dropped by index / sequence number)."""
+    republished by the resumed nodes are dropped by index / sequence number). An unfinished bag (no
+    metadata.yaml: ``sagg run`` itself was killed) is recovered first (:mod:`.bag_recover`), and the
+    bags are compared with the checkpoints (:mod:`.resume_check`): what the bags lack is
+    republished into the new bag."""
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     if timing not in TIMINGS:
         raise ConfigError(f"--timing: got {timing!r}; allowed: one of {', '.join(TIMINGS)}")
     check_domain_id(domain_id)
     full, spec = resolve_arm(config_path, ov)  # (the one arm_spec_from_params of the run)
     out = Path(out_dir)
+    recovered = recover_run_bags(out, lambda line: print(line, file=sys.stderr, flush=True)) if resume else []
     prior_bags = run_bags(out) if resume else []
     if resume and not prior_bags:
         raise ConfigError(f"--resume: '{out}' holds no bag; allowed: the directory of a `sagg run`")
@@ -80,7 +86,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                           "(or --resume DIR to continue that run)")
     segment = len(prior_bags) + 1
     while (out / ("bag" if segment == 1 else f"bag{segment}")).exists():
-        segment += 1  # (an unreadable bag: `sagg run` itself was killed; kept, not read)
+        segment += 1  # (a bag after an unrecoverable one: kept, not read)
     bag_path = out / ("bag" if segment == 1 else f"bag{segment}")
     procs = node_processes(NODES, out / "logs", segment)
     t_start = time.perf_counter()
@@ -127,6 +133,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         tracker = SplitTracker(t_lower, t_upper)
 
         def on_regions(m) -> bool:
+            if st.last_regions is not None and int(m.reports) < int(st.last_regions.reports):
+                return True  # a resumed generator's checkpoint, older than the bags' last tree (then the same trees again)
             st.last_regions = m
             tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
             return True
@@ -139,6 +147,14 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                     handlers[topic](deserialize_message(bytes(raw), _msg_class(msgtype)))
             st.sample_t0 = st.sample_t1 = None  # rates: this segment only
         prior_samples = st.samples
+        extra = run_only_params(params)
+        check = None
+        if resume:  # the bags against the checkpoints: the learner republishes what the bags lack
+            check = compare(st.samples, st.reports, len(st.goals), params["sagg_learner"].get("checkpoint_dir", ""),
+                            params["sagg_goal_generator"].get("checkpoint_dir", ""))
+            extra.setdefault("sagg_learner", {})["republish_from"] = check["republish_from"]
+            for line in check["lines"] + [f"warning: {u}" for u in check["unresolved"]]:
+                print(f"--resume: {line}", file=sys.stderr, flush=True)
 
         st.task_lower, st.task_upper = t_lower, t_upper
         session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
@@ -182,7 +198,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
 
         def body() -> None:
             evaluator.start()
-            session.start_nodes(params_file, run_only_params(params))
+            session.start_nodes(params_file, extra)
             session.wait_for_learner(micro_actions, stall_timeout, "micro-actions", tick, may_end)
             bar.update(st.samples, force=True, **st.progress())
             session.final_drain()
@@ -208,7 +224,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         memory={"samples": len(memory), "digest": memory.digest(), "bytes": int(memory.nbytes)},
         test_goals=evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
         splits=tracker.splits,
-        bag=session.bag_summary(list(prior_bags) + [bag_path], st.gaps),
+        bag={**session.bag_summary(list(prior_bags) + [bag_path], st.gaps),
+             **({"recovered": recovered, "resume_check": check} if resume else {})},
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})
 
     def report_now() -> None:

@@ -24,6 +24,7 @@ continues exactly where the killed one was (a lockstep run is unchanged by the k
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -118,3 +119,20 @@ class GeneratorCheckpointer(Checkpointer):
         self.resumed_from = {"generation": g, "reports": gen.reports, "goals": len(gen.goals),
                              "pending_goals": len(pending), "torn_bytes": self.torn_bytes}
         return pending
+
+
+def published(directory: str | Path) -> dict | None:
+    """What the generator checkpoint in ``directory`` holds, read only (None without a
+    checkpoint): ``goals`` (every goal it chose: the state's and the journaled ones) and
+    ``first_goal``, the oldest journaled goal a resume publishes again (None when none is)."""
+    directory = Path(directory)
+    if not (directory / "generator.json").is_file():
+        return None
+    meta = json.loads((directory / "generator.json").read_text())
+    ck = GeneratorCheckpointer(directory, None, 1)  # (reading: no generator)
+    goals, first = int(meta["goals"]), None
+    for _, kind, v in ck._journal_records(int(meta["generation"])):
+        if kind == REC_GOAL:
+            first = int(v[0]) if first is None else first
+            goals = max(goals, int(v[0]))
+    return {"goals": goals, "first_goal": first, "torn_bytes": ck.torn_bytes}

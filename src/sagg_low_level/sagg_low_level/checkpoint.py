@@ -33,6 +33,10 @@ checkpoint are not in it (they were measured against the model of that moment).
 
 Republishing: the resumed node republishes the journaled samples and reports of the journals it
 found (the last two checkpoint intervals); receivers drop indices / sequence numbers they have.
+``republish_from`` adds the stored samples from that index on (from the memory), before the
+journaled ones: a recorder killed with the graph loses the tail its bag had not written yet, which
+may start before the journals (``sagg run --resume`` passes the number of samples its bags hold;
+:func:`published` says what a resume would republish).
 """
 from __future__ import annotations
 
@@ -165,11 +169,12 @@ class LearnerCheckpointer(Checkpointer):
         self.save(digest=True)  # shutdown: with the memory digest
 
     # ------------------------------------------------------------------ resume
-    def resume(self) -> list:
+    def resume(self, republish_from: int = -1) -> list:
         """Restore the learner from the directory (if it holds a checkpoint) and start a new
         generation. Returns what to republish, in order: sample indices (int) and
-        :class:`Report` objects from the journals found. Without a checkpoint: starts generation 1
-        from the learner as it is and returns []."""
+        :class:`Report` objects from the journals found, preceded by the stored samples from
+        ``republish_from`` (>= 0) up to the first journaled one. Without a checkpoint: starts
+        generation 1 from the learner as it is and returns []."""
         meta = self._load_meta()
         if meta is None:
             return []
@@ -225,9 +230,35 @@ class LearnerCheckpointer(Checkpointer):
         if applied:
             # numbers drawn after the checkpoint must not be drawn again
             lr.rng = np.random.Generator(lr.rng.bit_generator.jumped())
+        if republish_from >= 0:  # stored samples a receiver lacks, older than the journals
+            first = next((i for i in replay if isinstance(i, int)), len(mem))
+            replay[:0] = range(republish_from, first)
         self.resumed_from = {"generation": g, "journal_records_applied": applied,
                              "torn_bytes": self.torn_bytes, "samples": len(mem),
                              "reports": lr.reports_sent, "republish": len(replay)}
         self.generation = max([g] + self._generations("journal"))
         self.save()
         return replay
+
+
+def published(directory: str | Path) -> dict | None:
+    """What the learner checkpoint in ``directory`` holds and what a resume would republish, read
+    only (None without a checkpoint): ``samples`` and ``reports`` (every one the learner ever
+    published: checkpoint plus journal records), ``first_sample`` / ``first_report`` (the oldest
+    journaled ones a resume republishes by itself; None when the journals hold none)."""
+    directory = Path(directory)
+    if not (directory / "learner.json").is_file():
+        return None
+    meta = json.loads((directory / "learner.json").read_text())
+    ck = LearnerCheckpointer(directory, None, 1)  # (reading: no learner)
+    samples, reports = int(meta["memory_samples"]), int(meta["reports_sent"])
+    first_sample = first_report = None
+    for _, kind, v in ck._journal_records(int(meta["generation"])):
+        if kind == REC_SAMPLE:
+            first_sample = int(v[0]) if first_sample is None else first_sample
+            samples = max(samples, int(v[0]) + 1)
+        elif kind == REC_REPORT:
+            first_report = int(v[0]) if first_report is None else first_report
+            reports = max(reports, int(v[0]))
+    return {"samples": samples, "reports": reports, "first_sample": first_sample,
+            "first_report": first_report, "torn_bytes": ck.torn_bytes}

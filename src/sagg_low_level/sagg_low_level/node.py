@@ -739,7 +739,7 @@ class LearnerNode(LearnerNodeBase):
             return
         try:
             ck = LearnerCheckpointer(p["checkpoint_dir"], self.learner, p["checkpoint_every"], p["journal_fsync"])
-            replay = ck.resume()
+            replay = ck.resume(p["republish_from"])
         except (ValueError, OSError) as exc:
             raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc
         self.checkpointer = ck

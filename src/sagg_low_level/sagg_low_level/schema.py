@@ -64,6 +64,12 @@ LEARNER_NODE_SCHEMA: Schema = (
     Param("journal_fsync", "bool", False,
           "fsync the journal after every record: survives a power cut, not only a killed process "
           "(one disk flush per micro-action)."),
+    Param("republish_from", "int", -1,
+          "At a resume from checkpoint_dir: republish the stored samples from this index on too (from "
+          "the memory, before the journaled ones of the last two checkpoint intervals), for a recorder "
+          "whose bag lost more than those (killed with the graph: its unwritten tail). `sagg run "
+          "--resume` sets it to the samples its bags hold. -1 = the journaled samples only.",
+          low=-1, high=1_000_000_000),
     Param("joint_state_timeout", "float", 2.0,
           "Safety: pause (and say so in /sagg/status and /diagnostics) when no valid joint_states or "
           "task point arrived for this long, or when /joint_states has no publisher; resume when they "
