@@ -53,6 +53,7 @@ class FakeArmDriver(Node):
         self.delay = collections.deque()
         self.latency_ns = int(a.latency * 1e9)
         self.commands = 0
+        self.largest_jump = 0.0
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.js_pub = self.create_publisher(JointState, "/joint_states", qos)
         self.tip_pub = self.create_publisher(PointStamped, "/tip_position", qos)
@@ -66,6 +67,8 @@ class FakeArmDriver(Node):
             return
         self.commands += 1
         self.target = np.clip(target, self.lower, self.upper)
+        # how far a command asks a joint to go from where the arm is when it arrives (a jump, if large)
+        self.largest_jump = max(self.largest_jump, float(np.abs(self.target - self.q).max()))
 
     def on_cycle(self) -> None:
         step = np.clip(self.target - self.q, -self.max_step, self.max_step)
@@ -119,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     ex.add_node(node)
     while not stop and rclpy.ok():
         ex.spin_once(timeout_sec=0.05)
-    print(f"fake driver: {node.commands} commands", flush=True)
+    print(f"fake driver: {node.commands} commands, largest jump {node.largest_jump:.6f} rad", flush=True)
     node.destroy_node()
     rclpy.shutdown()
     return 0

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -68,6 +69,18 @@ def stop(p: subprocess.Popen) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+
+
+# rad: a command is compared with where the driver's arm is when it arrives, which may have moved
+# on a little since the reading the command was computed from (latency, a state taken unsettled)
+MEASURE_SLACK = 0.1
+
+
+def largest_jump(driver_log: Path) -> float:
+    """The driver's largest command-to-posture distance (test/fake_driver.py's last line)."""
+    m = re.search(r"largest jump ([0-9.]+) rad", driver_log.read_text())
+    assert m, driver_log.read_text()[-2000:]
+    return float(m.group(1))
 
 
 def test_sagg_run_external_driver_learns_and_is_evaluated_on_the_robot(tmp_path):
@@ -199,12 +212,21 @@ def test_evaluation_on_the_robot_during_learning_pauses_and_resumes(tmp_path):
     s = json.loads((out / "summary.json").read_text())
     r = s["robot_evaluation"]
     at = [c["micro_actions"] for c in r["curve"]]
-    assert len(at) == 3 and 60 <= at[0] < at[1] < n and at[1] >= 120 and at[2] == n, at
+    # (a mid-run evaluation at 60 and 120 of the samples recorded; a learner faster than this
+    # process records, on a loaded machine, may be past 120 when the one at 60 ends: then only one)
+    assert len(at) in (2, 3) and 60 <= at[0] < n and at == sorted(at) and at[-1] == n, at
     assert s["micro_actions"] == n and s["bag"]["topics"]["/sagg/sample"]["count"] == n
     log = (out / "logs" / "learner.log").read_text()
     # (counted per cause: on a loaded machine a stale joint state may also hold and release the
     # learner once, a "driver hold released: resuming" of its own)
-    assert log.count("paused by the /sagg/pause service") == 2 and log.count("service hold released") == 2
+    paused = len(at) - 1
+    assert log.count("paused by the /sagg/pause service") == paused and log.count("service hold released") == paused
     # every evaluation command is in the trace, answered by a settled state that shows the motion
     trace = json.loads((out / "robot_evaluation.json").read_text())["trace"]
     assert len(trace) == r["commands"] and sum(t["settled"] and t["moved"] for t in trace) >= 0.9 * len(trace)
+    # issue 24: no command, the learner's returns to rest and the evaluation's included, asks a joint to
+    # move more than max_joint_step from where it is (measured by the driver at each command's arrival);
+    # a return to rest in one command across the range was a jump of up to ~1.5 rad here
+    lp = yaml.safe_load((out / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]
+    jump = largest_jump(tmp_path / "driver.log")
+    assert lp["rest_return"] == "stepped" and jump <= lp["max_joint_step"] + MEASURE_SLACK, jump

@@ -231,3 +231,58 @@ def test_a_return_to_rest_goes_in_steps_of_max_joint_step_from_the_measured_post
         del n.cmd_pub.publish
         del n.advance
         n.state = None
+
+
+def test_sagg_run_names_the_hold_it_gives_up_on(tmp_path):
+    """A second source on /joint_states that never stops: the learner holds, `sagg run` shows why on
+    its progress line and, after --stall-timeout, exits 1 with a message that names the hold
+    (it said only "no new sample for 60 s")."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from sagg_bringup.processes import pick_domain_id
+    from sagg_common.ros_params import reliable
+
+    domain = pick_domain_id()
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    out = tmp_path / "run"
+    proc = subprocess.Popen([str(Path(sys.executable).parent / "sagg"), "run", "config/arm8.yaml",
+                             "--micro-actions", "100000", "--eval-every", "100000", "--out", str(out),
+                             "--domain-id", str(domain), "--stall-timeout", "12"],
+                            cwd=Path(__file__).resolve().parents[1], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = rclpy.create_node("second_arm_driver", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    try:
+        pub = node.create_publisher(JointState, "/joint_states", reliable(10))
+        status = []
+        from sagg_msgs.msg import LearnerStatus
+        node.create_subscription(LearnerStatus, "/sagg/status", status.append, 10)
+        t_end = time.monotonic() + 120
+        while time.monotonic() < t_end and not (status and status[-1].micro_actions > 0):
+            ex.spin_once(timeout_sec=0.1)   # the run learns first
+        m = JointState()
+        m.name = [f"joint_{i}" for i in range(8)]
+        while proc.poll() is None and time.monotonic() < t_end:
+            m.header.stamp = node.get_clock().now().to_msg()
+            m.position = [0.0] * 8
+            pub.publish(m)                  # for ever: the learner holds, and says why
+            ex.spin_once(timeout_sec=0.02)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, 9)
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+    assert proc.returncode == 1, stderr[-2000:]
+    assert "no new sample for 12 s" in stderr and "the learner holds: 2 sources on /joint_states" in stderr, stderr[-2000:]
+    assert "second_arm_driver" in stderr                       # the second publisher, named
+    assert "held 2 sources on /joint_states" in stderr         # on the progress line meanwhile (printed every 10 s to a pipe)
+    assert (out / "summary.json").is_file()                    # partial results written
