@@ -42,3 +42,9 @@ def trajectory_topics(lp: dict) -> list[TopicSpec]:
         TopicSpec(f"/{lp['controller'].strip('/')}/joint_trajectory", "trajectory_msgs/msg/JointTrajectory"),
         TopicSpec(task, out_type),
     ]
+
+
+def watched_topics(learner_params: dict) -> list[TopicSpec]:
+    """Every topic a graph's nodes or recorders read (the recorded ones and the recorders'
+    acknowledgements): where a stray publisher may appear (issue 24: an idle one changes nothing)."""
+    return graph_topics(learner_params) + [TopicSpec("/sagg/recorded", "std_msgs/msg/UInt64")]

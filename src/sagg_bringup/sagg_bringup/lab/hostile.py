@@ -59,6 +59,7 @@ from sagg_low_level.checkpoint import checkpoint_memory
 from ..bag_reader import bag_messages
 from ..arm_params import graph_params, load_graph_config
 from ..processes import pick_domain_id
+from ..topics import watched_topics
 
 SEC = 1_000_000_000
 RESUME_LIMIT = 60.0  # s after a case within which learning must have gone on again
@@ -114,6 +115,7 @@ class Fuzzer:
         self.node = rclpy.create_node("sagg_fuzzer", context=self.ctx)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
+        self.learner = learner
         self.joints = list(learner["joints"])
         self.n = len(self.joints)
         self.task_topic = learner["task_topic"]
@@ -231,16 +233,8 @@ class Fuzzer:
 
     def idle_publishers(self) -> None:
         """A publisher on every topic the graph watches, sending nothing (issue 24: it changes nothing)."""
-        for topic, cls, latched in (("/joint_states", "sensor_msgs/msg/JointState", False),
-                                    (self.task_topic, "geometry_msgs/msg/PointStamped", False),
-                                    (self.cmd_topic, "std_msgs/msg/Float64MultiArray", False),
-                                    ("/sagg/competence", "sagg_msgs/msg/CompetenceReport", True),
-                                    ("/sagg/sample", "sagg_msgs/msg/Sample", False),
-                                    ("/sagg/goal", "sagg_msgs/msg/Goal", False),
-                                    ("/sagg/regions", "sagg_msgs/msg/RegionTree", True),
-                                    ("/sagg/status", "sagg_msgs/msg/LearnerStatus", False),
-                                    ("/sagg/recorded", "std_msgs/msg/UInt64", False)):
-            self._pub(topic, cls, latched)
+        for t in watched_topics(self.learner):
+            self._pub(t.name, t.msgtype, t.transient_local)
 
     def replay(self) -> None:
         """``sagg replay`` of :attr:`replay_bag` (another run's bag) into the graph's domain, as a
