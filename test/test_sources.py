@@ -22,7 +22,7 @@ from sagg_common.sources import ACCEPT, AMBIGUOUS, GAP, NO_INFO, SourceChains, w
 from sagg_low_level.learner import Command, Robot, step_toward
 from sagg_low_level.recorder_acks import RecorderAcks
 from test_bad_input import arm_nodes
-from test_hostile import JOINTS, LIMIT, SEC, fresh_streams, js_bytes, state, tip_bytes
+from test_hostile import JOINTS, LIMIT, SEC, fresh_streams, js_bytes, state, tip_bytes, wait_for
 
 GRACE = 0.4
 
@@ -124,15 +124,6 @@ def nodes(tmp_path_factory):
         "sagg_sim_bridge": {"ros__parameters": {"arm": {"dof": 3, "mode": "kinematic"}}},
     }
     yield from arm_nodes(params, tmp)
-
-
-def wait_for(cond, timeout: float = 10.0) -> bool:
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def test_a_gripper_and_idle_publishers_change_nothing(nodes):

@@ -246,13 +246,8 @@ class Fuzzer:
 
     def stop_replay(self) -> None:
         p, self.replaying = self.replaying, None
-        if p is not None and p.poll() is None:
-            os.killpg(p.pid, signal.SIGINT)
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait()
+        if p is not None:
+            stop_group(p, 10.0)
 
     def pause(self, on: bool) -> None:
         """/sagg/pause (std_srvs/SetBool), waiting up to 10 s for the answer."""
@@ -272,6 +267,18 @@ class Fuzzer:
         self.ex.shutdown()
         self.node.destroy_node()
         self.rclpy.shutdown(context=self.ctx)
+
+
+def stop_group(proc: subprocess.Popen, timeout: float) -> None:
+    """SIGINT to a process started in a session of its own (and its children), SIGKILL after
+    ``timeout`` s."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
 
 
 def _next_report(f: Fuzzer) -> int:
@@ -558,13 +565,7 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
         f.spin(drain)
     finally:
         f.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(timeout=180)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        stop_group(proc, 180.0)
         fh.close()
     inv = invariants(run_dir, sent, replay_bag if any(c.name == "a replayed bag" for c in my_cases) else None)
     logs_text = "\n".join(p.read_text(errors="replace") for p in (run_dir / "logs").glob("*.log"))
