@@ -6,7 +6,7 @@ simulator instance so the learning run is untouched, and is never counted as lea
 """
 from __future__ import annotations
 
-from typing import Protocol, Sequence
+from typing import Generator, Protocol, Sequence
 
 import numpy as np
 
@@ -26,17 +26,46 @@ def reach_frozen(learner: EvolvingContextLearner, robot: ReachingRobot, goal: np
     Budget: ``ceil(eval.timeout_factor × D(y_rest, goal) / v)`` steps; stops early within
     ``eval.tolerance``. Returns the final distance ``D(goal, y_f)``.
     """
-    p = learner.p
     alpha, y = robot.reset()
-    budget = timeout_budget(float(np.linalg.norm(goal - y)), learner.v, p["eval.timeout_factor"])
+    reach = frozen_reach(learner, alpha, y, goal)
+    try:
+        target = next(reach)
+        while True:
+            target = reach.send(robot.command(target))
+    except StopIteration as done:
+        return done.value[1]
+
+
+def frozen_reach(learner: EvolvingContextLearner, alpha: np.ndarray, y: np.ndarray, goal: np.ndarray,
+                 tolerance: float = 0.0, max_steps: int = 0) -> Generator:
+    """The frozen model's reach of ``goal`` from the posture ``alpha`` (effector at ``y``): reaching
+    steps only (Sec. 3.6.1: Δy_next toward the goal at speed v, Δα from the local inverse), no
+    exploration, no learning. A generator: it yields each command (a posture at most
+    ``max_joint_step`` from the measured one, within the joint limits) and is sent the measured
+    (α, y) after it; it returns ``(y, distance, steps, outcome)``, outcome 'reached' (within
+    ``tolerance``, 0 = ``eval.tolerance``), 'budget' (``max_steps`` steps, 0 = the evaluation's
+    budget ``ceil(eval.timeout_factor × D(y, goal) / v)``) or 'no model' (too few samples for a
+    Jacobian). The evaluation (:func:`reach_frozen`, from rest) and the learner node's ``reach``
+    action (from the current posture) both run it."""
+    p = learner.p
+    tol = p["eval.tolerance"] if tolerance <= 0 else tolerance
+    budget = max_steps or timeout_budget(float(np.linalg.norm(goal - y)), learner.v, p["eval.timeout_factor"])
+    outcome = "budget"
+    steps = 0
     for _ in range(budget):
-        if float(np.linalg.norm(goal - y)) <= p["eval.tolerance"]:
+        if float(np.linalg.norm(goal - y)) <= tol:
+            outcome = "reached"
             break
         dalpha = learner.reach_step(alpha, desired_displacement(y, goal, learner.v))
         if dalpha is None:
+            outcome = "no model"
             break
-        alpha, y = robot.command(safe_target(alpha, alpha + dalpha, p["max_joint_step"], learner.robot))
-    return float(np.linalg.norm(goal - y))
+        alpha, y = yield safe_target(alpha, alpha + dalpha, p["max_joint_step"], learner.robot)
+        steps += 1
+    else:
+        if float(np.linalg.norm(goal - y)) <= tol:
+            outcome = "reached"
+    return y, float(np.linalg.norm(goal - y)), steps, outcome
 
 
 def evaluate(learner: EvolvingContextLearner, robot: ReachingRobot, goals: np.ndarray) -> np.ndarray:
