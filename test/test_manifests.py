@@ -30,7 +30,7 @@ PYTHON_KEYS = {"numpy": "python3-numpy", "yaml": "python3-yaml", "scipy": "pytho
 # ROS 2 Jazzy packages (jazzy/distribution.yaml): importable module = package name
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "std_srvs", "sensor_msgs", "geometry_msgs",
                 "trajectory_msgs", "diagnostic_msgs", "builtin_interfaces", "rosgraph_msgs",
-                "visualization_msgs", "launch", "launch_ros", "ament_index_python"}
+                "visualization_msgs", "launch", "launch_ros", "ament_index_python", "action_msgs"}
 # imported only behind an optional extra (`sagg bench compare --ray`, `pip install sagg_bringup[ray]`),
 # not a dependency of the ROS package; explauto only by lab/peer_explauto.py, a script run under the
 # peer's own interpreter (issue 10's peer comparison), never imported by sagg

@@ -142,6 +142,19 @@ def build_parser() -> argparse.ArgumentParser:
     cd.add_argument("--seconds", type=float, default=2.0, help="seconds of listening at rest (rates, noise)")
     cd.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
     cd.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the driver")
+    ra = sub.add_parser("reach", help="use what a run learned: reach goals with its frozen model through the "
+                                      "graph (the simulated bridge, or your driver), /sagg/reach")
+    ra.add_argument("source", help="a run directory (DIR of `sagg run`) or one of its bags")
+    ra.add_argument("point", nargs="*", type=float, help="the goal: x y [z] in the run's task space")
+    ra.add_argument("--test-goals", type=int, default=0, metavar="N",
+                    help="instead: the run's first N test goals, each from rest (errors comparable with the "
+                         "run's test error)")
+    ra.add_argument("--tolerance", type=float, default=0.0, help="stop within this distance (0: eval.tolerance)")
+    ra.add_argument("--driver", choices=["sim", "external"], default="sim",
+                    help="sim: the run's simulated bridge on a private domain; external: your driver is running")
+    ra.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: private for sim, the environment's "
+                                                   "for external)")
+    ra.add_argument("--out", help="output directory (default runs/reach-<time>): reach.json, logs")
     rl = sub.add_parser("relearn", help="rebuild the learner memory and the region tree from bags, "
                                         "check them against the recording, evaluate")
     rl.add_argument("bags", nargs="+", help="rosbag2 directories of one run, in order (bag, bag2, ...)")
@@ -407,6 +420,10 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "check-driver":
             return main_check_driver(args)
+        if args.command == "reach":
+            # lazy (heavy): ROS, mujoco
+            from .reach import main_reach
+            return main_reach(args)
         if args.command == "relearn":
             # lazy (heavy): ROS, mujoco
             from .setups import relearn

@@ -44,10 +44,22 @@ from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .checkpoint import LearnerCheckpointer
+from .evaluate import frozen_reach
 from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot, step_toward
+from .memory import SampleMemory
+from .reach_server import ACTION, ReachJob, ReachServer
 from .recorder_acks import RecorderAcks
 from .node_base import NODE_NAME, LearnerNodeBase
 from .schema import LEARNER_CORE_SCHEMA as CORE_SCHEMA, LEARNER_SCHEMA as SCHEMA
+
+class ReachDone:
+    """The last request of a reach (:meth:`LearnerNode._reach_requests`): its result."""
+
+    __slots__ = ("result",)
+
+    def __init__(self, result: tuple):
+        self.result = result
+
 
 SIM_BRIDGE = "sagg_sim_bridge"       # the simulated bridge's node (rest_return 'direct' is for it only)
 RECORDERS = ("sagg_run", "sagg_record")  # sagg's recorders: they subscribe to the commands, never act on them
@@ -78,8 +90,12 @@ class LearnerNode(LearnerNodeBase):
         super().__init__(SCHEMA)
         p = self.params
         self.robot = robot_from_params(p)
+        self.frozen = bool(p["frozen_memory"])  # a learned model used without learning (sagg reach)
         core = self._build_learner(CORE_SCHEMA, "2 or 3 (the task point is a geometry_msgs/PointStamped)",
-                                   lambda core, m: EvolvingContextLearner(core, self.robot, m))
+                                   lambda core, m: EvolvingContextLearner(core, self.robot, m,
+                                                                          memory=self._frozen_memory(p, m)))
+        if self.frozen:
+            self.uses_goals = False
         self.max_micro_actions = p["max_micro_actions"]
         self.settle_velocity = p["settle_velocity"]
         self.settle_timeout = p["settle_timeout"]
@@ -181,6 +197,10 @@ class LearnerNode(LearnerNodeBase):
         self._setup_checkpoint(p)  # may restore the learner, journals samples/reports, queues republishing
         self.coro = self.learner.run()
         self.pending = next(self.coro)  # the first request (Observe)
+        # /sagg/reach (use what was learned): jobs from the action's thread, run one at a time
+        self.reach: ReachJob | None = None
+        self.reach_saved: tuple | None = None  # the learner's (coroutine, pending request, state)
+        self.reach_server = ReachServer(self, p["task_space.lower"], p["task_space.upper"], self.guard.reject)
         self.goals_received = 0
         self.t_started = time.monotonic()
         self.rate_window: list[tuple[float, int]] = [(time.monotonic(), 0)]
@@ -451,6 +471,8 @@ class LearnerNode(LearnerNodeBase):
                         f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
         if self.state not in (self.STARTING, self.STOPPED):
             self._check_driver()
+        if self.reach_server.jobs and self.reach is None:
+            self._poll_reach()
         if self.rec_waiting and not self._recorder_behind():  # e.g. the recorder is gone
             self._recorder_caught_up()
         if (self.outbox and self.state is not self.STARTING
@@ -483,7 +505,7 @@ class LearnerNode(LearnerNodeBase):
             return
         if self.holds.pop(key, None) is not None:
             self.get_logger().info(f"{key} hold released" + (": resuming" if not self.holds else ""))
-        if not self.holds and self.state is self.PAUSED:
+        if not self._held() and self.state is self.PAUSED:
             self.state = None
             self.dispatch(self.pending)
 
@@ -516,7 +538,7 @@ class LearnerNode(LearnerNodeBase):
         for topic in ("/joint_states", self.task_topic):
             state[f"publishers {topic}"] = "; ".join(
                 describe(i) for i in self.get_publishers_info_by_topic(topic)) or "none"
-        fault = "; ".join(v for k, v in self.holds.items() if k != "service")
+        fault = "; ".join(v for k, v in self.holds.items() if k not in ("service", "reach"))
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state, fault))
 
     def _ready(self) -> bool:
@@ -534,9 +556,15 @@ class LearnerNode(LearnerNodeBase):
     def dispatch(self, req) -> None:
         learner = self.learner
         while True:
-            if self.max_micro_actions and learner.micro_actions >= self.max_micro_actions:
+            if self.reach is None and (self.frozen or (self.max_micro_actions
+                                                       and learner.micro_actions >= self.max_micro_actions)):
                 self.pending = req
                 self.state = self.STOPPED
+                if self.frozen:
+                    self.pause_reason = f"a frozen model ({self.params['frozen_memory']}): reach goals on {ACTION}"
+                    self.get_logger().info(self.pause_reason)
+                    self.publish_status()
+                    return
                 self.pause_reason = f"max_micro_actions ({self.max_micro_actions}) reached"
                 secs = time.monotonic() - self.t_started
                 self.get_logger().info(
@@ -546,7 +574,7 @@ class LearnerNode(LearnerNodeBase):
                 self.publish_status()
                 return
             if type(req) is Command:
-                if self.holds:
+                if self._held():
                     self.pending = req
                     self.state = self.PAUSED
                     if self.outbox:
@@ -585,7 +613,82 @@ class LearnerNode(LearnerNodeBase):
             if type(req) is Observe:
                 req = self.coro.send((self.js_alpha.copy(), self.tip.copy()))
                 continue
+            if type(req) is ReachDone:
+                self._finish_reach(req.result)
+                return
             raise TypeError(f"unknown learner request {req!r}")
+
+    # ------------------------------------------------------------------ /sagg/reach
+    def _frozen_memory(self, p: dict, m: int):
+        """The sample memory of ``frozen_memory`` (None: learn); ConfigError naming the parameter."""
+        if not p["frozen_memory"]:
+            return None
+        try:
+            mem = SampleMemory.load(p["frozen_memory"])
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"parameter 'frozen_memory': {p['frozen_memory']!r}: {exc}") from exc
+        if (mem.state_dim, mem.outcome_dim) != (self.robot.n, m):
+            raise ConfigError(f"parameter 'frozen_memory': samples of {mem.state_dim} joints and {mem.outcome_dim} "
+                              f"task dimensions; allowed: {self.robot.n} and {m} (this learner's)")
+        return mem
+
+    def _held(self) -> bool:
+        """A hold stops the next command; during a reach its own hold does not."""
+        if self.reach is not None:
+            return any(k != "reach" for k in self.holds)
+        return bool(self.holds)
+
+    def _poll_reach(self) -> None:
+        """Start the next reach job once no command is in flight: learning pauses for it (the
+        'reach' hold) and the learner's coroutine is kept aside (:meth:`_reach_requests`)."""
+        if self.reach is not None or not self.reach_server.jobs or self.state is self.STARTING:
+            return
+        if "reach" not in self.holds:
+            self._set_hold("reach", f"reaching a goal of {ACTION}")
+        if self.state not in (self.PAUSED, self.STOPPED):
+            return  # (a command or a goal request in flight: its answer comes first)
+        job = self.reach = self.reach_server.jobs.popleft()
+        back = self.js_alpha.copy() if self.state is self.PAUSED else None  # (learning goes on after)
+        self.reach_saved = (self.coro, self.pending, self.state)
+        self.coro = self._reach_requests(job, back)
+        self.state = None
+        self.dispatch(next(self.coro))
+
+    def _reach_requests(self, job: ReachJob, back: np.ndarray | None):
+        """The requests of one reach: back to rest first when asked (``from_rest``, as the
+        evaluation's reaches start), the frozen model's steps (:func:`frozen_reach`), then, when
+        learning is to go on, back to the posture where it paused (in steps), then the result."""
+        if job.from_rest:
+            yield Command(self.robot.rest.copy(), "reset")
+        y = self.tip.copy()
+        reach = frozen_reach(self.learner, self.js_alpha.copy(), y, job.target, job.tolerance, job.max_steps)
+        job.distance = float(np.linalg.norm(job.target - y))
+        try:
+            target = next(reach)
+            while not job.cancel:
+                alpha, y = yield Command(target, "reach")
+                job.steps += 1
+                job.distance = float(np.linalg.norm(job.target - y))
+                target = reach.send((alpha, y))
+            result = (y, float(np.linalg.norm(job.target - y)), job.steps, "canceled")
+        except StopIteration as done:
+            result = done.value
+        if back is not None:
+            yield Command(back, "return")
+        yield ReachDone(result)
+
+    def _finish_reach(self, result: tuple) -> None:
+        job, self.reach = self.reach, None
+        job.result = result
+        job.done.set()
+        self.get_logger().info(f"reach of {job.target.tolist()}: {result[3]}, error {result[1]:.6g} after "
+                               f"{result[2]} steps")
+        self.coro, self.pending, self.state = self.reach_saved
+        self.reach_saved = None
+        if self.reach_server.jobs:
+            self._poll_reach()  # (the next job: learning stays paused)
+        else:
+            self._set_hold("reach", None)
 
     # ------------------------------------------------------------------ recorder backpressure
     def _recorder_behind(self, lag: int | None = None) -> bool:
@@ -632,7 +735,7 @@ class LearnerNode(LearnerNodeBase):
     def _recorder_caught_up(self) -> None:
         self.rec_waiting = False
         self.rec_wait_seconds += time.monotonic() - self.rec_wait_t0
-        if self.state is self.PAUSED and not self.holds:
+        if self.state is self.PAUSED and not self._held():
             self.state = None
             self.dispatch(self.pending)
 
@@ -650,8 +753,8 @@ class LearnerNode(LearnerNodeBase):
             self.guard.reject("command.invalid", f"the learner produced the command {target.tolist()}; "
                                                  f"allowed: {robot.n} finite values")
             return None
-        if req.kind == "reset":
-            return self._rest_command(target)
+        if req.kind in ("reset", "return"):
+            return self._rest_command(target, direct_ok=req.kind == "reset")
         self.rest_final = True
         # (1e-9 rad: the core's own rounding of alpha + step)
         step = self.learner.p["max_joint_step"] + 1e-9
@@ -662,14 +765,14 @@ class LearnerNode(LearnerNodeBase):
             return np.minimum(np.maximum(target, lo), hi)
         return target
 
-    def _rest_command(self, rest: np.ndarray) -> np.ndarray:
+    def _rest_command(self, rest: np.ndarray, direct_ok: bool = True) -> np.ndarray:
         """The next command of the return to rest: the rest posture itself with ``rest_return``
         'direct' while only the simulator listens (:meth:`_direct_rest`), else one step toward it
         from the newest measured posture (:func:`~sagg_low_level.learner.step_toward`); the request
         is answered by the observation after the step that reaches the rest (``rest_final``), or
         after ``rest_step_limit`` steps (a joint that does not follow: logged)."""
         robot = self.robot
-        if self._direct_rest():
+        if direct_ok and self._direct_rest():
             self.rest_final = True
             return np.minimum(np.maximum(rest, robot.lower), robot.upper)
         target = step_toward(self.js_alpha, rest, self.learner.p["max_joint_step"], robot)
@@ -779,6 +882,7 @@ class LearnerNode(LearnerNodeBase):
 
     def close(self) -> None:
         """At shutdown: publish what is queued, then the final checkpoint."""
+        self.reach_server.close()
         if self.rec_waits:
             self.get_logger().info(f"recorder backpressure: {self.rec_waits} waits, "
                                    f"{self.rec_wait_seconds:.3f} s in all (recorder_max_lag {self.rec_max_lag})")

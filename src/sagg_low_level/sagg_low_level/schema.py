@@ -40,6 +40,10 @@ LEARNER_NODE_SCHEMA: Schema = (
           "not taken for the settled result.", low=0.0, high=3600.0),
     Param("max_micro_actions", "int", 0,
           "Stop acting after this many micro-actions (0 = unlimited).", low=0),
+    Param("frozen_memory", "str", "",
+          "A learned model to use without learning: a sample memory file (.npz, as `sagg relearn` "
+          "writes DIR/memory.npz). The learner then never learns (no goal requests, no samples) and "
+          "serves reach goals on /sagg/reach (`sagg reach`). Empty = learn."),
     Param("publish_batch", "int", 64,
           "Reports and samples are queued and published in bursts: when this many are queued, "
           "before every goal request (the generator needs the reports so far), at a stop, and at "

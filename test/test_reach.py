@@ -1,0 +1,80 @@
+"""Issue 23 item 6: use what was learned. The learner's /sagg/reach action (sagg_msgs/action/Reach)
+and `sagg reach RUN_DIR`: a goal of Y reached with the frozen model through the graph, under the
+rules of learning; during learning, learning pauses for it and goes on afterwards, nothing of the
+reach stored."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sagg_bringup.processes import pick_domain_id
+
+ROOT = Path(__file__).resolve().parents[1]
+SAGG = str(Path(sys.executable).parent / "sagg")
+
+
+def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
+    from sagg_bringup.reach import ReachClient
+    domain = pick_domain_id()
+    out = tmp_path / "run"
+    n = 1500
+    proc = subprocess.Popen([SAGG, "run", "config/arm8.yaml", "--micro-actions", str(n), "--eval-every", str(n),
+                             "--out", str(out), "--domain-id", str(domain), "--quiet"], cwd=ROOT,
+                            env=dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    client = ReachClient(domain)
+    try:
+        from sagg_msgs.msg import LearnerStatus
+        status = []
+        client.node.create_subscription(LearnerStatus, "/sagg/status", status.append, 10)
+        client.wait_for_server(None, 120.0)
+        t_end = time.monotonic() + 120
+        while not (status and status[-1].micro_actions >= 400) and time.monotonic() < t_end:
+            client.ex.spin_once(timeout_sec=0.1)
+        before = status[-1].micro_actions
+        r = client.reach(None, [30.0, 10.0])                       # inside Y, reachable
+        assert r["outcome"] in ("reached", "budget") and np.isfinite(r["error"]) and r["steps"] >= 1
+        assert r["error"] < 5.0, r                                  # (arm8's test error is ~1 at 400)
+        bad = client.client.send_goal_async(client.Reach.Goal(target=[1e9, 0.0]))
+        client._spin_until(None, bad.done, 30.0, "no answer")
+        assert not bad.result().accepted                            # outside Y: rejected
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        client.close()
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, stderr[-2000:]
+    s = json.loads((out / "summary.json").read_text())
+    # learning went on to its budget; the reach's steps were not micro-actions and stored nothing
+    assert s["micro_actions"] == n == s["memory"]["samples"] and before < n
+    log = (out / "logs" / "learner.log").read_text()
+    assert "reach of [30.0, 10.0]" in log and "reach hold released" in log
+    assert "rejected input [reach.invalid]" in log
+
+
+def test_sagg_reach_of_a_finished_run_from_rest(tmp_path):
+    run = tmp_path / "run"
+    subprocess.run([SAGG, "run", "config/arm8.yaml", "--micro-actions", "600", "--eval-every", "600",
+                    "--out", str(run), "--quiet"], cwd=ROOT, check=True, capture_output=True, timeout=300)
+    p = subprocess.run([SAGG, "reach", str(run), "--test-goals", "4", "--out", str(tmp_path / "reach")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:] + p.stdout[-2000:]
+    res = json.loads((tmp_path / "reach" / "reach.json").read_text())
+    s = json.loads((run / "summary.json").read_text())
+    assert res["from_rest"] and [g["goal"] for g in res["goals"]] == s["test_goals"][:4]
+    assert all(g["outcome"] in ("reached", "budget") for g in res["goals"])
+    # the same model reaches the same goals about as well through the graph as offline
+    assert res["mean_error"] < 3 * s["final_mean_error"] + 1.0, (res["mean_error"], s["final_mean_error"])
+    assert "the run's test error" in p.stdout
+    # a goal with the wrong number of coordinates: one clear error
+    q = subprocess.run([SAGG, "reach", str(run), "1", "2", "3", "--out", str(tmp_path / "r2")], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert q.returncode == 2 and "3 coordinates; allowed: 2" in q.stderr
