@@ -50,6 +50,7 @@ class _Probe:
         self.js: list[tuple[float, int, np.ndarray | None]] = []
         self.tips: list[tuple[float, int, np.ndarray]] = []
         self.index: list[int] | None = None
+        self.m = len(lp["task_space.lower"])  # task dimensions: x, y (and z)
 
     def on_js(self, msg, info: dict) -> None:
         self.mon.on_joint_state(msg, info)
@@ -63,7 +64,7 @@ class _Probe:
 
     def on_tip(self, msg, info: dict) -> None:
         self.mon.on_task_point(msg, info)
-        self.tips.append((time.time(), DriverMonitor._stamp(msg), np.array([msg.point.x, msg.point.y])))
+        self.tips.append((time.time(), DriverMonitor._stamp(msg), np.array([msg.point.x, msg.point.y, msg.point.z])[:self.m]))
 
 
 def publishers_report(node, mon: DriverMonitor, say) -> dict:
@@ -179,7 +180,7 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
             + f"; task point {', '.join(f'{v:.2g}' for v in res['task_point_noise'])}")
         # 3. one joint, a little
         start = mon.alpha.copy()
-        tip0 = mon.tip[:2].copy()
+        tip0 = mon.tip[:probe.m].copy()
         lower, upper = np.asarray(lp["joint_limits.lower"]), np.asarray(lp["joint_limits.upper"])
         sign = 1.0 if start[j] + step <= upper[j] else -1.0
         target = start.copy()
@@ -204,7 +205,7 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
             res["settle_seconds"] = time.time() - t_cmd
             delta = mon.alpha - start
             res["displacement"] = dict(zip(joints, delta.tolist()))
-            res["task_point_displacement"] = float(np.linalg.norm(mon.tip[:2] - tip0))
+            res["task_point_displacement"] = float(np.linalg.norm(mon.tip[:probe.m] - tip0))
             ratio = float(delta[j] / (target[j] - start[j]))
             res["step_ratio"] = ratio
             say(f"moved {joint} by {target[j] - start[j]:+.3f} rad: measured {delta[j]:+.3f} rad ({100 * ratio:.0f} %), "

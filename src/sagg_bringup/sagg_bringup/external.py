@@ -507,8 +507,6 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
     params = external_params(full, micro_actions, explicit_joints(config_path, ov), spec)
     lp = params["sagg_learner"]
-    if len(lp["task_space.lower"]) != 2:
-        raise ConfigError("--driver external: a 2-D task space (geometry_msgs/PointStamped x, y) is needed")
     procs = node_processes(EXTERNAL_NODES, out / "logs")
     t_start = time.perf_counter()
     set_checkpoint_dirs(params, out)
@@ -554,7 +552,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
 
         def on_tip(p) -> None:
             if st.samples and len(reached) < 200_000:
-                reached.append(p[:2].copy())
+                reached.append(p[:len(t_lower)].copy())
 
         monitor.on_tip = on_tip
 

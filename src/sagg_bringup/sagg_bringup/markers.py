@@ -60,11 +60,27 @@ def competence_colour(c: float | None) -> tuple[float, float, float]:
     return (1.0 - t, 0.8 * t + 0.1, 0.1)
 
 
+def _xyz(p) -> list[float]:
+    """A task point as a marker point: (x, y) at z = 0, or (x, y, z) of a 3-D task space."""
+    q = [float(v) for v in p[:3]]
+    return q + [0.0] * (3 - len(q))
+
+
+def _box_edges(a: np.ndarray, b: np.ndarray) -> list[list[float]]:
+    """The edges of the box [a, b] as point pairs (a LINE_LIST): 4 of a 2-D box, 12 of a 3-D one."""
+    if len(a) == 2:
+        c = [(a[0], a[1]), (b[0], a[1]), (b[0], b[1]), (a[0], b[1])]
+        return [_xyz(p) for i in range(4) for p in (c[i], c[(i + 1) % 4])]
+    corners = [np.where([i & 1, i & 2, i & 4], b, a) for i in range(8)]
+    return [_xyz(corners[k]) for i in range(8) for j in (1, 2, 4) if not i & j for k in (i, i | j)]
+
+
 def view_markers(regions: list[dict], goals: list[dict], test_goals, path, scale: float) -> list[dict]:
     """The markers (plain dicts: ns, id, type, pose position, scale, colour(s), points) of one view.
     ``regions``: leaves with ``lower``/``upper``/``interest``; ``goals``: ``position`` and
-    ``competence`` (or None); ``test_goals``/``path``: (n, 2+) arrays or None; ``scale``: the task
-    space's extent (sizes of spheres and lines are fractions of it)."""
+    ``competence`` (or None); ``test_goals``/``path``: (n, 2 or 3) arrays or None; ``scale``: the task
+    space's extent (sizes of spheres and lines are fractions of it). A 2-D task space lies at z = 0
+    (flat boxes); a 3-D one is drawn in 3-D (boxes, goals and the tip path in space)."""
     out: list[dict] = [{"ns": "", "id": 0, "type": CUBE, "action": DELETEALL}]
     if regions:
         vals = np.array([r["interest"] for r in regions], float)
@@ -72,29 +88,26 @@ def view_markers(regions: list[dict], goals: list[dict], test_goals, path, scale
         lo, hi = float(vals.min()), float(vals.max())
         lines = []
         for k, (r, v) in enumerate(zip(regions, vals)):
-            a, b = np.asarray(r["lower"][:2], float), np.asarray(r["upper"][:2], float)
+            a, b = np.asarray(r["lower"][:3], float), np.asarray(r["upper"][:3], float)
             rgb = interest_colour((v - lo) / (hi - lo) if hi > lo else 0.0)
-            out.append({"ns": "regions", "id": k, "type": CUBE, "position": ((a + b) / 2).tolist() + [0.0],
-                        "scale": (b - a).tolist() + [scale * 1e-3], "color": rgb + (0.45,)})
-            corners = [(a[0], a[1]), (b[0], a[1]), (b[0], b[1]), (a[0], b[1])]
-            for i in range(4):
-                lines += [corners[i], corners[(i + 1) % 4]]
+            size = (b - a).tolist() + ([scale * 1e-3] if len(a) == 2 else [])
+            out.append({"ns": "regions", "id": k, "type": CUBE, "position": _xyz((a + b) / 2),
+                        "scale": size, "color": rgb + (0.45 if len(a) == 2 else 0.12,)})
+            lines += _box_edges(a, b)
         out.append({"ns": "region_edges", "id": 0, "type": LINE_LIST, "scale": [scale * 2e-3] * 3,
-                    "color": (0.1, 0.1, 0.1, 0.8), "points": [list(p) + [0.0] for p in lines]})
+                    "color": (0.1, 0.1, 0.1, 0.8), "points": lines})
     if goals:
         recent = goals[-RECENT_GOALS:]
         out.append({"ns": "goals", "id": 0, "type": SPHERE_LIST, "scale": [scale * 0.02] * 3,
                     "color": (1.0, 1.0, 1.0, 1.0),
-                    "points": [list(g["position"][:2]) + [0.0] for g in recent],
+                    "points": [_xyz(g["position"]) for g in recent],
                     "colors": [competence_colour(g.get("competence")) + (1.0,) for g in recent]})
     if test_goals is not None and len(test_goals):
         out.append({"ns": "test_goals", "id": 0, "type": SPHERE_LIST, "scale": [scale * 0.012] * 3,
-                    "color": (1.0, 1.0, 1.0, 0.9),
-                    "points": [list(map(float, g[:2])) + [0.0] for g in np.asarray(test_goals)]})
+                    "color": (1.0, 1.0, 1.0, 0.9), "points": [_xyz(g) for g in np.asarray(test_goals)]})
     if path is not None and len(path) > 1:
         out.append({"ns": "tip_path", "id": 0, "type": LINE_STRIP, "scale": [scale * 3e-3] * 3,
-                    "color": (0.95, 0.35, 0.1, 0.9),
-                    "points": [list(map(float, p[:2])) + [0.0] for p in np.asarray(path)]})
+                    "color": (0.95, 0.35, 0.1, 0.9), "points": [_xyz(p) for p in np.asarray(path)]})
     return out
 
 
@@ -140,6 +153,7 @@ class MarkerView:
         self.test_goals = None
         self.path: deque = deque(maxlen=PATH_POINTS)
         self.scale = None if task_lower is None else float(np.linalg.norm(np.subtract(task_upper, task_lower)))
+        self.dims = 2 if task_lower is None else len(task_lower)  # task dimensions (the regions say, too)
         self.dirty = False
         self.last = 0.0
         self.published = 0
@@ -153,9 +167,10 @@ class MarkerView:
         self.regions = [{"lower": list(r.lower), "upper": list(r.upper), "interest": float(r.interest)}
                         for r in m.regions]
         if self.regions:
-            lo = np.min([r["lower"][:2] for r in self.regions], axis=0)
-            hi = np.max([r["upper"][:2] for r in self.regions], axis=0)
+            lo = np.min([r["lower"] for r in self.regions], axis=0)
+            hi = np.max([r["upper"] for r in self.regions], axis=0)
             self.scale = float(np.linalg.norm(hi - lo))
+            self.dims = len(lo)
         self.dirty = True
 
     def on_goal(self, m) -> None:
@@ -170,7 +185,7 @@ class MarkerView:
     def on_tip(self, m) -> None:
         """Keep a task point when it is at least :data:`PATH_STEP` × the task space's extent from the
         last kept one (a driver at 250 Hz would otherwise fill the path with one pose)."""
-        p = (m.point.x, m.point.y)
+        p = (m.point.x, m.point.y, m.point.z)[:self.dims]
         if self.path and math.dist(p, self.path[-1]) < PATH_STEP * (self.scale or 100.0):
             return
         self.path.append(p)
