@@ -12,7 +12,9 @@ recording), and writes into ``out_dir``:
 - ``competence_map.png``: goals coloured by the competence of their attempt (paper Fig. 5/6);
 - ``report.md`` referencing them, with the run's numbers.
 
-Figures need a task space of at least 2 dimensions (the first two are drawn).
+Figures need a task space of 2 or 3 dimensions: a 2-D Y is drawn as it is, a 3-D one in its three
+orthogonal projections (planes y1-y2, y1-y3, y2-y3: one row or panel each), the reachable set
+projected onto each.
 """
 from __future__ import annotations
 
@@ -37,15 +39,13 @@ def _task_box(result: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def reachable_mask(result: dict):
-    """The reachable area of the run's arm inside Y (a ReachableArea), or None when the config
-    has no simulated arm (e.g. a real-arm run) or Y is not 2-D."""
+    """The reachable set of the run's arm inside Y (a ReachableArea: a 2-D or 3-D grid), or None
+    when the config has no simulated arm (e.g. a real-arm run)."""
     try:
         # lazy (heavy): mujoco
         from sagg_sim_bridge.arm import reachable_area
         from sagg_sim_bridge.params import arm_spec_from_params
         lower, upper = _task_box(result)
-        if len(lower) != 2:
-            return None
         spec = arm_spec_from_params(result["config"]["sagg_sim_bridge"])
         seed = int(result["config"]["sagg_learner"].get("eval.seed", 0))
         return reachable_area(spec, lower, upper, seed=seed)
@@ -53,26 +53,48 @@ def reachable_mask(result: dict):
         return None
 
 
-def _draw_area(ax, area, fill: bool = False) -> None:
+def planes(dims: int) -> list[tuple[int, int]]:
+    """The planes a figure draws: Y itself when 2-D; the three orthogonal projections when 3-D."""
+    return [(0, 1)] if dims < 3 else [(0, 1), (0, 2), (1, 2)]
+
+
+AXIS_NAMES = ("y1", "y2", "y3")
+
+
+def _draw_area(ax, area, fill: bool = False, plane: tuple[int, int] = (0, 1)) -> None:
+    """The reachable set's outline (and fill) in ``plane``: a 3-D set is projected onto it."""
     if area is None:
         return
-    m = area.mask.astype(float).T  # mask[i, j]: i along x, j along y -> image rows = y
-    extent = (area.lower[0], area.upper[0], area.lower[1], area.upper[1])
+    i, j = plane
+    mask = area.mask if area.mask.ndim == 2 else area.mask.any(axis=3 - i - j)
+    m = mask.astype(float).T  # mask[a, b]: a along plane axis i, b along j -> image rows = j
+    lo, hi = np.asarray(area.lower)[[i, j]], np.asarray(area.upper)[[i, j]]
+    extent = (lo[0], hi[0], lo[1], hi[1])
     if fill:
         ax.imshow(np.where(m > 0, 1.0, np.nan), origin="lower", extent=extent, cmap="Greys",
                   vmin=0, vmax=8, interpolation="nearest", aspect="auto", zorder=0)
-    nx, ny = area.mask.shape
-    xs = area.lower[0] + (np.arange(nx) + 0.5) * (area.upper[0] - area.lower[0]) / nx
-    ys = area.lower[1] + (np.arange(ny) + 0.5) * (area.upper[1] - area.lower[1]) / ny
+    nx, ny = mask.shape
+    xs = lo[0] + (np.arange(nx) + 0.5) * (hi[0] - lo[0]) / nx
+    ys = lo[1] + (np.arange(ny) + 0.5) * (hi[1] - lo[1]) / ny
     ax.contour(xs, ys, m, levels=[0.5], colors="tab:red", linewidths=1.0, zorder=3)
 
 
-def _setup_axes(ax, lower, upper, title: str) -> None:
-    ax.set_xlim(lower[0], upper[0])
-    ax.set_ylim(lower[1], upper[1])
+def _setup_axes(ax, lower, upper, title: str, plane: tuple[int, int] = (0, 1), dims: int = 2) -> None:
+    i, j = plane
+    ax.set_xlim(lower[i], upper[i])
+    ax.set_ylim(lower[j], upper[j])
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=9)
     ax.tick_params(labelsize=7)
+    if dims > 2:
+        ax.set_xlabel(AXIS_NAMES[i], fontsize=8)
+        ax.set_ylabel(AXIS_NAMES[j], fontsize=8)
+
+
+def _panel_size(lower, upper, plane: tuple[int, int], width: float) -> float:
+    """The height of a panel ``width`` wide showing ``plane`` of Y at equal aspect."""
+    i, j = plane
+    return width * (upper[j] - lower[j]) / (upper[i] - lower[i])
 
 
 def _goal_arrays(result: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -139,6 +161,8 @@ def fig_learning_curve(result: dict, path: Path) -> Path | None:
 
 
 def fig_goals_over_time(result: dict, path: Path, area) -> Path | None:
+    """Histograms of the goals in GOAL_WINDOWS time windows (paper Fig. 7): a 3 x 2 grid for a 2-D
+    Y; for a 3-D Y one row per orthogonal projection, a column per window."""
     lower, upper = _task_box(result)
     pos, ma, _ = _goal_arrays(result)
     if len(lower) < 2 or len(pos) == 0:
@@ -146,37 +170,42 @@ def fig_goals_over_time(result: dict, path: Path, area) -> Path | None:
     plt = _plt()
     total = max(float(result.get("micro_actions", 0)), float(ma.max(initial=0)), 1.0)
     edges = np.linspace(0.0, total, GOAL_WINDOWS + 1)
-    ext = upper[:2] - lower[:2]
-    nb = (np.maximum(1, np.round(HIST_BINS * ext / ext.max()))).astype(int)
-    hists, labels, sels = [], [], []
+    sels, labels = [], []
     for w in range(GOAL_WINDOWS):
         last = w == GOAL_WINDOWS - 1
         sel = (ma >= edges[w]) & ((ma <= edges[w + 1]) if last else (ma < edges[w + 1]))
-        h, _, _ = np.histogram2d(pos[sel, 0], pos[sel, 1], bins=nb,
-                                 range=[[lower[0], upper[0]], [lower[1], upper[1]]])
-        n = int(sel.sum())
         sels.append(sel)
-        hists.append(h / n if n else h)
-        labels.append(f"micro-actions {edges[w]:,.0f}-{edges[w + 1]:,.0f}\n{n} goals")
+        labels.append(f"micro-actions {edges[w]:,.0f}-{edges[w + 1]:,.0f}\n{int(sel.sum())} goals")
+    dims = len(lower)
+    panels = [(w, pl) for pl in planes(dims) for w in range(GOAL_WINDOWS)]
+    hists = []
+    for w, (i, j) in panels:
+        ext = upper[[i, j]] - lower[[i, j]]
+        nb = (np.maximum(1, np.round(HIST_BINS * ext / ext.max()))).astype(int)
+        sel = sels[w]
+        h, _, _ = np.histogram2d(pos[sel, i], pos[sel, j], bins=nb, range=[[lower[i], upper[i]], [lower[j], upper[j]]])
+        hists.append(h / sel.sum() if sel.sum() else h)
     vmax = max(float(h.max()) for h in hists) or 1.0
-    cols = 3
-    rows = math.ceil(GOAL_WINDOWS / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 3.2 * rows * ext[1] / ext[0] + 0.6),
-                             dpi=110, squeeze=False)
+    cols = 3 if dims < 3 else GOAL_WINDOWS
+    rows = math.ceil(len(panels) / cols)
+    height = sum(_panel_size(lower, upper, pl, 3.4) for pl in planes(dims)) * (2 if dims < 3 else 1)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, height + 0.6 * rows), dpi=110, squeeze=False)
     im = None
-    for w, ax in enumerate(axes.flat):
-        if w >= GOAL_WINDOWS:
+    for k, ax in enumerate(axes.flat):
+        if k >= len(panels):
             ax.axis("off")
             continue
-        im = ax.imshow(hists[w].T, origin="lower", extent=(lower[0], upper[0], lower[1], upper[1]),
+        w, (i, j) = panels[k]
+        im = ax.imshow(hists[k].T, origin="lower", extent=(lower[i], upper[i], lower[j], upper[j]),
                        cmap="Blues", vmin=0, vmax=vmax, interpolation="nearest")
-        _draw_area(ax, area)
+        _draw_area(ax, area, plane=(i, j))
         sel = sels[w]
         if sel.sum() <= 400:  # few goals: also show each one
-            ax.plot(pos[sel, 0], pos[sel, 1], ".", color="k", ms=2.5, zorder=4)
-        _setup_axes(ax, lower, upper, labels[w])
+            ax.plot(pos[sel, i], pos[sel, j], ".", color="k", ms=2.5, zorder=4)
+        _setup_axes(ax, lower, upper, labels[w] if dims < 3 or i == 0 and j == 1 else "", (i, j), dims)
     fig.suptitle("Self-generated goals over time (colour: share of the window's goals per cell; "
-                 "red: reachable area)", fontsize=10)
+                 "red: reachable " + ("area)" if dims < 3 else "set, projected; rows: planes y1-y2, y1-y3, y2-y3)"),
+                 fontsize=10)
     fig.tight_layout(rect=(0, 0, 0.92, 0.95))
     cax = fig.add_axes((0.93, 0.15, 0.015, 0.7))
     fig.colorbar(im, cax=cax).ax.tick_params(labelsize=7)
@@ -186,6 +215,8 @@ def fig_goals_over_time(result: dict, path: Path, area) -> Path | None:
 
 
 def fig_regions_over_time(result: dict, path: Path, area) -> Path | None:
+    """The region tree's leaves at REGION_PANELS times (paper Fig. 8), the last panel coloured by
+    interest; for a 3-D Y, one row per orthogonal projection (the leaves' boxes projected)."""
     lower, upper = _task_box(result)
     if len(lower) < 2:
         return None
@@ -196,13 +227,12 @@ def fig_regions_over_time(result: dict, path: Path, area) -> Path | None:
     from matplotlib.patches import Rectangle
     _, ma, _ = _goal_arrays(result)
     n_goals = len(result.get("goals") or [])
-    stamps = np.linspace(0, n_goals, REGION_PANELS)[1:-1] if n_goals else np.zeros(0)
-    panels = [float(s) for s in stamps]
-    cols = 3
-    rows = math.ceil(REGION_PANELS / cols)
-    ext = upper[:2] - lower[:2]
-    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 3.2 * rows * ext[1] / ext[0] + 0.6),
-                             dpi=110, squeeze=False)
+    stamps = [0.0] + [float(v) for v in (np.linspace(0, n_goals, REGION_PANELS)[1:-1] if n_goals else [])]
+    dims = len(lower)
+    cols = 3 if dims < 3 else REGION_PANELS
+    rows = math.ceil(REGION_PANELS / cols) * len(planes(dims))
+    height = sum(_panel_size(lower, upper, pl, 3.4) for pl in planes(dims)) * (2 if dims < 3 else 1)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, height + 0.6 * rows), dpi=110, squeeze=False)
     flat = list(axes.flat)
 
     def when(goals: float) -> str:
@@ -211,30 +241,41 @@ def fig_regions_over_time(result: dict, path: Path, area) -> Path | None:
             return f"after {k} goals\n(~{ma[k - 1]:,.0f} micro-actions)"
         return f"after {k} goals"
 
-    # early panels: leaf outlines from the split history
-    for ax, s in zip(flat, [0.0] + panels):
-        boxes = leaves_after(splits, lower, upper, s)
-        _draw_area(ax, area, fill=True)
-        rects = [Rectangle(lo[:2], *(hi[:2] - lo[:2])) for lo, hi in boxes]
-        ax.add_collection(PatchCollection(rects, facecolor="none", edgecolor="k", linewidth=0.6))
-        _setup_axes(ax, lower, upper, f"{when(s)}: {len(boxes)} region{'s' if len(boxes) != 1 else ''}")
-    # last panel: the final tree, coloured by interest
-    ax = flat[len(panels) + 1]
     final = result.get("regions") or []
-    if final:
-        rects = [Rectangle(np.asarray(r["lower"][:2]), *(np.asarray(r["upper"][:2]) - np.asarray(r["lower"][:2])))
-                 for r in final]
-        coll = PatchCollection(rects, cmap="magma", edgecolor="0.6", linewidth=0.3)
-        coll.set_array(np.array([r["interest"] for r in final], float))
-        ax.add_collection(coll)
-        cb = fig.colorbar(coll, ax=ax, fraction=0.046, pad=0.03)
-        cb.set_label("interest", fontsize=8)
-        cb.ax.tick_params(labelsize=7)
-    _draw_area(ax, area)
-    _setup_axes(ax, lower, upper, f"final: {len(final)} regions\ncoloured by interest")
-    for ax in flat[len(panels) + 2:]:
-        ax.axis("off")
-    fig.suptitle("Region tree over time (grey / red: reachable area)", fontsize=10)
+    per_plane = REGION_PANELS if dims < 3 else cols
+    for p, (i, j) in enumerate(planes(dims)):
+        row = flat[p * per_plane:(p + 1) * per_plane]
+        first = p == 0
+
+        def rect(lo, hi):
+            lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+            return Rectangle((lo[i], lo[j]), hi[i] - lo[i], hi[j] - lo[j])
+
+        # early panels: leaf outlines from the split history
+        for ax, s_ in zip(row, stamps):
+            boxes = leaves_after(splits, lower, upper, s_)
+            _draw_area(ax, area, fill=True, plane=(i, j))
+            ax.add_collection(PatchCollection([rect(lo, hi) for lo, hi in boxes], facecolor="none", edgecolor="k",
+                                              linewidth=0.6, alpha=1.0 if dims < 3 else 0.5))
+            _setup_axes(ax, lower, upper, f"{when(s_)}: {len(boxes)} region{'s' if len(boxes) != 1 else ''}"
+                        if first else "", (i, j), dims)
+        # last panel: the final tree, coloured by interest
+        ax = row[len(stamps)]
+        if final:
+            coll = PatchCollection([rect(r["lower"], r["upper"]) for r in final], cmap="magma", edgecolor="0.6",
+                                   linewidth=0.3, alpha=1.0 if dims < 3 else 0.35)
+            coll.set_array(np.array([r["interest"] for r in final], float))
+            ax.add_collection(coll)
+            cb = fig.colorbar(coll, ax=ax, fraction=0.046, pad=0.03)
+            cb.set_label("interest", fontsize=8)
+            cb.ax.tick_params(labelsize=7)
+        _draw_area(ax, area, plane=(i, j))
+        _setup_axes(ax, lower, upper, f"final: {len(final)} regions\ncoloured by interest" if first else "",
+                    (i, j), dims)
+        for ax in row[len(stamps) + 1:]:
+            ax.axis("off")
+    fig.suptitle("Region tree over time (grey / red: reachable " + ("area)" if dims < 3 else
+                 "set, projected; rows: planes y1-y2, y1-y3, y2-y3)"), fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
@@ -242,22 +283,31 @@ def fig_regions_over_time(result: dict, path: Path, area) -> Path | None:
 
 
 def fig_competence_map(result: dict, path: Path, area) -> Path | None:
+    """Goals coloured by the competence of their attempt (paper Fig. 5/6); for a 3-D Y the three
+    orthogonal projections side by side."""
     lower, upper = _task_box(result)
     pos, _, comp = _goal_arrays(result)
     ok = np.isfinite(comp)
     if len(lower) < 2 or not ok.any():
         return None
     plt = _plt()
-    ext = upper[:2] - lower[:2]
-    fig, ax = plt.subplots(figsize=(6, 5.2 * ext[1] / ext[0] + 0.6), dpi=110)
-    _draw_area(ax, area, fill=True)
+    dims = len(lower)
+    pls = planes(dims)
+    width = 6.0 if dims < 3 else 4.6
+    height = max(_panel_size(lower, upper, pl, width) for pl in pls)
+    fig, axes = plt.subplots(1, len(pls), figsize=(width * len(pls), 0.87 * height + 0.6), dpi=110, squeeze=False)
     order = np.argsort(-comp[ok])  # draw the worst on top
-    sc = ax.scatter(pos[ok, 0][order], pos[ok, 1][order], c=comp[ok][order], cmap="RdYlGn",
-                    vmin=-1.0, vmax=0.0, s=16, edgecolors="none", zorder=4)
-    cb = fig.colorbar(sc, ax=ax, fraction=0.046, pad=0.03, shrink=0.8)
+    sc = None
+    for ax, (i, j) in zip(axes.flat, pls):
+        _draw_area(ax, area, fill=True, plane=(i, j))
+        sc = ax.scatter(pos[ok, i][order], pos[ok, j][order], c=comp[ok][order], cmap="RdYlGn",
+                        vmin=-1.0, vmax=0.0, s=16, edgecolors="none", zorder=4)
+        _setup_axes(ax, lower, upper, f"Competence map: {int(ok.sum())} goals (red contour: reachable "
+                    + ("area)" if dims < 3 else f"set, projected), plane {AXIS_NAMES[i]}-{AXIS_NAMES[j]}"),
+                    (i, j), dims)
+    cb = fig.colorbar(sc, ax=list(axes.flat), fraction=0.046 / len(pls), pad=0.03, shrink=0.8)
     cb.set_label("competence Γ of the goal's attempt (0 = reached)", fontsize=8)
-    _setup_axes(ax, lower, upper, f"Competence map: {int(ok.sum())} goals (red contour: reachable area)")
-    fig.tight_layout()
+    cb.ax.tick_params(labelsize=7)
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
     return path
