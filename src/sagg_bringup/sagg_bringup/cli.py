@@ -15,7 +15,7 @@ from .check_driver import main_check_driver
 from .processes import GraphError
 from .lab.hostile import bench_hostile
 from .lab.soak import main_soak
-from .record import default_out, record
+from .record import LOST_EXIT_CODE, default_out, record
 from .report import write_report
 from .reproduce import estimate, run_reproduce
 from .sensitivity import run_sensitivity
@@ -121,7 +121,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
     rp.add_argument("--quiet", action="store_true", help="no progress display")
     rc = sub.add_parser("record", help="the recorder alone (sagg run's topics, the publishers' QoS) into an "
-                                       "mcap bag, until Ctrl-C; also publishes the live view /sagg/markers")
+                                       "mcap bag, until Ctrl-C; acknowledges on /sagg/recorded (the learner "
+                                       "waits for it); also publishes the live view /sagg/markers. At Ctrl-C it "
+                                       "takes what the nodes still publish (Ctrl-C again: at once). Exit code 0: "
+                                       f"nothing lost; {LOST_EXIT_CODE}: messages published while recording are "
+                                       "missing (counted per topic, printed and in metadata.yaml custom_data)")
     rc.add_argument("--out", help="bag directory to create (default runs/record-<time>-<pid>)")
     rc.add_argument("--params", help="the graph's parameter file (a config or a run's params.yaml), for the "
                                      "command and task-space topic names (default: the defaults)")
@@ -392,7 +396,7 @@ def main(argv: list[str] | None = None) -> int:
                          progress=not args.quiet, markers=not args.no_markers)
             if args.quiet:
                 print(f"bag closed: {res['path']}")
-            return 0
+            return LOST_EXIT_CODE if res["lost"] else 0
         if args.command == "check-driver":
             return main_check_driver(args)
         if args.command == "relearn":
