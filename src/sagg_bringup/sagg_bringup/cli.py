@@ -344,7 +344,10 @@ def _resume(args) -> int:
     if old.get("driver") == "external":
         raise ConfigError(f"--resume: '{out}' is a --driver external run; allowed: the directory of a run "
                           "with the simulated bridge (start a new external-driver run)")
-    micro = args.micro_actions or int(learner.get("max_micro_actions") or 10_000)
+    # the run's own budget: its summary (params.yaml holds none since it is a configuration; an
+    # older sagg run's does)
+    micro = args.micro_actions or int(old.get("micro_actions_requested") or learner.get("max_micro_actions")
+                                      or 10_000)
     eval_every = old.get("eval_every", args.eval_every)
     timing = bridge.get("timing", args.timing)
     try:

@@ -445,7 +445,8 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         raise ConfigError("--driver external: a 2-D task space (geometry_msgs/PointStamped x, y) is needed")
     procs = node_processes(EXTERNAL_NODES, out / "logs")
     t_start = time.perf_counter()
-    set_checkpoint_dirs(params, out)
+    for note in set_checkpoint_dirs(params, out):
+        print(f"sagg run: {note}", file=sys.stderr)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
     config = core_config(full)

@@ -121,6 +121,7 @@ class GoalGeneratorNode(Node):
         self.report_sub = None
         self.resubscribe_due = False  # reports were dropped for a foreign publisher
         self.resubscriptions = 0
+        self.duplicate_reports = 0  # reports already processed, received again (dropped)
         self.early: dict[int, tuple] = {}   # seq -> (kind, target, competence, received): reports ahead of the next
         self._subscribe_reports()
         self.checkpointer = None
@@ -177,9 +178,13 @@ class GoalGeneratorNode(Node):
             self.guard.reject("report.invalid", f"competence report {msg.seq}: {problem}; dropped")
             return
         if msg.seq <= gen.reports:
-            # already processed: re-sent from the learner's history after a restart, or a duplicate
-            self.guard.reject("report.duplicate", f"competence report {msg.seq}: already have reports "
-                                                  f"1..{gen.reports}; dropped")
+            # already processed: re-sent from the learner's history after a restart or a resume (the
+            # normal case there, not a bad input: it changes nothing); counted, logged once
+            self.duplicate_reports += 1
+            if self.duplicate_reports == 1:
+                self.get_logger().info(f"competence report {msg.seq}: already have reports 1..{gen.reports} "
+                                       "(re-sent after a restart or resume): dropped; such reports are counted "
+                                       "on /diagnostics (duplicate_reports), not logged again")
             return
         problem = self.watch.problem("/sagg/competence")  # a well-formed new report: from the learner only
         if problem:
@@ -241,6 +246,7 @@ class GoalGeneratorNode(Node):
                  "goals": str(len(gen.goals)), "regions": str(len(gen.tree.leaves()))}
         state.update({f"publishers {t}": p for t, p in self.watch.all_problems().items()})
         state["report_resubscriptions"] = str(self.resubscriptions)
+        state["duplicate_reports"] = str(self.duplicate_reports)
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def _goal_subscribers_ok(self) -> bool:
@@ -324,6 +330,7 @@ class GoalGeneratorNode(Node):
             return
         try:
             ck = GeneratorCheckpointer(p["checkpoint_dir"], self.gen, p["checkpoint_every"], p["journal_fsync"])
+            ck.check_resume(p["resume"])  # another run's checkpoint: refused unless asked to continue it
             self.replay_goals = ck.resume()
         except (ValueError, OSError) as exc:
             raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc

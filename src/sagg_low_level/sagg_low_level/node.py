@@ -162,6 +162,7 @@ class LearnerNode(LearnerNodeBase):
         self.pending = next(self.coro)  # the first request (Observe)
         self.goals_received = 0
         self.t_started = time.monotonic()
+        self.ma_start = self.learner.micro_actions  # (resumed: those of earlier segments, not in the stop line's rate)
         self.rate_window: list[tuple[float, int]] = [(time.monotonic(), 0)]
         self.create_timer(0.5, self.publish_status)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -457,9 +458,11 @@ class LearnerNode(LearnerNodeBase):
                 self.state = self.STOPPED
                 self.pause_reason = f"max_micro_actions ({self.max_micro_actions}) reached"
                 secs = time.monotonic() - self.t_started
+                done = learner.micro_actions - self.ma_start  # this segment's (since the start or resume)
+                since = f", {done} since the resume at {self.ma_start}," if self.ma_start else ""
                 self.get_logger().info(
-                    f"{self.pause_reason}: stopped acting ({learner.micro_actions} micro-actions in "
-                    f"{secs:.3f} s: {learner.micro_actions / max(secs, 1e-9):.1f}/s)")
+                    f"{self.pause_reason}: stopped acting ({learner.micro_actions} micro-actions{since} in "
+                    f"{secs:.3f} s: {done / secs if secs > 0 else 0.0:.1f}/s)")
                 self.flush()
                 self.publish_status()
                 return
@@ -606,6 +609,7 @@ class LearnerNode(LearnerNodeBase):
             return
         try:
             ck = LearnerCheckpointer(p["checkpoint_dir"], self.learner, p["checkpoint_every"], p["journal_fsync"])
+            ck.check_resume(p["resume"])  # another run's checkpoint: refused unless asked to continue it
             replay = ck.resume()
         except (ValueError, OSError) as exc:
             raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc
