@@ -118,6 +118,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--loop", action="store_true", help="start again at the end (until Ctrl-C)")
     rp.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
                     help="start once every topic has N matched subscribers (default 0: at once)")
+    rp.add_argument("--include-commands", action="store_true",
+                    help="also publish the command topics (/<controller>/commands, /<controller>/joint_trajectory); "
+                         "refused (exit 2) while a node other than sagg's simulator (sagg_sim_bridge) subscribes "
+                         "to one (default: left out: a real driver on this ROS_DOMAIN_ID would move)")
     rp.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
     rp.add_argument("--quiet", action="store_true", help="no progress display")
     rc = sub.add_parser("record", help="the recorder alone (sagg run's topics, the publishers' QoS) into an "
@@ -392,7 +396,7 @@ def main(argv: list[str] | None = None) -> int:
             # lazy (heavy): mujoco
             from .bags import replay
             res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
-                         domain_id=args.domain_id, progress=not args.quiet)
+                         domain_id=args.domain_id, progress=not args.quiet, include_commands=args.include_commands)
             return 130 if res["interrupted"] else 0
         if args.command == "record":
             res = record(args.out or default_out(), args.params, args.domain_id, args.duration,

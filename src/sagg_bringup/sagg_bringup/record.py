@@ -168,13 +168,16 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
         status = "stopping (Ctrl-C again: at once)"
         t_drain = t_last = t_any = time.monotonic()
         last = n0 = stream_messages()
-        last_any = bag.written
+        def others() -> int:  # every recorded message but our own view's
+            return bag.written - bag.counts.get(MARKER_TOPIC, 0)
+
+        last_any = others()
         while len(stop) <= signals:
             take()
             now = time.monotonic()
             show(now)
-            if bag.written != last_any:
-                last_any, t_any = bag.written, now
+            if others() != last_any:
+                last_any, t_any = others(), now
             n = stream_messages()
             if n != last:
                 last, t_last = n, now

@@ -653,10 +653,10 @@ class LearnerNode(LearnerNodeBase):
         if self.rec_waits:
             self.get_logger().info(f"recorder backpressure: {self.rec_waits} waits, "
                                    f"{self.rec_wait_seconds:.3f} s in all (recorder_max_lag {self.rec_max_lag})")
-        if self.checkpointer is not None:
-            try:
-                self.flush()
-            finally:
+        try:
+            self.flush()  # (also without checkpoints: a params.yaml names none since issue 24)
+        finally:
+            if self.checkpointer is not None:
                 self.checkpointer.close()
                 self.checkpointer = None
 
