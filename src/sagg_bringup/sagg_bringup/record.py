@@ -31,6 +31,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from sagg_common.params import ConfigError
+from sagg_common.ros_params import reliable
 
 from .markers import MarkerView, MARKER_TOPIC
 from .record_account import RecordAccount
@@ -97,7 +98,6 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
     from diagnostic_msgs.msg import DiagnosticArray
-    from sagg_common.ros_params import reliable
 
     out = Path(out)
     if out.exists():

@@ -4,9 +4,10 @@
 - Acknowledgement: the samples accepted contiguously (:meth:`RunState.accept_sample`, the check
   every recorder of a graph run uses) from the first sample of the current learner process this
   recorder received (index 0 when it was there from the start; later when it joined a running graph
-  or the learner was resumed). A sample with a lower index than the previous one starts a new
+  or the learner was resumed). A sample with a lower index than the last one accepted starts a new
   learner process (a fresh one publishes from 0; a resumed one re-publishes from its last
-  checkpoints), whose stream the acknowledgement follows from there.
+  checkpoints; one learner publishes its samples in index order), whose stream the acknowledgement
+  follows from there.
 - Accounting: the nodes announce how many messages they published per topic on ``/diagnostics``
   (values ``published <topic>``; the learner's: /sagg/sample, /sagg/competence, its commands) and the
   learner its samples and reports on ``/sagg/status``. :meth:`RecordAccount.losses` compares them with
@@ -36,7 +37,7 @@ class RecordAccount:
         self.st = RunState(on_reject=on_reject)
         self.problem = problem or finite_sample_problem
         self.start: int | None = None       # first index of the current learner process's stream
-        self.last_index: int | None = None  # index of the last sample handed in
+        self.last_index: int | None = None  # index of the last sample accepted
         self.processes = 0                  # learner processes whose stream was followed
         self.report_seq: int | None = None  # seq of the last competence report handed in
         # (node, topic) -> the last count announced; what earlier processes of that node announced
@@ -51,8 +52,10 @@ class RecordAccount:
             self.start = index
             self.processes += 1
             self.st.start_samples_at(index)
-        self.last_index = index
-        return self.st.accept_sample(m, self.problem)
+        ok = self.st.accept_sample(m, self.problem)
+        if ok:
+            self.last_index = index
+        return ok
 
     def on_report(self, m) -> bool:
         """/sagg/competence: the last report's seq (the learner's status says how many it sent)."""
