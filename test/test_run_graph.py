@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from sagg_bringup.setups import run_experiment
 from sagg_bringup.recorder import make_typestore
@@ -68,8 +69,8 @@ def test_summary_is_complete(run):
     assert "final mean test error" in stdout
     # params.yaml is a configuration: the budget and checkpoint directory are the run's, on the
     # nodes' command lines (the summary's node_params has them)
-    params = (out / "params.yaml").read_text()
-    assert "max_micro_actions" not in params and "checkpoint_dir" not in params
+    learner = yaml.safe_load((out / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]
+    assert "max_micro_actions" not in learner and "checkpoint_dir" not in learner
     assert s["node_params"]["sagg_learner"]["max_micro_actions"] == N
     for log in ("goal_generator", "learner", "mujoco_bridge"):
         assert (out / "logs" / f"{log}.log").is_file()
