@@ -13,9 +13,10 @@ from the expected publisher only).
 Like ``sagg run``'s recorder it acknowledges the samples it has recorded on /sagg/recorded, so the
 learner waits while it lags (``recorder_max_lag``; :mod:`.record_account`). Ctrl-C (SIGINT) or
 SIGTERM stops it in two steps: it acknowledges nothing more (the learner stops within
-``recorder_max_lag`` samples) and keeps taking messages until the nodes' streams (samples, reports,
-goals, commands) have been quiet for ``quiet`` s with their publishers gone, or for ``idle`` s with
-them alive, at most ``drain_limit`` s; a second signal stops at once. Then the bag is closed (mcap
+``recorder_max_lag`` samples) and keeps taking messages until nothing came for ``quiet`` s once
+every recorded topic's publishers are gone (the nodes exited), or, while some live on (a driver, or
+nodes still running), the nodes' streams (samples, reports, goals, commands) were quiet for ``idle``
+s; at most ``drain_limit`` s; a second signal stops at once. Then the bag is closed (mcap
 footer and ``metadata.yaml``, whose ``custom_data`` holds the counts below) and the counts printed:
 per topic the messages recorded, those the nodes announced as published (/diagnostics), those
 published before the recorder subscribed, and those lost (:meth:`RecordAccount.losses`).
@@ -66,23 +67,47 @@ def publishers_qos(infos, spec: TopicSpec) -> TopicSpec:
 
 class LiveRecorder(TopicRecorder):
     """A :class:`~sagg_bringup.recorder.TopicRecorder` whose topics are subscribed once they have a
-    publisher of the expected type (checked by :meth:`poll`), with the publishers' QoS."""
+    publisher of the expected type (checked by :meth:`poll`), with the publishers' QoS.
 
-    def __init__(self, node, bag: BagWriter, topics: list[TopicSpec], handlers: dict | None = None):
-        super().__init__(node, bag, [], handlers)
+    ``gate`` topics (/sagg/sample) are subscribed only once every ``wait_for`` topic (the hardware
+    topics, /sagg/competence) that has a publisher is subscribed and matched for ``settle`` s:
+    a learner waiting for its sample subscriber (``min_sample_subscribers``, as with record:=true)
+    then publishes no command, joint state or outcome before the recorder can receive it (seen on
+    a loaded machine: a /joint_states reader matched 3 s after the /sagg/sample one). A topic
+    without publisher does not hold the gate (a parameter file naming another controller must not
+    keep /sagg/sample unrecorded)."""
+
+    def __init__(self, node, bag: BagWriter, topics: list[TopicSpec], handlers: dict | None = None,
+                 gate: tuple[str, ...] = (), wait_for: tuple[str, ...] = (), settle: float = 0.5):
+        super().__init__(node, bag, [], handlers, settle=settle)
         self.waiting = {t.name: t for t in topics}
         self.qos: dict[str, TopicSpec] = {}
+        self.gate, self.wait_for = frozenset(gate), frozenset(wait_for)
+        self.subs: dict = {}  # topic -> its subscription
+        self._ready_since: float | None = None
+
+    def _gate_open(self) -> bool:
+        held = [t for t in self.wait_for
+                if (t in self.subs and self.subs[t].get_publisher_count() == 0)
+                or (t not in self.subs and self.node.count_publishers(t) > 0)]
+        if held:
+            self._ready_since = None
+            return False
+        now = time.monotonic()
+        if self._ready_since is None:
+            self._ready_since = now
+        return now - self._ready_since >= self.settle
 
     def poll(self) -> None:
         for name, spec in list(self.waiting.items()):
             infos = [i for i in self.node.get_publishers_info_by_topic(name) if i.topic_type == spec.msgtype]
-            if not infos:
+            if not infos or (name in self.gate and not self._gate_open()):
                 continue
             del self.waiting[name]
             t = publishers_qos(infos, spec)
             self.bag.add_topic(t)
             self.qos[name] = t
-            self._subscribe(t)
+            self.subs[name] = self._subscribe(t)
 
 
 def record(out: str | Path, params_file: str | Path | None = None, domain_id: int | None = None,
@@ -154,7 +179,8 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
                   f"({len(rec.waiting)} without publisher yet)", end="", file=sys.stderr, flush=True)
 
     try:
-        rec = LiveRecorder(node, bag, topics, handlers)
+        hw = tuple(t.name for t in topics if not t.name.startswith("/sagg/") and t.name != "/clock")
+        rec = LiveRecorder(node, bag, topics, handlers, gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
         account.st.on_reject = rec.log_problem
         ack = Acknowledger(node, account.acknowledged)
         node.create_subscription(DiagnosticArray, "/diagnostics", account.on_diagnostics, reliable(100))
@@ -182,14 +208,16 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
             if n != last:
                 last, t_last = n, now
                 continue
-            # every recorded topic (but our own view) without publisher: the nodes have exited
+            # every recorded topic (but our own view) without publisher: the nodes have exited, and
+            # what they published is in once nothing came for `quiet` s; while some live on (a
+            # driver, or nodes still running), the streams' silence for `idle` s ends it
             alive = [t for t in rec.qos if t != MARKER_TOPIC and node.count_publishers(t) > 0]
-            if now - t_any >= quiet and not alive:
-                drain["ended"] = f"nothing came for {quiet} s and every publisher is gone"
-                break
-            if now - t_last >= idle:
-                drain["ended"] = (f"the nodes' streams quiet for {idle} s (publishers still on "
-                                  f"{', '.join(alive) or 'none'})")
+            if not alive:
+                if now - t_any >= quiet:
+                    drain["ended"] = f"nothing came for {quiet} s and every publisher is gone"
+                    break
+            elif now - t_last >= idle:
+                drain["ended"] = f"the nodes' streams quiet for {idle} s (publishers still on {', '.join(alive)})"
                 break
             if now - t_drain >= drain_limit:
                 drain["ended"] = f"drain_limit ({drain_limit} s) reached"
