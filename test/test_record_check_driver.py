@@ -205,6 +205,7 @@ def test_sagg_record_beside_hand_started_nodes_keeps_every_message_at_ctrl_c(ros
     lost, before = json.loads(custom["sagg.lost"]), json.loads(custom["sagg.published_before_subscribed"])
     assert custom["sagg.recorder"] == "sagg record" and "ended" in json.loads(custom["sagg.drain"])
     assert not before.get("/sagg/sample") and not before.get("/sagg/competence")
+    assert json.loads(custom["sagg.first_sample_index"]) == 0  # the learner's first sample on
     for topic in ("/sagg/sample", "/sagg/competence"):
         # every message accounted for: in the bag, published before the recorder subscribed, or lost
         assert counts[topic] + before.get(topic, 0) + lost.get(topic, 0) == published[topic] > 0, (topic, err[-3000:])

@@ -108,6 +108,7 @@ class LiveRecorder(TopicRecorder):
             self.bag.add_topic(t)
             self.qos[name] = t
             self.subs[name] = self._subscribe(t)
+            self.node.get_logger().info(f"subscribed to {name} ({len(infos)} publisher(s))")  # (as ros2 bag record)
 
 
 def record(out: str | Path, params_file: str | Path | None = None, domain_id: int | None = None,
@@ -231,7 +232,8 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
         published = account.published()
         for key, value in (("sagg.recorder", "sagg record"), ("sagg.published", published),
                            ("sagg.published_before_subscribed", before), ("sagg.lost", lost),
-                           ("sagg.lost_not_estimated", sorted(rec.drops_unknown)), ("sagg.drain", drain)):
+                           ("sagg.lost_not_estimated", sorted(rec.drops_unknown)), ("sagg.drain", drain),
+                           ("sagg.first_sample_index", account.first_index)):
             bag.set_custom_data(key, value if isinstance(value, str) else json.dumps(value, sort_keys=True))
     finally:
         if rec is not None:
@@ -254,13 +256,17 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
         if before:
             print("published before the recorder subscribed (not in the bag): "
                   + ", ".join(f"{t} {n}" for t, n in before.items()), file=sys.stderr)
+        if account.first_index:
+            print(f"the bag's samples start at index {account.first_index} (the learner's earlier ones were "
+                  "published before the recorder subscribed, or not at all while nobody subscribed: "
+                  "start sagg record first and the learner with min_sample_subscribers:=1)", file=sys.stderr)
         if rec.drops_unknown:
             print("no loss estimate from sequence numbers (several publishers): "
                   + ", ".join(sorted(rec.drops_unknown)), file=sys.stderr)
     if lost:
         print("sagg record: LOST (published while recording, not in the bag): "
               + ", ".join(f"{t} {n}" for t, n in lost.items()) + f"; exit code {LOST_EXIT_CODE}", file=sys.stderr)
-    return {"path": str(out), "topics": topics_out, "interrupted": bool(stop),
+    return {"path": str(out), "topics": topics_out, "interrupted": bool(stop), "first_sample_index": account.first_index,
             "qos": {t: {"transient_local": s.transient_local, "best_effort": s.best_effort} for t, s in rec.qos.items()},
             "published": published, "before": before, "lost": lost, "drain": drain}
 

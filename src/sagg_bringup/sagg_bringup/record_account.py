@@ -39,6 +39,7 @@ class RecordAccount:
         self.start: int | None = None       # first index of the current learner process's stream
         self.last_index: int | None = None  # index of the last sample accepted
         self.processes = 0                  # learner processes whose stream was followed
+        self.first_index: int | None = None  # index of the first sample received (> 0: the bag lacks 0..it-1)
         self.report_seq: int | None = None  # seq of the last competence report handed in
         # (node, topic) -> the last count announced; what earlier processes of that node announced
         self.announced: dict[tuple[str, str], int] = {}
@@ -48,6 +49,8 @@ class RecordAccount:
     def on_sample(self, m) -> bool | None:
         """/sagg/sample: True when accepted (the acknowledgement moves on)."""
         index = int(m.index)
+        if self.first_index is None:
+            self.first_index = index
         if self.start is None or (self.last_index is not None and index < self.last_index):
             self.start = index
             self.processes += 1
