@@ -195,6 +195,7 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
         status = "stopping (Ctrl-C again: at once)"
         t_drain = t_last = t_any = time.monotonic()
         last = n0 = stream_messages()
+
         def others() -> int:  # every recorded message but our own view's
             return bag.written - bag.counts.get(MARKER_TOPIC, 0)
 
@@ -230,10 +231,11 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
         before = account.before(received, rec.first_seq)
         lost = account.losses(received, before, rec.dropped)
         published = account.published()
+        rejected = {**rec.rejected, **account.st.rejected}  # messages recorded but not used (DESIGN §8)
         for key, value in (("sagg.recorder", "sagg record"), ("sagg.published", published),
                            ("sagg.published_before_subscribed", before), ("sagg.lost", lost),
                            ("sagg.lost_not_estimated", sorted(rec.drops_unknown)), ("sagg.drain", drain),
-                           ("sagg.first_sample_index", account.first_index)):
+                           ("sagg.first_sample_index", account.first_index), ("sagg.rejected", rejected)):
             bag.set_custom_data(key, value if isinstance(value, str) else json.dumps(value, sort_keys=True))
     finally:
         if rec is not None:
@@ -244,31 +246,40 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
         rclpy.shutdown(context=ctx)
         for s, h in old.items():
             signal.signal(s, h)
-    topics_out = bag.topics()
-    if progress:
-        print(f"\nbag closed: {out} ({bag.written:,} messages: "
-              + ", ".join(f"{t} {v['count']}" for t, v in sorted(topics_out.items())) + ")", file=sys.stderr)
-        print(f"stopped after {drain['seconds']:.1f} s of taking what was still coming ({drain['messages']:,} "
-              f"messages on the nodes' streams): {drain['ended']}", file=sys.stderr)
-        if published:
-            print("published by the nodes (as last announced on /diagnostics): "
-                  + ", ".join(f"{t} {n}" for t, n in sorted(published.items())), file=sys.stderr)
-        if before:
-            print("published before the recorder subscribed (not in the bag): "
-                  + ", ".join(f"{t} {n}" for t, n in before.items()), file=sys.stderr)
-        if account.first_index:
-            print(f"the bag's samples start at index {account.first_index} (the learner's earlier ones were "
-                  "published before the recorder subscribed, or not at all while nobody subscribed: "
-                  "start sagg record first and the learner with min_sample_subscribers:=1)", file=sys.stderr)
-        if rec.drops_unknown:
-            print("no loss estimate from sequence numbers (several publishers): "
-                  + ", ".join(sorted(rec.drops_unknown)), file=sys.stderr)
-    if lost:
-        print("sagg record: LOST (published while recording, not in the bag): "
-              + ", ".join(f"{t} {n}" for t, n in lost.items()) + f"; exit code {LOST_EXIT_CODE}", file=sys.stderr)
-    return {"path": str(out), "topics": topics_out, "interrupted": bool(stop), "first_sample_index": account.first_index,
-            "qos": {t: {"transient_local": s.transient_local, "best_effort": s.best_effort} for t, s in rec.qos.items()},
-            "published": published, "before": before, "lost": lost, "drain": drain}
+    res = {"path": str(out), "topics": bag.topics(), "interrupted": bool(stop), "first_sample_index": account.first_index,
+           "qos": {t: {"transient_local": s.transient_local, "best_effort": s.best_effort} for t, s in rec.qos.items()},
+           "published": published, "before": before, "lost": lost, "drain": drain, "rejected": rejected,
+           "lost_not_estimated": sorted(rec.drops_unknown)}
+    for line in counts_report(res, progress):
+        print(line, file=sys.stderr)
+    return res
+
+
+def counts_report(res: dict, full: bool = True) -> list[str]:
+    """The lines ``sagg record`` prints at the end (``full``: all of them, else only a loss)."""
+    lines = []
+    if full:
+        lines.append(f"\nbag closed: {res['path']} ({sum(v['count'] for v in res['topics'].values()):,} messages: "
+                     + ", ".join(f"{t} {v['count']}" for t, v in sorted(res['topics'].items())) + ")")
+        d = res["drain"]
+        lines.append(f"stopped after {d['seconds']:.1f} s of taking what was still coming ({d['messages']:,} "
+                     f"messages on the nodes' streams): {d['ended']}")
+        for key, text in (("published", "published by the nodes (as last announced on /diagnostics)"),
+                          ("before", "published before the recorder subscribed (not in the bag)"),
+                          ("rejected", "recorded but not used (another publisher, or content rejected)")):
+            if res[key]:
+                lines.append(f"{text}: " + ", ".join(f"{t} {n}" for t, n in sorted(res[key].items())))
+        if res["first_sample_index"]:
+            lines.append(f"the bag's samples start at index {res['first_sample_index']} (the learner's earlier "
+                         "ones were published before the recorder subscribed, or not at all while nobody "
+                         "subscribed: start sagg record first and the learner with min_sample_subscribers:=1)")
+        if res["lost_not_estimated"]:
+            lines.append("no loss estimate from sequence numbers (several publishers): "
+                         + ", ".join(res["lost_not_estimated"]))
+    if res["lost"]:
+        lines.append("sagg record: LOST (published while recording, not in the bag): "
+                     + ", ".join(f"{t} {n}" for t, n in res["lost"].items()) + f"; exit code {LOST_EXIT_CODE}")
+    return lines
 
 
 def default_out() -> Path:
