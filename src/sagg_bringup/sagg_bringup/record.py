@@ -70,32 +70,43 @@ class LiveRecorder(TopicRecorder):
     publisher of the expected type (checked by :meth:`poll`), with the publishers' QoS.
 
     ``gate`` topics (/sagg/sample) are subscribed only once every ``wait_for`` topic (the hardware
-    topics, /sagg/competence) that has a publisher is subscribed and matched for ``settle`` s:
-    a learner waiting for its sample subscriber (``min_sample_subscribers``, as with record:=true)
-    then publishes no command, joint state or outcome before the recorder can receive it (seen on
-    a loaded machine: a /joint_states reader matched 3 s after the /sagg/sample one). A topic
-    without publisher does not hold the gate (a parameter file naming another controller must not
-    keep /sagg/sample unrecorded)."""
+    topics, /sagg/competence) is subscribed and matched for ``settle`` s: a learner waiting for its
+    sample subscriber (``min_sample_subscribers``, as with record:=true) then publishes no command,
+    joint state or outcome before the recorder can receive it (seen on a loaded machine: this
+    process learnt of the bridge's /joint_states publisher 3 s after the learner had). A
+    ``wait_for`` topic that has no publisher ``gate_timeout`` s after the gated topic's first one
+    appeared no longer holds the gate (a parameter file naming another controller must not keep
+    /sagg/sample unrecorded); it is logged."""
 
     def __init__(self, node, bag: BagWriter, topics: list[TopicSpec], handlers: dict | None = None,
-                 gate: tuple[str, ...] = (), wait_for: tuple[str, ...] = (), settle: float = 0.5):
+                 gate: tuple[str, ...] = (), wait_for: tuple[str, ...] = (), settle: float = 0.5,
+                 gate_timeout: float = 10.0):
         super().__init__(node, bag, [], handlers, settle=settle)
         self.waiting = {t.name: t for t in topics}
         self.qos: dict[str, TopicSpec] = {}
-        self.gate, self.wait_for = frozenset(gate), frozenset(wait_for)
+        self.gate, self.wait_for, self.gate_timeout = frozenset(gate), frozenset(wait_for), gate_timeout
         self.subs: dict = {}  # topic -> its subscription
         self._ready_since: float | None = None
+        self._gate_seen: float | None = None  # when a gated topic's publisher was first seen
 
     def _gate_open(self) -> bool:
+        now = time.monotonic()
+        if self._gate_seen is None:
+            self._gate_seen = now
+        patient = now - self._gate_seen < self.gate_timeout
         held = [t for t in self.wait_for
                 if (t in self.subs and self.subs[t].get_publisher_count() == 0)
-                or (t not in self.subs and self.node.count_publishers(t) > 0)]
+                or (t not in self.subs and (patient or self.node.count_publishers(t) > 0))]
         if held:
             self._ready_since = None
             return False
-        now = time.monotonic()
         if self._ready_since is None:
             self._ready_since = now
+            absent = sorted(t for t in self.wait_for if t not in self.subs)
+            if absent:
+                self.node.get_logger().warning(
+                    f"no publisher on {', '.join(absent)} after {self.gate_timeout:.0f} s: subscribing "
+                    f"{', '.join(sorted(self.gate))} without them (--params names the graph's topics?)")
         return now - self._ready_since >= self.settle
 
     def poll(self) -> None:
