@@ -231,3 +231,77 @@ def test_run_resume_continues_the_run(run_dir, tmp_path):
     old = checkpoint_memory(run_dir / "checkpoint")
     new = SampleMemory.load(tmp_path / "re" / "memory.npz")
     assert new.alpha[:STEPS].tobytes() == old.alpha.tobytes() and new.delta_y[:STEPS].tobytes() == old.delta_y.tobytes()
+
+
+# ------------------------------------------------- issue 24, item 7: replay leaves command topics out
+CMD = "/forward_position_controller/commands"
+CMD_TYPES = {CMD: "std_msgs/msg/Float64MultiArray", "/joint_states": "sensor_msgs/msg/JointState"}
+
+
+def _command_bag(path: Path, n: int = 20) -> Path:
+    """A bag of ``n`` position commands and ``n`` joint states (as a `sagg run` records them)."""
+    from sagg_bringup.recorder import BagWriter, TopicSpec
+    from sagg_common.cdr import encode_f64_array, encode_joint_state
+    bag = BagWriter(path, [TopicSpec(t, ty) for t, ty in CMD_TYPES.items()])
+    for i in range(n):
+        bag.write(CMD, 1_000_000 * (2 * i + 1), encode_f64_array(np.array([0.01 * i, -0.01 * i])))
+        bag.write("/joint_states", 1_000_000 * (2 * i + 2),
+                  encode_joint_state(i, "", ["joint_0", "joint_1"], [0.01 * i, -0.01 * i]))
+    bag.close()
+    return path
+
+
+def _replay_with(bag: Path, node_name: str, *args: str):
+    """`sagg replay BAG ARGS` on a private domain, a test node ``node_name`` subscribed to the
+    command topic and /joint_states there; returns (exit code, output, received bytes)."""
+    import rclpy
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sagg_bringup.recorder import _msg_class
+    domain = pick_domain_id()
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        node = rclpy.create_node(node_name, context=ctx)
+        got: dict[str, list[bytes]] = {t: [] for t in CMD_TYPES}
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        for t, ty in CMD_TYPES.items():
+            node.create_subscription(_msg_class(ty), t, lambda data, t=t: got[t].append(bytes(data)), qos, raw=True)
+        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(bag), "--rate", "0", "--wait-subscribers", "1",
+                                 *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            end = time.monotonic() + 60
+            while time.monotonic() < end and proc.poll() is None:
+                ex.spin_once(timeout_sec=0.05)
+            settle = time.monotonic() + 1.0  # whatever is still in flight
+            while time.monotonic() < settle:
+                ex.spin_once(timeout_sec=0.05)
+            text = proc.communicate(timeout=30)[0]
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        return proc.returncode, text, got
+    finally:
+        ctx.try_shutdown()
+
+
+def test_replay_publishes_no_command_by_default_and_never_to_a_driver(tmp_path):
+    bag = _command_bag(tmp_path / "bag")
+    # default: every other topic, no command (a driver listening here would move its robot)
+    code, text, got = _replay_with(bag, "my_arm_driver")
+    assert code == 0, text
+    assert len(got["/joint_states"]) == 20 and got[CMD] == [], text
+    assert f"command topic(s) left out: {CMD}" in text
+    # naming it in --topics is not enough either
+    code, text, got = _replay_with(bag, "my_arm_driver", "--topics", CMD)
+    assert code == 2 and "--include-commands" in text and got[CMD] == [], text
+    # --include-commands while a node other than sagg's simulator subscribes: refused, naming both
+    code, text, got = _replay_with(bag, "my_arm_driver", "--include-commands")
+    assert code == 2 and got[CMD] == [], text
+    line = next(s for s in text.splitlines() if s.startswith("sagg: error:"))
+    assert CMD in line and "my_arm_driver" in line and "sagg_sim_bridge" in line
+    # ... and published when only sagg's simulator listens
+    code, text, got = _replay_with(bag, "sagg_sim_bridge", "--include-commands")
+    assert code == 0 and len(got[CMD]) == 20 and len(got["/joint_states"]) == 20, text

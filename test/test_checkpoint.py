@@ -204,7 +204,8 @@ def test_learner_sigkill_then_resume_keeps_every_published_sample_once(ros_env, 
     ck = tmp_path / "ck"
     params = graph_params(base, tmp_path / "params.yaml", {"dof": 7, "mode": "kinematic"},
                           learner={"max_micro_actions": steps, "min_sample_subscribers": 1,
-                                   "checkpoint_dir": str(ck), "checkpoint_every": 250},
+                                   "checkpoint_dir": str(ck), "checkpoint_every": 250,
+                                   "resume": True},  # (a restart continues: asked for, not by default)
                           generator={"min_goal_subscribers": 1})
     col = Collector(ros_env["ctx"])
     procs = [start(ros_env, s, params, tmp_path) for s in ("mujoco_bridge", "goal_generator")]
@@ -250,7 +251,8 @@ def test_generator_sigkill_then_resume_leaves_the_run_unchanged(ros_env, tmp_pat
     ck = tmp_path / "ck"
     params = graph_params(base, tmp_path / "params.yaml", arm,
                           learner={"max_micro_actions": steps, "min_sample_subscribers": 1, "goal_retry": 1.0},
-                          generator={"min_goal_subscribers": 1, "checkpoint_dir": str(ck), "checkpoint_every": 150})
+                          generator={"min_goal_subscribers": 1, "checkpoint_dir": str(ck), "checkpoint_every": 150,
+                                     "resume": True})
     col = Collector(ros_env["ctx"])
     bridge = start(ros_env, "mujoco_bridge", params, tmp_path)
     gen = start(ros_env, "goal_generator", params, tmp_path)
@@ -342,3 +344,18 @@ def test_a_request_answered_meanwhile_gets_the_same_goal(ros_env, tmp_path):
     assert (a.seq, a.after_report) == (b.seq, b.after_report) == (1, 3)
     assert np.array(a.position).tobytes() == np.array(b.position).tobytes()
     assert {(g.seq, g.after_report) for g in goals} == {(1, 3)}
+
+
+def test_a_checkpoint_is_continued_only_when_asked(tmp_path):
+    """Issue 24, item 9: a directory holding a checkpoint is refused without ``resume`` (nothing
+    written: the run it belongs to is left as it was); with it, or in an empty directory, fine."""
+    cfg = load_experiment_config(ROOT / "config/arm15_y50.yaml", SMALL)
+    _run_with_checkpoints(cfg, tmp_path, 300)
+    files = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    for ck in (LearnerCheckpointer(tmp_path, InProcessRun(cfg).learner, 100),
+               GeneratorCheckpointer(tmp_path, InProcessRun(cfg).generator, 100)):
+        with pytest.raises(ValueError, match="resume:=true"):
+            ck.check_resume(False)
+        ck.check_resume(True)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == files
+    LearnerCheckpointer(tmp_path / "new", InProcessRun(cfg).learner, 100).check_resume(False)

@@ -63,3 +63,46 @@ def test_recorder_takes_the_publishers_qos():
     # one volatile, best-effort publisher: a reliable or transient_local reader would not match it
     assert publishers_qos([latched, volatile_be], spec) == TopicSpec("/x", "std_msgs/msg/String", spec.depth,
                                                                      False, True)
+
+
+def _sample(index):
+    return SimpleNamespace(index=index, alpha=[0.1, 0.2], delta_alpha=[0.0, 0.0], delta_y=[0.5, 0.5])
+
+
+def _diag(node, **published):
+    values = [SimpleNamespace(key=f"published {t}", value=str(v)) for t, v in published.items()]
+    return SimpleNamespace(status=[SimpleNamespace(name=f"{node}: inputs and safety", hardware_id=node, values=values)])
+
+
+def test_record_account_acknowledges_from_where_it_joined_and_follows_a_new_learner():
+    from sagg_bringup.record_account import RecordAccount
+    acc = RecordAccount({"/sagg/sample"})
+    assert acc.acknowledged() is None  # no publisher before the first sample: the learner must not wait
+    assert all(acc.on_sample(_sample(i)) for i in (7, 8, 9))
+    assert acc.acknowledged() == 10
+    assert acc.on_sample(_sample(11)) is None and acc.acknowledged() == 10  # a gap: not acknowledged past it
+    assert acc.on_sample(_sample(10)) and acc.acknowledged() == 11
+    bad = _sample(11)
+    bad.delta_y = [float("nan"), 0.0]
+    assert acc.on_sample(bad) is None and acc.acknowledged() == 11  # a forged/implausible one takes no index
+    # a fresh learner process (index back to 0): its stream is followed from there
+    assert acc.on_sample(_sample(0)) and acc.acknowledged() == 1 and acc.processes == 2
+
+
+def test_record_account_counts_what_the_nodes_announced_and_the_bag_lacks():
+    from sagg_bringup.record_account import RecordAccount
+    rejected = []
+    acc = RecordAccount({"/sagg/sample", "/cmd"}, on_reject=lambda *a: rejected.append(a))
+    acc.on_diagnostics(_diag("sagg_learner", **{"/sagg/sample": 120, "/cmd": 130, "/not_recorded": 5}))
+    acc.on_diagnostics(_diag("sagg_learner", **{"/sagg/sample": "12x"}))  # not a count: changes nothing
+    assert acc.published() == {"/sagg/sample": 120, "/cmd": 130} and len(rejected) == 1
+    received = {"/sagg/sample": 100, "/cmd": 125}
+    before = acc.before(received, {"/sagg/sample": 11, "/cmd": 1})
+    assert before == {"/sagg/sample": 10}
+    # 120 announced = 100 in the bag + 10 before the subscription + 10 lost; gaps count at least
+    assert acc.losses(received, before, {"/cmd": 7}) == {"/sagg/sample": 10, "/cmd": 7}
+    # a restarted node: its earlier process's count is kept
+    acc.on_diagnostics(_diag("sagg_learner", **{"/sagg/sample": 20}))
+    assert acc.published()["/sagg/sample"] == 140
+    # nothing received at all: all of it was published before the recorder subscribed, not lost
+    assert acc.before({}, {}) == {"/sagg/sample": 140, "/cmd": 130} and acc.losses({}, {}, {}) == {}

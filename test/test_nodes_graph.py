@@ -64,11 +64,12 @@ def ros_env(monkeypatch):
     ctx.try_shutdown()
 
 
-def start(ros_env, script: str, params: Path, tmp_path: Path) -> subprocess.Popen:
+def start(ros_env, script: str, params: Path, tmp_path: Path, args: tuple = ()) -> subprocess.Popen:
+    """The console script ``script`` on ``params`` (``args``: more ROS arguments, e.g. ``-p x:=1``)."""
     exe = BIN / script
     assert exe.exists(), f"console script {exe} missing (run make setup)"
     log = open(tmp_path / f"{script}.log", "w")
-    p = subprocess.Popen([str(exe), "--ros-args", "--params-file", str(params)], env=ros_env["env"],
+    p = subprocess.Popen([str(exe), "--ros-args", "--params-file", str(params), *args], env=ros_env["env"],
                          stdout=log, stderr=subprocess.STDOUT)
     ros_env["procs"].append(p)
     return p

@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import ast
+import subprocess
 import time
 from pathlib import Path
 
@@ -18,14 +19,14 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sagg_bringup.arm_params import graph_params, load_graph_config
-from sagg_bringup.params_files import run_only_params, set_checkpoint_dirs, write_params_file
+from sagg_bringup.params_files import RUN_KEYS, run_only_params, set_checkpoint_dirs, write_params_file
 from sagg_bringup.launch_params import installed_configs, launch_plan, resolve_config, write_plan
 from sagg_common.params import read_config
 from sagg_msgs.msg import CompetenceReport, LearnerStatus
 from sagg_sim_bridge.params import arm_spec_from_params
 
 import test_nodes_graph
-from test_nodes_graph import STARTUP_TIMEOUT, logs, start
+from test_nodes_graph import BIN, STARTUP_TIMEOUT, logs, start, stop
 
 ros_env = test_nodes_graph.ros_env  # the fixture: a private ROS domain per test
 
@@ -69,7 +70,9 @@ def test_three_executables_learn_from_a_run_params_file(ros_env, tmp_path):
     import rclpy.executors
     ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
     ex.add_node(node)
-    procs = [start(ros_env, s, params, tmp_path) for s in ("mujoco_bridge", "goal_generator", "learner")]
+    # (the budget is not in params.yaml, a configuration: given the ROS way)
+    procs = [start(ros_env, s, params, tmp_path, ("-p", f"max_micro_actions:={steps}") if s == "learner" else ())
+             for s in ("mujoco_bridge", "goal_generator", "learner")]
     end = time.monotonic() + STARTUP_TIMEOUT + 60
     while time.monotonic() < end and not (status and status[-1].micro_actions >= steps):
         for p in procs:
@@ -163,3 +166,111 @@ def test_launch_file_arguments():
     assert args["driver"] == {"default_value": "sim", "choices": ["sim", "external"]}
     assert args["record"] == {"default_value": "false", "choices": ["true", "false"]}
     assert "launch_plan(" in LAUNCH.read_text()
+
+
+# ---------------------------------------------------------------- issue 24, item 9: a configuration, not a run
+def test_params_file_holds_no_run_specific_value_and_sagg_run_gives_them(tmp_path):
+    full = load_graph_config(ROOT / "config/arm8.yaml")
+    params = graph_params(full, 300, "lockstep")
+    assert set_checkpoint_dirs(params, tmp_path) == []
+    write_params_file(tmp_path / "params.yaml", params)
+    doc = yaml.safe_load((tmp_path / "params.yaml").read_text())
+    for section in doc.values():
+        assert not set(section["ros__parameters"]) & set(RUN_KEYS)
+    # ... on the nodes' command lines: the run's own checkpoint directory, its budget, no resume
+    run = run_only_params(params)
+    own = str((tmp_path / "checkpoint").resolve())
+    assert run["sagg_learner"]["checkpoint_dir"] == own == run["sagg_goal_generator"]["checkpoint_dir"]
+    assert run["sagg_learner"]["max_micro_actions"] == 300
+    assert run["sagg_learner"]["resume"] is False and run["sagg_goal_generator"]["resume"] is False
+
+
+def test_another_sagg_run_on_an_older_params_file_starts_a_new_run(tmp_path):
+    """An older sagg run's params.yaml names its run's checkpoint_dir: a new run keeps its own
+    (and says so); only --resume continues, from DIR/checkpoint."""
+    old = tmp_path / "old" / "checkpoint"
+    old.mkdir(parents=True)
+    (old / "learner.json").write_text("{}")
+    params = graph_params(load_graph_config(ROOT / "config/arm8.yaml"), 300, "lockstep")
+    params["sagg_learner"]["checkpoint_dir"] = str(old)
+    new = tmp_path / "new"
+    notes = set_checkpoint_dirs(params, new)
+    assert params["sagg_learner"]["checkpoint_dir"] == str((new / "checkpoint").resolve())
+    assert params["sagg_learner"]["resume"] is False
+    assert len(notes) == 1 and str(old) in notes[0]
+    # --resume of the new run: its own checkpoint
+    (new / "checkpoint").mkdir(parents=True)
+    (new / "checkpoint" / "learner.json").write_text("{}")
+    params["sagg_learner"]["checkpoint_dir"] = str(old)
+    assert set_checkpoint_dirs(params, new, resume=True) == []
+    assert params["sagg_learner"]["checkpoint_dir"] == str((new / "checkpoint").resolve())
+    assert params["sagg_learner"]["resume"] is True
+
+
+def test_launch_of_a_run_params_file_names_no_checkpoint(tmp_path):
+    path = run_params_file(tmp_path, 100)
+    plan = launch_plan(str(path))
+    assert plan.params["sagg_learner"]["checkpoint_dir"] == "" and plan.params["sagg_learner"]["resume"] is False
+    assert plan.params["sagg_goal_generator"]["checkpoint_dir"] == ""
+    doc = yaml.safe_load(path.read_text())
+    assert all("checkpoint_dir" not in v["ros__parameters"] for v in doc.values())
+
+
+def _files(d: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir())}
+
+
+def test_a_finished_runs_params_file_starts_a_new_run_and_leaves_that_run_alone(ros_env, tmp_path):
+    """Issue 24, item 9: the three executables on a finished `sagg run`'s params.yaml learn a new
+    run (micro-actions from 0 to their own budget), and the parameters an older sagg run wrote
+    (with its checkpoint_dir) make the learner and generator refuse to start (exit 2, one line
+    naming 'resume'); the old run's checkpoint files stay byte for byte as they were."""
+    run = tmp_path / "run"
+    proc = subprocess.run([str(BIN / "sagg"), "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", "100",
+                           "--eval-every", "100", "--out", str(run), "--quiet"],
+                          capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    ck = run / "checkpoint"
+    before = _files(ck)
+    assert "learner.json" in before and "generator.json" in before
+    # the parameters an older `sagg run` wrote: its checkpoint_dir and budget in the file
+    doc = yaml.safe_load((run / "params.yaml").read_text())
+    doc["sagg_learner"]["ros__parameters"].update(checkpoint_dir=str(ck), max_micro_actions=100)
+    doc["sagg_goal_generator"]["ros__parameters"]["checkpoint_dir"] = str(ck)
+    old = tmp_path / "old_params.yaml"
+    old.write_text(yaml.safe_dump(doc))
+    logs_old = tmp_path / "old"
+    logs_old.mkdir()
+    refused = [start(ros_env, s, old, logs_old) for s in ("goal_generator", "learner")]
+    for p in refused:
+        p.wait(STARTUP_TIMEOUT)
+    for p, script in zip(refused, ("goal_generator", "learner")):
+        text = (logs_old / f"{script}.log").read_text()
+        assert p.returncode == 2 and "parameter 'checkpoint_dir'" in text and "'resume' is false" in text, text
+    assert _files(ck) == before
+    # the run's own params.yaml: a new run, from 0 to the budget given here
+    steps = 60
+    node = Node("sagg_test_watcher", context=ros_env["ctx"])
+    status: list[LearnerStatus] = []
+    node.create_subscription(LearnerStatus, "/sagg/status", status.append, 100)
+    import rclpy.executors
+    ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
+    ex.add_node(node)
+    procs = [start(ros_env, s, run / "params.yaml", tmp_path,
+                   ("-p", f"max_micro_actions:={steps}") if s == "learner" else ())
+             for s in ("mujoco_bridge", "goal_generator", "learner")]
+    end = time.monotonic() + STARTUP_TIMEOUT + 60
+    while time.monotonic() < end and not (status and "max_micro_actions" in status[-1].pause_reason):
+        for p in procs:
+            assert p.poll() is None, logs(tmp_path)
+        ex.spin_once(timeout_sec=0.05)
+    assert status and "max_micro_actions" in status[-1].pause_reason, logs(tmp_path)
+    # a new run: from 0 (the old run's learner had 100 micro-actions and samples)
+    assert status[-1].micro_actions == steps and status[-1].samples == steps
+    for p in procs:
+        stop(p)
+    assert _files(ck) == before
+    log = (tmp_path / "learner.log").read_text()
+    assert "resumed from" not in log and f"stopped acting ({steps} micro-actions in" in log, log
+    ex.shutdown()
+    node.destroy_node()

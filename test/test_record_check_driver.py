@@ -151,3 +151,67 @@ def test_check_driver_names_a_wrong_joint_order_and_a_missing_driver(ros_env, tm
     res = check(ros_env, arm_config(tmp_path / "bad.yaml", joints=("axis_1", "axis_0", "axis_2")), "--joint", "axis_1")
     assert res.returncode == 1, res.stdout + res.stderr
     assert "commanding axis_1 also moved axis_0" in res.stdout
+
+
+def test_sagg_record_beside_hand_started_nodes_keeps_every_message_at_ctrl_c(ros_env, tmp_path):
+    """Issue 24, item 8: the three executables on a run's params.yaml with `sagg record --params`
+    beside them, under load; SIGINT to every process at the same moment (as a terminal's Ctrl-C or
+    ros2 launch does). The recorder acknowledges (the learner waits while it lags), then takes what
+    the nodes still publish before it closes: every sample and report the learner published is in
+    the bag, or the recorder's exit code (3) and its metadata name what is not."""
+    import json
+    import re
+    from test_params_everywhere import run_params_file
+    params = run_params_file(tmp_path, 0)
+    hogs = [subprocess.Popen(["nice", "-n", "19", sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        bag = tmp_path / "bag"
+        rec = subprocess.Popen([SAGG, "record", "--out", str(bag), "--params", str(params)], env=ros_env["env"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ros_env["procs"].append(rec)
+        node = Node("sagg_test_watch", context=ros_env["ctx"])
+        status: list[LearnerStatus] = []
+        node.create_subscription(LearnerStatus, "/sagg/status", status.append, 10)
+        ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
+        ex.add_node(node)
+        end = time.monotonic() + 60
+        while time.monotonic() < end and "sagg_record" not in node.get_node_names():  # the recorder is up
+            ex.spin_once(timeout_sec=0.05)
+        # the nodes wait for the recorder's subscriptions, as with record:=true (a learner publishes
+        # no sample while nobody subscribes: a recorder that subscribes later misses the first ones)
+        waits = {"learner": ("-p", "min_sample_subscribers:=1"), "goal_generator": ("-p", "min_goal_subscribers:=1")}
+        procs = [start(ros_env, s, params, tmp_path, waits.get(s, ()))
+                 for s in ("mujoco_bridge", "goal_generator", "learner")]
+        end = time.monotonic() + STARTUP_TIMEOUT + 60
+        while time.monotonic() < end and not (status and status[-1].micro_actions >= 600):
+            for p in procs + [rec]:
+                assert p.poll() is None, logs(tmp_path)
+            ex.spin_once(timeout_sec=0.05)
+        assert status and status[-1].micro_actions >= 600, logs(tmp_path)
+        for p in procs + [rec]:
+            p.send_signal(signal.SIGINT)
+        for p in procs:
+            assert p.wait(30) == 0, logs(tmp_path)
+        out, err = rec.communicate(timeout=60)
+    finally:
+        for h in hogs:
+            h.kill()
+            h.wait()
+    published = json.loads(re.search(r"\[sagg_learner\]: published counts: (\{.*\})",
+                                     (tmp_path / "learner.log").read_text()).group(1))
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    counts = {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}
+    custom = meta["custom_data"]
+    lost, before = json.loads(custom["sagg.lost"]), json.loads(custom["sagg.published_before_subscribed"])
+    assert custom["sagg.recorder"] == "sagg record" and "ended" in json.loads(custom["sagg.drain"])
+    assert not before.get("/sagg/sample") and not before.get("/sagg/competence")
+    assert json.loads(custom["sagg.first_sample_index"]) == 0  # the learner's first sample on
+    for topic in ("/sagg/sample", "/sagg/competence"):
+        # every message accounted for: in the bag, published before the recorder subscribed, or lost
+        assert counts[topic] + before.get(topic, 0) + lost.get(topic, 0) == published[topic] > 0, (topic, err[-3000:])
+    assert rec.returncode == (3 if lost else 0), err[-3000:]
+    if lost:
+        assert "LOST" in err
+    assert "bag closed" in err
+    ex.shutdown()
+    node.destroy_node()

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from sagg_bringup.setups import run_experiment
 from sagg_bringup.recorder import make_typestore
@@ -66,8 +67,11 @@ def test_summary_is_complete(run):
     assert len(s["regions"]) >= 2 and len(s["splits"]) == len(s["regions"]) - 1
     assert all(info["exit_code"] is not None for info in s["nodes"].values())
     assert "final mean test error" in stdout
-    params = (out / "params.yaml").read_text()
-    assert f"max_micro_actions: {N}" in params
+    # params.yaml is a configuration: the budget and checkpoint directory are the run's, on the
+    # nodes' command lines (the summary's node_params has them)
+    learner = yaml.safe_load((out / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]
+    assert "max_micro_actions" not in learner and "checkpoint_dir" not in learner
+    assert s["node_params"]["sagg_learner"]["max_micro_actions"] == N
     for log in ("goal_generator", "learner", "mujoco_bridge"):
         assert (out / "logs" / f"{log}.log").is_file()
 

@@ -12,7 +12,7 @@ import yaml
 from sagg_bringup.experiment import InProcessRun
 from sagg_bringup.setups import load_experiment_config
 from sagg_bringup.arm_params import graph_params, load_graph_config
-from sagg_bringup.params_files import run_only_params, write_params_file
+from sagg_bringup.params_files import run_only_params, run_values, write_params_file
 from sagg_bringup.processes import pick_domain_id
 from sagg_bringup.split_tracker import SplitTracker
 from sagg_bringup.topics import graph_topics
@@ -116,7 +116,9 @@ def test_params_file_gives_every_node_its_parameters(tmp_path):
     doc = yaml.safe_load((tmp_path / "params.yaml").read_text())
     assert set(doc) == {"sagg_goal_generator", "sagg_learner", "sagg_sim_bridge"}
     lp = doc["sagg_learner"]["ros__parameters"]
-    assert lp["max_micro_actions"] == 1234 and lp["seed"] == 4
+    assert lp["seed"] == 4
+    # the budget is the run's, not the configuration's: on the nodes' command lines
+    assert "max_micro_actions" not in lp and run_values(params)["sagg_learner"]["max_micro_actions"] == 1234
     assert lp["joints"] == [f"joint_{i}" for i in range(8)]
     assert len(lp["joint_limits"]["lower"]) == 8 and len(lp["rest_posture"]) == 8
     assert lp["task_space"] == {"lower": [0.0, -60.0], "upper": [100.0, 60.0]}
@@ -124,8 +126,9 @@ def test_params_file_gives_every_node_its_parameters(tmp_path):
     assert lp["min_sample_subscribers"] == 0
     assert doc["sagg_goal_generator"]["ros__parameters"]["min_goal_subscribers"] == 0
     # ... they are given on the nodes' command lines: the recorder must see every sample and goal
-    assert run_only_params(params) == {"sagg_learner": {"min_sample_subscribers": 1},
-                                       "sagg_goal_generator": {"min_goal_subscribers": 1}}
+    assert run_only_params(params) == {"sagg_learner": {"min_sample_subscribers": 1, **run_values(params)["sagg_learner"]},
+                                       "sagg_goal_generator": {"min_goal_subscribers": 1,
+                                                               **run_values(params)["sagg_goal_generator"]}}
     bp = doc["sagg_sim_bridge"]["ros__parameters"]
     assert bp["timing"] == "lockstep" and bp["arm"]["dof"] == 8 and bp["arm"]["motor_noise"] == 0.2
     # the learner's joints are the bridge arm's, so the rest posture is the arm's

@@ -10,8 +10,15 @@ from it exactly as ``sagg run`` does (``sagg_bringup.launch_params.launch_plan``
 config's own (``driver:=external``: your arm's driver runs already; no bridge is started), the
 synergy set-ups' nodes. The expanded parameter file is written to a temporary directory and its
 path logged. ``record:=true`` also starts ``sagg record`` (``sagg run``'s topic set, mcap, into
-``record_out`` or ``runs/record-<time>``), and the learner and generator then wait for it, so the
-bag misses nothing. ``micro_actions``: the learner stops there (0 = never).
+``record_out`` or ``runs/record-<time>``): the learner and generator wait for its subscriptions
+before their first sample and goal, the learner then waits whenever it lags (its acknowledgements
+on /sagg/recorded, ``recorder_max_lag``), and at Ctrl-C (SIGINT to every process at once) it
+records until the nodes have exited and their last messages are in, then closes the bag; messages
+lost all the same are counted and make it exit with code 3 (``sagg record``'s doc). Its
+``sigterm_timeout`` (30 s) is above its drain limit (20 s), so launch does not cut that short.
+``micro_actions``: the learner stops there (0 = never). The run-only values (``max_micro_actions``,
+a config's ``checkpoint_dir`` / ``resume``) are given to the nodes as parameters of their own,
+not in the parameter file (``sagg_bringup.params_files.run_values``).
 """
 import tempfile
 from pathlib import Path
@@ -23,6 +30,7 @@ from launch_ros.actions import Node
 
 from sagg_bringup.processes import find_node_executable
 from sagg_bringup.launch_params import launch_plan, write_plan
+from sagg_bringup.params_files import run_values
 
 
 def _nodes(context):
@@ -35,16 +43,19 @@ def _nodes(context):
     plan = launch_plan(arg("config"), arg("driver"), int(arg("micro_actions")))
     path = write_plan(plan, Path(tempfile.mkdtemp(prefix="sagg-launch-")) / "params.yaml")
     waits = {"sagg_learner": {"min_sample_subscribers": 1}, "sagg_goal_generator": {"min_goal_subscribers": 1}}
+    run = run_values(plan.params)  # (the budget, a config's checkpoint_dir / resume: not in the file)
     actions = [LogInfo(msg=f"sagg: {plan.config} (driver {plan.driver}) -> parameters in {path}")]
     for package, executable, name in plan.nodes:
-        params = [str(path)] + ([waits[name]] if record == "true" and name in waits else [])
+        params = ([str(path)] + ([run[name]] if name in run else [])
+                  + ([waits[name]] if record == "true" and name in waits else []))
         actions.append(Node(package=package, executable=executable, name=name, parameters=params,
                             output="screen"))
     if record == "true":
         cmd = [str(find_node_executable("sagg_bringup", "sagg")), "record", "--params", str(path)]
         if arg("record_out"):
             cmd += ["--out", arg("record_out")]
-        actions.append(ExecuteProcess(cmd=cmd, output="screen", sigterm_timeout="10"))
+        # (sigterm_timeout: launch's SIGTERM after it would cut the recorder's drain short: 20 s at most)
+        actions.append(ExecuteProcess(cmd=cmd, output="screen", sigterm_timeout="30"))
     return actions
 
 

@@ -5,7 +5,9 @@
   recorded timing scaled by ``rate`` (0 = as fast as possible) and each topic's recorded QoS
   (reliability, durability, depth; /sagg/regions is transient_local), so Foxglove, PlotJuggler or
   a second learner see the run. It joins the caller's ``ROS_DOMAIN_ID`` (the usual ROS default),
-  unlike ``sagg run``'s private one.
+  unlike ``sagg run``'s private one, where a real robot's driver may listen: the command topics
+  (:data:`~sagg_bringup.topics.COMMAND_TYPES`) are left out unless ``include_commands``, and even
+  then refused while a node other than sagg's simulator (:data:`SIM_BRIDGE_NODE`) subscribes to one.
 - :func:`relearn`: rebuilds, offline, the learner's sample memory from ``/sagg/sample`` (index
   order) and the goal generator's region tree by feeding the recorded ``/sagg/competence`` reports
   and choosing the goals into the core :class:`~sagg_goal_generator.core.GoalGenerator` exactly as
@@ -34,6 +36,7 @@ from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.journal import write_json_atomic
 from sagg_common.msg_codecs import decode_report, decode_sample
 from sagg_common.params import ConfigError, flatten
+from sagg_common.publishers import describe
 from sagg_common.report_kinds import KIND_NAMES
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
@@ -45,6 +48,7 @@ from .bag_recover import is_unfinished, recover_bag
 from .arm_params import node_schemas
 from .evaluator import evaluate_frozen, evaluation_setup
 from .recorder import BagWriter, _msg_class
+from .topics import command_topics
 from .report import arm_rows, write_report
 from .results import goal_share_stats
 
@@ -66,11 +70,34 @@ def _rclpy_qos(conn):
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
+# sagg's own simulator: the only node a replayed command may reach (anything else may be a real driver)
+SIM_BRIDGE_NODE = "sagg_sim_bridge"
+
+
+def foreign_subscribers(node, topic: str) -> list[str]:
+    """The subscribers of ``topic`` that are not sagg's simulator (one not yet named by discovery
+    counts as foreign: it may be a driver), described for a message."""
+    return [describe(i) for i in node.get_subscriptions_info_by_topic(topic)
+            if i.node_name != SIM_BRIDGE_NODE]
+
+
+def _refuse_commands(topic: str, names: list[str]) -> ConfigError:
+    return ConfigError(f"--include-commands: {topic} has subscriber(s) other than sagg's simulator "
+                       f"({SIM_BRIDGE_NODE}): {'; '.join(names)}; a driver there would move its robot, so no "
+                       "command is published; allowed: only the simulator on the command topics (stop that "
+                       "node, or replay without --include-commands)")
+
+
 def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, loop: bool = False,
            wait_subscribers: int = 0, wait_timeout: float = 30.0, domain_id: int | None = None,
-           progress: bool = True, out: Callable[[str], None] | None = None) -> dict:
+           progress: bool = True, out: Callable[[str], None] | None = None, include_commands: bool = False,
+           discovery: float = 1.0) -> dict:
     """Republish ``bag``; returns per-topic counts and bytes published. Stops cleanly on SIGINT
-    (the current message is finished, publishers are flushed)."""
+    (the current message is finished, publishers are flushed). Command topics only with
+    ``include_commands``, and then only while no node but sagg's simulator subscribes to them:
+    checked after ``discovery`` s (the graph's subscribers are known by then) and again whenever a
+    command publisher's subscriber count changes; a foreign subscriber stops the replay with a
+    ConfigError naming the topic and the node(s) (exit code 2)."""
     # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
@@ -96,6 +123,20 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
     unknown = [t for t in wanted if t not in conns]
     if unknown:
         raise ConfigError(f"--topics: {', '.join(unknown)} not in the bag; allowed: {', '.join(sorted(conns))}")
+    commands = set(command_topics({t: c.msgtype for t, c in conns.items()}))
+    named = [t for t in wanted if t in commands]
+    if named and topics and not include_commands:
+        raise ConfigError(f"--topics: {', '.join(named)} carr{'ies' if len(named) == 1 else 'y'} commands (whatever "
+                          "subscribes moves its robot); allowed: add --include-commands to publish them")
+    if not include_commands:
+        wanted = [t for t in wanted if t not in commands]
+        if commands and progress:
+            out(f"replay {path.name}: command topic(s) left out: {', '.join(sorted(commands))} "
+                "(--include-commands to publish them)")
+    if not wanted:
+        raise ConfigError("--topics: nothing to replay (only command topics); allowed: other topics, or "
+                          "--include-commands")
+    command_pubs = [t for t in wanted if t in commands]
     ctx = Context()
     kw = {} if domain_id is None else {"domain_id": int(domain_id)}
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO, **kw)
@@ -117,6 +158,22 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
                                       f"{', '.join(t for t, p in pubs.items() if p.get_subscription_count() < wait_subscribers)}"
                                       f" after {wait_timeout:.0f} s")
                 time.sleep(0.05)
+        seen: dict[str, int] = {}  # command topic -> its publisher's subscriber count when last checked
+
+        def check_commands(topic: str) -> None:
+            n = pubs[topic].get_subscription_count()
+            if seen.get(topic) != n:
+                names = foreign_subscribers(node, topic)
+                if names:
+                    raise _refuse_commands(topic, names)
+                seen[topic] = n
+
+        if command_pubs:
+            end = time.monotonic() + discovery
+            while not stop and time.monotonic() < end:  # the graph's subscribers are discovered meanwhile
+                time.sleep(0.05)
+            for t in command_pubs:
+                check_commands(t)
         rounds = 0
         t_last = 0.0
         done = 0
@@ -134,6 +191,8 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
                         delay = t_wall0 + (ts - t_bag0) / 1e9 / rate - time.monotonic()
                 if stop:
                     break
+                if topic in commands:
+                    check_commands(topic)
                 pubs[topic].publish(bytes(raw))
                 counts[topic] += 1
                 nbytes[topic] += len(raw)

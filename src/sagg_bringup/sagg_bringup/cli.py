@@ -15,7 +15,7 @@ from .check_driver import main_check_driver
 from .processes import GraphError
 from .lab.hostile import bench_hostile
 from .lab.soak import main_soak
-from .record import default_out, record
+from .record import LOST_EXIT_CODE, default_out, record
 from .report import write_report
 from .reproduce import estimate, run_reproduce
 from .sensitivity import run_sensitivity
@@ -121,10 +121,18 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--loop", action="store_true", help="start again at the end (until Ctrl-C)")
     rp.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
                     help="start once every topic has N matched subscribers (default 0: at once)")
+    rp.add_argument("--include-commands", action="store_true",
+                    help="also publish the command topics (/<controller>/commands, /<controller>/joint_trajectory); "
+                         "refused (exit 2) while a node other than sagg's simulator (sagg_sim_bridge) subscribes "
+                         "to one (default: left out: a real driver on this ROS_DOMAIN_ID would move)")
     rp.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
     rp.add_argument("--quiet", action="store_true", help="no progress display")
     rc = sub.add_parser("record", help="the recorder alone (sagg run's topics, the publishers' QoS) into an "
-                                       "mcap bag, until Ctrl-C; also publishes the live view /sagg/markers")
+                                       "mcap bag, until Ctrl-C; acknowledges on /sagg/recorded (the learner "
+                                       "waits for it); also publishes the live view /sagg/markers. At Ctrl-C it "
+                                       "takes what the nodes still publish (Ctrl-C again: at once). Exit code 0: "
+                                       f"nothing lost; {LOST_EXIT_CODE}: messages published while recording are "
+                                       "missing (counted per topic, printed and in metadata.yaml custom_data)")
     rc.add_argument("--out", help="bag directory to create (default runs/record-<time>-<pid>)")
     rc.add_argument("--params", help="the graph's parameter file (a config or a run's params.yaml), for the "
                                      "command and task-space topic names (default: the defaults)")
@@ -365,7 +373,10 @@ def _resume(args) -> int:
     if old.get("driver") == "external":
         raise ConfigError(f"--resume: '{out}' is a --driver external run; allowed: the directory of a run "
                           "with the simulated bridge (start a new external-driver run)")
-    micro = args.micro_actions or int(learner.get("max_micro_actions") or 10_000)
+    # the run's own budget: its summary (params.yaml holds none since it is a configuration; an
+    # older sagg run's does)
+    micro = args.micro_actions or int(old.get("micro_actions_requested") or learner.get("max_micro_actions")
+                                      or 10_000)
     eval_every = old.get("eval_every", args.eval_every)
     timing = bridge.get("timing", args.timing)
     try:
@@ -410,14 +421,14 @@ def main(argv: list[str] | None = None) -> int:
             # lazy (heavy): mujoco
             from .bags import replay
             res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
-                         domain_id=args.domain_id, progress=not args.quiet)
+                         domain_id=args.domain_id, progress=not args.quiet, include_commands=args.include_commands)
             return 130 if res["interrupted"] else 0
         if args.command == "record":
             res = record(args.out or default_out(), args.params, args.domain_id, args.duration,
                          progress=not args.quiet, markers=not args.no_markers)
             if args.quiet:
                 print(f"bag closed: {res['path']}")
-            return 0
+            return LOST_EXIT_CODE if res["lost"] else 0
         if args.command == "check-driver":
             return main_check_driver(args)
         if args.command == "reach":

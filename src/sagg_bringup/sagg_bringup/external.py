@@ -509,7 +509,8 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     lp = params["sagg_learner"]
     procs = node_processes(EXTERNAL_NODES, out / "logs")
     t_start = time.perf_counter()
-    set_checkpoint_dirs(params, out)
+    for note in set_checkpoint_dirs(params, out):
+        print(f"sagg run: {note}", file=sys.stderr)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
     config = core_config(full)

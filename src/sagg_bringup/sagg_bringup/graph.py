@@ -92,7 +92,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     t_start = time.perf_counter()
 
     params = graph_params(full, micro_actions, timing, spec)
-    set_checkpoint_dirs(params, out, resume)
+    for note in set_checkpoint_dirs(params, out, resume):
+        print(f"sagg run: {note}", file=sys.stderr)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
     config = core_config(full)

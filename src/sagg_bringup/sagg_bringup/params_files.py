@@ -1,12 +1,21 @@
 """Parameter files of a graph run: the ROS 2 parameter-file form ``sagg run`` writes
 (``DIR/params.yaml``), what only ``sagg run`` gives the nodes on their command line, the checkpoint
-directories of a run, and the bags of a run directory. Set-up independent."""
+directories of a run, and the bags of a run directory. Set-up independent.
+
+A parameter file is a configuration, not a run: it never holds what ties parameters to one run
+directory (:data:`RUN_KEYS`: its checkpoint directory, whether it continues that run, its budget).
+Reused with ``ros2 run``, ``ros2 launch config:=`` or another ``sagg run``, it starts a new run;
+``sagg run --resume DIR`` is the one way to continue one. Those values go on the nodes' command
+lines (:func:`run_values`)."""
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
 import yaml
+
+# run-specific node parameters: never written into a parameter file (write_params_file)
+RUN_KEYS = ("checkpoint_dir", "resume", "max_micro_actions", "max_experiments")
 
 
 def _nest(flat: dict[str, Any]) -> dict:
@@ -21,12 +30,21 @@ def _nest(flat: dict[str, Any]) -> dict:
     return out
 
 
+def run_values(params: dict[str, dict]) -> dict[str, dict]:
+    """The :data:`RUN_KEYS` values of ``params`` per node (nodes without any left out): what a
+    run gives its nodes on their command line (``-p``; launch: a parameter dict), since
+    :func:`write_params_file` leaves them out."""
+    out = {name: {k: values[k] for k in RUN_KEYS if k in values} for name, values in params.items()}
+    return {name: v for name, v in out.items() if v}
+
+
 def run_only_params(params: dict[str, dict]) -> dict[str, dict]:
     """What only ``sagg run`` gives the nodes, on their command line (``-p``), never in
-    ``DIR/params.yaml``: every goal and sample must reach its recorder, so nodes that can wait for
-    subscribers wait for one. Written into params.yaml, these waits made a graph started from it
-    with ``ros2 run`` / ``ros2 launch`` (no recorder) wait forever."""
-    out: dict[str, dict] = {}
+    ``DIR/params.yaml``: the run's own values (:func:`run_values`), and the waits for its recorder
+    (every goal and sample must reach it, so nodes that can wait for subscribers wait for one;
+    written into params.yaml, these waits made a graph started from it with ``ros2 run`` /
+    ``ros2 launch`` without a recorder wait forever)."""
+    out = run_values(params)
     for name, key in (("sagg_goal_generator", "min_goal_subscribers"), ("sagg_learner", "min_sample_subscribers")):
         if params.get(name, {}).get(key) == 0:
             out.setdefault(name, {})[key] = 1
@@ -43,22 +61,42 @@ def run_bags(out: Path) -> list[Path]:
     return found
 
 
-def set_checkpoint_dirs(params: dict[str, dict], out: Path, resume: bool = False) -> None:
-    """Learner and generator checkpoint (with their journals) into ``DIR/checkpoint`` unless the
-    config names a directory: what ``sagg run --resume DIR`` continues from. When resuming, a
-    node whose checkpoint is in ``DIR/checkpoint`` resumes from there even if params.yaml names
-    another path (the run directory was moved or copied)."""
+def set_checkpoint_dirs(params: dict[str, dict], out: Path, resume: bool = False) -> list[str]:
+    """Learner and generator checkpoint (with their journals) into ``DIR/checkpoint``, the run's
+    own, and ``resume`` only for ``sagg run --resume DIR``: a run never continues or writes into
+    another run's directory. A new run ignores a ``checkpoint_dir`` its config names (e.g. the
+    params.yaml of an older ``sagg run``, which named its run's); returns one note per value
+    ignored. When resuming, ``DIR/checkpoint`` if it holds the node's checkpoint (the run
+    directory may have been moved or copied), else the directory the config names if that one
+    does (a run of an older ``sagg run`` whose config named one)."""
     own = out / "checkpoint"
+    notes = []
     for name, meta in (("sagg_learner", "learner.json"), ("sagg_goal_generator", "generator.json")):
         p = params[name]
         if "checkpoint_dir" not in p:
             continue
-        if not p["checkpoint_dir"] or (resume and (own / meta).is_file()):
-            p["checkpoint_dir"] = str(own.resolve())
+        named = p["checkpoint_dir"]
+        if resume and named and not (own / meta).is_file() and (Path(named) / meta).is_file():
+            p["resume"] = True
+            continue
+        if named and not resume and Path(named).resolve() != own.resolve():
+            notes.append(f"{name}: checkpoint_dir '{named}' of the config not used: a run keeps its "
+                         f"checkpoints in its own directory ({own})")
+        p["checkpoint_dir"] = str(own.resolve())
+        p["resume"] = bool(resume)
+    return notes
+
+
+def config_params(params: dict[str, dict]) -> dict[str, dict]:
+    """``params`` without the :data:`RUN_KEYS` (what a parameter file holds)."""
+    return {name: {k: v for k, v in values.items() if k not in RUN_KEYS} for name, values in params.items()}
 
 
 def write_params_file(path: Path, params: dict[str, dict]) -> None:
-    doc = {name: {"ros__parameters": _nest(values)} for name, values in params.items()}
-    header = ("# Generated by `sagg run`: the resolved parameters of the three nodes "
-              "(ROS 2 parameter-file form).\n")
+    """``params`` (node name -> flat parameters) as a ROS 2 parameter file, without the run-only
+    :data:`RUN_KEYS` (:func:`run_values` has them)."""
+    doc = {name: {"ros__parameters": _nest(values)} for name, values in config_params(params).items()}
+    header = ("# Generated by sagg: the resolved parameters of the nodes (ROS 2 parameter-file form). A\n"
+              "# configuration, not a run: no checkpoint_dir, resume or budget (sagg run gives those on the\n"
+              "# nodes' command lines), so reusing it starts a new run (sagg run --resume DIR continues one).\n")
     path.write_text(header + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120))

@@ -7,23 +7,40 @@ A topic is subscribed when its first publisher appears, with the publishers' QoS
 one of them is best effort; transient_local when all of them are, so the latched
 ``/sagg/regions``, ``/sagg/markers`` and the learner's ``/sagg/competence`` history arrive even when
 the recorder starts late), and its connection is added to the bag with that QoS. Raw CDR is written
-as received. Ctrl-C (SIGINT) or SIGTERM stops it: subscriptions destroyed, bag closed (mcap footer and
-``metadata.yaml``), counts printed; exit code 0.
+as received (:class:`~sagg_bringup.recorder.TopicRecorder`: sequence gaps counted, handlers fed
+from the expected publisher only).
+
+Like ``sagg run``'s recorder it acknowledges the samples it has recorded on /sagg/recorded, so the
+learner waits while it lags (``recorder_max_lag``; :mod:`.record_account`). Ctrl-C (SIGINT) or
+SIGTERM stops it in two steps: it acknowledges nothing more (the learner stops within
+``recorder_max_lag`` samples) and keeps taking messages until nothing came for ``quiet`` s once
+every recorded topic's publishers are gone (the nodes exited), or, while some live on (a driver, or
+nodes still running), the nodes' streams (samples, reports, goals, commands) were quiet for ``idle``
+s; at most ``drain_limit`` s; a second signal stops at once. Then the bag is closed (mcap
+footer and ``metadata.yaml``, whose ``custom_data`` holds the counts below) and the counts printed:
+per topic the messages recorded, those the nodes announced as published (/diagnostics), those
+published before the recorder subscribed, and those lost (:meth:`RecordAccount.losses`).
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from sagg_common.params import ConfigError
+from sagg_common.ros_params import reliable
 
 from .markers import MarkerView, MARKER_TOPIC
-from .recorder import BagWriter, TopicSpec, _msg_class
-from .topics import graph_topics
-from .recorder import publishers_qos as offered_qos
+from .record_account import RecordAccount
+from .recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
+from .topics import COMMAND_TYPES, STREAM_TOPICS, graph_topics
+
+# exit code of `sagg record` when messages were lost (cli)
+LOST_EXIT_CODE = 3
 
 
 def recorded_topics(params_file: str | Path | None = None) -> list[TopicSpec]:
@@ -45,72 +62,79 @@ def publishers_qos(infos, spec: TopicSpec) -> TopicSpec:
     from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
     best_effort = any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos)
     latched = bool(infos) and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
-    return TopicSpec(spec.name, spec.msgtype, spec.depth, latched, best_effort)
+    return replace(spec, transient_local=latched, best_effort=best_effort)
 
 
-class LiveRecorder:
-    """Subscribes each topic of ``topics`` once it has a publisher of the expected type (checked by
-    :meth:`poll`), with the publishers' QoS, writing raw CDR into ``bag``; ``handlers[topic](msg)``
-    gets the deserialized message too."""
+class LiveRecorder(TopicRecorder):
+    """A :class:`~sagg_bringup.recorder.TopicRecorder` whose topics are subscribed once they have a
+    publisher of the expected type (checked by :meth:`poll`), with the publishers' QoS.
 
-    def __init__(self, node, bag: BagWriter, topics: list[TopicSpec], handlers: dict | None = None):
-        self.node, self.bag, self.handlers = node, bag, handlers or {}
+    ``gate`` topics (/sagg/sample) are subscribed only once every ``wait_for`` topic (the hardware
+    topics, /sagg/competence) is subscribed and matched for ``settle`` s: a learner waiting for its
+    sample subscriber (``min_sample_subscribers``, as with record:=true) then publishes no command,
+    joint state or outcome before the recorder can receive it (seen on a loaded machine: this
+    process learnt of the bridge's /joint_states publisher 3 s after the learner had). A
+    ``wait_for`` topic that has no publisher ``gate_timeout`` s after the gated topic's first one
+    appeared no longer holds the gate (a parameter file naming another controller must not keep
+    /sagg/sample unrecorded); it is logged."""
+
+    def __init__(self, node, bag: BagWriter, topics: list[TopicSpec], handlers: dict | None = None,
+                 gate: tuple[str, ...] = (), wait_for: tuple[str, ...] = (), settle: float = 0.5,
+                 gate_timeout: float = 10.0):
+        super().__init__(node, bag, [], handlers, settle=settle)
         self.waiting = {t.name: t for t in topics}
         self.qos: dict[str, TopicSpec] = {}
-        self.rejected: dict[str, int] = {}  # topic -> messages the handler could not use (recorded all the same)
-        self._subs = []
+        self.gate, self.wait_for, self.gate_timeout = frozenset(gate), frozenset(wait_for), gate_timeout
+        self.subs: dict = {}  # topic -> its subscription
+        self._ready_since: float | None = None
+        self._gate_seen: float | None = None  # when a gated topic's publisher was first seen
+
+    def _gate_open(self) -> bool:
+        now = time.monotonic()
+        if self._gate_seen is None:
+            self._gate_seen = now
+        patient = now - self._gate_seen < self.gate_timeout
+        held = [t for t in self.wait_for
+                if (t in self.subs and self.subs[t].get_publisher_count() == 0)
+                or (t not in self.subs and (patient or self.node.count_publishers(t) > 0))]
+        if held:
+            self._ready_since = None
+            return False
+        if self._ready_since is None:
+            self._ready_since = now
+            absent = sorted(t for t in self.wait_for if t not in self.subs)
+            if absent:
+                self.node.get_logger().warning(
+                    f"no publisher on {', '.join(absent)} after {self.gate_timeout:.0f} s: subscribing "
+                    f"{', '.join(sorted(self.gate))} without them (--params names the graph's topics?)")
+        return now - self._ready_since >= self.settle
 
     def poll(self) -> None:
         for name, spec in list(self.waiting.items()):
             infos = [i for i in self.node.get_publishers_info_by_topic(name) if i.topic_type == spec.msgtype]
-            if not infos:
+            if not infos or (name in self.gate and not self._gate_open()):
                 continue
             del self.waiting[name]
-            self._subscribe(publishers_qos(infos, spec), infos)
-
-    def _subscribe(self, t: TopicSpec, infos=()) -> None:
-        # lazy (heavy): ROS
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-        from rclpy.serialization import deserialize_message
-        cls = _msg_class(t.msgtype)
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=t.depth,
-                         reliability=ReliabilityPolicy.BEST_EFFORT if t.best_effort else ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local else DurabilityPolicy.VOLATILE)
-        self.bag.add_topic(t)
-        # the bag's offered_qos_profiles: the publishers' own, as `ros2 bag record` writes them
-        self.bag.offer(t.name, offered_qos(infos))
-        self.qos[t.name] = t
-        handler = self.handlers.get(t.name)
-
-        def callback(data, topic=t.name):
-            if not self.bag.closed:
-                self.bag.write(topic, time.time_ns(), data)
-            if handler is not None:
-                try:
-                    handler(deserialize_message(data, cls))
-                except Exception as exc:  # noqa: BLE001 - a hostile message never ends the recording
-                    n = self.rejected[topic] = self.rejected.get(topic, 0) + 1
-                    if n == 1 or n % 1000 == 0:
-                        self.node.get_logger().error(f"{topic}: message not used by the live view "
-                                                     f"({type(exc).__name__}: {exc}); {n} so far")
-
-        self._subs.append(self.node.create_subscription(cls, t.name, callback, qos, raw=True))
-
-    def destroy(self) -> None:
-        for s in self._subs:
-            self.node.destroy_subscription(s)
-        self._subs = []
+            t = publishers_qos(infos, spec)
+            self.bag.add_topic(t)
+            self.qos[name] = t
+            self.subs[name] = self._subscribe(t)
+            self.node.get_logger().info(f"subscribed to {name} ({len(infos)} publisher(s))")  # (as ros2 bag record)
 
 
 def record(out: str | Path, params_file: str | Path | None = None, domain_id: int | None = None,
-           duration: float | None = None, progress: bool = True, markers: bool = True) -> dict:
-    """Record until Ctrl-C / SIGTERM (or ``duration`` s); returns ``{"path", "topics", "interrupted"}``.
-    ``markers``: also publish the live view on /sagg/markers (:mod:`.markers`) from what is recorded."""
+           duration: float | None = None, progress: bool = True, markers: bool = True,
+           quiet: float = 0.5, idle: float = 2.0, drain_limit: float = 20.0) -> dict:
+    """Record until Ctrl-C / SIGTERM (or ``duration`` s), then take what the nodes still publish
+    (module doc); returns ``{"path", "topics", "interrupted", "qos", "published", "before", "lost",
+    "drain"}``. ``markers``: also publish the live view on /sagg/markers (:mod:`.markers`) from
+    what is recorded."""
     # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
+    from diagnostic_msgs.msg import DiagnosticArray
 
     out = Path(out)
     if out.exists():
@@ -129,42 +153,144 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
     out.parent.mkdir(parents=True, exist_ok=True)
     bag = BagWriter(out, [])
     view = None
-    handlers = {}
+    rec = None
+    account = RecordAccount({t.name for t in topics})
+    handlers = {"/sagg/sample": account.on_sample, "/sagg/competence": account.on_report,
+                "/sagg/status": account.on_status}
     if markers:
         view = MarkerView(node, topics)
-        handlers = view.handlers()
-    rec = LiveRecorder(node, bag, topics, handlers)
-    t0 = last = time.monotonic()
+        for topic, h in view.handlers().items():
+            handlers[topic] = h if topic not in handlers else both(handlers[topic], h)
+    stream = [t.name for t in topics if t.name in STREAM_TOPICS or t.msgtype in COMMAND_TYPES]
+    drain = {"seconds": 0.0, "ended": "", "messages": 0}
+    status = "recording"
+
+    def take() -> None:
+        """One loop: subscribe new topics, the callbacks queued, the acknowledgement, the view."""
+        rec.poll()
+        executor.spin_once(timeout_sec=0.05)
+        for _ in range(1000):  # drain what is queued
+            before = bag.written
+            executor.spin_once(timeout_sec=0)
+            if bag.written == before:
+                break
+        ack.tick()
+        if view is not None:
+            view.maybe_publish()
+
+    def stream_messages() -> int:
+        return sum(bag.counts.get(t, 0) for t in stream)
+
+    last_print = 0.0
+
+    def show(now: float) -> None:
+        nonlocal last_print
+        if progress and now - last_print >= 2.0:
+            last_print = now
+            print(f"\r{status} {out}: {bag.written:,} messages on {len(rec.qos)} topics "
+                  f"({len(rec.waiting)} without publisher yet)", end="", file=sys.stderr, flush=True)
+
     try:
+        hw = tuple(t.name for t in topics if not t.name.startswith("/sagg/") and t.name != "/clock")
+        rec = LiveRecorder(node, bag, topics, handlers, gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+        account.st.on_reject = rec.log_problem
+        ack = Acknowledger(node, account.acknowledged)
+        node.create_subscription(DiagnosticArray, "/diagnostics", account.on_diagnostics, reliable(100))
+        t0 = time.monotonic()
         while not stop and (duration is None or time.monotonic() - t0 < duration):
-            rec.poll()
-            executor.spin_once(timeout_sec=0.05)
-            for _ in range(1000):  # drain what is queued
-                before = bag.written
-                executor.spin_once(timeout_sec=0)
-                if bag.written == before:
-                    break
-            if view is not None:
-                view.maybe_publish()
+            take()
+            show(time.monotonic())
+        # stopping: the learner gets no further acknowledgement; what the nodes published comes in
+        ack.freeze()
+        signals = len(stop)
+        status = "stopping (Ctrl-C again: at once)"
+        t_drain = t_last = t_any = time.monotonic()
+        last = n0 = stream_messages()
+
+        def others() -> int:  # every recorded message but our own view's
+            return bag.written - bag.counts.get(MARKER_TOPIC, 0)
+
+        last_any = others()
+        while len(stop) <= signals:
+            take()
             now = time.monotonic()
-            if progress and now - last >= 2.0:
-                last = now
-                print(f"\rrecording {out}: {bag.written:,} messages on {len(rec.qos)} topics "
-                      f"({len(rec.waiting)} without publisher yet)", end="", file=sys.stderr, flush=True)
+            show(now)
+            if others() != last_any:
+                last_any, t_any = others(), now
+            n = stream_messages()
+            if n != last:
+                last, t_last = n, now
+                continue
+            # every recorded topic (but our own view) without publisher: the nodes have exited, and
+            # what they published is in once nothing came for `quiet` s; while some live on (a
+            # driver, or nodes still running), the streams' silence for `idle` s ends it
+            alive = [t for t in rec.qos if t != MARKER_TOPIC and node.count_publishers(t) > 0]
+            if not alive:
+                if now - t_any >= quiet:
+                    drain["ended"] = f"nothing came for {quiet} s and every publisher is gone"
+                    break
+            elif now - t_last >= idle:
+                drain["ended"] = f"the nodes' streams quiet for {idle} s (publishers still on {', '.join(alive)})"
+                break
+            if now - t_drain >= drain_limit:
+                drain["ended"] = f"drain_limit ({drain_limit} s) reached"
+                break
+        else:
+            drain["ended"] = "a second signal"
+        drain.update(seconds=round(time.monotonic() - t_drain, 3), messages=stream_messages() - n0)
+        received = {t: bag.counts.get(t, 0) for t in bag.counts}
+        before = account.before(received, rec.first_seq)
+        lost = account.losses(received, before, rec.dropped)
+        published = account.published()
+        rejected = {**rec.rejected, **account.st.rejected}  # messages recorded but not used (DESIGN §8)
+        for key, value in (("sagg.recorder", "sagg record"), ("sagg.published", published),
+                           ("sagg.published_before_subscribed", before), ("sagg.lost", lost),
+                           ("sagg.lost_not_estimated", sorted(rec.drops_unknown)), ("sagg.drain", drain),
+                           ("sagg.first_sample_index", account.first_index), ("sagg.rejected", rejected)):
+            bag.set_custom_data(key, value if isinstance(value, str) else json.dumps(value, sort_keys=True))
     finally:
-        rec.destroy()
+        if rec is not None:
+            rec.destroy()
         bag.close()
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
         for s, h in old.items():
             signal.signal(s, h)
-    topics_out = bag.topics()
-    if progress:
-        print(f"\nbag closed: {out} ({bag.written:,} messages: "
-              + ", ".join(f"{t} {v['count']}" for t, v in sorted(topics_out.items())) + ")", file=sys.stderr)
-    return {"path": str(out), "topics": topics_out, "interrupted": bool(stop),
-            "qos": {t: {"transient_local": s.transient_local, "best_effort": s.best_effort} for t, s in rec.qos.items()}}
+    res = {"path": str(out), "topics": bag.topics(), "interrupted": bool(stop), "first_sample_index": account.first_index,
+           "qos": {t: {"transient_local": s.transient_local, "best_effort": s.best_effort} for t, s in rec.qos.items()},
+           "published": published, "before": before, "lost": lost, "drain": drain, "rejected": rejected,
+           "lost_not_estimated": sorted(rec.drops_unknown)}
+    for line in counts_report(res, progress):
+        print(line, file=sys.stderr)
+    return res
+
+
+def counts_report(res: dict, full: bool = True) -> list[str]:
+    """The lines ``sagg record`` prints at the end (``full``: all of them, else only a loss)."""
+    lines = []
+    if full:
+        lines.append(f"\nbag closed: {res['path']} ({sum(v['count'] for v in res['topics'].values()):,} messages: "
+                     + ", ".join(f"{t} {v['count']}" for t, v in sorted(res['topics'].items())) + ")")
+        d = res["drain"]
+        lines.append(f"stopped after {d['seconds']:.1f} s of taking what was still coming ({d['messages']:,} "
+                     f"messages on the nodes' streams): {d['ended']}")
+        for key, text in (("published", "published by the nodes (as last announced on /diagnostics)"),
+                          ("before", "published before the recorder subscribed (not in the bag)"),
+                          ("rejected", "recorded but not used (another publisher, or content rejected)")):
+            if res[key]:
+                lines.append(f"{text}: " + ", ".join(f"{t} {n}" for t, n in sorted(res[key].items())))
+        if res["first_sample_index"]:
+            lines.append(f"the bag's samples start at index {res['first_sample_index']} (the learner's earlier "
+                         "ones were published before the recorder subscribed, or not at all while nobody "
+                         "subscribed: start sagg record first and the learner with min_sample_subscribers:=1)")
+        if res["lost_not_estimated"]:
+            lines.append("no loss estimate from sequence numbers (several publishers): "
+                         + ", ".join(res["lost_not_estimated"]))
+    if res["lost"]:
+        lines.append("sagg record: LOST (published while recording, not in the bag): "
+                     + ", ".join(f"{t} {n}" for t, n in res["lost"].items()) + f"; exit code {LOST_EXIT_CODE}")
+    return lines
 
 
 def default_out() -> Path:

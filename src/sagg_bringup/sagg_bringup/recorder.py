@@ -151,6 +151,10 @@ class BagWriter:
             offered_qos_profiles=self._offered.get(topic) or [_qos(t)])
         return conn
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """A ``custom_data`` entry of metadata.yaml (rosbag2's string map; before :meth:`close`)."""
+        self._writer.set_custom_data(key, value)
+
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
         conn = self._conn.get(topic) or self._connect(topic)
         self._writer.write(conn, int(timestamp_ns), data)
@@ -205,6 +209,58 @@ class BagWriter:
 
     def topics(self) -> dict[str, dict]:
         return {t: {"type": self.types[t], "count": self.counts[t]} for t in self.counts}
+
+
+ACK_TOPIC = "/sagg/recorded"
+
+
+class Acknowledger:
+    """The recorder's side of the learner's backpressure (``recorder_max_lag``): ``source()``, the
+    samples recorded and accepted contiguously (from index 0, or from where the recorder's stream
+    started: :meth:`~sagg_bringup.run_state.RunState.start_samples_at`), on /sagg/recorded
+    (std_msgs/UInt64) at every :meth:`tick` where it changed, and at least every ``period`` s (a
+    learner that subscribes later, e.g. a resumed one, gets it too). The publisher is created at
+    the first value ``source()`` knows (not None): the learner waits while /sagg/recorded has a
+    publisher, so a recorder that does not know yet where its stream starts must not have one.
+    :meth:`freeze` keeps the value from then on (a recorder that is stopping: the learner stops
+    within ``recorder_max_lag`` samples, so the stream ends inside what the recorder still takes)."""
+
+    def __init__(self, node, source: Callable[[], int | None], period: float = 0.5):
+        self.node, self.source, self.period = node, source, period
+        self.pub = None
+        self.acked, self.t = -1, 0.0
+        self.frozen: int | None = None
+        self.tick()
+
+    def tick(self) -> None:
+        n = self.source() if self.frozen is None else self.frozen
+        if n is None:
+            return
+        if self.pub is None:
+            # lazy (heavy): ROS interface package
+            from std_msgs.msg import UInt64
+            self._uint64 = UInt64
+            self.pub = self.node.create_publisher(UInt64, ACK_TOPIC, 10)
+        now = time.monotonic()
+        if n != self.acked or now - self.t >= self.period:
+            self.acked, self.t = n, now
+            self.pub.publish(self._uint64(data=int(n)))
+
+    def freeze(self) -> None:
+        """Acknowledge nothing more (the last value is still re-published every ``period`` s)."""
+        if self.pub is not None:
+            self.frozen = self.acked
+
+
+def both(first: Callable, second: Callable) -> Callable:
+    """Both handlers; the first one's answer (truthy: message used) is the recorder's, which
+    advances the expected publisher's stream with it (dropping it left the stream at 0: while a
+    second publisher was on the topic, every real message was then rejected as foreign)."""
+    def handler(msg):
+        used = first(msg)
+        second(msg)
+        return used
+    return handler
 
 
 def _msg_class(msgtype: str):
@@ -266,6 +322,9 @@ class TopicRecorder:
         self.dropped: dict[str, int] = {}    # topic -> messages published but never received (missed)
         self.drops_unknown: set[str] = set()  # topics that had several publishers: no drop estimate
         self.last_seq: dict[str, list] = {}  # topic -> the last publication numbers of its recent streams
+        # topic -> publication number of the first message received (while it had one publisher):
+        # the messages numbered below it were published before this subscription matched
+        self.first_seq: dict[str, int] = {}
         self._offered: set[str] = set()      # topics whose publishers' QoS went to the bag
         self.problems: dict[str, str] = {}   # topic -> the last publisher problem seen
         self._logged: dict[str, float] = {}  # when each kind was last logged
@@ -303,13 +362,14 @@ class TopicRecorder:
         cls = _msg_class(t.msgtype)
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=t.depth,
-            reliability=ReliabilityPolicy.RELIABLE,
+            reliability=ReliabilityPolicy.BEST_EFFORT if t.best_effort else ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL if t.transient_local else DurabilityPolicy.VOLATILE)
         handler = self.handlers.get(t.name)
 
         watched = handler is not None and t.publisher is not None
 
         last_seq = self.last_seq
+        first_seq = self.first_seq
         dropped = self.dropped
         offered = self._offered
         unsure = self.drops_unknown
@@ -333,6 +393,7 @@ class TopicRecorder:
                     # (none left: the last publisher stopped and its queued messages are taken now)
                     unsure.add(topic)
                 else:
+                    first_seq.setdefault(topic, seq)
                     gap = _follow(last_seq.setdefault(topic, []), seq)
                     if gap:
                         dropped[topic] = dropped.get(topic, 0) + gap

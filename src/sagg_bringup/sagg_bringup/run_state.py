@@ -5,6 +5,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numpy as np
+
 from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
 from sagg_goal_generator.core import MODE_NAMES
@@ -74,6 +76,12 @@ class RunState:
         self.sample_t1 = now
         self.samples += 1
         return True
+
+    def start_samples_at(self, index: int) -> None:
+        """The next sample expected is ``index``: a recorder that joined a running graph, or a new
+        learner process (0 when fresh, its first re-published sample when resumed), follows the
+        stream from there (:meth:`accept_sample` checks the rest as usual)."""
+        self.samples = int(index)
 
     def arm_sample_check(self, learner_params: dict, task_dim: int) -> Callable[[Any], str]:
         """The ``problem`` of :meth:`accept_sample` for an evolving-context arm's /sagg/sample: the
@@ -198,6 +206,16 @@ class RunState:
         return [{"id": int(r.id), "lower": list(r.lower), "upper": list(r.upper),
                  "interest": float(r.interest), "count": int(r.count),
                  "mean_competence": float(r.mean_competence)} for r in self.last_regions.regions]
+
+
+def finite_sample_problem(m, expected: int) -> str:
+    """A ``problem`` for :meth:`RunState.accept_sample` that needs no parameters: the next index and
+    finite values only (DESIGN §8), for the synergy set-ups' samples and for ``sagg record``, which
+    may not know the learner's joint limits."""
+    if int(m.index) != expected:
+        return f"index {int(m.index)}; allowed: {expected} (the next sample)"
+    ok = all(np.isfinite(np.array(v, float)).all() for v in (m.alpha, m.delta_alpha, m.delta_y))
+    return "" if ok else "NaN/inf value; allowed: finite values"
 
 
 def _status_dict(m, rate: bool = True) -> dict:

@@ -15,7 +15,7 @@ from sagg_common.progress import Progress
 
 from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
 from .processes import GraphError, NodeGroup, NodeProcess
-from .recorder import BagWriter, TopicRecorder, TopicSpec
+from .recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
 from .results import goal_share_stats
 from .run_state import RunState
 
@@ -36,17 +36,6 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
                 "final_mean_error", "final_median_error", "memory", "learner_status", "reports", "goals",
                 "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
                 "interrupted", "error", "driver", "curve_source", "simulated_evaluation", "robot_evaluation")
-
-
-def _both(first: Callable, second: Callable) -> Callable:
-    """Both handlers; the first one's answer (truthy: message used) is the recorder's, which
-    advances the expected publisher's stream with it (dropping it left the stream at 0: while a
-    second publisher was on the topic, every real message was then rejected as foreign)."""
-    def handler(msg):
-        used = first(msg)
-        second(msg)
-        return used
-    return handler
 
 
 class GraphSession:
@@ -81,10 +70,7 @@ class GraphSession:
         self.st = RunState(status_rate=status_rate)
         self.eval_pub = self.node.create_publisher(Evaluation, "/sagg/evaluation", 100)
         self.recorder: TopicRecorder | None = None
-        # backpressure (acknowledge): ack_source() = the samples recorded and accepted from index 0
-        self.ack_source: Callable[[], int] | None = None
-        self.ack_pub = None
-        self._acked, self._ack_t = -1, 0.0
+        self.ack: Acknowledger | None = None  # backpressure (acknowledge)
         self.view = None  # markers.MarkerView, from record()
         self.stop_signal: list[int] = []
         self.interrupted = False
@@ -102,7 +88,7 @@ class GraphSession:
         self.view = MarkerView(self.node, self.topics)
         handlers = dict(handlers)
         for topic, h in self.view.handlers().items():
-            handlers[topic] = h if topic not in handlers else _both(handlers[topic], h)
+            handlers[topic] = h if topic not in handlers else both(handlers[topic], h)
         self.recorder = TopicRecorder(self.node, self.bag, self.topics, handlers,
                                       gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
         self.st.on_reject = self.recorder.log_problem  # the handlers' rejections are logged too
@@ -111,11 +97,7 @@ class GraphSession:
         """Publish ``source()`` (how many samples, from index 0, are recorded and accepted) on
         /sagg/recorded, the learner's backpressure (``recorder_max_lag``). Only a session that calls
         this has the publisher: the learner waits only while an acknowledging recorder exists."""
-        # lazy (heavy): ROS interface package
-        from std_msgs.msg import UInt64
-        self._uint64 = UInt64
-        self.ack_pub = self.node.create_publisher(UInt64, "/sagg/recorded", 10)
-        self.ack_source = source
+        self.ack = Acknowledger(self.node, source)
 
     def publish_evaluation(self, at: int, errors: np.ndarray) -> None:
         """/sagg/evaluation (published from here, the executor's thread; recorded like the rest)."""
@@ -156,13 +138,8 @@ class GraphSession:
             self.executor.spin_once(timeout_sec=0)
             if bag.written == before:
                 break
-        if self.ack_source is not None:
-            # on every change, and at least every 0.5 s (a learner subscribing later, e.g. a
-            # resumed one whose count starts where the earlier bags end, gets it too)
-            n, now = self.ack_source(), time.monotonic()
-            if n != self._acked or now - self._ack_t >= 0.5:
-                self._acked, self._ack_t = n, now
-                self.ack_pub.publish(self._uint64(data=n))
+        if self.ack is not None:
+            self.ack.tick()  # on every change, and at least every 0.5 s
         if self.stop_signal:
             raise KeyboardInterrupt
 

@@ -32,6 +32,7 @@ from sagg_low_level.eval_metrics import error_metrics, metric_frame
 from .params_files import run_only_params, write_params_file
 from .processes import check_domain_id, node_processes
 from .results import run_overrides
+from .run_state import finite_sample_problem
 from .session import STALL_TIMEOUT, GraphSession
 from .synergy_experiment import SynergyRun, load_synergy_config, outcome_extents
 
@@ -92,16 +93,9 @@ def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_di
     try:  # set-up: a failure or Ctrl-C before session.run still closes the bag and rclpy
         samples: list[tuple[np.ndarray, np.ndarray]] = []
 
-        def problem(m, expected: int) -> str:
-            # the next index and finite values only (DESIGN §8)
-            if int(m.index) != expected:
-                return f"index {int(m.index)}; allowed: {expected} (the next sample)"
-            ok = np.isfinite(np.array(m.alpha, float)).all() and np.isfinite(np.array(m.delta_y, float)).all()
-            return "" if ok else "NaN/inf value; allowed: finite values"
-
         def on_sample(m) -> bool | None:
             # no resume here: an older index is not a re-publication but a bad sample
-            ok = st.accept_sample(m, problem, republished_ok=False)
+            ok = st.accept_sample(m, finite_sample_problem, republished_ok=False)
             if ok:
                 samples.append((np.array(m.alpha, float), np.array(m.delta_y, float)))
             return ok

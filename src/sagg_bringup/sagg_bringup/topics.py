@@ -4,6 +4,18 @@ from __future__ import annotations
 
 from .recorder import TopicSpec
 
+# the hardware contract's command types (DESIGN §3): position commands on /<controller>/commands,
+# trajectories on /<controller>/joint_trajectory; whatever subscribes to them moves the robot
+COMMAND_TYPES = frozenset({"std_msgs/msg/Float64MultiArray", "trajectory_msgs/msg/JointTrajectory"})
+# the learner's and the goal generator's streams: they stop when the nodes stop (what a stopping
+# recorder waits for), unlike the periodic topics (status, regions, joint states at rest, ...)
+STREAM_TOPICS = ("/sagg/sample", "/sagg/competence", "/sagg/goal")
+
+
+def command_topics(types: dict[str, str]) -> list[str]:
+    """The topics of ``types`` (topic -> ROS type) that carry commands (:data:`COMMAND_TYPES`)."""
+    return sorted(t for t, ty in types.items() if ty in COMMAND_TYPES)
+
 
 def sagg_topics() -> list[TopicSpec]:
     """The /sagg topics every graph run records (the hardware topics depend on the set-up)."""

@@ -56,6 +56,20 @@ class Checkpointer(GenerationFiles):
         """The checkpoint taken at :meth:`close`."""
         self.save()
 
+    def check_resume(self, resume: bool) -> None:
+        """Refuse a directory that holds a checkpoint unless asked to continue it (``resume``):
+        a node started on another run's parameters (a ``params.yaml`` of an older ``sagg run`` names
+        its run's ``checkpoint_dir``) must neither continue that run nor overwrite its checkpoint.
+        ValueError naming the directory and what is allowed; nothing is written."""
+        meta = self.dir / self.meta_name
+        if not resume and meta.exists():
+            raise ValueError(
+                f"'{self.dir}' holds a {self.owner} checkpoint ({self.meta_name}) and parameter 'resume' is "
+                "false: not starting, so that run is neither continued nor overwritten (its files are left "
+                "unchanged); allowed: resume:=true to continue it (`sagg run --resume DIR` does), or a "
+                "checkpoint_dir without a checkpoint (a params.yaml written by an older `sagg run` names its "
+                "run's checkpoint_dir: remove that line to start a new run)")
+
     # ------------------------------------------------------------------ schedule
     def maybe_save(self) -> bool:
         if self._progress() - self.saved_at >= self.every:

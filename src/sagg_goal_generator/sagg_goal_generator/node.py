@@ -123,6 +123,7 @@ class GoalGeneratorNode(Node):
         self.report_sub = None
         self.resubscribe_due = False  # reports were dropped for a foreign publisher
         self.resubscriptions = 0
+        self.duplicate_reports = 0  # reports already processed, received again (dropped)
         self.early: dict[int, tuple] = {}   # seq -> (kind, target, competence, received): reports ahead of the next
         self._subscribe_reports()
         self.checkpointer = None
@@ -200,9 +201,13 @@ class GoalGeneratorNode(Node):
             self._second_source(msg.seq, verdict)
             return
         if msg.seq <= gen.reports:
-            # already processed: re-sent from the learner's history after a restart, or a duplicate
-            self.guard.reject("report.duplicate", f"competence report {msg.seq}: already have reports "
-                                                  f"1..{gen.reports}; dropped")
+            # already processed: re-sent from the learner's history after a restart or a resume (the
+            # normal case there, not a bad input: it changes nothing); counted, logged once
+            self.duplicate_reports += 1
+            if self.duplicate_reports == 1:
+                self.get_logger().info(f"competence report {msg.seq}: already have reports 1..{gen.reports} "
+                                       "(re-sent after a restart or resume): dropped; such reports are counted "
+                                       "on /diagnostics (duplicate_reports), not logged again")
             return
         if msg.seq != gen.reports + 1:
             # early: kept until the reports before it come (reordered, or re-delivered from the
@@ -261,6 +266,7 @@ class GoalGeneratorNode(Node):
         if self.source_hold:
             state["second source"] = self.source_hold
         state["report_resubscriptions"] = str(self.resubscriptions)
+        state["duplicate_reports"] = str(self.duplicate_reports)
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def _goal_subscribers_ok(self) -> bool:
@@ -344,6 +350,7 @@ class GoalGeneratorNode(Node):
             return
         try:
             ck = GeneratorCheckpointer(p["checkpoint_dir"], self.gen, p["checkpoint_every"], p["journal_fsync"])
+            ck.check_resume(p["resume"])  # another run's checkpoint: refused unless asked to continue it
             self.replay_goals = ck.resume()
         except (ValueError, OSError) as exc:
             raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc

@@ -16,9 +16,13 @@ NODE_SCHEMA: Schema = (
           "(e.g. 1 when a recorder must see every goal). 0 = do not wait.", low=0, high=1000),
     # checkpoint / resume (sagg_goal_generator.checkpoint)
     Param("checkpoint_dir", "str", "",
-          "Directory of the generator's checkpoints and goal journal (generator_*). Empty = off. If "
-          "it holds a checkpoint the generator resumes from it exactly (reports it missed come again "
-          "from the learner's transient_local /sagg/competence history)."),
+          "Directory of the generator's checkpoints and goal journal (generator_*). Empty = off. With "
+          "resume true the generator resumes from the checkpoint in it exactly (reports it missed come "
+          "again from the learner's transient_local /sagg/competence history). `sagg run` uses "
+          "DIR/checkpoint and gives it on the command line (never in DIR/params.yaml)."),
+    Param("resume", "bool", False,
+          "Continue the run whose checkpoint is in checkpoint_dir. false: a checkpoint_dir that holds "
+          "a checkpoint is refused (exit 2, one line; nothing written). `sagg run --resume DIR` sets true."),
     Param("checkpoint_every", "int", 1000,
           "Checkpoint every this many reports (and at shutdown). At most the learner's "
           "/sagg/competence history (10000 reports), which re-sends the reports since the last "

@@ -203,6 +203,7 @@ class LearnerNode(LearnerNodeBase):
         self.reach_server = ReachServer(self, p["task_space.lower"], p["task_space.upper"], self.guard.reject)
         self.goals_received = 0
         self.t_started = time.monotonic()
+        self.ma_start = self.learner.micro_actions  # (resumed: those of earlier segments, not in the stop line's rate)
         self.rate_window: list[tuple[float, int]] = [(time.monotonic(), 0)]
         self.create_timer(0.5, self.publish_status)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -567,9 +568,11 @@ class LearnerNode(LearnerNodeBase):
                     return
                 self.pause_reason = f"max_micro_actions ({self.max_micro_actions}) reached"
                 secs = time.monotonic() - self.t_started
+                done = learner.micro_actions - self.ma_start  # this segment's (since the start or resume)
+                since = f", {done} since the resume at {self.ma_start}," if self.ma_start else ""
                 self.get_logger().info(
-                    f"{self.pause_reason}: stopped acting ({learner.micro_actions} micro-actions in "
-                    f"{secs:.3f} s: {learner.micro_actions / max(secs, 1e-9):.1f}/s)")
+                    f"{self.pause_reason}: stopped acting ({learner.micro_actions} micro-actions{since} in "
+                    f"{secs:.3f} s: {done / secs if secs > 0 else 0.0:.1f}/s)")
                 self.flush()
                 self.publish_status()
                 return
@@ -842,6 +845,7 @@ class LearnerNode(LearnerNodeBase):
             return
         try:
             ck = LearnerCheckpointer(p["checkpoint_dir"], self.learner, p["checkpoint_every"], p["journal_fsync"])
+            ck.check_resume(p["resume"])  # another run's checkpoint: refused unless asked to continue it
             replay = ck.resume(p["republish_from"])
         except (ValueError, OSError) as exc:
             raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc
@@ -886,10 +890,10 @@ class LearnerNode(LearnerNodeBase):
         if self.rec_waits:
             self.get_logger().info(f"recorder backpressure: {self.rec_waits} waits, "
                                    f"{self.rec_wait_seconds:.3f} s in all (recorder_max_lag {self.rec_max_lag})")
-        if self.checkpointer is not None:
-            try:
-                self.flush()
-            finally:
+        try:
+            self.flush()  # (also without checkpoints: a params.yaml names none since issue 24)
+        finally:
+            if self.checkpointer is not None:
                 self.checkpointer.close()
                 self.checkpointer = None
 

@@ -59,8 +59,13 @@ LEARNER_NODE_SCHEMA: Schema = (
     # checkpoint / resume (sagg_low_level.checkpoint)
     Param("checkpoint_dir", "str", "",
           "Directory of the learner's checkpoints and write-ahead journal (learner_*). Empty = off. "
-          "If it holds a checkpoint the learner resumes from it (memory, counters, random state; the "
-          "interrupted reaching attempt is abandoned)."),
+          "With resume true the learner resumes from the checkpoint in it (memory, counters, random "
+          "state; the interrupted reaching attempt is abandoned). `sagg run` uses DIR/checkpoint and "
+          "gives it on the command line (never in DIR/params.yaml: a configuration, not a run)."),
+    Param("resume", "bool", False,
+          "Continue the run whose checkpoint is in checkpoint_dir. false: a checkpoint_dir that holds "
+          "a checkpoint is refused (exit 2, one line; nothing written), so parameters reused from "
+          "another run never continue or overwrite it. `sagg run --resume DIR` sets true."),
     Param("checkpoint_every", "int", 10000,
           "Checkpoint every this many micro-actions (and at shutdown). Every sample and report is "
           "journaled before it is published, so nothing is lost between checkpoints; this only "

@@ -21,7 +21,7 @@ from sagg_low_level.memory import SampleMemory
 
 from ..arm_params import NODES, graph_params, load_graph_config
 from ..experiment import InProcessRun
-from ..params_files import write_params_file
+from ..params_files import run_values, write_params_file
 from ..processes import NodeGroup, node_processes
 from ..setups import load_experiment_config
 from .pingpong import measure
@@ -162,7 +162,7 @@ def graph_rate(config: str | Path, micro_actions: int, overrides: dict | None = 
         nodes = NodeGroup(node_processes(NODES, tmp))
         learner_log = tmp / "learner.log"
         try:
-            nodes.start(tmp / "params.yaml")
+            nodes.start(tmp / "params.yaml", run_values(params))  # (the budget: max_micro_actions)
             end = time.perf_counter() + timeout
             while time.perf_counter() < end:
                 m = re.search(r"\((\d+) micro-actions in ([\d.]+) s", learner_log.read_text(errors="replace"))

@@ -37,7 +37,7 @@ from sagg_common.journal import write_json_atomic
 from sagg_common.ros_params import reliable
 
 from ..arm_params import NODES, graph_params, load_graph_config
-from ..params_files import set_checkpoint_dirs, write_params_file
+from ..params_files import run_values, set_checkpoint_dirs, write_params_file
 from ..processes import GraphError, NodeGroup, node_processes
 
 
@@ -197,7 +197,7 @@ def soak_graph(config: str | Path, micro_actions: int, every: int, out_dir: str 
     error = None
     fds0: dict[str, int] = {}
     try:
-        nodes.start(params_file)
+        nodes.start(params_file, run_values(params))  # (checkpoint_dir, budget: not in params.yaml)
         last = (0, time.monotonic())
         while True:
             ex.spin_once(timeout_sec=0.1)
