@@ -12,7 +12,9 @@ import yaml
 from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
 
 from .check_driver import main_check_driver
+from .params_files import read_run_file
 from .processes import GraphError
+from .reach import main_reach
 from .lab.hostile import bench_hostile
 from .lab.soak import main_soak
 from .record import LOST_EXIT_CODE, default_out, record
@@ -373,12 +375,14 @@ def _resume(args) -> int:
     if old.get("driver") == "external":
         raise ConfigError(f"--resume: '{out}' is a --driver external run; allowed: the directory of a run "
                           "with the simulated bridge (start a new external-driver run)")
-    # the run's own budget: its summary (params.yaml holds none since it is a configuration; an
-    # older sagg run's does)
-    micro = args.micro_actions or int(old.get("micro_actions_requested") or learner.get("max_micro_actions")
-                                      or 10_000)
-    eval_every = old.get("eval_every", args.eval_every)
-    timing = bridge.get("timing", args.timing)
+    # the run's own settings: DIR/run.json (written before its nodes started: there even when the
+    # run was killed), else its summary, else an older sagg run's params.yaml (params.yaml is a
+    # configuration now and holds no budget)
+    own = read_run_file(out)
+    micro = args.micro_actions or int(own.get("micro_actions") or old.get("micro_actions_requested")
+                                      or learner.get("max_micro_actions") or 10_000)
+    eval_every = own.get("eval_every") or old.get("eval_every", args.eval_every)
+    timing = own.get("timing") or bridge.get("timing", args.timing)
     try:
         s = run_graph(params_file, micro, out, timing=timing, eval_every=eval_every,
                       progress=not args.quiet, domain_id=args.domain_id, resume=True, **_stall(args))
@@ -432,8 +436,6 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "check-driver":
             return main_check_driver(args)
         if args.command == "reach":
-            # lazy (heavy): ROS, mujoco
-            from .reach import main_reach
             return main_reach(args)
         if args.command == "relearn":
             # lazy (heavy): ROS, mujoco

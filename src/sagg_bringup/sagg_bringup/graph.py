@@ -45,7 +45,7 @@ from .arm_params import NODES, TIMINGS, core_config, graph_params, resolve_arm
 from .bag_reader import bag_messages
 from .bag_recover import recover_run_bags
 from .evaluator import Evaluator
-from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file
+from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file, write_run_file
 from .processes import GraphError, check_domain_id, node_processes
 from .recorder import _msg_class
 from .report import arm_rows, write_report
@@ -96,6 +96,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         print(f"sagg run: {note}", file=sys.stderr)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
+    write_run_file(out, micro_actions=int(micro_actions), eval_every=int(eval_every), timing=timing)
     config = core_config(full)
     lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
     t_lower, t_upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])

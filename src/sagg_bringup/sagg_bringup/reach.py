@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from sagg_common.params import ConfigError, flatten
+from sagg_low_level.checkpoint import checkpoint_memory
 
 from .arm_params import NODES
 from .params_files import run_bags, write_params_file
@@ -45,8 +46,6 @@ def frozen_model(source: Path, out: Path, say=print) -> tuple[dict, Path]:
     """The run's node parameters and its sample memory written to ``out/memory.npz``: the
     learner's final checkpoint when the run has one, else rebuilt from its bags."""
     # lazy (heavy): mujoco (relearn's evaluation set-up)
-    from sagg_low_level.checkpoint import checkpoint_memory
-
     from .bags import relearn
     params_file, bags = _model_source(source)
     doc = yaml.safe_load(params_file.read_text()) or {}
