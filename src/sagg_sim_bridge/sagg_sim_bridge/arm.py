@@ -577,24 +577,28 @@ class ReachableArea:
         return inside & self.mask[tuple(ij.T)]
 
     def boundary_cells(self) -> int:
-        """Reachable cells with an unreachable face neighbour (4 in 2-D, 6 in 3-D) inside the box
-        (cells beyond the box edge are not counted as unreachable: the box cuts the reachable set
-        exactly there)."""
+        """Reachable cells with an unreachable neighbour inside the box (cells beyond the box edge
+        are not counted as unreachable: the box cuts the reachable set exactly there). Neighbours:
+        in 2-D the 4 that share an edge (the planar arm's estimate, unchanged); in 3-D all 26 that
+        share a face, an edge or a corner: a voxel cut by a slanted surface usually keeps its 6 face
+        neighbours reachable while lying partly outside (measured on a spherical-shell workspace at
+        25 cells per reach: volume +3.0% with 6 neighbours, -1.1% with 26; test_model_arm)."""
         m = self.mask
         pad = np.pad(m, 1, mode="constant", constant_values=True)
-        core = [slice(1, -1)] * m.ndim
+        if m.ndim == 2:
+            offsets = [(-1, 0), (1, 0), (0, -1), (0, 1)]
+        else:
+            offsets = [o for o in np.ndindex(*(3,) * m.ndim) if o != (1,) * m.ndim]
+            offsets = [tuple(int(k) - 1 for k in o) for o in offsets]
         nb_all = np.ones_like(m)
-        for axis in range(m.ndim):
-            for side in (slice(None, -2), slice(2, None)):
-                idx = list(core)
-                idx[axis] = side
-                nb_all &= pad[tuple(idx)]
+        for off in offsets:
+            nb_all &= pad[tuple(slice(1 + k, pad.shape[i] - 1 + k) for i, k in enumerate(off))]
         return int(np.count_nonzero(m & ~nb_all))
 
     def area(self) -> float:
         """Estimated reachable area (2-D) or volume (3-D) inside the box. Boundary cells are on
-        average half covered, so they count 1/2 (removes the bias of plain cell counting: +half a
-        cell layer over the whole boundary)."""
+        average half covered, so they count 1/2 (removes most of the bias of plain cell counting:
+        +half a cell layer over the whole boundary)."""
         n = np.count_nonzero(self.mask) - 0.5 * self.boundary_cells()
         return float(n * np.prod(self.cell_size))
 
