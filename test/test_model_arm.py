@@ -245,6 +245,52 @@ def test_state_round_trip_gives_identical_commands_with_motor_noise(mode):
     assert not np.array_equal(first[0][0], sim.observe()[0])  # the commands did move the arm
 
 
+EVERY_JOINT = """<mujoco model="every_joint">
+  <compiler angle="radian" autolimits="true"/>
+  <worldbody>
+    <body name="base" pos="0.3 0 0">
+      <freejoint name="float"/>
+      <geom type="sphere" size="0.05"/>
+      <body name="carriage" pos="0 0.1 0" euler="0.3 0 0">
+        <joint name="rail" type="slide" axis="1 0.5 0" range="-0.2 0.3" ref="0.05"/>
+        <geom type="sphere" size="0.03"/>
+        <body name="wrist" pos="0 0 0.2">
+          <joint name="swivel" type="ball" pos="0 0 0.02"/>
+          <geom type="sphere" size="0.03"/>
+          <body name="forearm" pos="0.1 0 0.1" quat="0.9 0.1 -0.3 0.2">
+            <joint name="elbow" axis="0.3 -0.4 0.8" pos="0.05 0.02 0" range="-2 2" ref="0.4"/>
+            <geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.02"/>
+            <site name="tip" pos="0.25 0.01 -0.02"/>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <keyframe>
+    <key name="home" qpos="0.1 -0.2 0.4  0.8 0.2 -0.4 0.3  0.1  0.9 0.1 0.3 -0.2  0.5"/>
+  </keyframe>
+</mujoco>
+"""
+
+
+def test_batched_fk_matches_mujoco_for_every_joint_kind(tmp_path):
+    """Commanded slide and hinge (off-centre anchor, nonzero ref) below a held free joint and a held
+    ball joint: the vectorised FK equals mj_kinematics, and every position lies in the bounding ball
+    that reach and the reachable set rely on."""
+    path = tmp_path / "every_joint.xml"
+    path.write_text(EVERY_JOINT)
+    spec = arm_spec_from_params(params(model=str(path), effector="tip"), None)
+    sim = make_arm_sim(spec, 0)
+    assert sim.joint_names == ["rail", "elbow"]  # hinge/slide joints only; free and ball held
+    postures = np.random.default_rng(6).uniform(sim.lower, sim.upper, (500, 2))
+    y = sim.tip_positions(postures)
+    np.testing.assert_allclose(y, sim.fk_mujoco(postures), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sim.command(postures[0])[1], y[0], rtol=0, atol=1e-12)
+    center, radius = sim.arm.kin.ball()
+    assert np.all(np.linalg.norm(y - center, axis=1) <= radius + 1e-12)
+    assert spec.reach() <= radius + 1e-12
+
+
 # ------------------------------------------------------------------ the example arms
 def dh_standard(q, d, a, alpha) -> np.ndarray:
     t = np.eye(4)

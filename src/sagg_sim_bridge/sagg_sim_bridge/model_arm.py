@@ -455,7 +455,9 @@ class ModelArmSim(ArmSim):
     ``joint_names`` order) and the effector's world position on the task axes. The MjModel is
     shared by every simulator of the spec (read-only); each has its own MjData."""
 
-    def __init__(self, spec: ModelArmSpec, seed: int):  # noqa: D107 - ArmSim.__init__ is not called: its model is generated
+    def __init__(self, spec: ModelArmSpec, seed: int):
+        # (ArmSim.__init__ is not called: it generates the planar model; the attributes its
+        # inherited methods use are set here)
         if not isinstance(spec, ModelArmSpec):
             raise ValueError(f"ModelArmSim.spec must be a ModelArmSpec, got {type(spec).__name__}")
         if not _is_int(seed) or int(seed) < 0:
