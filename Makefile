@@ -100,7 +100,7 @@ $(STAMP_MSGS): $(STAMP_WHEELS) $(MSGS_SRCS)
 # The set (not the contents) of launch/config files that sagg_bringup installs as data files:
 # rewritten only when that set changes, so adding a config reinstalls, editing one does not.
 $(DATA_LIST): FORCE $(STAMP_VENV)
-	@ls -1 config/*.yaml src/sagg_bringup/launch/*.py 2>/dev/null | sort > $@.tmp || true
+	@ls -1 config/*.yaml config/robots/* src/sagg_bringup/launch/*.py 2>/dev/null | sort > $@.tmp || true
 	@if cmp -s $@.tmp $@; then rm -f $@.tmp; else mv -f $@.tmp $@; fi
 
 # Editable installs (PEP 660). pip puts the console scripts in .venv/bin; the setup.cfg

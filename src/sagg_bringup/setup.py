@@ -30,6 +30,11 @@ if launch_files:
 config_files = _rel(glob(os.path.join(HERE, '..', '..', 'config', '*.yaml')))
 if config_files:
     DATA_FILES.append(('share/' + PACKAGE + '/config', config_files))
+# The robot model files those configs name (arm.model is relative to the config's directory, so an
+# installed config finds its model beside it: share/sagg_bringup/config/robots/).
+robot_files = _rel(p for p in glob(os.path.join(HERE, '..', '..', 'config', 'robots', '*')) if os.path.isfile(p))
+if robot_files:
+    DATA_FILES.append(('share/' + PACKAGE + '/config/robots', robot_files))
 
 setup(
     name=PACKAGE,

@@ -1,10 +1,19 @@
-"""Parameters of the MuJoCo bridge (ROS-free schema; the node declares them with descriptors)."""
+"""Parameters of the MuJoCo bridge (ROS-free schema; the node declares them with descriptors).
+
+One ``arm.*`` schema for both arms: ``arm.model`` empty (the default) is the generated planar arm
+(:class:`.arm.ArmSpec`, its geometry fields); ``arm.model`` set is a robot from its MJCF/URDF file
+(:class:`.model_arm.ModelArmSpec`): the planar-only fields are then ignored and the model fields
+apply. ``arm.mode``, ``arm.motor_noise`` and the dynamic-mode fields mean the same for both."""
 from __future__ import annotations
+
+import dataclasses
 
 from sagg_common.params import ConfigError, Param, Schema, dataclass_schema
 
 from .arm import ArmSpec
+from .model_arm import SHARED_FIELDS, ModelArmSpec
 
+_PLANAR = " (planar arm only: ignored when arm.model is set)"
 _ARM_DOC = {
     "dof": "Number of joints of the planar arm (paper: 7, 15, 30; real arm 8).",
     "total_length": "Total arm length in task units (paper: 50).",
@@ -36,16 +45,66 @@ _ARM_DOC = {
 }
 
 
+for _f in dataclasses.fields(ArmSpec):
+    if _f.name not in SHARED_FIELDS:
+        _ARM_DOC[_f.name] += _PLANAR
+
+# The model arm's own parameters (used only when arm.model is set; rest_posture is not under arm.:
+# the config gives it once under '/**' for every node that needs it). List parameters cannot be empty
+# (ROS parameter arrays need a type): "not given" is a documented one-element default.
+MODEL_SCHEMA: Schema = (
+    Param("arm.model", "str", "",
+          "Robot model file: MuJoCo MJCF (.xml) or URDF (.urdf), relative to the config file's directory. "
+          "Empty (default) = the generated planar arm (arm.dof, arm.total_length, ...). When set, the "
+          "planar-only arm.* fields are ignored and the arm.* model fields apply."),
+    Param("arm.package_paths", "str_list", ["."],
+          "Model arm: directories holding ROS package folders, for package://PKG/... URIs in the model "
+          "(looked up as <dir>/PKG/..., then as <prefix>/share/PKG/... for each AMENT_PREFIX_PATH prefix); "
+          "relative to the config file's directory. Default ['.']: the config's own directory. A mesh "
+          "found nowhere is dropped in kinematic mode (said once, naming the files), an error in dynamic "
+          "mode."),
+    Param("arm.effector", "str", "",
+          "Model arm: name of the body / URDF link (its origin) or site whose world position is the "
+          "effector (e.g. tool0, flange). Required when arm.model is set; an unknown name is an error "
+          "listing the model's bodies and sites."),
+    Param("arm.task_axes", "str_list", ["x", "y", "z"],
+          "Model arm: the world coordinates forming the task point, a subset of [x, y, z] in that order with "
+          "2 or 3 axes (default all three; [x, y] for a camera looking down on a table). task_space.lower/"
+          "upper then have one value per axis."),
+    Param("arm.joints", "str_list", ["*"],
+          "Model arm: the commanded joints, in command order. Default ['*']: every hinge/slide joint that "
+          "moves the effector, in model order; the model's other joints are held at their rest value."),
+    Param("arm.joint_limits.lower", "float_list", [0.0],
+          "Model arm: lower joint limits (rad or m), one per commanded joint, with arm.joint_limits.upper. "
+          "Default [0.0] (with upper [0.0]) = not given: the model's joint ranges; needed when a commanded "
+          "joint has no range in the model; when given they must lie within the model's ranges."),
+    Param("arm.joint_limits.upper", "float_list", [0.0],
+          "Model arm: upper joint limits, one per commanded joint (see arm.joint_limits.lower)."),
+    Param("rest_posture", "float_list", [0.0],
+          "Model arm: rest posture, one value per commanded joint (arm.joints order), used when the model "
+          "has no keyframe named 'home' (which wins when present). Not under arm.: give it once in the "
+          "config's '/**' section, where the learner node reads the same parameter. Default [0.0] = not "
+          "given (then the model needs the keyframe; a 1-joint arm resting at 0 too). Ignored by the "
+          "planar arm."),
+)
+
 SCHEMA: Schema = (
     Param("seed", "int", 0, "Run seed; the simulator's motor-noise stream is derived from it.", low=0),
 ) + dataclass_schema("arm", ArmSpec, _ARM_DOC, {"link_profile": ("equal", "golden"), "rest_shape": ("arc", "zigzag"),
-                                               "mode": ("kinematic", "dynamic")})
+                                               "mode": ("kinematic", "dynamic")}) + MODEL_SCHEMA
 
 
-def arm_spec_from_params(params: dict) -> ArmSpec:
-    """Build and validate the arm from resolved ``arm.*`` parameters (errors name the parameter)."""
+def arm_spec_from_params(params: dict, base_dir: str | None = None) -> ArmSpec | ModelArmSpec:
+    """Build and validate the arm from resolved ``arm.*`` parameters (errors name the parameter):
+    the planar :class:`ArmSpec` when ``arm.model`` is empty, else a :class:`ModelArmSpec` whose
+    relative paths are resolved against ``base_dir`` (the config file's directory)."""
     fields = {k[len("arm."):]: v for k, v in params.items() if k.startswith("arm.")}
+    if fields.get("model", ""):
+        if "rest_posture" in params:
+            fields["rest_posture"] = params["rest_posture"]
+        return ModelArmSpec.from_params(fields, base_dir)
+    planar = {f.name for f in dataclasses.fields(ArmSpec)}
     try:
-        return ArmSpec.from_dict(fields)
+        return ArmSpec.from_dict({k: v for k, v in fields.items() if k in planar})
     except ValueError as exc:
         raise ConfigError(str(exc).replace("ArmSpec.", "parameter arm.")) from exc

@@ -1,0 +1,647 @@
+"""Any robot from its model file: the model arm (ROS-free core; issue 23).
+
+The robot is a MuJoCo MJCF (``.xml``) or URDF (``.urdf``) file (:mod:`.model_load` parses it,
+resolving ``package://`` meshes); the learner commands some of its hinge/slide joints and sees the
+world position of one effector point (a site, or a body / URDF link origin) on the chosen task
+axes. It speaks exactly the protocol of the planar :class:`~.arm.ArmSim` (``reset``, ``command``,
+``observe``, ``tip_positions``, ``get_state``/``set_state``, ``reseed``; same motor-noise model,
+drawn in the same blocks, and the same dynamic-mode settling), so every runner can take either.
+
+What comes from the model, what from the parameters (``arm.*``, see :mod:`.params`):
+
+- joints: every hinge/slide joint that moves the effector, in model order, unless ``arm.joints``
+  selects and orders some (the others are held at their rest value). Choice: joints that cannot
+  move the effector (a gripper's fingers when the effector is the flange) are left out of the
+  default, since no learner could learn them; naming one in ``arm.joints`` is an error;
+- limits: the model's joint ranges; a joint without one needs ``arm.joint_limits.lower/upper``
+  (which, when given, set the limits of every commanded joint and must lie within the model's
+  ranges where it has them);
+- rest posture: the model's keyframe named ``home``, else the parameter ``rest_posture`` (given
+  once in the config's ``/**`` section: the learner node reads the same one), else an error naming
+  both;
+- ``arm.mode`` kinematic (qpos set, ``mj_kinematics``) or dynamic (position actuators added where
+  the model has none for a commanded joint: gain ``arm.kp``, the joint's damping ``arm.damping``
+  and armature ``arm.armature``, as the planar arm's critically damped servos; physics step
+  ``arm.timestep`` replaces the model's; gravity and contacts off: an ideal position-controlled
+  arm that holds any posture, as a real arm's controller with gravity compensation does).
+
+The reachable set of the effector (2-D or 3-D occupancy grid, :func:`model_reachable_area`) is
+estimated by sampling the joint space through the model's own forward kinematics
+(:class:`.model_kin.ChainFK`, checked against ``mj_kinematics``), like the planar arm's.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from sagg_common.diagnostics import all_finite
+from sagg_common.params import ConfigError
+
+from .arm import (NOISE_BLOCK, ArmSim, ArmSpec, ReachableArea, _is_int, _is_real, check_bounds,
+                  goals_in_area, occupancy_grid)
+from .model_kin import HINGE, SLIDE, ChainFK
+from .model_load import MODEL_SUFFIXES, compile_spec, load_spec
+
+AXES = ("x", "y", "z")
+# ArmSpec fields that mean the same for the model arm (mode, noise, dynamic-mode servo and settling);
+# the other ArmSpec fields describe the planar arm's geometry and are ignored when arm.model is set.
+SHARED_FIELDS = ("mode", "motor_noise", "timestep", "kp", "damping", "armature", "settle_tolerance",
+                 "settle_velocity", "max_settle_steps", "settle_check_every")
+HOME_KEY = "home"
+# Default grid resolution of the reachable set: reach/100 per side in 2-D (the planar arm's
+# total_length/100), reach/25 in 3-D; default samples: 400k in 2-D (as the planar arm), 2M in 3-D.
+# Measured on the example arms (a ~0.95 m UR5-like and Panda-like arm, box ±1.05 reach): reach/25
+# and 2M samples mark ~70k cells in 2.2-4 s, the volume within 0.6% of an 8M-sample estimate;
+# reach/50 (~540k cells) needs ~8M samples (~10 s) to fill, 2M leave it 20% short.
+CELLS_PER_REACH = {2: 100.0, 3: 25.0}
+DEFAULT_SAMPLES = {2: 400_000, 3: 2_000_000}
+# Loaded models kept per process (a run's evaluation builds 100 simulators of one spec).
+_CACHE_SIZE = 8
+
+
+_SAID: set[str] = set()  # notices already printed by this process
+
+
+def _said(text: str) -> None:
+    """Print a notice about a model once per process (stderr: every runner shows it)."""
+    if text not in _SAID:
+        _SAID.add(text)
+        print(f"sagg_sim_bridge: {text}", file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True)
+class ModelArmSpec:
+    """Everything that defines one model arm: the parameters ``arm.*`` with paths resolved (built by
+    :meth:`from_params`; field ``rest`` is ``rest_posture``, ``joint_lower/upper`` are
+    ``arm.joint_limits.lower/upper``; empty tuples = not given). Hashable and plain (picklable by
+    multiprocessing); the loaded model is kept per process, keyed by the spec."""
+
+    model: str                               # absolute path of the .xml/.urdf file
+    effector: str = ""
+    task_axes: tuple[str, ...] = AXES
+    joints: tuple[str, ...] = ()             # () = every hinge/slide joint moving the effector
+    joint_lower: tuple[float, ...] = ()      # () = the model's ranges
+    joint_upper: tuple[float, ...] = ()
+    rest: tuple[float, ...] = ()             # () = the model's keyframe 'home'
+    package_paths: tuple[str, ...] = ()      # absolute directories holding PKG folders
+    mode: str = ArmSpec.mode
+    motor_noise: float = ArmSpec.motor_noise
+    timestep: float = ArmSpec.timestep
+    kp: float = ArmSpec.kp
+    damping: float = ArmSpec.damping
+    armature: float = ArmSpec.armature
+    settle_tolerance: float = ArmSpec.settle_tolerance
+    settle_velocity: float = ArmSpec.settle_velocity
+    max_settle_steps: int = ArmSpec.max_settle_steps
+    settle_check_every: int = ArmSpec.settle_check_every
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def from_params(cls, fields: dict[str, Any], base_dir: str | None) -> "ModelArmSpec":
+        """The spec from the resolved ``arm.*`` parameters (names without ``arm.``) of the
+        schema in :mod:`.params`: ``arm.model`` and relative ``arm.package_paths`` are relative to
+        ``base_dir`` (the config file's directory; package paths default to the model file's
+        directory when it is None); ``rest_posture`` is the bridge's parameter of that name (not
+        under ``arm.``: one value for every node). Planar-only fields are ignored. Validated (model loaded);
+        ConfigError names the parameter."""
+        model = fields.get("model", "")
+        if not isinstance(model, str) or not model:
+            raise ConfigError(f"parameter arm.model: got {model!r}; allowed: the path of a .xml (MJCF) or "
+                              ".urdf file")
+        if not os.path.isabs(model):
+            if base_dir is None:
+                raise ConfigError(f"parameter arm.model: {model!r} is relative and no config directory is "
+                                  "known to resolve it; give an absolute path")
+            model = os.path.join(base_dir, model)
+        model = os.path.normpath(os.path.abspath(model))
+        pkg_base = base_dir if base_dir is not None else os.path.dirname(model)
+        paths = tuple(os.path.normpath(os.path.abspath(os.path.join(pkg_base, p))) if isinstance(p, str) else p
+                      for p in fields.get("package_paths", ()))
+        joints = tuple(fields.get("joints", ()))
+        if joints == ("*",):
+            joints = ()
+        lower, upper = tuple(fields.get("joint_limits.lower", ())), tuple(fields.get("joint_limits.upper", ()))
+        if lower == (0.0,) and upper == (0.0,):  # the schema's "not given"
+            lower, upper = (), ()
+        rest = tuple(fields.get("rest_posture", ()))
+        if rest == (0.0,):  # the schema's "not given"
+            rest = ()
+        kw = {f: fields[f] for f in SHARED_FIELDS if f in fields}
+        for f in ("timestep", "kp", "damping", "armature", "motor_noise", "settle_tolerance", "settle_velocity"):
+            if f in kw and _is_int(kw[f]):
+                kw[f] = float(kw[f])
+        spec = cls(model=model, effector=fields.get("effector", ""), task_axes=tuple(fields.get("task_axes", AXES)),
+                   joints=joints, joint_lower=lower, joint_upper=upper, rest=rest, package_paths=paths, **kw)
+        spec.validate()
+        return spec
+
+    def validate_fields(self) -> None:
+        """Check the fields without loading the model; ConfigError names the parameter."""
+        if not isinstance(self.model, str) or not self.model.lower().endswith(MODEL_SUFFIXES):
+            raise ConfigError(f"parameter arm.model: got {self.model!r}; allowed: a MuJoCo MJCF (.xml) or "
+                              "URDF (.urdf) file")
+        if not os.path.isfile(self.model):
+            raise ConfigError(f"parameter arm.model: no file {self.model!r}")
+        if not isinstance(self.effector, str):
+            raise ConfigError(f"parameter arm.effector: got {self.effector!r}; allowed: a body, link or site name")
+        ax = self.task_axes
+        if (not isinstance(ax, tuple) or not ax or any(a not in AXES for a in ax)
+                or list(ax) != sorted(set(ax), key=AXES.index)):
+            raise ConfigError(f"parameter arm.task_axes: got {list(ax) if isinstance(ax, tuple) else ax!r}; "
+                              "allowed: a non-empty subset of [x, y, z] in that order (e.g. [x, y, z], [x, y])")
+        if len(ax) == 1:
+            raise ConfigError(f"parameter arm.task_axes: got {list(ax)}; allowed: 2 or 3 axes (the reachable "
+                              "set and the task space are 2-D or 3-D)")
+        if not all(isinstance(j, str) and j for j in self.joints) or len(set(self.joints)) != len(self.joints):
+            raise ConfigError(f"parameter arm.joints: got {list(self.joints)}; allowed: distinct joint names, "
+                              "or ['*'] for every hinge/slide joint that moves the effector")
+        for name, v in (("joint_limits.lower", self.joint_lower), ("joint_limits.upper", self.joint_upper),
+                        ("rest_posture", self.rest)):
+            if not all(_is_real(x) and math.isfinite(float(x)) for x in v):
+                raise ConfigError(f"parameter {'' if name == 'rest_posture' else 'arm.'}{name}: got {list(v)}; "
+                                  "allowed: finite numbers")
+        if len(self.joint_lower) != len(self.joint_upper):
+            raise ConfigError(f"parameters arm.joint_limits.lower/upper: got {len(self.joint_lower)} and "
+                              f"{len(self.joint_upper)} values; allowed: one per joint each")
+        bad = [i for i, (lo, hi) in enumerate(zip(self.joint_lower, self.joint_upper)) if not hi > lo]
+        if bad:
+            raise ConfigError(f"parameters arm.joint_limits.lower/upper: upper must be > lower, not so at "
+                              f"position(s) {bad}")
+        if not all(isinstance(p, str) for p in self.package_paths):
+            raise ConfigError(f"parameter arm.package_paths: got {list(self.package_paths)}; allowed: directories")
+        try:
+            ArmSpec(**{f: getattr(self, f) for f in SHARED_FIELDS}).validate()
+        except ValueError as exc:
+            raise ConfigError(str(exc).replace("ArmSpec.", "parameter arm.")) from exc
+
+    def validate(self) -> None:
+        """Fields, then the model (loaded once per process); ConfigError names the parameter."""
+        self.validate_fields()
+        self.loaded()
+
+    def loaded(self) -> "LoadedArm":
+        """The loaded model and everything derived from it (kept per process)."""
+        prefixes = tuple(p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p)
+        key = (self, prefixes)
+        arm = _LOADED.get(key)
+        if arm is None:
+            self.validate_fields()
+            arm = LoadedArm(self, prefixes)
+            if len(_LOADED) >= _CACHE_SIZE:
+                _LOADED.pop(next(iter(_LOADED)))
+            _LOADED[key] = arm
+            for note in arm.notices:
+                _said(note)
+        return arm
+
+    # ------------------------------------------------------------------ what callers need
+    @property
+    def task_dim(self) -> int:
+        return len(self.task_axes)
+
+    def joint_names(self) -> list[str]:
+        return list(self.loaded().joint_names)
+
+    def limits(self) -> tuple[np.ndarray, np.ndarray]:
+        arm = self.loaded()
+        return arm.lower.copy(), arm.upper.copy()
+
+    def rest_posture(self) -> np.ndarray:
+        return self.loaded().rest.copy()
+
+    def reach(self) -> float:
+        """The arm's reach in task units: the largest distance, on the task axes, from
+        :meth:`base_point` to the effector over the joint space within the limits, found by
+        :func:`farthest_reach` (a seeded search: deterministic; within ~1e-4 of the true maximum).
+        The planar arm's analogue is its total length."""
+        return self.loaded().reach
+
+    def base_point(self) -> np.ndarray:
+        """The arm's base in task coordinates: the point the first moving joint turns the arm
+        about (the center of :meth:`.model_kin.ChainFK.ball`; a UR5's shoulder, a planar arm's
+        base)."""
+        arm = self.loaded()
+        return arm.center[arm.axes].copy()
+
+
+_LOADED: dict[tuple, "LoadedArm"] = {}
+
+
+def _position_servo(m: mujoco.MjModel, a: int) -> bool:
+    """Whether actuator ``a`` is a MuJoCo position servo (what ``<position>`` compiles to)."""
+    kp = float(m.actuator_gainprm[a, 0])
+    return (int(m.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_FIXED)
+            and int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_AFFINE)
+            and kp > 0 and float(m.actuator_biasprm[a, 0]) == 0.0 and float(m.actuator_biasprm[a, 1]) == -kp
+            and float(m.actuator_gear[a, 0]) == 1.0)
+
+
+def farthest_reach(kin: ChainFK, lower: np.ndarray, upper: np.ndarray, base: np.ndarray,
+                   axes: np.ndarray, draws: int = 20_000, keep: int = 100, rounds: int = 30) -> float:
+    """The largest distance on ``axes`` from ``base`` to the effector found by a seeded search
+    over the joint box [lower, upper]: ``draws`` uniform postures, then ``rounds`` rounds of
+    Gaussian perturbations of the ``keep`` farthest so far (σ shrinking geometrically from 10% to
+    0.01% of each joint range), clipped to the limits. Deterministic (its own fixed seed); a lower
+    bound of the true maximum (the sum of the link lengths for a chain that can stretch out)."""
+    rng = np.random.default_rng(0x2EAC)
+    a = rng.uniform(lower, upper, size=(draws, len(lower)))
+
+    def dist(x: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(kin.positions(x)[:, axes] - base, axis=1)
+
+    d = dist(a)
+    for sigma in np.geomspace(0.1, 1e-4, rounds):
+        top = np.argsort(d)[-keep:]
+        a, d = a[top], d[top]
+        trial = np.clip(a + sigma * (upper - lower) * rng.standard_normal(a.shape), lower, upper)
+        dt = dist(trial)
+        a, d = np.concatenate((a, trial)), np.concatenate((d, dt))
+    return float(d.max())
+
+
+class LoadedArm:
+    """A model arm's compiled MuJoCo model and what is derived from it: commanded joints and their
+    addresses, limits, rest posture, effector, forward kinematics, bounding ball and reach, notices."""
+
+    def __init__(self, spec: ModelArmSpec, ament_prefixes: tuple[str, ...]):
+        path = spec.model
+        kinematic = spec.mode == "kinematic"
+        mjspec, dropped = load_spec(path, spec.package_paths, ament_prefixes, kinematic)
+        m = compile_spec(mjspec, path)
+        self.notices: list[str] = []
+        if dropped:
+            self.notices.append(
+                f"arm.model {path}: {len(dropped)} mesh file(s) not found, their geometry dropped (kinematic "
+                f"mode does not need it; dynamic mode would): {', '.join(dropped)}")
+        self.dropped = dropped
+        # ---- effector
+        body, local = self._effector(m, spec, path)
+        ancestors = set()
+        b = body
+        while b != 0:
+            ancestors.add(b)
+            b = int(m.body_parentid[b])
+        # ---- commanded joints
+        jids = self._joints(m, spec, path, ancestors)
+        names = [m.joint(j).name for j in jids]
+        n = len(jids)
+        self.joint_names = tuple(names)
+        self.jids = np.array(jids, dtype=np.int64)
+        self.qadr = np.array([m.jnt_qposadr[j] for j in jids], dtype=np.int64)
+        self.dofadr = np.array([m.jnt_dofadr[j] for j in jids], dtype=np.int64)
+        # ---- limits
+        limited = np.array([bool(m.jnt_limited[j]) for j in jids])
+        model_lo = np.array([m.jnt_range[j, 0] for j in jids], dtype=float)
+        model_hi = np.array([m.jnt_range[j, 1] for j in jids], dtype=float)
+        if spec.joint_lower:
+            if len(spec.joint_lower) != n:
+                raise ConfigError(f"parameters arm.joint_limits.lower/upper: got {len(spec.joint_lower)} values; "
+                                  f"allowed: {n}, one per commanded joint {names}")
+            lower, upper = np.array(spec.joint_lower, float), np.array(spec.joint_upper, float)
+            outside = [f"{names[i]} [{lower[i]:g}, {upper[i]:g}] vs [{model_lo[i]:g}, {model_hi[i]:g}]"
+                       for i in range(n) if limited[i] and (lower[i] < model_lo[i] or upper[i] > model_hi[i])]
+            if outside:
+                raise ConfigError("parameters arm.joint_limits.lower/upper: must lie within the model's joint "
+                                  f"ranges; not so for {', '.join(outside)}")
+        else:
+            free = [names[i] for i in range(n) if not limited[i]]
+            if free:
+                raise ConfigError(
+                    f"parameters arm.joint_limits.lower/upper: joint(s) {', '.join(free)} of {path} have no range; "
+                    f"give the limits of every commanded joint, in the order {names}")
+            lower, upper = model_lo, model_hi
+        self.lower, self.upper = lower, upper
+        # ---- rest posture (and the held joints' values)
+        key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY)
+        if key >= 0:
+            qpos_rest = m.key_qpos[key].copy()
+            rest = qpos_rest[self.qadr].copy()
+            source = f"keyframe '{HOME_KEY}' of {path}"
+            if spec.rest and tuple(float(x) for x in spec.rest) != tuple(rest.tolist()):
+                self.notices.append(f"rest_posture ignored: the keyframe '{HOME_KEY}' of {path} gives the "
+                                    "rest posture")
+        elif spec.rest:
+            if len(spec.rest) != n:
+                raise ConfigError(f"parameter rest_posture: got {len(spec.rest)} values; allowed: {n}, one "
+                                  f"per commanded joint {names}")
+            qpos_rest = m.qpos0.copy()
+            rest = np.array(spec.rest, dtype=float)
+            qpos_rest[self.qadr] = rest
+            source = "parameter rest_posture"
+        else:
+            raise ConfigError(f"parameter rest_posture: {path} has no keyframe named '{HOME_KEY}'; give the "
+                              f"rest posture once in the config's '/**' section (rest_posture: {n} values, for "
+                              f"{names}) or add a keyframe '{HOME_KEY}' to the model")
+        bad = [f"{names[i]}={rest[i]:g} outside [{lower[i]:g}, {upper[i]:g}]" for i in range(n)
+               if not lower[i] <= rest[i] <= upper[i]]
+        if bad:
+            raise ConfigError(f"rest posture from {source}: {', '.join(bad)}")
+        self.rest, self.qpos_rest = rest, qpos_rest
+        # ---- dynamic mode: a position servo per commanded joint
+        self.act = np.zeros(0, dtype=np.int64)
+        if not kinematic:
+            m = self._add_servos(mjspec, m, spec, path, names, lower, upper)
+            self.act = np.array([self._servo_of(m, j) for j in jids], dtype=np.int64)
+        self.model = m
+        ctrl = m.key_ctrl[key].copy() if key >= 0 else np.zeros(m.nu)
+        if key < 0:  # position servos of held joints hold their rest value
+            for a in range(m.nu):
+                if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and _position_servo(m, a):
+                    ctrl[a] = qpos_rest[m.jnt_qposadr[m.actuator_trnid[a, 0]]]
+        if not kinematic:
+            ctrl[self.act] = rest
+        self.ctrl_rest = ctrl
+        # ---- effector, kinematics, reach
+        self.body, self.local = body, local
+        self.site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, spec.effector)
+        self.axes = np.array([AXES.index(a) for a in spec.task_axes], dtype=np.int64)
+        self.kin = ChainFK(m, body, local, jids, qpos_rest, lower, upper)
+        center, radius = self.kin.ball()
+        self.center, self.bound = center, float(radius)
+        self.reach = farthest_reach(self.kin, lower, upper, center[self.axes], self.axes)
+        for arr in (self.lower, self.upper, self.rest, self.qpos_rest, self.ctrl_rest, self.center):
+            arr.flags.writeable = False
+
+    @staticmethod
+    def _effector(m: mujoco.MjModel, spec: ModelArmSpec, path: str) -> tuple[int, np.ndarray]:
+        """(body id, point in the body frame) of the effector: a site of that name, else a body."""
+        name = spec.effector
+        if name:
+            sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, name)
+            if sid >= 0:
+                return int(m.site_bodyid[sid]), m.site_pos[sid].copy()
+            bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+            if bid > 0:
+                return bid, np.zeros(3)
+        bodies = [m.body(i).name for i in range(1, m.nbody) if m.body(i).name]
+        sites = [m.site(i).name for i in range(m.nsite) if m.site(i).name]
+        raise ConfigError(f"parameter arm.effector: got {name!r}; allowed: a body/link or site of {path}: "
+                          f"sites {sites}, bodies {bodies}")
+
+    @staticmethod
+    def _joints(m: mujoco.MjModel, spec: ModelArmSpec, path: str, ancestors: set[int]) -> list[int]:
+        """The commanded joint ids (see the module docstring)."""
+        movable = [j for j in range(m.njnt) if int(m.jnt_type[j]) in (HINGE, SLIDE)]
+        moving = [j for j in movable if int(m.jnt_bodyid[j]) in ancestors]
+        if not spec.joints:
+            unnamed = [j for j in moving if not m.joint(j).name]
+            if unnamed:
+                raise ConfigError(f"parameter arm.model: joint(s) number {unnamed} of {path} have no name; "
+                                  "every commanded joint needs one (joint states map joints by name)")
+            if not moving:
+                raise ConfigError(f"parameter arm.effector: no hinge or slide joint of {path} moves "
+                                  f"{spec.effector!r}")
+            return moving
+        out = []
+        for name in spec.joints:
+            j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if j < 0 or j not in movable:
+                raise ConfigError(f"parameter arm.joints: {name!r} is not a hinge or slide joint of {path}; "
+                                  f"allowed: {[m.joint(k).name for k in movable]}")
+            if j not in moving:
+                raise ConfigError(f"parameter arm.joints: joint {name!r} does not move the effector "
+                                  f"{spec.effector!r}; allowed: {[m.joint(k).name for k in moving]}")
+            out.append(j)
+        return out
+
+    @staticmethod
+    def _servo_of(m: mujoco.MjModel, j: int) -> int:
+        acts = [a for a in range(m.nu)
+                if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and int(m.actuator_trnid[a, 0]) == j]
+        return acts[0] if acts else -1
+
+    def _add_servos(self, mjspec: mujoco.MjSpec, m: mujoco.MjModel, spec: ModelArmSpec, path: str,
+                    names: list[str], lower: np.ndarray, upper: np.ndarray) -> mujoco.MjModel:
+        """Dynamic mode: keep the model's position servos of commanded joints, add one (gain
+        arm.kp; the joint's damping arm.damping and armature arm.armature) where there is none;
+        physics step arm.timestep, gravity and contacts off, implicitfast integrator."""
+        for i, j in enumerate(self.jids):
+            acts = [a for a in range(m.nu) if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
+                    and int(m.actuator_trnid[a, 0]) == int(j)]
+            if len(acts) > 1 or (acts and not _position_servo(m, acts[0])):
+                raise ConfigError(
+                    f"parameter arm.mode: 'dynamic' drives joint {names[i]!r} of {path} with a position servo, but "
+                    f"the model gives it actuator(s) {[m.actuator(a).name for a in acts]} that are not exactly one "
+                    "position actuator; remove them or use arm.mode 'kinematic'")
+            if acts:
+                continue
+            act = mjspec.add_actuator(name=f"sagg_position_{names[i]}", target=names[i],
+                                      trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            act.set_to_position(kp=float(spec.kp))
+            act.ctrlrange = [float(lower[i]), float(upper[i])]
+            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            joint = mjspec.joint(names[i])
+            joint.damping = [float(spec.damping), 0.0, 0.0]
+            joint.armature = float(spec.armature)
+        mjspec.option.timestep = float(spec.timestep)
+        mjspec.option.gravity = [0.0, 0.0, 0.0]
+        mjspec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        mjspec.option.integrator = int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
+        return compile_spec(mjspec, path)
+
+
+class ModelArmSim(ArmSim):
+    """A model arm speaking :class:`~.arm.ArmSim`'s protocol (inherits its motor-noise blocks,
+    ``reseed`` and ``get_state``/``set_state``: the same noise stream and checkpoint format).
+
+    ``command`` realises clip(α + Δ·(1 + motor_noise·N(0,1)), limits) on the commanded joints
+    exactly as the planar arm; ``observe``/``command`` return the commanded joints' values (in
+    ``joint_names`` order) and the effector's world position on the task axes. The MjModel is
+    shared by every simulator of the spec (read-only); each has its own MjData."""
+
+    def __init__(self, spec: ModelArmSpec, seed: int):
+        # (ArmSim.__init__ is not called: it generates the planar model; the attributes its
+        # inherited methods use are set here)
+        if not isinstance(spec, ModelArmSpec):
+            raise ValueError(f"ModelArmSim.spec must be a ModelArmSpec, got {type(spec).__name__}")
+        if not _is_int(seed) or int(seed) < 0:
+            raise ValueError(f"ModelArmSim.seed must be an integer >= 0, got {seed!r}")
+        arm = spec.loaded()
+        self.spec = spec
+        self.seed = int(seed)
+        self.arm = arm
+        self.n_joints = len(arm.joint_names)
+        self.joint_names = list(arm.joint_names)
+        self.lower, self.upper, self.rest = arm.lower, arm.upper, arm.rest  # read-only arrays
+        self.task_dim = len(arm.axes)
+        self.rng = np.random.default_rng(self.seed)
+        self.model = arm.model
+        self.data = mujoco.MjData(self.model)
+        self._dynamic = spec.mode == "dynamic"
+        self._noise = float(spec.motor_noise)
+        self._qpos = self.data.qpos
+        self._qvel = self.data.qvel
+        self._ctrl = self.data.ctrl
+        q = arm.qadr
+        contiguous = bool(np.all(np.diff(q) == 1)) if len(q) > 1 else True
+        self._qsel = slice(int(q[0]), int(q[0]) + len(q)) if contiguous else q.copy()
+        self._dsel = arm.dofadr.copy()
+        self._csel = arm.act.copy()
+        self._eff = self.data.site_xpos[arm.site] if arm.site >= 0 else self.data.xpos[arm.body]
+        self._axes = slice(0, 3) if arm.axes.tolist() == [0, 1, 2] else arm.axes.copy()
+        self._shape = (self.n_joints,)
+        self._buf = np.empty(self.n_joints)
+        self._cbuf = np.empty(self.n_joints)
+        self._nbuf = np.empty(self.n_joints)
+        self._nblock: np.ndarray | None = None
+        self._nidx = NOISE_BLOCK
+        self._block_state: dict | None = None
+        self._tol = float(spec.settle_tolerance)
+        self._vtol = float(spec.settle_velocity)
+        self._max_steps = int(spec.max_settle_steps)
+        self._every = int(spec.settle_check_every)
+        self.last_settle_steps = 0
+        self.last_settled = True
+        self._scratch: mujoco.MjData | None = None  # fk_mujoco's own data
+        self.reset()
+
+    # ------------------------------------------------------------------ protocol
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        """Teleport to the rest posture (held joints at theirs) with zero velocity; no RNG draw."""
+        mujoco.mj_resetData(self.model, self.data)
+        self._qpos[:] = self.arm.qpos_rest
+        self._ctrl[:] = self.arm.ctrl_rest
+        mujoco.mj_kinematics(self.model, self.data)
+        self.last_settle_steps, self.last_settled = 0, True
+        return self.observe()
+
+    def command(self, alpha_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One micro-action toward ``alpha_target`` (absolute joint values of the commanded joints):
+        the planar arm's :meth:`~.arm.ArmSim.command` (noise on the displacement, clipped to the
+        limits; kinematic: qpos; dynamic: the servos' ctrl, then settle). Returns (α, y), fresh."""
+        t = alpha_target if type(alpha_target) is np.ndarray else np.asarray(alpha_target, dtype=float)
+        if t.shape != self._shape:
+            raise ValueError(f"alpha_target must have shape ({self.n_joints},), got {np.shape(alpha_target)}")
+        if not all_finite(t):
+            raise ValueError("alpha_target must be finite (no NaN/inf)")
+        q = self._qpos[self._qsel]
+        if self._noise > 0.0:
+            if self._nidx >= NOISE_BLOCK:
+                self._draw_noise_block()
+            buf = self._buf
+            np.subtract(t, q, out=buf)
+            buf *= self._nblock[self._nidx]
+            self._nidx += 1
+            buf += q
+            t = buf
+        c = self._cbuf
+        np.maximum(t, self.lower, out=c)
+        np.minimum(c, self.upper, out=c)
+        if self._dynamic:
+            self._ctrl[self._csel] = c
+            self._settle()
+        else:
+            self._qpos[self._qsel] = c
+            mujoco.mj_kinematics(self.model, self.data)
+        return self.observe()
+
+    def _settle(self) -> None:
+        """:meth:`ArmSim._settle` on the commanded joints: step until ||qvel|| < settle_velocity
+        (every dof) and ||q - ctrl|| < settle_tolerance, at most max_settle_steps steps."""
+        m, d = self.model, self.data
+        qvel, ctrl, qpos = self._qvel, self._ctrl, self._qpos
+        every, tol2, vtol2 = self._every, self._tol * self._tol, self._vtol * self._vtol
+        steps, settled, max_steps = 0, False, self._max_steps
+        while steps < max_steps:
+            k = every if steps + every <= max_steps else max_steps - steps
+            mujoco.mj_step(m, d, nstep=k)
+            steps += k
+            if qvel.dot(qvel) < vtol2:
+                diff = qpos[self._qsel] - ctrl[self._csel]
+                if diff.dot(diff) < tol2:
+                    settled = True
+                    break
+        mujoco.mj_kinematics(m, d)  # after mj_step the positions belong to the state before the last step
+        self.last_settle_steps, self.last_settled = steps, settled
+
+    def observe(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._qpos[self._qsel].copy(), self._eff[self._axes].copy()
+
+    def joint_velocities(self) -> np.ndarray:
+        """The commanded joints' velocities (dynamic mode; zeros in kinematic mode)."""
+        return self._qvel[self._dsel].copy()
+
+    def tip_positions(self, alphas: np.ndarray) -> np.ndarray:
+        """Effector positions on the task axes of postures of the commanded joints (the others at
+        rest): (N, n) -> (N, task_dim) through the vectorised :class:`.model_kin.ChainFK` (0.4 µs
+        per posture), or (n,) -> (task_dim,) through ``mj_kinematics`` (:meth:`fk_mujoco`: a few µs,
+        where numpy's per-call overhead would cost ~200 µs). The two agree to ~1e-15."""
+        a = np.asarray(alphas, dtype=float)
+        single = a.ndim == 1
+        a2 = a[None, :] if single else a
+        if a2.ndim != 2 or a2.shape[1] != self.n_joints:
+            raise ValueError(f"alphas must have shape (N, {self.n_joints}) or ({self.n_joints},), got {a.shape}")
+        if single:
+            return self.fk_mujoco(a2)[0]
+        return self.arm.kin.positions(a2)[:, self.arm.axes]
+
+    def fk_mujoco(self, alphas: np.ndarray) -> np.ndarray:
+        """Effector positions on the task axes of (N, n) postures through ``mj_kinematics``, row by
+        row on a scratch MjData (the simulator's own state is left alone): the reference."""
+        a = np.asarray(alphas, dtype=float)
+        if a.ndim != 2 or a.shape[1] != self.n_joints:
+            raise ValueError(f"alphas must have shape (N, {self.n_joints}), got {a.shape}")
+        if self._scratch is None:
+            self._scratch = mujoco.MjData(self.model)
+            self._scratch.qpos[:] = self.arm.qpos_rest
+        d = self._scratch
+        eff = d.site_xpos[self.arm.site] if self.arm.site >= 0 else d.xpos[self.arm.body]
+        out = np.empty((a.shape[0], len(self.arm.axes)))
+        qsel, axes, model = self._qsel, self.arm.axes, self.model
+        for i in range(a.shape[0]):
+            d.qpos[qsel] = a[i]
+            mujoco.mj_kinematics(model, d)
+            out[i] = eff[axes]
+        return out
+
+
+# ---------------------------------------------------------------------- reachable set, test goals
+def model_reachable_area(spec: ModelArmSpec, lower, upper, resolution: float | None = None,
+                         samples: int | None = None, seed: int = 0, refine_rounds: int = 7,
+                         batch: int = 100_000, flatten_power: float = 2.0) -> ReachableArea:
+    """Occupancy grid (2-D or 3-D, one dimension per task axis) of the effector positions the
+    model arm reaches inside the box [lower, upper].
+
+    Method (the planar arm's, :func:`.arm.occupancy_grid`): ``samples`` joint configurations
+    through the model's own forward kinematics, the first round uniform within the joint limits,
+    ``refine_rounds`` more re-drawing configurations of rarely hit cells and perturbing them.
+    Defaults: resolution = reach/100 per side in 2-D, reach/25 in 3-D (:meth:`ModelArmSpec.reach`); samples 400k (2-D), 2M
+    (3-D). Seeded by ``seed``; every marked cell was reached (the estimate can only miss cells)."""
+    spec.validate()
+    arm = spec.loaded()
+    d = len(arm.axes)
+    lo, hi = check_bounds(lower, upper, d)
+    if resolution is None:
+        resolution = arm.reach / CELLS_PER_REACH[d]
+    if samples is None:
+        samples = DEFAULT_SAMPLES[d]
+    jlo, jhi = arm.lower, arm.upper
+    n = len(jlo)
+    axes = arm.axes
+    kin = arm.kin
+    radius = arm.bound * (1 + 1e-9) + 1e-12  # the ball holds every position; float slack
+    return occupancy_grid(lo, hi, resolution, arm.center[axes], radius, jlo, jhi,
+                          lambda k, rng: rng.uniform(jlo, jhi, size=(k, n)),
+                          lambda a: kin.positions(a)[:, axes], None, samples, seed, refine_rounds, batch,
+                          flatten_power)
+
+
+def model_test_goals(spec: ModelArmSpec, lower, upper, n: int = 100, seed: int = 0,
+                     area: ReachableArea | None = None) -> np.ndarray:
+    """The planar rule (:func:`.arm.test_goals`) for a model arm: n reached effector positions in
+    reachable cells drawn uniformly (distinct cells when there are enough), seeded by ``seed`` (the
+    reachable set too, unless ``area`` is given)."""
+    if not _is_int(n) or n < 1:
+        raise ValueError(f"n must be an integer >= 1, got {n!r}")
+    if not _is_int(seed) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    lo, hi = check_bounds(lower, upper, spec.task_dim)
+    if area is None:
+        area = model_reachable_area(spec, lo, hi, seed=seed)
+    return goals_in_area(area, n, seed)
