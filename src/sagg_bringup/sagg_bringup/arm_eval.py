@@ -19,7 +19,8 @@ import numpy as np
 
 from sagg_common.rng import substream_seed
 from sagg_low_level.evaluate import evaluate_batch, evaluate_per_goal
-from sagg_sim_bridge.arm import ArmSim, ArmSpec
+from sagg_sim_bridge.arm import ArmSim
+from sagg_sim_bridge.arms import make_arm_sim
 
 _POOLS: dict[str, list[ArmSim]] = {}
 
@@ -29,7 +30,7 @@ def goal_noise_seed(seed: int, i: int) -> int:
     return substream_seed(seed, f"eval_sim/{i}")
 
 
-def eval_arms(spec: ArmSpec, seed: int, n: int) -> list[ArmSim]:
+def eval_arms(spec, seed: int, n: int) -> list[ArmSim]:
     """``n`` evaluation arms of ``spec``, arm i with the noise stream of test goal i of run ``seed``
     (reused across calls in this process; each reach starts with ``reset``)."""
     key = repr(spec)
@@ -39,7 +40,7 @@ def eval_arms(spec: ArmSpec, seed: int, n: int) -> list[ArmSim]:
             _POOLS.pop(next(iter(_POOLS)))
         pool = _POOLS[key] = []
     while len(pool) < n:
-        pool.append(ArmSim(spec, seed=0))
+        pool.append(make_arm_sim(spec, seed=0))
     arms = pool[:n]
     if spec.motor_noise > 0:
         for i, arm in enumerate(arms):
@@ -47,7 +48,7 @@ def eval_arms(spec: ArmSpec, seed: int, n: int) -> list[ArmSim]:
     return arms
 
 
-def evaluate_arm(learner, spec: ArmSpec, seed: int, goals: np.ndarray, batched: bool = True) -> np.ndarray:
+def evaluate_arm(learner, spec, seed: int, goals: np.ndarray, batched: bool = True) -> np.ndarray:
     """Final distances of the frozen model on ``goals`` (one evaluation arm per goal; batched or,
     for comparison, goal by goal: the same floats)."""
     goals = np.asarray(goals, dtype=float)

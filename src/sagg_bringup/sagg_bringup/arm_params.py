@@ -12,6 +12,8 @@ from sagg_goal_generator.schema import SCHEMA as GEN_NODE
 from sagg_low_level.learner import SCHEMA as LEARNER_CORE
 from sagg_low_level.schema import LEARNER_SCHEMA as LEARNER_NODE
 
+from .arm_config import finish_arm_config
+
 # node section -> (package, console script)
 NODES = {
     "sagg_sim_bridge": ("sagg_sim_bridge", "mujoco_bridge"),
@@ -34,15 +36,13 @@ def core_schemas() -> dict[str, tuple]:
     return {"sagg_goal_generator": GEN_CORE, "sagg_learner": LEARNER_CORE, "sagg_sim_bridge": BRIDGE_CORE}
 
 
-def resolve_arm(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[dict[str, dict], ArmSpec]:
+def resolve_arm(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[dict[str, dict], Any]:
     """Resolved parameters of the three nodes (full schemas): defaults < ``/**`` < node section <
     overrides, and the simulated arm they describe (the one :func:`arm_spec_from_params` of a run:
     it validates the arm, naming the bad parameter). Same checks as the in-process loader; an
     override no node declares is an error."""
-    # lazy (heavy): mujoco
-    from sagg_sim_bridge.params import arm_spec_from_params
     out = resolve_nodes(path, node_schemas(), overrides)
-    return out, arm_spec_from_params(out["sagg_sim_bridge"])
+    return out, finish_arm_config(out, path, overrides)
 
 
 def load_graph_config(path: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
@@ -56,11 +56,11 @@ def core_config(full: dict[str, dict]) -> dict[str, dict]:
 
 
 def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str,
-                 spec: ArmSpec | None = None) -> dict[str, dict]:
+                 spec=None) -> dict[str, dict]:
     """The parameters the nodes get: the resolved config plus what ``sagg run`` fills in; ``spec``:
     the arm of ``full`` when the caller has it (:func:`resolve_arm`)."""
     # lazy (heavy): mujoco
-    from sagg_sim_bridge.params import arm_spec_from_params
+    from sagg_sim_bridge.arms import arm_spec_from_params
     params = {name: dict(values) for name, values in full.items()}
     spec = spec if spec is not None else arm_spec_from_params(full["sagg_sim_bridge"])
     lower, upper = spec.limits()

@@ -41,7 +41,8 @@ from sagg_common.report_kinds import KIND_NAMES
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.learner import SCHEMA as LEARNER_SCHEMA
-from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
+from sagg_sim_bridge.arms import arm_base_point, arm_spec_from_params
+from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
 
 from .bag_reader import bag_messages, open_bag
 from .bag_recover import is_unfinished, recover_bag
@@ -406,7 +407,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     curve = []
     if evaluate and len(mem):
         errors = evaluate_frozen(learner, spec, lp, test_goals)
-        frame = metric_frame(test_goals, np.zeros(test_goals.shape[1]))  # the arm's base (eval_metrics)
+        frame = metric_frame(test_goals, arm_base_point(spec))  # bands from the arm's base (eval_metrics)
         curve.append({"micro_actions": len(mem), **error_metrics(errors, frame)})
     summary = {
         "format": "sagg.relearn/1", "bags": [str(p) for p in paths], "recovered": recovered,

@@ -25,17 +25,17 @@ from sagg_low_level.memory import SampleMemory
 EVAL_NICE = 5
 
 
-def evaluation_setup(learner_params: dict, spec: ArmSpec):
+def evaluation_setup(learner_params: dict, spec):
     """``(area, test_goals, learner)`` of a run's evaluation on the arm ``spec``, as
     ``run_experiment`` computes them (``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``); the
     learner (empty memory) is built exactly as the learner node builds its own (same neighbour
     search). Used by ``sagg run``'s evaluator and by ``sagg relearn``."""
     # lazy (heavy): mujoco
-    from sagg_sim_bridge.arm import reachable_area, test_goals
+    from sagg_sim_bridge.arms import arm_reachable_area, arm_test_goals
     lp = learner_params
-    area = reachable_area(spec, lp["task_space.lower"], lp["task_space.upper"], seed=lp["eval.seed"])
-    goals = test_goals(spec, lp["task_space.lower"], lp["task_space.upper"], n=lp["eval.goals"],
-                       seed=lp["eval.seed"], area=area)
+    area = arm_reachable_area(spec, lp["task_space.lower"], lp["task_space.upper"], seed=lp["eval.seed"])
+    goals = arm_test_goals(spec, lp["task_space.lower"], lp["task_space.upper"], n=lp["eval.goals"],
+                           seed=lp["eval.seed"], area=area)
     lower, upper = spec.limits()
     robot = Robot(spec.joint_names(), lower, upper, spec.rest_posture())
     learner = EvolvingContextLearner(lp, robot, len(lp["task_space.lower"]))
@@ -49,7 +49,7 @@ def evaluate_frozen(learner, spec, learner_params: dict, goals: np.ndarray) -> n
     return evaluate_arm(learner, spec, learner_params["seed"], goals)
 
 
-def _eval_worker(inbox, outbox, learner_params: dict, spec: ArmSpec, checkpoints: list[int],
+def _eval_worker(inbox, outbox, learner_params: dict, spec, checkpoints: list[int],
                  nice: int) -> None:
     """Evaluation process: computes the reachable area and the test goals (as ``run_experiment``
     does: ``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``), then rebuilds the memory from the
@@ -95,13 +95,16 @@ class Evaluator:
     up) at a lower CPU priority than the graph. Samples from /sagg/sample are checked for order,
     batched and shipped to it; results come back through :meth:`poll`."""
 
-    def __init__(self, learner_params: dict, spec: ArmSpec, checkpoints: list[int],
+    def __init__(self, learner_params: dict, spec, checkpoints: list[int],
                  nice: int = EVAL_NICE):
         ctx = multiprocessing.get_context("spawn")  # never fork a process that runs DDS threads
         self.inbox, self.outbox = ctx.Queue(), ctx.Queue()
         self.proc = ctx.Process(target=_eval_worker, name="sagg-evaluator", daemon=True,
                                 args=(self.inbox, self.outbox, learner_params, spec,
                                       list(checkpoints), nice))
+        # lazy (heavy): mujoco
+        from sagg_sim_bridge.arms import arm_base_point
+        self.base = arm_base_point(spec)  # the arm's base (distance bands of the metrics)
         self.area = None  # the ReachableArea of Y, once the worker has computed it
         self.test_goals: np.ndarray | None = None
         self._frame: dict | None = None  # eval_metrics.metric_frame of the test goals, with them
@@ -156,9 +159,9 @@ class Evaluator:
                 from sagg_sim_bridge.arm import ReachableArea
                 self.area = ReachableArea(*item[1:6])
                 self.test_goals = item[6]
-                # the evaluation's metrics (eval_metrics, as in-process; base at the origin), also
-                # for points evaluated before (a resumed run's, from its bags)
-                self._frame = metric_frame(self.test_goals, np.zeros(np.asarray(self.test_goals).shape[1]))
+                # the evaluation's metrics (eval_metrics, as in-process; bands from the arm's base),
+                # also for points evaluated before (a resumed run's, from its bags)
+                self._frame = metric_frame(self.test_goals, self.base)
                 for c in self.curve:
                     c.update(error_metrics(self.errors[c["micro_actions"]], self._frame))
                 continue

@@ -19,9 +19,11 @@ from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import frame_summary, metric_frame
 from sagg_low_level.learner import (SCHEMA as LEARNER_SCHEMA, Command, EvolvingContextLearner,
                                     GoalRequest, Observe, Robot)
-from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
-from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
+from sagg_sim_bridge.arms import (arm_base_point, arm_reachable_area, arm_spec_from_params, arm_test_goals,
+                                  make_arm_sim)
+from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
 
+from .arm_config import finish_arm_config
 from .arm_eval import evaluate_arm
 from .phases import PhaseCounter, coverage
 from .results import learning_curve, result_dict, run_overrides, write_result
@@ -31,7 +33,7 @@ def load_arm_config(path: str | Path, overrides: dict[str, Any] | None = None) -
     """Resolve the three nodes' parameters from an arm config file (+ overrides applied to every node)."""
     out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": LEARNER_SCHEMA,
                                "sagg_sim_bridge": BRIDGE_SCHEMA}, overrides)
-    arm_spec_from_params(out["sagg_sim_bridge"])  # validates the arm, naming the bad parameter
+    finish_arm_config(out, path, overrides)  # validates the arm, naming the bad parameter
     return out
 
 
@@ -43,7 +45,7 @@ class InProcessRun:
         gp, lp, bp = config["sagg_goal_generator"], config["sagg_learner"], config["sagg_sim_bridge"]
         self.seed = lp["seed"]
         self.spec = arm_spec_from_params(bp)
-        self.sim = ArmSim(self.spec, seed=substream_seed(self.seed, "sim"))
+        self.sim = make_arm_sim(self.spec, seed=substream_seed(self.seed, "sim"))
         robot = Robot(list(self.sim.joint_names), self.sim.lower, self.sim.upper, self.sim.rest)
         self.generator = GoalGenerator(gp)
         self.learner = EvolvingContextLearner(lp, robot, self.sim.task_dim)
@@ -97,10 +99,10 @@ def run_arm_experiment(config_path: str | Path, strategy: str | None, seed: int 
     lower = np.asarray(lp["task_space.lower"])
     upper = np.asarray(lp["task_space.upper"])
     area = cached_reachable_area(run.spec, lower, upper, lp["eval.seed"])
-    goals = test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
+    goals = arm_test_goals(run.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
 
     bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']}", enabled=progress)
-    frame = metric_frame(goals, np.zeros(goals.shape[1]))  # the arm's base is the origin
+    frame = metric_frame(goals, arm_base_point(run.spec))  # distance bands from the arm's base
     curve, eval_seconds, errors = learning_curve(run, goals, micro_actions, eval_every, bar, frame)
 
     result = build_result(run, curve, area, micro_actions, eval_seconds)
@@ -124,7 +126,7 @@ def cached_reachable_area(spec, lower, upper, seed: int):
     if key not in _AREAS:
         if len(_AREAS) >= 4:
             _AREAS.pop(next(iter(_AREAS)))
-        _AREAS[key] = reachable_area(spec, lower, upper, seed=seed)
+        _AREAS[key] = arm_reachable_area(spec, lower, upper, seed=seed)
     return _AREAS[key]
 
 

@@ -100,7 +100,7 @@ def sim_model_matches(learner_params: dict, spec) -> bool:
     joints its own way); link lengths cannot be checked here, the config states them."""
     lower, upper = spec.limits()
     lp = learner_params
-    if len(lp["joints"]) != spec.dof:
+    if len(lp["joints"]) != len(spec.joint_names()):
         return False
     return all(np.allclose(np.asarray(lp[k], float), v, rtol=0.0, atol=1e-9) for k, v in (
         ("joint_limits.lower", lower), ("joint_limits.upper", upper), ("rest_posture", spec.rest_posture())))
@@ -382,8 +382,10 @@ class RobotEvaluation:
     mean error per distance-from-base band; the errors of every goal) and the initial error (the empty model does not move the
     arm: the distance from the measured rest tip to each goal)."""
 
-    def __init__(self, learner_params: dict, robot: ContractRobot, n_goals: int, every: int, goals=None):
+    def __init__(self, learner_params: dict, robot: ContractRobot, n_goals: int, every: int, goals=None,
+                 base=None):
         self.lp, self.robot, self.n_goals, self.every = learner_params, robot, n_goals, every
+        self.base = base  # the arm's base in Y (the metric bands; None: the origin)
         self.goals = None if goals is None else np.asarray(goals, float)
         self.goal_source = "the simulated model's test goals" if goals is not None else None
         self.curve: list[dict] = []
@@ -424,14 +426,14 @@ class RobotEvaluation:
         errors = np.array(errors)
         if self.initial_errors is None:
             self.initial_errors = np.array(rest)
-        # the evaluation's metrics (sagg_low_level.eval_metrics; base at the arm's base, the origin)
+        # the evaluation's metrics (sagg_low_level.eval_metrics; bands from the arm's base)
         self.curve.append({"micro_actions": int(at), **error_metrics(errors, self.frame()),
                            "errors": errors.tolist()})
         return errors
 
     def frame(self) -> dict:
         """The metric frame of the test goals (R, tolerance, distance bands; eval_metrics)."""
-        return metric_frame(self.goals, np.zeros(self.goals.shape[1]))
+        return metric_frame(self.goals, np.zeros(self.goals.shape[1]) if self.base is None else self.base)
 
     def summary(self) -> dict:
         init = self.initial_errors
@@ -494,7 +496,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                        driver_timeout: float = 120.0) -> dict:
     """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
     # lazy (heavy): mujoco
-    from sagg_sim_bridge.arm import reachable_area, test_goals
+    from sagg_sim_bridge.arms import arm_base_point, arm_reachable_area, arm_test_goals
 
     if robot_eval_goals < 1 or robot_eval_every < 0:
         raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every}; "
@@ -568,9 +570,10 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         robot = ContractRobot(session, monitor, lp)
         sim_goals = None
         if simulated:
-            area0 = reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
-            sim_goals = test_goals(spec, t_lower, t_upper, n=robot_eval_goals, seed=lp["eval.seed"], area=area0)
-        robot_eval = RobotEvaluation(lp, robot, robot_eval_goals, robot_eval_every, sim_goals)
+            area0 = arm_reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
+            sim_goals = arm_test_goals(spec, t_lower, t_upper, n=robot_eval_goals, seed=lp["eval.seed"], area=area0)
+        robot_eval = RobotEvaluation(lp, robot, robot_eval_goals, robot_eval_every, sim_goals,
+                                     arm_base_point(spec) if simulated else None)
         pauser = Pauser(session, monitor, lp["settle_timeout"] + 0.5)
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, external driver)", enabled=progress)
         timing: dict[str, float] = {}
@@ -649,7 +652,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         robot_curve.insert(0, {"micro_actions": 0, "mean_error": float(e.mean()), "median_error": float(np.median(e))})
     area = None
     if simulated:
-        area = evaluator.area or reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
+        area = evaluator.area or arm_reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
     bag_topics = session.bag.topics()
     rec = session.recorder
     span = {t: (rec.last_ns[t] - rec.first_ns[t]) / 1e9 for t in rec.first_ns}

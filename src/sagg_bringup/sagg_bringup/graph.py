@@ -39,7 +39,7 @@ from sagg_common.params import ConfigError
 from sagg_common.progress import Progress
 from sagg_msgs.msg import Evaluation
 
-from sagg_sim_bridge.arm import reachable_area
+from sagg_sim_bridge.arms import arm_reachable_area
 
 from .arm_params import NODES, TIMINGS, core_config, graph_params, resolve_arm
 from .bag_reader import bag_messages
@@ -212,7 +212,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
 
     # ---- summary
     curve = sorted(evaluator.curve, key=lambda c: c["micro_actions"])
-    area = evaluator.area or reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
+    area = evaluator.area or arm_reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
     memory = evaluator.memory()
     bag_topics = session.bag.topics()
     recorder = session.recorder

@@ -186,6 +186,8 @@ class MarkerView:
         """Keep a task point when it is at least :data:`PATH_STEP` × the task space's extent from the
         last kept one (a driver at 250 Hz would otherwise fill the path with one pose)."""
         p = (m.point.x, m.point.y, m.point.z)[:self.dims]
+        if self.path and len(self.path[-1]) != len(p):
+            self.path.clear()  # (the task space's dimensions learned from the first region tree)
         if self.path and math.dist(p, self.path[-1]) < PATH_STEP * (self.scale or 100.0):
             return
         self.path.append(p)

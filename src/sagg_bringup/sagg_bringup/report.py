@@ -43,12 +43,11 @@ def reachable_mask(result: dict):
     when the config has no simulated arm (e.g. a real-arm run)."""
     try:
         # lazy (heavy): mujoco
-        from sagg_sim_bridge.arm import reachable_area
-        from sagg_sim_bridge.params import arm_spec_from_params
+        from sagg_sim_bridge.arms import arm_reachable_area, arm_spec_from_params
         lower, upper = _task_box(result)
         spec = arm_spec_from_params(result["config"]["sagg_sim_bridge"])
         seed = int(result["config"]["sagg_learner"].get("eval.seed", 0))
-        return reachable_area(spec, lower, upper, seed=seed)
+        return arm_reachable_area(spec, lower, upper, seed=seed)
     except Exception:  # noqa: BLE001 - a figure overlay, never worth failing the report for
         return None
 

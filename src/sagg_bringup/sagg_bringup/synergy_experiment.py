@@ -30,12 +30,14 @@ from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
 from sagg_low_level.learner import SCHEMA as EVOLVING_SCHEMA
 from sagg_low_level.outcome_set import reachable_outcomes
 from sagg_low_level.schema import SYNERGY_LEARNER_SCHEMA as LEARNER_SCHEMA
-from sagg_sim_bridge.arm import reachable_area, test_goals, ArmSim
-from sagg_sim_bridge.params import arm_spec_from_params, SCHEMA as ARM_SCHEMA
+from sagg_sim_bridge.arms import (arm_base_point, arm_reach, arm_reachable_area, arm_spec_from_params,
+                                  arm_test_goals, make_arm_sim)
+from sagg_sim_bridge.params import SCHEMA as ARM_SCHEMA
 from sagg_sim_bridge.schema import SYNERGY_BRIDGE_SCHEMA as SYN_BRIDGE_SCHEMA
 from sagg_sim_bridge.synergy_params import make_sim
 
 from .phases import PhaseCounter, coverage
+from .arm_config import absolute_model_paths
 from .results import learning_curve, result_dict, run_overrides, write_result
 
 ARM_FIXED = "arm-fixed"  # the set-up name of the arm in the fixed context (context: fixed)
@@ -180,6 +182,7 @@ class ArmPostureSetup:
         out = resolve_nodes(path, {"sagg_goal_generator": GEN_SCHEMA, "sagg_learner": fixed + tolerated,
                                    "sagg_sim_bridge": bridge_schema or ARM_SCHEMA}, overrides)
         lp = out["sagg_learner"] = {k: v for k, v in out["sagg_learner"].items() if k in names}
+        absolute_model_paths(out["sagg_sim_bridge"], Path(path).resolve().parent)
         spec = arm_spec_from_params(out["sagg_sim_bridge"])
         lower, upper = spec.limits()
         lp.update({"joints": spec.joint_names(), "joint_limits.lower": lower.tolist(),
@@ -188,7 +191,7 @@ class ArmPostureSetup:
         # the exploration noise per arm length (Param explore_length), unless the config or an
         # override gives explore_length (0 included: the competence's units)
         if not is_given(read_config(path), "sagg_learner", "explore_length", overrides):
-            lp["explore_length"] = float(spec.total_length)
+            lp["explore_length"] = arm_reach(spec)
         return out
 
     def __init__(self, config: dict[str, dict]):
@@ -196,7 +199,7 @@ class ArmPostureSetup:
         self.config = config
         self.spec = arm_spec_from_params(bp)
         self.seed = lp["seed"]
-        self.sim = ArmSim(self.spec, seed=substream_seed(self.seed, "sim"))
+        self.sim = make_arm_sim(self.spec, seed=substream_seed(self.seed, "sim"))
         self.synergy = synergy_from_params(lp)
         if self.synergy.joint_names != list(self.sim.joint_names):
             raise ConfigError(f"parameter 'joints': got {self.synergy.joint_names}; allowed: the arm's "
@@ -204,20 +207,20 @@ class ArmPostureSetup:
         self.rest = self.sim.rest.copy()
         self.task_dim = self.sim.task_dim
         self.rest_outcome = self.sim.command(self.rest)[1]  # the node's Observe: a rest command
-        self.metric_base = np.zeros(self.task_dim)  # the arm's base, as the evolving arm's evaluation
+        self.metric_base = arm_base_point(self.spec)  # the arm's base, as the evolving arm's evaluation
 
     def execute(self, theta):
         return posture_outcome(self.sim, self.rest, self.synergy.command(theta))
 
     def evaluator(self):
-        sim = ArmSim(self.spec, seed=substream_seed(self.seed, "eval_sim"))
+        sim = make_arm_sim(self.spec, seed=substream_seed(self.seed, "eval_sim"))
         return lambda theta: posture_outcome(sim, self.rest, self.synergy.command(theta))
 
     def test_goals(self):
         lp = self.config["sagg_learner"]
         lower, upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
-        area = reachable_area(self.spec, lower, upper, seed=lp["eval.seed"])
-        goals = test_goals(self.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
+        area = arm_reachable_area(self.spec, lower, upper, seed=lp["eval.seed"])
+        goals = arm_test_goals(self.spec, lower, upper, n=lp["eval.goals"], seed=lp["eval.seed"], area=area)
         return goals, area, {}
 
 

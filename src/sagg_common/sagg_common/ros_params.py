@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import array
 import json
+import os
 import signal
 import sys
 import time
@@ -93,6 +94,13 @@ def params_files(args: list[str]) -> list[str]:
         elif ros and a == "--params-file" and i + 1 < len(args):
             out.append(args[i + 1])
     return out
+
+
+def params_dir() -> str | None:
+    """The directory of the last ``--params-file`` of this node's command line (None without one):
+    what relative file parameters (a robot's model file) are relative to, as in a config file."""
+    files = params_files(_ARGS or sys.argv)
+    return os.path.dirname(os.path.abspath(files[-1])) if files else None
 
 
 def _file_sections(args: list[str], sections: tuple[str, ...]):

@@ -460,6 +460,15 @@ class ArmSim:
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
         return self._qpos.copy(), self._tip.copy()
 
+    def joint_velocities(self) -> np.ndarray:
+        """The joints' velocities (dynamic mode; zeros in kinematic mode)."""
+        return self._qvel.copy()
+
+    def set_targets(self, targets: np.ndarray) -> None:
+        """Write joint targets to the position actuators, without stepping the physics (the
+        MuJoCo bridge's real-time dynamic mode steps it itself)."""
+        self._ctrl[:] = targets
+
     def tip_positions(self, alphas: np.ndarray) -> np.ndarray:
         """Batched numpy FK: (N, n) -> (N, 2), or (n,) -> (2,). Same frames as the MuJoCo model."""
         a = np.asarray(alphas, dtype=float)

@@ -567,6 +567,10 @@ class ModelArmSim(ArmSim):
         """The commanded joints' velocities (dynamic mode; zeros in kinematic mode)."""
         return self._qvel[self._dsel].copy()
 
+    def set_targets(self, targets: np.ndarray) -> None:
+        """Write the commanded joints' targets to their servos, without stepping the physics."""
+        self._ctrl[self._csel] = targets
+
     def tip_positions(self, alphas: np.ndarray) -> np.ndarray:
         """Effector positions on the task axes of postures of the commanded joints (the others at
         rest): (N, n) -> (N, task_dim) through the vectorised :class:`.model_kin.ChainFK` (0.4 µs

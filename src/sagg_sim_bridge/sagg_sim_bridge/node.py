@@ -41,11 +41,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
 from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
-from sagg_common.ros_params import HW_DEPTH, declare_schema, reliable, run_node
+from sagg_common.ros_params import HW_DEPTH, declare_schema, params_dir, reliable, run_node
 from sagg_common.rng import substream_seed
 
-from .arm import ArmSim
-from .params import arm_spec_from_params
+from .arms import arm_spec_from_params, make_arm_sim
 from .schema import BRIDGE_SCHEMA as SCHEMA
 
 NODE_NAME = "sagg_sim_bridge"
@@ -60,8 +59,9 @@ class BridgeNode(Node):
     def __init__(self):
         super().__init__(NODE_NAME)
         p = self.params = declare_schema(self, SCHEMA)
-        self.spec = arm_spec_from_params(p)  # ConfigError names the bad arm.* parameter
-        self.sim = ArmSim(self.spec, seed=substream_seed(p["seed"], "sim"))
+        # (a relative arm.model is relative to the parameter file, as in a config)
+        self.spec = arm_spec_from_params(p, params_dir())  # ConfigError names the bad arm.* parameter
+        self.sim = make_arm_sim(self.spec, seed=substream_seed(p["seed"], "sim"))
         self.n = self.sim.n_joints
         self.lockstep = p["timing"] == "lockstep"
         self.dynamic = self.spec.mode == "dynamic"
@@ -137,11 +137,11 @@ class BridgeNode(Node):
         Δ = Δ·(1 + noise·N(0,1)), clipped to the limits), but the actuators then move the arm over
         the following physics steps instead of settling at once."""
         sim = self.sim
-        q = sim.data.qpos
+        q = sim.observe()[0]
         delta = target - q
         if sim.spec.motor_noise > 0.0:
             delta *= 1.0 + sim.spec.motor_noise * sim.rng.standard_normal(self.n)
-        sim.data.ctrl[:] = np.clip(q + delta, sim.lower, sim.upper)
+        sim.set_targets(np.clip(q + delta, sim.lower, sim.upper))
 
     # ------------------------------------------------------------------ real time
     def on_physics(self) -> None:
@@ -164,10 +164,10 @@ class BridgeNode(Node):
 
     def publish_state(self) -> None:
         ns = self.sim_ns()
-        sim = self.sim
-        self.js_pub.publish(self.js_encoder.encode(ns, sim.data.qpos, sim.data.qvel if self.dynamic else self.zeros))
-        tip = sim.observe()[1]
-        self.tip_pub.publish(self.tip_encoder.encode(ns, float(tip[0]), float(tip[1])))
+        alpha, tip = self.sim.observe()
+        self.js_pub.publish(self.js_encoder.encode(ns, alpha, self.sim.joint_velocities() if self.dynamic else self.zeros))
+        # the task point's coordinates in x, y (and z), in the order of the task axes
+        self.tip_pub.publish(self.tip_encoder.encode(ns, *map(float, tip)))
         if self.commands:
             # counted from the first command on (what a recorder that the learner waited for must
             # hold; the idle re-publications before it may precede any recorder's match)
