@@ -65,6 +65,20 @@ def test_a_second_publisher_with_higher_numbers_never_passes_as_ours():
     assert c.classify(12, 1.4) == ACCEPT         # the other went quiet at 0.3
 
 
+def test_a_live_chain_passing_a_silent_ones_numbers_keeps_its_messages():
+    # seen in the hostile bench: a second publisher's burst left a silent chain at some number;
+    # when ours reached that number too, its next message went to the silent chain, which came
+    # alive again: a false second source
+    c = SourceChains(grace=1.0)
+    assert [c.classify(k, 0.01 * (k - 100)) for k in range(100, 106)] == [ACCEPT] * 6
+    for k in range(1, 301):                          # another publisher's burst, numbered 1..300
+        assert c.classify(k, 0.1 + 0.001 * k) == AMBIGUOUS
+    for k in range(106, 111):                        # ours meanwhile: refused too
+        assert c.classify(k, 0.4) == AMBIGUOUS
+    verdicts = [c.classify(k, 2.0 + 0.01 * (k - 111)) for k in range(111, 400)]   # ours, past 300
+    assert verdicts == [ACCEPT] * len(verdicts) and c.episodes == 1
+
+
 def test_a_restarted_publisher_is_taken_again_after_grace():
     c = SourceChains(grace=1.0)
     for s in range(1, 50):
@@ -84,12 +98,12 @@ def test_message_info_reaches_the_handler_from_either_executor_call_form():
 
 def test_recorders_are_told_apart_and_the_slowest_live_one_is_waited_for():
     acks = RecorderAcks(timeout=5.0)
-    acks.ack(1, 100, 0.0)      # recorder A (its publisher's numbers 1, 2, ...)
-    acks.ack(1, 40, 0.1)       # recorder B
-    acks.ack(2, 120, 0.5)
+    acks.ack(5, 100, 0.0)      # recorder A (its publisher's numbers ..., 5, 6, ...)
+    acks.ack(1, 40, 0.1)       # recorder B, started later (1, 2, ...)
+    acks.ack(6, 120, 0.5)
     acks.ack(2, 60, 0.6)
     assert acks.recorders_seen == 2 and acks.slowest(1.0) == 60 and acks.largest() == 120
-    acks.ack(3, 130, 5.2)      # B says nothing more: after the timeout only A is waited for
+    acks.ack(7, 130, 5.2)      # B says nothing more: after the timeout only A is waited for
     assert acks.slowest(5.7) == 130
     stuck = RecorderAcks(timeout=5.0)  # a publisher repeating one number (a stopped recorder, a stray one)
     for k in range(1, 20):

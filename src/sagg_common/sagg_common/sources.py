@@ -59,11 +59,13 @@ class SourceChains:
 
     def assign(self, seq: int, now: float) -> tuple[int, bool, bool]:
         """The chain of a message numbered ``seq`` received at ``now`` (updated), whether the message
-        continues it exactly, and whether it starts a new chain."""
+        continues it exactly, and whether it starts a new chain. Of the chains it can continue, the
+        one whose last number is the largest below ``seq``; of equal ones, the one heard from last
+        (a live chain whose numbers pass those of a silent one keeps its messages)."""
         last, rx = self.last, self.rx
         best = -1
         for i, t in enumerate(last):
-            if t < seq and (best < 0 or t > last[best]):
+            if t < seq and (best < 0 or t > last[best] or (t == last[best] and rx[i] > rx[best])):
                 best = i
         if best >= 0:
             exact = seq == last[best] + 1

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import json
 import os
-from collections import Counter
 import re
 import signal
 import subprocess
@@ -110,6 +109,7 @@ class Fuzzer:
 
         self.rclpy = rclpy
         self.domain, self.replay_bag, self.replaying = domain, replay_bag, None
+        self.replay_window: tuple | None = None
         self.ctx = Context()
         rclpy.init(context=self.ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("sagg_fuzzer", context=self.ctx)
@@ -238,7 +238,9 @@ class Fuzzer:
 
     def replay(self) -> None:
         """``sagg replay`` of :attr:`replay_bag` (another run's bag) into the graph's domain, as a
-        user would start it beside a live run (its defaults: no command topic)."""
+        user would start it beside a live run (its defaults: no command topic); the time it ran
+        (wall clock, ns: the bag's receive times) is kept in :attr:`replay_window`."""
+        self.replay_window = (time.time_ns(), None)
         cmd = [str(Path(sys.executable).parent / "sagg"), "replay", str(self.replay_bag), "--quiet",
                "--domain-id", str(self.domain)]
         self.replaying = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -248,6 +250,7 @@ class Fuzzer:
         p, self.replaying = self.replaying, None
         if p is not None:
             stop_group(p, 10.0)
+            self.replay_window = (self.replay_window[0], time.time_ns() + 5 * SEC)  # (+ what was queued)
 
     def pause(self, on: bool) -> None:
         """/sagg/pause (std_srvs/SetBool), waiting up to 10 s for the answer."""
@@ -421,9 +424,12 @@ def published_counts(logs: Path) -> dict[str, int]:
     return counts
 
 
-def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None) -> dict[str, object]:
+def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None,
+               window: tuple | None = None) -> dict[str, object]:
     """The end-of-phase invariants, from the run's summary, checkpoint, bag and logs; ``replayed``:
-    a bag replayed into the run (its messages in the run's bag are not the driver's)."""
+    a bag replayed into the run during ``window`` (receive times, ns): its messages in the run's
+    bag then are not the driver's (the same bytes outside it are: two runs' first messages may
+    be byte-identical, a posture at rest stamped with the same simulation time)."""
 
     s = json.loads((run_dir / "summary.json").read_text())
     lp = yaml.safe_load((run_dir / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]
@@ -455,14 +461,10 @@ def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None
     driver_postures: set[bytes] = set()
     micro: list[np.ndarray] = []
     counts: dict[str, int] = {}
-    # the replayed bag's messages, as many of each as it holds (the runs' first messages may be
-    # byte-identical: a posture at rest, stamped with the same simulation time)
-    foreign = Counter(bytes(raw) for _, _, _, raw in bag_messages([replayed])) if replayed is not None else Counter()
-    for topic, _, _, raw in bag_messages([run_dir / "bag"]):
-        fuzz = FUZZ.encode() in bytes(raw[:64])
-        if not fuzz and foreign[bytes(raw)] > 0:
-            foreign[bytes(raw)] -= 1
-            fuzz = True
+    foreign = {bytes(raw) for _, _, _, raw in bag_messages([replayed])} if replayed is not None and window else set()
+    for topic, _, ts, raw in bag_messages([run_dir / "bag"]):
+        fuzz = FUZZ.encode() in bytes(raw[:64]) or (bool(foreign) and window[0] <= ts <= window[1]
+                                                     and bytes(raw) in foreign)
         if topic == "/joint_states":
             st, names, pos, _ = dec.decode(raw)
             if not fuzz:
@@ -567,7 +569,7 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
         f.close()
         stop_group(proc, 180.0)
         fh.close()
-    inv = invariants(run_dir, sent, replay_bag if any(c.name == "a replayed bag" for c in my_cases) else None)
+    inv = invariants(run_dir, sent, replay_bag, f.replay_window)
     logs_text = "\n".join(p.read_text(errors="replace") for p in (run_dir / "logs").glob("*.log"))
     logs_text += (out / f"{phase}.sagg_run.log").read_text(errors="replace")
     logged = {}
