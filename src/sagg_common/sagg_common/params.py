@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
+import numpy as np
 import yaml
 
 NODE_NAMES = ("sagg_goal_generator", "sagg_learner", "sagg_sim_bridge")
@@ -32,6 +33,16 @@ WILDCARD = "/**"
 
 class ConfigError(ValueError):
     """A configuration or parameter value is invalid; the message names the field."""
+
+
+def is_int(x: Any) -> bool:
+    """An integer (Python or numpy), not a bool."""
+    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
+
+
+def is_real(x: Any) -> bool:
+    """A real number (Python or numpy int/float), not a bool."""
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
 
 
 @dataclass(frozen=True)

@@ -24,12 +24,13 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Callable
 
 import mujoco
 import numpy as np
 
 from sagg_common.diagnostics import all_finite
+from sagg_common.params import is_int, is_real
 
 GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
 MODES = ("kinematic", "dynamic")
@@ -40,14 +41,6 @@ MAX_DOF = 100
 MAX_GRID_CELLS = 100_000_000
 # Motor-noise factors are drawn this many micro-actions at a time (speed; same stream).
 NOISE_BLOCK = 256
-
-
-def _is_int(x: Any) -> bool:
-    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
-
-
-def _is_real(x: Any) -> bool:
-    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
 
 
 @dataclass(frozen=True)
@@ -130,7 +123,7 @@ class ArmSpec:
 
         def real(name: str, lo: float, hi: float, lo_open: bool = False, hi_open: bool = False) -> float:
             v = getattr(self, name)
-            if not _is_real(v) or not math.isfinite(float(v)):
+            if not is_real(v) or not math.isfinite(float(v)):
                 raise ValueError(f"ArmSpec.{name} must be a finite number, got {v!r}")
             v = float(v)
             bad_lo = v <= lo if lo_open else v < lo
@@ -142,7 +135,7 @@ class ArmSpec:
 
         def integer(name: str, lo: int, hi: int) -> int:
             v = getattr(self, name)
-            if not _is_int(v) or not lo <= int(v) <= hi:
+            if not is_int(v) or not lo <= int(v) <= hi:
                 raise ValueError(f"ArmSpec.{name} must be an integer in [{lo}, {hi}], got {v!r}")
             return int(v)
 
@@ -199,7 +192,7 @@ class ArmSpec:
                 raise ValueError(f"ArmSpec: unknown key {k!r}; allowed keys: {sorted(names)}")
             default = names[k].default
             # YAML gives ints for floats ("kp: 10000"): accept and convert.
-            if isinstance(default, float) and _is_int(v):
+            if isinstance(default, float) and is_int(v):
                 v = float(v)
             kw[k] = v
         spec = cls(**kw)
@@ -331,7 +324,7 @@ class ArmSim:
         if not isinstance(spec, ArmSpec):
             raise ValueError(f"ArmSim.spec must be an ArmSpec, got {type(spec).__name__}")
         spec.validate()
-        if not _is_int(seed) or int(seed) < 0:
+        if not is_int(seed) or int(seed) < 0:
             raise ValueError(f"ArmSim.seed must be an integer >= 0, got {seed!r}")
         self.spec = spec
         self.seed = int(seed)
@@ -370,7 +363,7 @@ class ArmSim:
     def reseed(self, seed: int) -> None:
         """Restart the motor-noise generator as ``ArmSim(spec, seed)`` starts it (the physics state is
         left alone: ``reset`` restores it). Lets one instance serve many independent reaches."""
-        if not _is_int(seed) or int(seed) < 0:
+        if not is_int(seed) or int(seed) < 0:
             raise ValueError(f"ArmSim.seed must be an integer >= 0, got {seed!r}")
         self.seed = int(seed)
         self.rng = np.random.default_rng(self.seed)
@@ -517,7 +510,7 @@ class ArmSim:
         if not isinstance(rng_state, dict) or rng_state.get("bit_generator") != type(self.rng.bit_generator).__name__:
             raise ValueError(f"state.rng must be a {type(self.rng.bit_generator).__name__} state dict")
         nidx = state.get("noise_index")
-        if nidx is not None and not (_is_int(nidx) and 0 <= nidx <= NOISE_BLOCK):
+        if nidx is not None and not (is_int(nidx) and 0 <= nidx <= NOISE_BLOCK):
             raise ValueError(f"state.noise_index must be None or an integer in [0, {NOISE_BLOCK}], got {nidx!r}")
         if nidx is not None and self._noise == 0.0:
             raise ValueError("state.noise_index must be None for a noise-free arm (motor_noise = 0)")
@@ -617,7 +610,7 @@ class ReachableArea:
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """n points: a reachable cell chosen uniformly, then a uniform point inside it."""
-        if not _is_int(n) or n < 0:
+        if not is_int(n) or n < 0:
             raise ValueError(f"n must be an integer >= 0, got {n!r}")
         cells = np.flatnonzero(self.mask)
         if cells.size == 0:
@@ -671,18 +664,18 @@ def occupancy_grid(lo: np.ndarray, hi: np.ndarray, resolution, center: np.ndarra
     exactly reached position per cell is then kept, from ``fk_exact`` (None: ``fk_fast`` is
     exact), if it falls in the same cell. Only cells within ``radius`` of ``center`` (a ball that
     holds every effector position) are tracked."""
-    if not _is_real(resolution) or not math.isfinite(float(resolution)) or float(resolution) <= 0:
+    if not is_real(resolution) or not math.isfinite(float(resolution)) or float(resolution) <= 0:
         raise ValueError(f"resolution must be a finite number > 0, got {resolution!r}")
     resolution = float(resolution)
-    if not _is_int(samples) or samples < 1:
+    if not is_int(samples) or samples < 1:
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
-    if not _is_int(refine_rounds) or refine_rounds < 0:
+    if not is_int(refine_rounds) or refine_rounds < 0:
         raise ValueError(f"refine_rounds must be an integer >= 0, got {refine_rounds!r}")
-    if not _is_real(flatten_power) or not 0.0 <= float(flatten_power) <= 10.0:
+    if not is_real(flatten_power) or not 0.0 <= float(flatten_power) <= 10.0:
         raise ValueError(f"flatten_power must be in [0, 10], got {flatten_power!r}")
-    if not _is_int(batch) or batch < 1:
+    if not is_int(batch) or batch < 1:
         raise ValueError(f"batch must be an integer >= 1, got {batch!r}")
-    if not _is_int(seed) or seed < 0:
+    if not is_int(seed) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     fpow = float(flatten_power)
     d = lo.shape[0]
@@ -831,9 +824,9 @@ def test_goals(spec: ArmSpec, lower, upper, n: int = 100, seed: int = 0,
     position (from reachable_area's samples) in a reachable cell drawn uniformly, so every goal
     is exactly reachable and the set is uniform at the grid resolution (:func:`goals_in_area`).
     Reproducible from ``seed`` (the area uses ``seed`` too unless ``area`` is given)."""
-    if not _is_int(n) or n < 1:
+    if not is_int(n) or n < 1:
         raise ValueError(f"n must be an integer >= 1, got {n!r}")
-    if not _is_int(seed) or seed < 0:
+    if not is_int(seed) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     lo, hi = check_bounds(lower, upper)
     if area is None:

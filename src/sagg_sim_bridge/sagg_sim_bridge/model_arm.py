@@ -1,37 +1,31 @@
 """Any robot from its model file: the model arm (ROS-free core; issue 23).
 
-The robot is a MuJoCo MJCF (``.xml``) or URDF (``.urdf``) file (:mod:`.model_load` parses it,
-resolving ``package://`` meshes); the learner commands some of its hinge/slide joints and sees the
-world position of one effector point (a site, or a body / URDF link origin) on the chosen task
-axes. It speaks exactly the protocol of the planar :class:`~.arm.ArmSim` (``reset``, ``command``,
-``observe``, ``tip_positions``, ``get_state``/``set_state``, ``reseed``; same motor-noise model,
-drawn in the same blocks, and the same dynamic-mode settling), so every runner can take either.
+The robot is a MuJoCo MJCF (``.xml``) or URDF (``.urdf``) file, loaded as a
+:class:`sagg_common.robot_model.RobotModel` (the file parsed with ``package://`` meshes resolved;
+joints, limits, rest posture, effector, forward kinematics, base point and reach: the rules are in
+that module's docstring, shared with the learner's ``task_source: model``); the learner commands
+some of its hinge/slide joints and sees the world position of one effector point (a site, or a
+body / URDF link origin) on the chosen task axes. It speaks exactly the protocol of the planar
+:class:`~.arm.ArmSim` (``reset``, ``command``, ``observe``, ``tip_positions``,
+``get_state``/``set_state``, ``reseed``; same motor-noise model, drawn in the same blocks, and the
+same dynamic-mode settling), so every runner can take either.
 
-What comes from the model, what from the parameters (``arm.*``, see :mod:`.params`):
+What this module adds to the robot model (parameters ``arm.*``, see :mod:`.params`):
 
-- joints: every hinge/slide joint that moves the effector, in model order, unless ``arm.joints``
-  selects and orders some (the others are held at their rest value). Choice: joints that cannot
-  move the effector (a gripper's fingers when the effector is the flange) are left out of the
-  default, since no learner could learn them; naming one in ``arm.joints`` is an error;
-- limits: the model's joint ranges; a joint without one needs ``arm.joint_limits.lower/upper``
-  (which, when given, set the limits of every commanded joint and must lie within the model's
-  ranges where it has them);
-- rest posture: the model's keyframe named ``home``, else the parameter ``rest_posture`` (given
-  once in the config's ``/**`` section: the learner node reads the same one), else an error naming
-  both;
-- ``arm.mode`` kinematic (qpos set, ``mj_kinematics``) or dynamic (position actuators added where
-  the model has none for a commanded joint: gain ``arm.kp``, the joint's damping ``arm.damping``
-  and armature ``arm.armature``, as the planar arm's critically damped servos; physics step
-  ``arm.timestep`` replaces the model's; gravity and contacts off: an ideal position-controlled
-  arm that holds any posture, as a real arm's controller with gravity compensation does).
+- ``rest_posture`` is given once in the config's ``/**`` section: the learner node reads the same one;
+- ``arm.mode`` kinematic (qpos set, ``mj_kinematics``; meshes that cannot be found are dropped) or
+  dynamic (every mesh required; position actuators added where the model has none for a commanded
+  joint: gain ``arm.kp``, the joint's damping ``arm.damping`` and armature ``arm.armature``, as the
+  planar arm's critically damped servos; physics step ``arm.timestep`` replaces the model's;
+  gravity and contacts off: an ideal position-controlled arm that holds any posture, as a real
+  arm's controller with gravity compensation does).
 
 The reachable set of the effector (2-D or 3-D occupancy grid, :func:`model_reachable_area`) is
 estimated by sampling the joint space through the model's own forward kinematics
-(:class:`.model_kin.ChainFK`, checked against ``mj_kinematics``), like the planar arm's.
+(:class:`sagg_common.model_kin.ChainFK`, checked against ``mj_kinematics``), like the planar arm's.
 """
 from __future__ import annotations
 
-import math
 import os
 import sys
 from dataclasses import dataclass
@@ -41,19 +35,16 @@ import mujoco
 import numpy as np
 
 from sagg_common.diagnostics import all_finite
-from sagg_common.params import ConfigError
+from sagg_common.model_load import compile_spec, load_spec
+from sagg_common.params import ConfigError, is_int
+from sagg_common.robot_model import AXES, PostureFK, RobotModel, ament_prefixes, check_robot_fields
 
-from .arm import (NOISE_BLOCK, ArmSim, ArmSpec, ReachableArea, _is_int, _is_real, check_bounds,
-                  goals_in_area, occupancy_grid)
-from .model_kin import HINGE, SLIDE, ChainFK
-from .model_load import MODEL_SUFFIXES, compile_spec, load_spec
+from .arm import NOISE_BLOCK, ArmSim, ArmSpec, ReachableArea, check_bounds, goals_in_area, occupancy_grid
 
-AXES = ("x", "y", "z")
 # ArmSpec fields that mean the same for the model arm (mode, noise, dynamic-mode servo and settling);
 # the other ArmSpec fields describe the planar arm's geometry and are ignored when arm.model is set.
 SHARED_FIELDS = ("mode", "motor_noise", "timestep", "kp", "damping", "armature", "settle_tolerance",
                  "settle_velocity", "max_settle_steps", "settle_check_every")
-HOME_KEY = "home"
 # Default grid resolution of the reachable set: reach/100 per side in 2-D (the planar arm's
 # total_length/100), reach/25 in 3-D; default samples: 400k in 2-D (as the planar arm), 2M in 3-D.
 # Measured on the example arms (a ~0.95 m UR5-like and Panda-like arm, box ±1.05 reach): reach/25
@@ -134,7 +125,7 @@ class ModelArmSpec:
             rest = ()
         kw = {f: fields[f] for f in SHARED_FIELDS if f in fields}
         for f in ("timestep", "kp", "damping", "armature", "motor_noise", "settle_tolerance", "settle_velocity"):
-            if f in kw and _is_int(kw[f]):
+            if f in kw and is_int(kw[f]):
                 kw[f] = float(kw[f])
         spec = cls(model=model, effector=fields.get("effector", ""), task_axes=tuple(fields.get("task_axes", AXES)),
                    joints=joints, joint_lower=lower, joint_upper=upper, rest=rest, package_paths=paths, **kw)
@@ -143,38 +134,8 @@ class ModelArmSpec:
 
     def validate_fields(self) -> None:
         """Check the fields without loading the model; ConfigError names the parameter."""
-        if not isinstance(self.model, str) or not self.model.lower().endswith(MODEL_SUFFIXES):
-            raise ConfigError(f"parameter arm.model: got {self.model!r}; allowed: a MuJoCo MJCF (.xml) or "
-                              "URDF (.urdf) file")
-        if not os.path.isfile(self.model):
-            raise ConfigError(f"parameter arm.model: no file {self.model!r}")
-        if not isinstance(self.effector, str):
-            raise ConfigError(f"parameter arm.effector: got {self.effector!r}; allowed: a body, link or site name")
-        ax = self.task_axes
-        if (not isinstance(ax, tuple) or not ax or any(a not in AXES for a in ax)
-                or list(ax) != sorted(set(ax), key=AXES.index)):
-            raise ConfigError(f"parameter arm.task_axes: got {list(ax) if isinstance(ax, tuple) else ax!r}; "
-                              "allowed: a non-empty subset of [x, y, z] in that order (e.g. [x, y, z], [x, y])")
-        if len(ax) == 1:
-            raise ConfigError(f"parameter arm.task_axes: got {list(ax)}; allowed: 2 or 3 axes (the reachable "
-                              "set and the task space are 2-D or 3-D)")
-        if not all(isinstance(j, str) and j for j in self.joints) or len(set(self.joints)) != len(self.joints):
-            raise ConfigError(f"parameter arm.joints: got {list(self.joints)}; allowed: distinct joint names, "
-                              "or ['*'] for every hinge/slide joint that moves the effector")
-        for name, v in (("joint_limits.lower", self.joint_lower), ("joint_limits.upper", self.joint_upper),
-                        ("rest_posture", self.rest)):
-            if not all(_is_real(x) and math.isfinite(float(x)) for x in v):
-                raise ConfigError(f"parameter {'' if name == 'rest_posture' else 'arm.'}{name}: got {list(v)}; "
-                                  "allowed: finite numbers")
-        if len(self.joint_lower) != len(self.joint_upper):
-            raise ConfigError(f"parameters arm.joint_limits.lower/upper: got {len(self.joint_lower)} and "
-                              f"{len(self.joint_upper)} values; allowed: one per joint each")
-        bad = [i for i, (lo, hi) in enumerate(zip(self.joint_lower, self.joint_upper)) if not hi > lo]
-        if bad:
-            raise ConfigError(f"parameters arm.joint_limits.lower/upper: upper must be > lower, not so at "
-                              f"position(s) {bad}")
-        if not all(isinstance(p, str) for p in self.package_paths):
-            raise ConfigError(f"parameter arm.package_paths: got {list(self.package_paths)}; allowed: directories")
+        check_robot_fields(self.model, self.effector, self.task_axes, self.joints, self.joint_lower,
+                           self.joint_upper, self.rest, self.package_paths)
         try:
             ArmSpec(**{f: getattr(self, f) for f in SHARED_FIELDS}).validate()
         except ValueError as exc:
@@ -187,7 +148,7 @@ class ModelArmSpec:
 
     def loaded(self) -> "LoadedArm":
         """The loaded model and everything derived from it (kept per process)."""
-        prefixes = tuple(p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p)
+        prefixes = ament_prefixes()
         key = (self, prefixes)
         arm = _LOADED.get(key)
         if arm is None:
@@ -218,16 +179,16 @@ class ModelArmSpec:
     def reach(self) -> float:
         """The arm's reach in task units: the largest distance, on the task axes, from
         :meth:`base_point` to the effector over the joint space within the limits, found by
-        :func:`farthest_reach` (a seeded search: deterministic; within ~1e-4 of the true maximum).
+        :func:`sagg_common.robot_model.farthest_reach` (a seeded search: deterministic; within ~1e-4
+        of the true maximum).
         The planar arm's analogue is its total length."""
         return self.loaded().reach
 
     def base_point(self) -> np.ndarray:
         """The arm's base in task coordinates: the point the first moving joint turns the arm
-        about (the center of :meth:`.model_kin.ChainFK.ball`; a UR5's shoulder, a planar arm's
-        base)."""
-        arm = self.loaded()
-        return arm.center[arm.axes].copy()
+        about (:meth:`sagg_common.robot_model.RobotModel.base_point`; a UR5's shoulder, a planar
+        arm's base)."""
+        return self.loaded().base_point()
 
 
 _LOADED: dict[tuple, "LoadedArm"] = {}
@@ -242,173 +203,35 @@ def _position_servo(m: mujoco.MjModel, a: int) -> bool:
             and float(m.actuator_gear[a, 0]) == 1.0)
 
 
-def farthest_reach(kin: ChainFK, lower: np.ndarray, upper: np.ndarray, base: np.ndarray,
-                   axes: np.ndarray, draws: int = 20_000, keep: int = 100, rounds: int = 30) -> float:
-    """The largest distance on ``axes`` from ``base`` to the effector found by a seeded search
-    over the joint box [lower, upper]: ``draws`` uniform postures, then ``rounds`` rounds of
-    Gaussian perturbations of the ``keep`` farthest so far (σ shrinking geometrically from 10% to
-    0.01% of each joint range), clipped to the limits. Deterministic (its own fixed seed); a lower
-    bound of the true maximum (the sum of the link lengths for a chain that can stretch out)."""
-    rng = np.random.default_rng(0x2EAC)
-    a = rng.uniform(lower, upper, size=(draws, len(lower)))
+class LoadedArm(RobotModel):
+    """A model arm: its :class:`~sagg_common.robot_model.RobotModel` (joints, limits, rest,
+    effector, forward kinematics, reach; loaded for kinematics in kinematic mode) and what
+    simulating it needs: ``sim_model``, the MjModel the simulator runs (the robot's own in
+    kinematic mode; in dynamic mode every mesh is required and a position servo is added per
+    commanded joint), the servos' actuator ids ``act`` and the rest controls ``ctrl_rest``."""
 
-    def dist(x: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(kin.positions(x)[:, axes] - base, axis=1)
-
-    d = dist(a)
-    for sigma in np.geomspace(0.1, 1e-4, rounds):
-        top = np.argsort(d)[-keep:]
-        a, d = a[top], d[top]
-        trial = np.clip(a + sigma * (upper - lower) * rng.standard_normal(a.shape), lower, upper)
-        dt = dist(trial)
-        a, d = np.concatenate((a, trial)), np.concatenate((d, dt))
-    return float(d.max())
-
-
-class LoadedArm:
-    """A model arm's compiled MuJoCo model and what is derived from it: commanded joints and their
-    addresses, limits, rest posture, effector, forward kinematics, bounding ball and reach, notices."""
-
-    def __init__(self, spec: ModelArmSpec, ament_prefixes: tuple[str, ...]):
+    def __init__(self, spec: ModelArmSpec, prefixes: tuple[str, ...]):
         path = spec.model
         kinematic = spec.mode == "kinematic"
-        mjspec, dropped = load_spec(path, spec.package_paths, ament_prefixes, kinematic)
-        m = compile_spec(mjspec, path)
-        self.notices: list[str] = []
-        if dropped:
-            self.notices.append(
-                f"arm.model {path}: {len(dropped)} mesh file(s) not found, their geometry dropped (kinematic "
-                f"mode does not need it; dynamic mode would): {', '.join(dropped)}")
-        self.dropped = dropped
-        # ---- effector
-        body, local = self._effector(m, spec, path)
-        ancestors = set()
-        b = body
-        while b != 0:
-            ancestors.add(b)
-            b = int(m.body_parentid[b])
-        # ---- commanded joints
-        jids = self._joints(m, spec, path, ancestors)
-        names = [m.joint(j).name for j in jids]
-        n = len(jids)
-        self.joint_names = tuple(names)
-        self.jids = np.array(jids, dtype=np.int64)
-        self.qadr = np.array([m.jnt_qposadr[j] for j in jids], dtype=np.int64)
-        self.dofadr = np.array([m.jnt_dofadr[j] for j in jids], dtype=np.int64)
-        # ---- limits
-        limited = np.array([bool(m.jnt_limited[j]) for j in jids])
-        model_lo = np.array([m.jnt_range[j, 0] for j in jids], dtype=float)
-        model_hi = np.array([m.jnt_range[j, 1] for j in jids], dtype=float)
-        if spec.joint_lower:
-            if len(spec.joint_lower) != n:
-                raise ConfigError(f"parameters arm.joint_limits.lower/upper: got {len(spec.joint_lower)} values; "
-                                  f"allowed: {n}, one per commanded joint {names}")
-            lower, upper = np.array(spec.joint_lower, float), np.array(spec.joint_upper, float)
-            outside = [f"{names[i]} [{lower[i]:g}, {upper[i]:g}] vs [{model_lo[i]:g}, {model_hi[i]:g}]"
-                       for i in range(n) if limited[i] and (lower[i] < model_lo[i] or upper[i] > model_hi[i])]
-            if outside:
-                raise ConfigError("parameters arm.joint_limits.lower/upper: must lie within the model's joint "
-                                  f"ranges; not so for {', '.join(outside)}")
-        else:
-            free = [names[i] for i in range(n) if not limited[i]]
-            if free:
-                raise ConfigError(
-                    f"parameters arm.joint_limits.lower/upper: joint(s) {', '.join(free)} of {path} have no range; "
-                    f"give the limits of every commanded joint, in the order {names}")
-            lower, upper = model_lo, model_hi
-        self.lower, self.upper = lower, upper
-        # ---- rest posture (and the held joints' values)
-        key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY)
-        if key >= 0:
-            qpos_rest = m.key_qpos[key].copy()
-            rest = qpos_rest[self.qadr].copy()
-            source = f"keyframe '{HOME_KEY}' of {path}"
-            if spec.rest and tuple(float(x) for x in spec.rest) != tuple(rest.tolist()):
-                self.notices.append(f"rest_posture ignored: the keyframe '{HOME_KEY}' of {path} gives the "
-                                    "rest posture")
-        elif spec.rest:
-            if len(spec.rest) != n:
-                raise ConfigError(f"parameter rest_posture: got {len(spec.rest)} values; allowed: {n}, one "
-                                  f"per commanded joint {names}")
-            qpos_rest = m.qpos0.copy()
-            rest = np.array(spec.rest, dtype=float)
-            qpos_rest[self.qadr] = rest
-            source = "parameter rest_posture"
-        else:
-            raise ConfigError(f"parameter rest_posture: {path} has no keyframe named '{HOME_KEY}'; give the "
-                              f"rest posture once in the config's '/**' section (rest_posture: {n} values, for "
-                              f"{names}) or add a keyframe '{HOME_KEY}' to the model")
-        bad = [f"{names[i]}={rest[i]:g} outside [{lower[i]:g}, {upper[i]:g}]" for i in range(n)
-               if not lower[i] <= rest[i] <= upper[i]]
-        if bad:
-            raise ConfigError(f"rest posture from {source}: {', '.join(bad)}")
-        self.rest, self.qpos_rest = rest, qpos_rest
+        mjspec, dropped = load_spec(path, spec.package_paths, prefixes, kinematic)
+        super().__init__(path, compile_spec(mjspec, path), spec.effector, spec.task_axes, spec.joints,
+                         spec.joint_lower, spec.joint_upper, spec.rest, dropped)
+        m, key, jids, rest = self.model, self.key, self.jids, self.rest
         # ---- dynamic mode: a position servo per commanded joint
         self.act = np.zeros(0, dtype=np.int64)
         if not kinematic:
-            m = self._add_servos(mjspec, m, spec, path, names, lower, upper)
+            m = self._add_servos(mjspec, m, spec, path, list(self.joint_names), self.lower, self.upper)
             self.act = np.array([self._servo_of(m, j) for j in jids], dtype=np.int64)
-        self.model = m
+        self.sim_model = m
         ctrl = m.key_ctrl[key].copy() if key >= 0 else np.zeros(m.nu)
         if key < 0:  # position servos of held joints hold their rest value
             for a in range(m.nu):
                 if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and _position_servo(m, a):
-                    ctrl[a] = qpos_rest[m.jnt_qposadr[m.actuator_trnid[a, 0]]]
+                    ctrl[a] = self.qpos_rest[m.jnt_qposadr[m.actuator_trnid[a, 0]]]
         if not kinematic:
             ctrl[self.act] = rest
         self.ctrl_rest = ctrl
-        # ---- effector, kinematics, reach
-        self.body, self.local = body, local
-        self.site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, spec.effector)
-        self.axes = np.array([AXES.index(a) for a in spec.task_axes], dtype=np.int64)
-        self.kin = ChainFK(m, body, local, jids, qpos_rest, lower, upper)
-        center, radius = self.kin.ball()
-        self.center, self.bound = center, float(radius)
-        self.reach = farthest_reach(self.kin, lower, upper, center[self.axes], self.axes)
-        for arr in (self.lower, self.upper, self.rest, self.qpos_rest, self.ctrl_rest, self.center):
-            arr.flags.writeable = False
-
-    @staticmethod
-    def _effector(m: mujoco.MjModel, spec: ModelArmSpec, path: str) -> tuple[int, np.ndarray]:
-        """(body id, point in the body frame) of the effector: a site of that name, else a body."""
-        name = spec.effector
-        if name:
-            sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, name)
-            if sid >= 0:
-                return int(m.site_bodyid[sid]), m.site_pos[sid].copy()
-            bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
-            if bid > 0:
-                return bid, np.zeros(3)
-        bodies = [m.body(i).name for i in range(1, m.nbody) if m.body(i).name]
-        sites = [m.site(i).name for i in range(m.nsite) if m.site(i).name]
-        raise ConfigError(f"parameter arm.effector: got {name!r}; allowed: a body/link or site of {path}: "
-                          f"sites {sites}, bodies {bodies}")
-
-    @staticmethod
-    def _joints(m: mujoco.MjModel, spec: ModelArmSpec, path: str, ancestors: set[int]) -> list[int]:
-        """The commanded joint ids (see the module docstring)."""
-        movable = [j for j in range(m.njnt) if int(m.jnt_type[j]) in (HINGE, SLIDE)]
-        moving = [j for j in movable if int(m.jnt_bodyid[j]) in ancestors]
-        if not spec.joints:
-            unnamed = [j for j in moving if not m.joint(j).name]
-            if unnamed:
-                raise ConfigError(f"parameter arm.model: joint(s) number {unnamed} of {path} have no name; "
-                                  "every commanded joint needs one (joint states map joints by name)")
-            if not moving:
-                raise ConfigError(f"parameter arm.effector: no hinge or slide joint of {path} moves "
-                                  f"{spec.effector!r}")
-            return moving
-        out = []
-        for name in spec.joints:
-            j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
-            if j < 0 or j not in movable:
-                raise ConfigError(f"parameter arm.joints: {name!r} is not a hinge or slide joint of {path}; "
-                                  f"allowed: {[m.joint(k).name for k in movable]}")
-            if j not in moving:
-                raise ConfigError(f"parameter arm.joints: joint {name!r} does not move the effector "
-                                  f"{spec.effector!r}; allowed: {[m.joint(k).name for k in moving]}")
-            out.append(j)
-        return out
+        self.ctrl_rest.flags.writeable = False
 
     @staticmethod
     def _servo_of(m: mujoco.MjModel, j: int) -> int:
@@ -460,7 +283,7 @@ class ModelArmSim(ArmSim):
         # inherited methods use are set here)
         if not isinstance(spec, ModelArmSpec):
             raise ValueError(f"ModelArmSim.spec must be a ModelArmSpec, got {type(spec).__name__}")
-        if not _is_int(seed) or int(seed) < 0:
+        if not is_int(seed) or int(seed) < 0:
             raise ValueError(f"ModelArmSim.seed must be an integer >= 0, got {seed!r}")
         arm = spec.loaded()
         self.spec = spec
@@ -471,20 +294,19 @@ class ModelArmSim(ArmSim):
         self.lower, self.upper, self.rest = arm.lower, arm.upper, arm.rest  # read-only arrays
         self.task_dim = len(arm.axes)
         self.rng = np.random.default_rng(self.seed)
-        self.model = arm.model
-        self.data = mujoco.MjData(self.model)
+        self.model = arm.sim_model
+        view = PostureFK(arm, arm.qadr, self.model)  # this simulator's MjData and its views
+        self.data = view.data
         self._dynamic = spec.mode == "dynamic"
         self._noise = float(spec.motor_noise)
         self._qpos = self.data.qpos
         self._qvel = self.data.qvel
         self._ctrl = self.data.ctrl
-        q = arm.qadr
-        contiguous = bool(np.all(np.diff(q) == 1)) if len(q) > 1 else True
-        self._qsel = slice(int(q[0]), int(q[0]) + len(q)) if contiguous else q.copy()
+        self._qsel = view.sel
         self._dsel = arm.dofadr.copy()
         self._csel = arm.act.copy()
-        self._eff = self.data.site_xpos[arm.site] if arm.site >= 0 else self.data.xpos[arm.body]
-        self._axes = slice(0, 3) if arm.axes.tolist() == [0, 1, 2] else arm.axes.copy()
+        self._eff = view.eff
+        self._axes = view.axes
         self._shape = (self.n_joints,)
         self._buf = np.empty(self.n_joints)
         self._cbuf = np.empty(self.n_joints)
@@ -498,7 +320,6 @@ class ModelArmSim(ArmSim):
         self._every = int(spec.settle_check_every)
         self.last_settle_steps = 0
         self.last_settled = True
-        self._scratch: mujoco.MjData | None = None  # fk_mujoco's own data
         self.reset()
 
     # ------------------------------------------------------------------ protocol
@@ -573,9 +394,9 @@ class ModelArmSim(ArmSim):
 
     def tip_positions(self, alphas: np.ndarray) -> np.ndarray:
         """Effector positions on the task axes of postures of the commanded joints (the others at
-        rest): (N, n) -> (N, task_dim) through the vectorised :class:`.model_kin.ChainFK` (0.4 µs
-        per posture), or (n,) -> (task_dim,) through ``mj_kinematics`` (:meth:`fk_mujoco`: a few µs,
-        where numpy's per-call overhead would cost ~200 µs). The two agree to ~1e-15."""
+        rest): (N, n) -> (N, task_dim) through the vectorised :class:`sagg_common.model_kin.ChainFK`
+        (0.4 µs per posture), or (n,) -> (task_dim,) through ``mj_kinematics`` (:meth:`fk_mujoco`: a
+        few µs, where numpy's per-call overhead would cost ~200 µs). The two agree to ~1e-15."""
         a = np.asarray(alphas, dtype=float)
         single = a.ndim == 1
         a2 = a[None, :] if single else a
@@ -583,25 +404,19 @@ class ModelArmSim(ArmSim):
             raise ValueError(f"alphas must have shape (N, {self.n_joints}) or ({self.n_joints},), got {a.shape}")
         if single:
             return self.fk_mujoco(a2)[0]
-        return self.arm.kin.positions(a2)[:, self.arm.axes]
+        return self.arm.task_points(a2)
 
     def fk_mujoco(self, alphas: np.ndarray) -> np.ndarray:
         """Effector positions on the task axes of (N, n) postures through ``mj_kinematics``, row by
-        row on a scratch MjData (the simulator's own state is left alone): the reference."""
+        row (:meth:`sagg_common.robot_model.RobotModel.task_point`: the model's own MjData; the
+        simulator's state is left alone): the reference."""
         a = np.asarray(alphas, dtype=float)
         if a.ndim != 2 or a.shape[1] != self.n_joints:
             raise ValueError(f"alphas must have shape (N, {self.n_joints}), got {a.shape}")
-        if self._scratch is None:
-            self._scratch = mujoco.MjData(self.model)
-            self._scratch.qpos[:] = self.arm.qpos_rest
-        d = self._scratch
-        eff = d.site_xpos[self.arm.site] if self.arm.site >= 0 else d.xpos[self.arm.body]
         out = np.empty((a.shape[0], len(self.arm.axes)))
-        qsel, axes, model = self._qsel, self.arm.axes, self.model
+        point = self.arm.task_point
         for i in range(a.shape[0]):
-            d.qpos[qsel] = a[i]
-            mujoco.mj_kinematics(model, d)
-            out[i] = eff[axes]
+            out[i] = point(a[i])
         return out
 
 
@@ -641,9 +456,9 @@ def model_test_goals(spec: ModelArmSpec, lower, upper, n: int = 100, seed: int =
     """The planar rule (:func:`.arm.test_goals`) for a model arm: n reached effector positions in
     reachable cells drawn uniformly (distinct cells when there are enough), seeded by ``seed`` (the
     reachable set too, unless ``area`` is given)."""
-    if not _is_int(n) or n < 1:
+    if not is_int(n) or n < 1:
         raise ValueError(f"n must be an integer >= 1, got {n!r}")
-    if not _is_int(seed) or seed < 0:
+    if not is_int(seed) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     lo, hi = check_bounds(lower, upper, spec.task_dim)
     if area is None:
