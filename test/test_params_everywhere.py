@@ -126,7 +126,7 @@ def test_launch_plan_fills_every_derived_parameter(name, driver, tmp_path):
             assert lp[key] == [float(v) for v in want] == gp[key]
     if plan.setup == "arm":  # arm: joints / limits / rest from the config's arm (its DOF)
         spec = arm_spec_from_params(plan.params["sagg_sim_bridge"])
-        assert lp["joints"] == spec.joint_names() and len(lp["joints"]) == spec.dof
+        assert lp["joints"] == spec.joint_names() and len(lp["joints"]) == len(spec.limits()[0])
         assert lp["rest_posture"] == spec.rest_posture().tolist()
         assert lp["joint_limits.lower"] == spec.limits()[0].tolist()
         assert [e for _, e, _ in plan.nodes if e != "goal_generator"] == (["learner", "mujoco_bridge"] if driver == "sim"

@@ -207,7 +207,8 @@ class DriverMonitor:
     def missing(self, node, own_node: str = "sagg_run") -> list[str]:
         """The contract items not met yet (empty: the driver is ready), in words."""
         out = []
-        for topic, kind, count in (("/joint_states", JS_TYPE, self.js_count), (self.task_topic, TIP_TYPE, self.tip_count)):
+        js_any = self.js_count + sum(self.other_names.values())  # (messages of other joints count as arrived)
+        for topic, kind, count in (("/joint_states", JS_TYPE, js_any), (self.task_topic, TIP_TYPE, self.tip_count)):
             pubs = node.get_publishers_info_by_topic(topic)
             wrong = sorted({p.topic_type for p in pubs if p.topic_type != kind})
             if not pubs:
@@ -217,11 +218,14 @@ class DriverMonitor:
             elif count == 0:
                 out.append(f"{topic} ({kind}): a publisher but no message received (it must be reliable "
                            "and publish continuously, or at least once)")
-        if self.js_names is not None:
-            lacking = [j for j in self.joints if j not in self.js_names]
+        names = self.js_names
+        if names is None and self.other_names:  # only other joints so far: name what came
+            names = list(next(reversed(self.other_names)))
+        if names is not None:
+            lacking = [j for j in self.joints if j not in names]
             if lacking:
                 out.append(f"/joint_states lacks joint(s) {', '.join(lacking)} (it names "
-                           f"{', '.join(self.js_names) or 'none'}; the learner's 'joints': {', '.join(self.joints)})")
+                           f"{', '.join(names) or 'none'}; the learner's 'joints': {', '.join(self.joints)})")
             elif self.alpha is None:
                 out.append("/joint_states: no valid message yet (one finite position per name, stamps not "
                            "decreasing)")

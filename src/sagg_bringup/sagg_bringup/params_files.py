@@ -109,7 +109,7 @@ def write_params_file(path: Path, params: dict[str, dict]) -> None:
 class _RosDumper(yaml.SafeDumper):
     """A YAML dumper for ROS 2 parameter files: a string that a YAML 1.1 reader takes for a boolean
     (``y``, ``n``, ``yes``, ``on``, ...; rcl's parser does, PyYAML does not for ``y``/``n``) is
-    quoted, so ``task_axes: ['x', 'y', 'z']`` stays three strings."""
+    quoted, so a joint named ``y`` stays a string."""
 
 
 _BOOL_LIKE = {w for b in ("y", "n", "yes", "no", "on", "off", "true", "false") for w in (b, b.upper(), b.title())}

@@ -127,7 +127,7 @@ class ModelArmSpec:
         for f in ("timestep", "kp", "damping", "armature", "motor_noise", "settle_tolerance", "settle_velocity"):
             if f in kw and is_int(kw[f]):
                 kw[f] = float(kw[f])
-        spec = cls(model=model, effector=fields.get("effector", ""), task_axes=tuple(fields.get("task_axes", AXES)),
+        spec = cls(model=model, effector=fields.get("effector", ""), task_axes=tuple(fields.get("task_axes", "xyz")),
                    joints=joints, joint_lower=lower, joint_upper=upper, rest=rest, package_paths=paths, **kw)
         spec.validate()
         return spec

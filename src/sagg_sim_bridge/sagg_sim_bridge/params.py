@@ -67,10 +67,12 @@ MODEL_SCHEMA: Schema = (
           "Model arm: name of the body / URDF link (its origin) or site whose world position is the "
           "effector (e.g. tool0, flange). Required when arm.model is set; an unknown name is an error "
           "listing the model's bodies and sites."),
-    Param("arm.task_axes", "str_list", ["x", "y", "z"],
-          "Model arm: the world coordinates forming the task point, a subset of [x, y, z] in that order with "
-          "2 or 3 axes (default all three; [x, y] for a camera looking down on a table). task_space.lower/"
-          "upper then have one value per axis."),
+    Param("arm.task_axes", "str", "xyz",
+          "Model arm: the world coordinates forming the task point, in that order: 'xyz' (default) or two "
+          "of them ('xy' for a camera looking down on a table, 'xz', 'yz'). task_space.lower/upper then "
+          "have one value per axis; the task point travels as a PointStamped's x, y (, z) in this order. "
+          "(A string, not a list: a ROS parameter file reads a bare y as a boolean.)",
+          choices=("xyz", "xy", "xz", "yz")),
     Param("arm.joints", "str_list", ["*"],
           "Model arm: the commanded joints, in command order. Default ['*']: every hinge/slide joint that "
           "moves the effector, in model order; the model's other joints are held at their rest value."),
