@@ -121,7 +121,7 @@ def test_hostile_bench_short(tmp_path):
                                                 "gripper publisher (other joints only)",
                                                 "idle publishers on every watched topic",
                                                 "burst, then an idle publisher", "a replayed bag"],
-                        rate_targets=False)
+                        rate_targets=False, case_scale=0.5)
     assert res["ok"], "\n".join(lines)
     cases = res["phases"]["publishers"]["cases"]
     # issue 24: a gripper driver and idle publishers leave learning at speed (the bench's own target,

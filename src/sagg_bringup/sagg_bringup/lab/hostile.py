@@ -33,6 +33,7 @@ on the bag rebuilding exactly the run's memory and reports (no forged message to
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -124,6 +125,7 @@ class Fuzzer:
         self.diag: dict[str, dict[str, str]] = {}     # node -> values
         self.status = None
         self.status_t = 0.0
+        self.status_stamp = 0
         self.bridge_stamp = 0
         self.sent: dict[str, int] = {}                # topic -> messages the fuzzer published
         self.pubs: dict[str, object] = {}
@@ -138,7 +140,12 @@ class Fuzzer:
             self.diag[st.hardware_id] = {kv.key: kv.value for kv in st.values}
 
     def _on_status(self, m) -> None:
-        self.status, self.status_t = m, time.monotonic()
+        # the live learner's only: a replayed bag's /sagg/status (another run's, stamped earlier)
+        # would make its counts jump
+        stamp = m.header.stamp.sec * SEC + m.header.stamp.nanosec
+        if stamp < self.status_stamp:
+            return
+        self.status, self.status_t, self.status_stamp = m, time.monotonic(), stamp
 
     def _on_js(self, raw) -> None:
         st = self._dec.decode(raw)[0]
@@ -521,7 +528,8 @@ def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None
 
 def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str], quiet: float,
               log: Callable[[str], None], only: list[str] | None = None,
-              eval_every: int = 5000, drain: float = 20.0) -> tuple[dict[str, Outcome], dict, dict]:
+              eval_every: int = 5000, drain: float = 20.0,
+              case_scale: float = 1.0) -> tuple[dict[str, Outcome], dict, dict]:
     domain = pick_domain_id()
     run_dir = out / phase
     if phase == "content":
@@ -535,7 +543,8 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
     params = graph_params(load_graph_config(config, parse_set(phase_sets)), 1, "lockstep")
     f = Fuzzer(domain, params["sagg_learner"], replay_bag)
     outcomes: dict[str, Outcome] = {}
-    my_cases = [c for c in cases() if c.phase == phase and (only is None or c.name in only)
+    my_cases = [dataclasses.replace(c, seconds=c.seconds * case_scale) for c in cases()
+                if c.phase == phase and (only is None or c.name in only)
                 and (c.name != "a replayed bag" or (replay_bag / "metadata.yaml").is_file())]
     try:
         t0 = time.monotonic()
@@ -588,11 +597,12 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
 
 def bench_hostile(config: str, minutes: float, out_dir: str | None, sets: list[str] | None = None,
                   quiet: float = 3.0, out: Callable[[str], None] = print, only: list[str] | None = None,
-                  eval_every: int = 5000, drain: float = 20.0, rate_targets: bool = True) -> dict:
+                  eval_every: int = 5000, drain: float = 20.0, rate_targets: bool = True,
+                  case_scale: float = 1.0) -> dict:
     """Both phases (half of ``minutes`` each); prints the per-case table and the invariants;
     writes OUT/hostile.json. Returns it (``ok``: every case survived, counted, logged and learning
     went on, at its rate target (``rate_targets``: a timing target, for a quiet machine), and every
-    invariant holds)."""
+    invariant holds). ``case_scale``: the cases' active seconds scaled (a short test run)."""
     outp = Path(out_dir or f"runs/hostile-{time.strftime('%Y%m%d-%H%M%S')}")
     outp.mkdir(parents=True, exist_ok=True)
     result = {"config": config, "minutes": minutes, "sets": sets or [], "phases": {}}
@@ -600,7 +610,7 @@ def bench_hostile(config: str, minutes: float, out_dir: str | None, sets: list[s
     rows = []
     for phase in ("content", "publishers"):
         outcomes, inv, logged = run_phase(phase, config, minutes * 30.0, outp, sets or [], quiet, out, only,
-                                          eval_every, drain)
+                                          eval_every, drain, case_scale)
         result["phases"][phase] = {"cases": {k: vars(v) for k, v in outcomes.items()}, "logged": logged,
                                    "invariants": inv}
         targets = {c.name: c.target for c in cases()}
