@@ -51,6 +51,10 @@ def finish_arm_config(out: dict[str, dict], path: str | Path, overrides: dict | 
     from sagg_sim_bridge.arms import arm_reach, arm_spec_from_params
     bp, lp = out["sagg_sim_bridge"], out["sagg_learner"]
     absolute_model_paths(bp, Path(path).resolve().parent)
+    if lp.get("task_model.file"):  # (the learner's own model file, task_source 'model')
+        base = Path(path).resolve().parent
+        lp["task_model.file"] = str((base / lp["task_model.file"]).resolve())
+        lp["task_model.package_paths"] = [str((base / d).resolve()) for d in lp["task_model.package_paths"]]
     spec = arm_spec_from_params(bp)
     if bp.get("arm.model"):
         sections = read_config(path)

@@ -55,6 +55,18 @@ def core_config(full: dict[str, dict]) -> dict[str, dict]:
     return {name: {p.name: full[name][p.name] for p in schema} for name, schema in core_schemas().items()}
 
 
+def fill_task_model(lp: dict, bp: dict) -> None:
+    """``task_source: model`` without a ``task_model.file``: the config's simulated arm's model
+    (``arm.model``, effector, axes, package paths); ConfigError when there is none (in place)."""
+    if lp.get("task_source") != "model" or lp.get("task_model.file"):
+        return
+    if not bp.get("arm.model"):
+        raise ConfigError("parameter 'task_source': 'model' needs the robot's model: task_model.file (or a "
+                          "simulated arm from a model file, arm.model, in the config)")
+    lp.update({"task_model.file": bp["arm.model"], "task_model.effector": bp["arm.effector"],
+               "task_model.task_axes": bp["arm.task_axes"], "task_model.package_paths": list(bp["arm.package_paths"])})
+
+
 def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str,
                  spec=None) -> dict[str, dict]:
     """The parameters the nodes get: the resolved config plus what ``sagg run`` fills in; ``spec``:
@@ -73,6 +85,7 @@ def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str,
             lp[k] = v
     # the bridge and the learner must agree on the topics
     bp = params["sagg_sim_bridge"]
+    fill_task_model(lp, bp)
     if "timing" in bp:
         bp["timing"] = timing
     # lockstep: the simulator's one-command return to rest, as in-process (the graph equals the

@@ -31,7 +31,7 @@ from sagg_common.publishers import describe
 from sagg_common.ros_params import HW_DEPTH, reliable
 from sagg_common.sources import with_message_info
 
-from .external import DriverMonitor, explicit_joints, external_params
+from .external import DriverMonitor, explicit_joints, external_params, model_task
 from .arm_params import load_graph_config
 
 
@@ -46,7 +46,7 @@ class _Probe:
     def __init__(self, lp: dict):
         task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
         self.mon = DriverMonitor(lp["joints"], task, f"/{lp['controller'].strip('/')}/commands", lp["settle_velocity"],
-                                 lp["plausibility.source_grace"])
+                                 lp["plausibility.source_grace"], model_task(lp))
         self.js: list[tuple[float, int, np.ndarray | None]] = []
         self.tips: list[tuple[float, int, np.ndarray]] = []
         self.index: list[int] | None = None
@@ -74,8 +74,10 @@ def publishers_report(node, mon: DriverMonitor, say) -> dict:
     number of sources sending what the learner uses (one: accepted; more: the learner holds)."""
     out: dict = {}
     now = time.monotonic()
-    for topic, chains, what in (("/joint_states", mon.js_sources, "the learner's joints"),
-                                (mon.task_topic, mon.tip_sources, "task points")):
+    streams = [("/joint_states", mon.js_sources, "the learner's joints")]
+    if mon.task_fk is None:
+        streams.append((mon.task_topic, mon.tip_sources, "task points"))
+    for topic, chains, what in streams:
         pubs = [describe(i) for i in node.get_publishers_info_by_topic(topic)]
         sources = chains.live(now)
         verdict = ("accepted (one source)" if sources <= 1 and not chains.ambiguous(now) else
@@ -122,7 +124,10 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     probe = _Probe(lp)
     mon = probe.mon
     node.create_subscription(JointState, "/joint_states", with_message_info(probe.on_js), reliable(100))
-    node.create_subscription(PointStamped, mon.task_topic, with_message_info(probe.on_tip), reliable(100))
+    if mon.task_fk is None:
+        node.create_subscription(PointStamped, mon.task_topic, with_message_info(probe.on_tip), reliable(100))
+    else:  # task_source 'model': the task point of each measured posture, through the robot's model
+        mon.on_tip = lambda p: probe.tips.append((time.time(), mon.tip_stamp, p[:probe.m]))
     pub = node.create_publisher(Float64MultiArray, mon.cmd_topic, reliable(HW_DEPTH))
     problems: list[str] = []
     res: dict = {"joints": joints, "moved_joint": joint, "step": step, "problems": problems}
@@ -151,7 +156,10 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
             problems += missing
             say("contract NOT met:\n  - " + "\n  - ".join(missing))
             return res
-        say(f"contract met: /joint_states names {', '.join(joints)}; {mon.task_topic}; {mon.cmd_topic} has a subscriber")
+        task = (mon.task_topic if mon.task_fk is None else
+                f"the task point from the joints through {mon.task_fk.robot.path} (effector "
+                f"{mon.task_fk.robot.effector!r}; every joint found in the model)")
+        say(f"contract met: /joint_states names {', '.join(joints)}; {task}; {mon.cmd_topic} has a subscriber")
         # 2. at rest
         probe.js.clear()
         probe.tips.clear()

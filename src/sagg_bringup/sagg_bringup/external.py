@@ -118,7 +118,7 @@ class DriverMonitor:
     the robot commands from these readings."""
 
     def __init__(self, joints: list[str], task_topic: str, cmd_topic: str, settle_velocity: float,
-                 source_grace: float = 2.0):
+                 source_grace: float = 2.0, task_fk=None):
         self.joints = list(joints)
         self.task_topic, self.cmd_topic = task_topic, cmd_topic
         self.settle_velocity = settle_velocity
@@ -137,6 +137,9 @@ class DriverMonitor:
         self.tip_sources = SourceChains(source_grace)
         self.rejected_sources = {"/joint_states": 0, task_topic: 0}  # messages refused: two sources
         self.on_tip = None  # called with each accepted task point (xyz array)
+        # task_source 'model' (a TaskFromJoints): the task point is computed from each accepted
+        # joint state, as the learner does; no task topic
+        self.task_fk = task_fk
 
     def subscribe(self, node) -> None:
         """This monitor's subscriptions on ``node`` (with the message info: the sources)."""
@@ -145,7 +148,8 @@ class DriverMonitor:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray
         node.create_subscription(JointState, "/joint_states", with_message_info(self.on_joint_state), reliable(100))
-        node.create_subscription(PointStamped, self.task_topic, with_message_info(self.on_task_point), reliable(100))
+        if self.task_fk is None:
+            node.create_subscription(PointStamped, self.task_topic, with_message_info(self.on_task_point), reliable(100))
         node.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(100))
 
     @staticmethod
@@ -174,6 +178,8 @@ class DriverMonitor:
             return
         self.alpha, self.js_stamp = pos, st
         self.settled = vel is None or bool(np.all(np.abs(vel) < self.settle_velocity))
+        if self.task_fk is not None:
+            self._take_tip(np.append(self.task_fk.point(pos), [0.0] * (3 - self.task_fk.task_dim)), st)
 
     def on_command(self, msg) -> None:  # noqa: ARG002 - only its time matters
         self.cmd_rx = time.monotonic()
@@ -186,9 +192,15 @@ class DriverMonitor:
         if self._refused(self.tip_sources, self.task_topic, info):
             return
         if np.all(np.isfinite(p)) and st >= self.tip_stamp:
-            self.tip, self.tip_stamp = p, st
-            if self.on_tip is not None:
-                self.on_tip(p)
+            self._take_tip(p, st)
+
+    def _take_tip(self, p: np.ndarray, st: int) -> None:
+        self.tip, self.tip_stamp = p, st
+        if self.task_fk is not None:
+            self.tip_count += 1
+            self.tip_rx = (self.tip_rx + [time.monotonic()])[-200:]
+        if self.on_tip is not None:
+            self.on_tip(p)
 
     def _refused(self, chains: SourceChains, topic: str, info: dict) -> bool:
         """Whether a message is not taken for its source (two sources: counted; a gap: not)."""
@@ -208,7 +220,9 @@ class DriverMonitor:
         """The contract items not met yet (empty: the driver is ready), in words."""
         out = []
         js_any = self.js_count + sum(self.other_names.values())  # (messages of other joints count as arrived)
-        for topic, kind, count in (("/joint_states", JS_TYPE, js_any), (self.task_topic, TIP_TYPE, self.tip_count)):
+        streams = [("/joint_states", JS_TYPE, js_any)] + ([] if self.task_fk is not None else
+                                                          [(self.task_topic, TIP_TYPE, self.tip_count)])
+        for topic, kind, count in streams:
             pubs = node.get_publishers_info_by_topic(topic)
             wrong = sorted({p.topic_type for p in pubs if p.topic_type != kind})
             if not pubs:
@@ -242,6 +256,16 @@ class DriverMonitor:
     def rate(rx: list[float]) -> float:
         """Messages per second over the recent receive times."""
         return (len(rx) - 1) / (rx[-1] - rx[0]) if len(rx) > 1 and rx[-1] > rx[0] else float("nan")
+
+
+def model_task(lp: dict):
+    """The learner's ``task_source: model`` as this process computes it too (a TaskFromJoints), or
+    None (the task point comes from task_topic)."""
+    if lp.get("task_source") != "model":
+        return None
+    # lazy (heavy): mujoco
+    from sagg_common.robot_model import task_from_params
+    return task_from_params(lp, lp["joints"], len(lp["task_space.lower"]), os.getcwd())
 
 
 def wait_for_driver(session: GraphSession, monitor: DriverMonitor, timeout: float, progress: bool) -> float:
@@ -535,7 +559,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     st = session.st
     try:
         monitor = DriverMonitor(lp["joints"], task_topic, cmd_topic, lp["settle_velocity"],
-                                lp["plausibility.source_grace"])
+                                lp["plausibility.source_grace"], model_task(lp))
         monitor.subscribe(session.node)
         evaluator = None
         checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]

@@ -356,3 +356,26 @@ class TaskFromJoints:
     def point(self, alpha: np.ndarray) -> np.ndarray:
         """(n,) finite joint values in :attr:`joint_names` order -> (task_dim,) task point."""
         return self._fk.point(alpha)
+
+
+def task_from_params(p: dict, joints: Sequence[str], m: int, base_dir: str) -> TaskFromJoints:
+    """A learner's ``task_source: model``: the task point of a measured posture through the robot's
+    model given by the learner's parameters ``p`` (``task_model.file``, ``.effector``,
+    ``.task_axes``, ``.package_paths``: relative ones relative to ``base_dir``; ``joints``,
+    ``joint_limits.*`` and ``rest_posture``: the learner's), its ``joints`` by name, ``m`` task
+    dimensions. ConfigError names the learner's parameter."""
+    if not p["task_model.file"]:
+        raise ConfigError("parameter 'task_model.file': empty; allowed: the robot's MJCF (.xml) or URDF (.urdf) "
+                          "file (task_source 'model')")
+    if len(p["task_model.task_axes"]) != m:
+        raise ConfigError(f"parameter 'task_model.task_axes': {p['task_model.task_axes']!r}; allowed: {m} axes, "
+                          "one per task_space dimension")
+    try:
+        robot = RobotModel.load(os.path.normpath(os.path.join(base_dir, p["task_model.file"])),
+                                p["task_model.effector"], tuple(p["task_model.task_axes"]),
+                                [os.path.normpath(os.path.join(base_dir, d)) for d in p["task_model.package_paths"]],
+                                joints=joints, joint_lower=p["joint_limits.lower"], joint_upper=p["joint_limits.upper"],
+                                rest=p["rest_posture"])
+        return TaskFromJoints(robot, joints)
+    except ConfigError as exc:  # (the model's errors name the bridge's arm.* parameters)
+        raise ConfigError(str(exc).replace("arm.model", "task_model.file").replace("arm.", "task_model.")) from exc

@@ -21,6 +21,7 @@ acting (exactly where the in-process ``InProcessRun.step_until`` stops) and says
 from __future__ import annotations
 
 import math
+import os
 import struct
 import sys
 import time
@@ -39,7 +40,8 @@ from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common import sources
 from sagg_common.publishers import UNKNOWN_NODE, PublisherWatch, describe
-from sagg_common.ros_params import HW_DEPTH, reliable, run_node
+from sagg_common.robot_model import task_from_params
+from sagg_common.ros_params import HW_DEPTH, params_dir, reliable, run_node
 from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
@@ -133,8 +135,14 @@ class LearnerNode(LearnerNodeBase):
         # (the publishers' sequence numbers tell the sources apart)
         js_sub = self.create_subscription(JointState, "/joint_states", sources.with_message_info(self.on_joint_state),
                                           reliable(10), raw=True)
-        tip_sub = self.create_subscription(PointStamped, p["task_topic"], sources.with_message_info(self.on_task_point),
-                                           reliable(10), raw=True)
+        # the task point: from task_topic, or from the measured joints through the robot's model
+        self.task_fk = None
+        if p["task_source"] == "model":
+            self.task_fk = task_from_params(p, self.robot.joint_names, self.m, params_dir() or os.getcwd())
+            for note in self.task_fk.robot.notices:
+                self.get_logger().info(f"task_model: {note}")
+        tip_sub = None if self.task_fk is not None else self.create_subscription(
+            PointStamped, p["task_topic"], sources.with_message_info(self.on_task_point), reliable(10), raw=True)
         # one source per input (DESIGN §8, sagg_common.sources): judged by the messages that arrive,
         # never by who merely publishes; the messages of /joint_states without any of our joints
         # (a gripper's) are not part of the stream
@@ -146,7 +154,8 @@ class LearnerNode(LearnerNodeBase):
         self._maps: dict[tuple, tuple] = {}      # name list -> how its messages are mapped (_name_map)
         self.watch = PublisherWatch(self)        # (names the publishers in holds and on /diagnostics)
         self.watch.watch("/joint_states", js_sub)
-        self.watch.watch(p["task_topic"], tip_sub)
+        if tip_sub is not None:
+            self.watch.watch(p["task_topic"], tip_sub)
         self.js_decoder = JointStateDecoder()
         # the return to rest (rest_return): stepped unless the simulator is the only listener
         self.rest_return = p["rest_return"]
@@ -259,6 +268,8 @@ class LearnerNode(LearnerNodeBase):
         settled = v is None or bool(-sv < vlo and vhi < sv)  # every |velocity| < settle_velocity
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
         self.js_rx = time.monotonic()
+        if self.task_fk is not None:  # task_source 'model': the task point of this posture
+            self._take_tip(self.task_fk.point(alpha), st)
         if self.source_text:
             self._source_settled("/joint_states")
         if self.js_run.ok():
@@ -393,18 +404,21 @@ class LearnerNode(LearnerNodeBase):
                 return
             if self.state is self.RUNNING_COMMAND:
                 self.tip_min = min(self.tip_min, st - 1 + self.delay_ns)
-        self.tip = np.array(xyz)
-        self.tip_stamp = st
-        self.tip_rx = time.monotonic()
         if self.source_text:
             self._source_settled(topic)
         if self.tip_run.ok():
             self._set_hold("task_point", None)
+        self._take_tip(np.array(xyz), st)
         if self.holds:
             self._check_driver()
         if self.state is self.RUNNING_COMMAND and st > self.tip_min:
-            self.tip_fresh = True
             self._try_answer_command(False)
+
+    def _take_tip(self, y: np.ndarray, st: int) -> None:
+        """The newest task point (from task_topic, or computed from the measured joints), stamped ``st``."""
+        self.tip, self.tip_stamp, self.tip_rx = y, st, time.monotonic()
+        if self.state is self.RUNNING_COMMAND and st > self.tip_min:
+            self.tip_fresh = True
 
     def _second_source(self, topic: str, key: str, chains: sources.SourceChains, what: str) -> None:
         """A message while ``topic``'s stream has two live sources: rejected (counted, logged), and

@@ -27,6 +27,25 @@ LEARNER_NODE_SCHEMA: Schema = (
           "Position controller name: commands go to /<controller>/commands."),
     Param("task_topic", "str", "/tip_position",
           "geometry_msgs/PointStamped topic of the effector position in Y (the paper's camera)."),
+    Param("task_source", "str", "topic",
+          "Where the task point comes from: 'topic' = task_topic (a tracker, the paper's camera, or the "
+          "MuJoCo bridge); 'model' = computed from every accepted /joint_states with the robot's model "
+          "(task_model.*: MuJoCo forward kinematics of the measured posture, the other model joints at "
+          "rest), for a driver that publishes only joint states. `sagg run` / the launch file fill "
+          "task_model.* from the config's simulated arm (arm.model) when they are not given.",
+          choices=("topic", "model")),
+    Param("task_model.file", "str", "",
+          "task_source 'model': the robot's MJCF (.xml) or URDF (.urdf) file (relative: to the parameter "
+          "file's directory); its joints named as in 'joints'."),
+    Param("task_model.effector", "str", "",
+          "task_source 'model': the body / link / site whose world position is the effector (tool0)."),
+    Param("task_model.task_axes", "str", "xyz",
+          "task_source 'model': the world coordinates forming the task point ('xyz', 'xy', 'xz', 'yz'), "
+          "one per task_space dimension.", choices=("xyz", "xy", "xz", "yz")),
+    Param("task_model.package_paths", "str_list", ["."],
+          "task_source 'model': directories holding the packages of the model's package:// files (relative: "
+          "to the parameter file's directory), before AMENT_PREFIX_PATH's share/. Meshes not found are not "
+          "needed for kinematics (dropped, said once)."),
     Param("settle_velocity", "float", 0.05,
           "An observation counts as settled when every |joint velocity| is below this (rad/s). "
           "Joint states without velocities count as settled.", low=0.0, high=1e6, low_open=True),
