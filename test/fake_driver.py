@@ -12,6 +12,10 @@ It behaves like a real position-controlled arm behind ros2_control plus a tracki
 - commands arrive on ``/<controller>/commands`` (std_msgs/Float64MultiArray, joint order = the
   learner's ``joints`` parameter, i.e. ``prefix0..prefix{n-1}``).
 
+An arm known by its model instead (issue 23, ``task_source: model``): ``--joint-names`` (the
+command order), ``--lower``/``--upper`` (per-joint limits) and ``--no-tip`` (no tracker: only
+/joint_states, as most ros2_control drivers).
+
 Forward kinematics: numpy only (``sagg_sim_bridge.arm.forward_kinematics`` of the link lengths).
 Run: ``python test/fake_driver.py --dof 3 --lengths 20 15 10 --rate 250 --latency 0.008``.
 """
@@ -40,8 +44,9 @@ class FakeArmDriver(Node):
         super().__init__("fake_arm_driver")
         self.n = a.dof
         self.lengths = np.asarray(a.lengths, dtype=float)
-        self.lower = np.full(self.n, -a.limit)
-        self.upper = np.full(self.n, a.limit)
+        self.lower = np.asarray(a.lower, dtype=float) if a.lower else np.full(self.n, -a.limit)
+        self.upper = np.asarray(a.upper, dtype=float) if a.upper else np.full(self.n, a.limit)
+        self.tip = not a.no_tip
         self.q = np.asarray(a.rest, dtype=float).copy()
         self.target = self.q.copy()
         self.vel = np.zeros(self.n)
@@ -49,14 +54,14 @@ class FakeArmDriver(Node):
         self.max_step = a.max_velocity / a.rate
         self.noise, self.tip_noise = a.noise, a.tip_noise
         self.rng = np.random.default_rng(a.seed)
-        self.names = [f"{a.joint_prefix}{i}" for i in range(self.n)][::-1]
+        self.names = (list(a.joint_names) or [f"{a.joint_prefix}{i}" for i in range(self.n)])[::-1]
         self.delay = collections.deque()
         self.latency_ns = int(a.latency * 1e9)
         self.commands = 0
         self.largest_jump = 0.0
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.js_pub = self.create_publisher(JointState, "/joint_states", qos)
-        self.tip_pub = self.create_publisher(PointStamped, "/tip_position", qos)
+        self.tip_pub = self.create_publisher(PointStamped, "/tip_position", qos) if self.tip else None
         self.create_subscription(Float64MultiArray, f"/{a.controller}/commands", self.on_command, qos)
         self.create_timer(1.0 / a.rate, self.on_cycle)
 
@@ -75,7 +80,7 @@ class FakeArmDriver(Node):
         self.q = self.q + step
         self.vel = step * self.rate  # rad/s over the last cycle
         now = self.get_clock().now()
-        tip = forward_kinematics(self.q[None, :], self.lengths)[0]
+        tip = forward_kinematics(self.q[None, :], self.lengths)[0] if self.tip else (0.0, 0.0)
         js = JointState()
         js.header.stamp = now.to_msg()
         js.name = self.names
@@ -91,7 +96,8 @@ class FakeArmDriver(Node):
         while self.delay and self.delay[0][0] <= now.nanoseconds:
             _, js_out, pt_out = self.delay.popleft()
             self.js_pub.publish(js_out)
-            self.tip_pub.publish(pt_out)
+            if self.tip:
+                self.tip_pub.publish(pt_out)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -108,11 +114,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--controller", default="forward_position_controller")
     ap.add_argument("--joint-prefix", default="axis_")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--joint-names", nargs="+", default=[], help="the joints, in command order")
+    ap.add_argument("--lower", type=float, nargs="+", default=[], help="per-joint lower limits")
+    ap.add_argument("--upper", type=float, nargs="+", default=[], help="per-joint upper limits")
+    ap.add_argument("--no-tip", action="store_true", help="publish no /tip_position")
     a = ap.parse_args(argv)
     if a.rest is None:
         a.rest = [0.3] * a.dof
-    if len(a.lengths) != a.dof or len(a.rest) != a.dof:
-        ap.error("--lengths and --rest need one value per joint (--dof)")
+    per_joint = [a.rest] + ([] if a.no_tip else [a.lengths]) + [v for v in (a.joint_names, a.lower, a.upper) if v]
+    if any(len(v) != a.dof for v in per_joint):
+        ap.error("--lengths, --rest, --joint-names, --lower, --upper need one value per joint (--dof)")
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = FakeArmDriver(a)
     stop = []

@@ -226,7 +226,7 @@ def params_path(bag: Path, params_file: str | Path | None) -> Path:
     return Path(params_file) if params_file else bag.parent / "params.yaml"
 
 
-def _params_from(bag: Path, params_file: str | Path | None) -> dict[str, dict]:
+def params_from(bag: Path, params_file: str | Path | None) -> dict[str, dict]:
     """The nodes' parameters (:func:`params_path`), resolved against the full node schemas."""
     path = params_path(bag, params_file)
     if not path.is_file():
@@ -267,7 +267,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     if not paths:
         raise ConfigError("relearn: no bag given")
     recovered = [recover_bag(p, out) for p in paths if is_unfinished(p)]
-    full = _params_from(paths[0], params_file)
+    full = params_from(paths[0], params_file)
     gp = {p.name: full["sagg_goal_generator"][p.name] for p in GEN_SCHEMA}
     lp = {p.name: full["sagg_learner"][p.name] for p in LEARNER_SCHEMA}
     bp = {p.name: full["sagg_sim_bridge"][p.name] for p in BRIDGE_SCHEMA}

@@ -25,11 +25,11 @@ from sagg_low_level.memory import SampleMemory
 EVAL_NICE = 5
 
 
-def evaluation_setup(learner_params: dict, spec):
+def evaluation_setup(learner_params: dict, spec, memory=None):
     """``(area, test_goals, learner)`` of a run's evaluation on the arm ``spec``, as
     ``run_experiment`` computes them (``test_goals(spec, Y, n=eval.goals, seed=eval.seed)``); the
-    learner (empty memory) is built exactly as the learner node builds its own (same neighbour
-    search). Used by ``sagg run``'s evaluator and by ``sagg relearn``."""
+    learner (empty memory, or ``memory``) is built exactly as the learner node builds its own
+    (same neighbour search). Used by ``sagg run``'s evaluator, ``sagg relearn`` and ``sagg reach``."""
     # lazy (heavy): mujoco
     from sagg_sim_bridge.arms import arm_reachable_area, arm_test_goals
     lp = learner_params
@@ -38,7 +38,7 @@ def evaluation_setup(learner_params: dict, spec):
                            seed=lp["eval.seed"], area=area)
     lower, upper = spec.limits()
     robot = Robot(spec.joint_names(), lower, upper, spec.rest_posture())
-    learner = EvolvingContextLearner(lp, robot, len(lp["task_space.lower"]))
+    learner = EvolvingContextLearner(lp, robot, len(lp["task_space.lower"]), memory=memory)
     return area, goals, learner
 
 

@@ -120,14 +120,40 @@ def reach_goals(source: str | Path, goals: list[list[float]] | None = None, test
     res = {"source": str(source), "driver": driver, "from_rest": from_rest, "goals": results,
            "mean_error": float(errors.mean()), "median_error": float(np.median(errors)),
            "run_final_mean_error": summary.get("final_mean_error"), "run_final_median_error": summary.get("final_median_error")}
+    if from_rest:  # the same goals, the same model, the run's own evaluation code
+        offline = offline_errors(_model_source(source)[0], memory, goals)
+        res["offline_errors"] = offline.tolist()
+        res["offline_mean_error"] = float(offline.mean())
     (out / "reach.json").write_text(json.dumps(res, indent=1))
     line = f"{len(results)} goal(s): mean error {res['mean_error']:.4g}, median {res['median_error']:.4g}"
+    if from_rest:
+        line += (f"; the same goals reached offline in simulation by the run's evaluation: mean "
+                 f"{res['offline_mean_error']:.4g} (largest difference "
+                 f"{float(np.abs(errors - offline).max()):.3g})")
     if test_goals and res["run_final_mean_error"] is not None:
         line += (f"; the run's test error: mean {res['run_final_mean_error']:.4g}, median "
                  f"{res['run_final_median_error']:.4g} ({len(summary.get('test_goals') or [])} goals, evaluated "
                  "offline in simulation)")
     say(line + f" -> {out / 'reach.json'}")
     return res
+
+
+def offline_errors(params_file: Path, memory: Path, goals) -> np.ndarray:
+    """The errors of the frozen model ``memory`` on ``goals``, each reached from rest offline on the
+    run's simulated arm by the run's own evaluation code (:func:`.evaluator.evaluate_frozen`): what
+    the graph's reaches equal in simulation, and the simulated side of a reach on the robot."""
+    # lazy (heavy): mujoco
+    from sagg_low_level.learner import SCHEMA as LEARNER_CORE
+    from sagg_low_level.memory import SampleMemory
+    from sagg_sim_bridge.arms import arm_spec_from_params
+    from sagg_sim_bridge.params import SCHEMA as BRIDGE_CORE
+    from .bags import params_from
+    from .evaluator import evaluate_frozen, evaluation_setup
+    full = params_from(params_file.parent, params_file)
+    lp = {p.name: full["sagg_learner"][p.name] for p in LEARNER_CORE}
+    spec = arm_spec_from_params({p.name: full["sagg_sim_bridge"][p.name] for p in BRIDGE_CORE})
+    _, _, learner = evaluation_setup(lp, spec, SampleMemory.load(memory))
+    return evaluate_frozen(learner, spec, lp, np.asarray(goals, dtype=float))
 
 
 def _env_domain(domain_id: int | None) -> int:

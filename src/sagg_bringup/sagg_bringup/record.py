@@ -37,7 +37,7 @@ from sagg_common.ros_params import reliable
 from .markers import MarkerView, MARKER_TOPIC
 from .record_account import RecordAccount
 from .recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
-from .topics import COMMAND_TYPES, STREAM_TOPICS, graph_topics
+from .topics import COMMAND_TYPES, STREAM_TOPICS, awaited_topics, graph_topics
 
 # exit code of `sagg record` when messages were lost (cli)
 LOST_EXIT_CODE = 3
@@ -191,8 +191,7 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
                   f"({len(rec.waiting)} without publisher yet)", end="", file=sys.stderr, flush=True)
 
     try:
-        hw = tuple(t.name for t in topics if not t.name.startswith("/sagg/") and t.name != "/clock")
-        rec = LiveRecorder(node, bag, topics, handlers, gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+        rec = LiveRecorder(node, bag, topics, handlers, gate=("/sagg/sample",), wait_for=awaited_topics(topics))
         account.st.on_reject = rec.log_problem
         ack = Acknowledger(node, account.acknowledged)
         node.create_subscription(DiagnosticArray, "/diagnostics", account.on_diagnostics, reliable(100))

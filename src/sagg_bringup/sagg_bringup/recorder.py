@@ -46,6 +46,7 @@ class TopicSpec:
     transient_local: bool = False
     best_effort: bool = False  # (`sagg record` takes the publishers' reliability)
     publisher: str | None = None  # the node whose messages the handler accepts (None: any single publisher)
+    optional: bool = False  # recorded when published, but no part of the contract: nothing waits for it
 
 
 def make_typestore(msg_dir: Path | None = None):

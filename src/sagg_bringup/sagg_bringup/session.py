@@ -18,6 +18,7 @@ from .processes import GraphError, NodeGroup, NodeProcess
 from .recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
 from .results import goal_share_stats
 from .run_state import RunState
+from .topics import awaited_topics
 
 # s without a new competence report after which a finished run stops waiting for the missing ones
 # (they are counted as dropped; RunState.all_recorded)
@@ -84,13 +85,12 @@ class GraphSession:
         /sagg/sample is subscribed once the hardware topics (and /sagg/competence) are matched: the
         learner waits for that subscriber before its first command, so the bag misses no command
         or answer of the driver."""
-        hw = tuple(t.name for t in self.topics if not t.name.startswith("/sagg/") and t.name != "/clock")
         self.view = MarkerView(self.node, self.topics)
         handlers = dict(handlers)
         for topic, h in self.view.handlers().items():
             handlers[topic] = h if topic not in handlers else both(handlers[topic], h)
         self.recorder = TopicRecorder(self.node, self.bag, self.topics, handlers,
-                                      gate=("/sagg/sample",), wait_for=hw + ("/sagg/competence",))
+                                      gate=("/sagg/sample",), wait_for=awaited_topics(self.topics))
         self.st.on_reject = self.recorder.log_problem  # the handlers' rejections are logged too
 
     def acknowledge(self, source: Callable[[], int]) -> None:

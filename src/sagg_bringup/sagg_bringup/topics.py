@@ -33,7 +33,8 @@ def sagg_topics() -> list[TopicSpec]:
 
 def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSpec]:
     """The arm's topics (the position contract: joint states, position commands, the tip), and
-    /clock in real time."""
+    /clock in real time. With ``task_source: model`` the tip is recorded when something publishes
+    it (the simulated bridge does) but is no part of the contract (:func:`awaited_topics`)."""
     controller = learner_params.get("controller", "forward_position_controller")
     task_topic = learner_params.get("task_topic", "/tip_position")
     if not task_topic.startswith("/"):
@@ -41,7 +42,8 @@ def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSp
     return sagg_topics() + [
         TopicSpec("/joint_states", "sensor_msgs/msg/JointState"),
         TopicSpec(f"/{controller}/commands", "std_msgs/msg/Float64MultiArray"),
-        TopicSpec(task_topic, "geometry_msgs/msg/PointStamped"),
+        TopicSpec(task_topic, "geometry_msgs/msg/PointStamped",
+                  optional=learner_params.get("task_source") == "model"),
     ] + ([TopicSpec("/clock", "rosgraph_msgs/msg/Clock", depth=100)] if timing == "realtime" else [])
 
 
@@ -54,6 +56,14 @@ def trajectory_topics(lp: dict) -> list[TopicSpec]:
         TopicSpec(f"/{lp['controller'].strip('/')}/joint_trajectory", "trajectory_msgs/msg/JointTrajectory"),
         TopicSpec(task, out_type),
     ]
+
+
+def awaited_topics(topics: list[TopicSpec]) -> tuple[str, ...]:
+    """The topics a recorder waits for before the learner may start: the hardware topics of the
+    contract (not /clock, not an optional one) and /sagg/competence (the learner's first
+    command and its answer must not be published before the recorder can take them)."""
+    hw = tuple(t.name for t in topics if not t.name.startswith("/sagg/") and t.name != "/clock" and not t.optional)
+    return hw + ("/sagg/competence",)
 
 
 def watched_topics(learner_params: dict) -> list[TopicSpec]:

@@ -219,7 +219,8 @@ class LearnerNode(LearnerNodeBase):
         self.poll_timer = self.create_timer(0.05, self.on_poll)
         self.get_logger().info(
             f"strategy {core['strategy']}, {self.robot.n} joints, commands on {self.cmd_topic}, "
-            f"task point on {p['task_topic']}"
+            + (f"task point on {p['task_topic']}" if self.task_fk is None else
+               f"task point from the joints through {self.task_fk.robot.path} (effector {self.task_fk.robot.effector!r})")
             + (f", stops at {self.max_micro_actions} micro-actions" if self.max_micro_actions else ""))
 
     # ------------------------------------------------------------------ observations
