@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from sagg_common.params import ConfigError, schema_defaults
 from sagg_sim_bridge.arm import ArmSim, ArmSpec, reachable_area
@@ -213,6 +214,22 @@ def test_task_axes_xy_gives_2d_points(tmp_path):
     assert sim2.tip_positions(np.array([q, q])).shape == (2, 2)
     with pytest.raises(ConfigError, match="arm.task_axes"):
         urdf_spec(tmp_path, task_axes=["y", "x"])
+
+
+def test_a_task_space_of_another_size_than_the_task_axes_is_one_clear_error(tmp_path):
+    from sagg_bringup.setups import load_experiment_config
+    cfg = tmp_path / "arm6_2d.yaml"
+    cfg.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"task_space": {"lower": [-1.0, -1.0], "upper": [1.0, 1.0]}}},
+        "sagg_sim_bridge": {"ros__parameters": {"arm": {"model": str(REPO / "config/robots/arm6.xml"),
+                                                        "effector": "tool"}}}}))
+    with pytest.raises(ConfigError, match=r"'task_space.lower': 2 values; allowed: 3.*arm.task_axes 'xyz'"):
+        load_experiment_config(cfg)
+    # the same arm with a 2-D task (a camera above the table) is fine
+    data = yaml.safe_load(cfg.read_text())
+    data["sagg_sim_bridge"]["ros__parameters"]["arm"]["task_axes"] = "xy"
+    cfg.write_text(yaml.safe_dump(data))
+    load_experiment_config(cfg)
 
 
 def test_command_observe_and_batched_fk_agree(tmp_path):

@@ -46,6 +46,29 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
         bad = client.client.send_goal_async(client.Reach.Goal(target=[1e9, 0.0]))
         client._spin_until(None, bad.done, 30.0, "no answer")
         assert not bad.result().accepted                            # outside Y: rejected
+        huge = client.client.send_goal_async(client.Reach.Goal(target=[30.0, 10.0], max_steps=4_000_000_000))
+        client._spin_until(None, huge.done, 30.0, "no answer")
+        assert not huge.result().accepted                           # a budget beyond the limit: rejected
+        # learning paused by /sagg/pause (a hold): a reach waits; a second one is refused while it
+        # does; cancelling the first answers at once, nothing moved; then learning resumes
+        from std_srvs.srv import SetBool
+        pause = client.node.create_client(SetBool, "/sagg/pause")
+        call = pause.call_async(SetBool.Request(data=True))
+        client._spin_until(None, call.done, 30.0, "no answer to /sagg/pause")
+        first = client.client.send_goal_async(client.Reach.Goal(target=[20.0, -10.0]))
+        client._spin_until(None, first.done, 30.0, "no answer")
+        held = first.result()
+        assert held.accepted
+        second = client.client.send_goal_async(client.Reach.Goal(target=[25.0, 0.0]))
+        client._spin_until(None, second.done, 30.0, "no answer")
+        assert not second.result().accepted                         # one reach at a time
+        cancel = held.cancel_goal_async()
+        client._spin_until(None, cancel.done, 30.0, "no answer to the cancel request")
+        res = held.get_result_async()
+        client._spin_until(None, res.done, 30.0, "a canceled reach held by a pause never answered")
+        assert res.result().result.outcome == "canceled" and res.result().result.steps == 0
+        call = pause.call_async(SetBool.Request(data=False))
+        client._spin_until(None, call.done, 30.0, "no answer to /sagg/pause")
         stdout, stderr = proc.communicate(timeout=300)
     finally:
         client.close()
@@ -57,7 +80,8 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
     assert s["micro_actions"] == n == s["memory"]["samples"] and before < n
     log = (out / "logs" / "learner.log").read_text()
     assert "reach of [30.0, 10.0]" in log and "reach hold released" in log
-    assert "rejected input [reach.invalid]" in log
+    assert "rejected input [reach.invalid]" in log and "rejected input [reach.busy]" in log
+    assert "reach of [20.0, -10.0]: canceled" in log
 
 
 def test_sagg_reach_of_a_finished_run_from_rest(tmp_path):

@@ -88,6 +88,25 @@ def test_a_restarted_publisher_is_taken_again_after_grace():
     assert c.classify(3, 1.6) == ACCEPT          # the old chain has been quiet since 0.49
 
 
+def test_numbers_of_messages_not_taken_are_no_gap_and_make_nothing_accepted():
+    # one publisher alternating its arm's and its gripper's joints: the gripper's numbers skipped
+    c = SourceChains(grace=10.0)
+    verdicts = []
+    for k in range(1, 41):
+        if k % 2:
+            verdicts.append(c.classify(k, 0.01 * k))
+        else:
+            c.skip(k)
+    assert verdicts == [ACCEPT] * 20 and c.gaps == 0
+    c.skip(41)                                   # a rejected value (NaN) of the arm: no gap either
+    assert c.classify(43, 0.5) == GAP            # 42 was neither received nor skipped: a gap
+    c.skip(44)
+    assert c.classify(45, 0.6) == ACCEPT
+    c.skip(1000)                                 # a skipped number elsewhere fills no gap of ours
+    assert c.classify(47, 0.7) == GAP and c.classify(48, 0.8) == ACCEPT
+    assert c.live(0.8) == 1                      # skipping made no chain
+
+
 def test_message_info_reaches_the_handler_from_either_executor_call_form():
     got = []
     cb = with_message_info(lambda msg, inf: got.append((msg, inf)))
@@ -104,7 +123,8 @@ def test_recorders_are_told_apart_and_the_slowest_live_one_is_waited_for():
     acks.ack(2, 60, 0.6)
     assert acks.recorders_seen == 2 and acks.slowest(1.0) == 60 and acks.largest() == 120
     acks.ack(7, 130, 5.2)      # B says nothing more: after the timeout only A is waited for
-    assert acks.slowest(5.7) == 130
+    assert acks.newly_stale(5.5) == [] and acks.slowest(5.7) == 130
+    assert acks.newly_stale(5.7) == [60] and acks.newly_stale(5.8) == []   # (said once)
     stuck = RecorderAcks(timeout=5.0)  # a publisher repeating one number (a stopped recorder, a stray one)
     for k in range(1, 20):
         stuck.ack(k, 0, 0.5 * k)
@@ -161,6 +181,13 @@ def test_a_gripper_and_idle_publishers_change_nothing(nodes):
             assert n.js_stamp == k * SEC and n.tip_stamp == k * SEC   # every arm state taken
         assert n.guard.total == total and not n.holds
         assert n.other_joints[("gripper_finger",)] == 5
+        # one driver publishing its arm's and its gripper's joints in turn through ONE publisher:
+        # every arm state is still taken (the gripper's numbers are no gap in the chain)
+        n.js_sources = SourceChains(GRACE)
+        for k in range(6, 12):
+            n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=k * SEC), info(300 + 2 * k))
+            n.on_joint_state(js_bytes([0.01 * k], [0.0], ns=k * SEC, names=["gripper_finger"]), info(301 + 2 * k))
+            assert n.js_stamp == k * SEC
         n.samples_published = 10_000
         assert not n._recorder_behind()   # an idle /sagg/recorded publisher is no recorder to wait for
     finally:

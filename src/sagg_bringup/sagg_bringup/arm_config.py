@@ -20,7 +20,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from sagg_common.params import is_given, read_config
+from sagg_common.params import ConfigError, is_given, read_config
 
 # the learner's task-unit lengths and the reach their defaults are meant for (the paper's 50-unit arm)
 TASK_UNIT_PARAMS = ("v", "eps_c", "eval.tolerance")
@@ -48,7 +48,7 @@ def finish_arm_config(out: dict[str, dict], path: str | Path, overrides: dict | 
     absolute, task-unit defaults scaled for a model arm; returns its spec (ConfigError names a bad
     ``arm.*`` parameter)."""
     # lazy (heavy): mujoco
-    from sagg_sim_bridge.arms import arm_reach, arm_spec_from_params
+    from sagg_sim_bridge.arms import arm_reach, arm_spec_from_params, arm_task_dim
     bp, lp = out["sagg_sim_bridge"], out["sagg_learner"]
     absolute_model_paths(bp, Path(path).resolve().parent)
     if lp.get("task_model.file"):  # (the learner's own model file, task_source 'model')
@@ -56,6 +56,11 @@ def finish_arm_config(out: dict[str, dict], path: str | Path, overrides: dict | 
         lp["task_model.file"] = str((base / lp["task_model.file"]).resolve())
         lp["task_model.package_paths"] = [str((base / d).resolve()) for d in lp["task_model.package_paths"]]
     spec = arm_spec_from_params(bp)
+    dims, m = len(lp["task_space.lower"]), arm_task_dim(spec)
+    if dims != m:
+        axes = f"arm.task_axes '{bp['arm.task_axes']}'" if bp.get("arm.model") else "the planar arm's (x, y)"
+        raise ConfigError(f"parameter 'task_space.lower': {dims} values; allowed: {m}, one per task dimension of "
+                          f"{axes}")
     if bp.get("arm.model"):
         sections = read_config(path)
         reach = arm_reach(spec)

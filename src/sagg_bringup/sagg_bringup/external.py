@@ -42,7 +42,7 @@ from sagg_common.ros_params import HW_DEPTH, reliable
 from sagg_common.sources import ACCEPT, AMBIGUOUS, NO_INFO, SourceChains, with_message_info
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.evaluate import reach_frozen
-from sagg_low_level.learner import EvolvingContextLearner, SCHEMA, step_toward
+from sagg_low_level.learner import EvolvingContextLearner, SCHEMA, step_toward, stepped_move_limit
 from sagg_low_level.memory import SampleMemory
 
 from .arm_params import NODES, core_config, graph_params, resolve_arm
@@ -161,6 +161,7 @@ class DriverMonitor:
         if not any(j in names for j in self.joints):
             key = tuple(names)
             self.other_names[key] = self.other_names.get(key, 0) + 1
+            self.js_sources.skip(info["publication_sequence_number"])  # (no gap in its publisher's chain)
             return
         self.js_names = names
         self.js_count += 1
@@ -372,8 +373,7 @@ class ContractRobot:
         posture; answered by the observation after the command that reaches it (or after as many
         steps as the learner's return to rest allows: a joint that does not follow)."""
         posture = np.asarray(posture, float)
-        span = float((self.upper - self.lower).max())
-        for _ in range(max(50, 4 * int(np.ceil(span / self.max_step)))):
+        for _ in range(stepped_move_limit(self.arm, self.max_step)):
             target = step_toward(self.monitor.alpha, posture, self.max_step, self.arm)
             self.move_steps += 1
             alpha, y = self.command(target)

@@ -77,6 +77,8 @@ def reach_goals(source: str | Path, goals: list[list[float]] | None = None, test
     if (run_dir / "summary.json").is_file():
         summary = json.loads((run_dir / "summary.json").read_text())
     from_rest = bool(test_goals)
+    if test_goals < 0:
+        raise ConfigError(f"--test-goals: got {test_goals}; allowed: N >= 1 (the run's first N test goals)")
     if test_goals:
         known = summary.get("test_goals") or []
         if not known:

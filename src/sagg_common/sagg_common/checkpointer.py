@@ -120,7 +120,7 @@ class Checkpointer(GenerationFiles):
                                  "empty directory")
         return meta
 
-    def _journal_records(self, g: int) -> Iterator[tuple[int, int, np.ndarray]]:
+    def journal_records(self, g: int) -> Iterator[tuple[int, int, np.ndarray]]:
         """``(k, kind, values)`` of every complete record of the journals ``k >= g - 1`` found, in
         order; the torn bytes dropped are added to ``torn_bytes``."""
         for k in self._generations("journal"):

@@ -158,10 +158,11 @@ class RobotModel:
         m = model
         self.path, self.model, self.effector, self.task_axes = path, m, effector, tuple(task_axes)
         self.notices: list[str] = []
+        self.mesh_notice = ""  # (the one notice that also concerns a model used for kinematics only)
         if dropped:
-            self.notices.append(
-                f"arm.model {path}: {len(dropped)} mesh file(s) not found, their geometry dropped (kinematic "
-                f"mode does not need it; dynamic mode would): {', '.join(dropped)}")
+            self.mesh_notice = (f"arm.model {path}: {len(dropped)} mesh file(s) not found, their geometry dropped "
+                                f"(kinematic mode does not need it; dynamic mode would): {', '.join(dropped)}")
+            self.notices.append(self.mesh_notice)
         self.dropped = dropped
         # ---- effector
         body, local = self._effector(m, effector, path)
@@ -377,5 +378,14 @@ def task_from_params(p: dict, joints: Sequence[str], m: int, base_dir: str) -> T
                                 joints=joints, joint_lower=p["joint_limits.lower"], joint_upper=p["joint_limits.upper"],
                                 rest=p["rest_posture"])
         return TaskFromJoints(robot, joints)
-    except ConfigError as exc:  # (the model's errors name the bridge's arm.* parameters)
-        raise ConfigError(str(exc).replace("arm.model", "task_model.file").replace("arm.", "task_model.")) from exc
+    except ConfigError as exc:  # (the model's errors name the bridge's arm.* parameters: the learner's names)
+        text = str(exc)
+        for bridge, learner in LEARNER_NAMES:
+            text = text.replace(bridge, learner)
+        raise ConfigError(text) from exc
+
+
+# the bridge's parameter names in RobotModel's errors -> the learner's (task_from_params)
+LEARNER_NAMES = (("arm.model", "task_model.file"), ("arm.effector", "task_model.effector"),
+                 ("arm.task_axes", "task_model.task_axes"), ("arm.package_paths", "task_model.package_paths"),
+                 ("arm.joint_limits", "joint_limits"), ("arm.joints", "joints"))

@@ -21,6 +21,13 @@ stream) and decides, per message:
   cannot be told, and holding is the safe answer (a measured posture from the wrong publisher
   would be the base of a command). It ends by itself.
 
+Messages of the topic that the caller does not take for a reason of its own (another driver's
+joints on ``/joint_states``; a value it rejects) are passed to :meth:`skip`: their numbers are no
+gap in the chain they belong to (a driver publishing its arm's and its gripper's joints in
+separate messages through one publisher stays one exact chain). A skipped number changes no chain
+and never makes a message accepted that would not continue its chain once the skipped numbers are
+filled in.
+
 A number is assigned to the chain whose last number is the largest below it (the one it can
 continue); a number at or below every chain's last starts a new chain (another publisher, or a
 restart). Two publishers whose counters are close may swap chains now and then; both chains stay
@@ -31,6 +38,7 @@ Plain Python, O(chains) per message (at most ``keep`` chains are kept).
 """
 from __future__ import annotations
 
+import collections
 import inspect
 
 ACCEPT, GAP, AMBIGUOUS = 0, 1, 2
@@ -42,7 +50,9 @@ NO_INFO = {"publication_sequence_number": None, "source_timestamp": None}
 class SourceChains:
     """The publisher chains of one stream and the verdict for each message (module docstring)."""
 
-    __slots__ = ("grace", "keep", "last", "rx", "data", "started", "ambiguous_until", "episodes", "gaps")
+    __slots__ = ("grace", "keep", "last", "rx", "data", "started", "ambiguous_until", "episodes", "gaps",
+                 "skipped")
+    SKIPPED = 64  # the numbers of the last messages not taken that are remembered (a gap of more is a gap)
 
     def __init__(self, grace: float, keep: int = 8):
         if not grace > 0:
@@ -56,6 +66,7 @@ class SourceChains:
         self.ambiguous_until = -1.0  # the stream is ambiguous until then (receive clock)
         self.episodes = 0            # how often the stream became ambiguous
         self.gaps = 0                # messages not taken for a gap
+        self.skipped: collections.deque[int] = collections.deque(maxlen=self.SKIPPED)  # (skip)
 
     def assign(self, seq: int, now: float) -> tuple[int, bool, bool]:
         """The chain of a message numbered ``seq`` received at ``now`` (updated), whether the message
@@ -68,7 +79,7 @@ class SourceChains:
             if t < seq and (best < 0 or t > last[best] or (t == last[best] and rx[i] > rx[best])):
                 best = i
         if best >= 0:
-            exact = seq == last[best] + 1
+            exact = seq == last[best] + 1 or self._skipped_between(last[best], seq)
             last[best], rx[best] = seq, now
             return best, exact, False
         if len(last) >= self.keep:  # a new chain: forget the one heard from longest ago
@@ -78,6 +89,20 @@ class SourceChains:
         rx.append(now)
         self.data.append(None)
         return len(last) - 1, False, True
+
+    def skip(self, seq: int | None) -> None:
+        """A message numbered ``seq`` that the caller does not take for a reason of its own (not
+        part of the stream, or a rejected value): its number is no gap (module docstring)."""
+        if seq is not None:
+            self.skipped.append(seq)
+
+    def _skipped_between(self, last: int, seq: int) -> bool:
+        """Whether every number strictly between ``last`` and ``seq`` was skipped."""
+        missing = seq - last - 1
+        if not 0 < missing <= len(self.skipped):
+            return False
+        skipped = set(self.skipped)
+        return all(n in skipped for n in range(last + 1, seq))
 
     def classify(self, seq: int | None, now: float) -> int:
         """The verdict for a message numbered ``seq`` received at ``now`` (any monotonic clock, s)."""

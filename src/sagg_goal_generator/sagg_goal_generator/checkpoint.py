@@ -104,7 +104,7 @@ class GeneratorCheckpointer(Checkpointer):
         g = int(meta["generation"])
         pending: list[GoalRecord] = []
         self.republish = []
-        for _, kind, v in self._journal_records(g):
+        for _, kind, v in self.journal_records(g):
             if kind != REC_GOAL:
                 continue
             seq = int(v[0])
@@ -131,7 +131,7 @@ def published(directory: str | Path) -> dict | None:
     meta = json.loads((directory / "generator.json").read_text())
     ck = GeneratorCheckpointer(directory, None, 1)  # (reading: no generator)
     goals, first = int(meta["goals"]), None
-    for _, kind, v in ck._journal_records(int(meta["generation"])):
+    for _, kind, v in ck.journal_records(int(meta["generation"])):
         if kind == REC_GOAL:
             first = int(v[0]) if first is None else first
             goals = max(goals, int(v[0]))

@@ -200,7 +200,7 @@ class LearnerCheckpointer(Checkpointer):
         n, m = lr.robot.n, lr.m
         replay: list = []
         applied = 0
-        for k, kind, v in self._journal_records(g):
+        for k, kind, v in self.journal_records(g):
             counters = v[1:7] if kind == REC_SAMPLE else v[6:12]
             if kind == REC_SAMPLE:
                 idx = int(v[0])
@@ -253,7 +253,7 @@ def published(directory: str | Path) -> dict | None:
     ck = LearnerCheckpointer(directory, None, 1)  # (reading: no learner)
     samples, reports = int(meta["memory_samples"]), int(meta["reports_sent"])
     first_sample = first_report = None
-    for _, kind, v in ck._journal_records(int(meta["generation"])):
+    for _, kind, v in ck.journal_records(int(meta["generation"])):
         if kind == REC_SAMPLE:
             first_sample = int(v[0]) if first_sample is None else first_sample
             samples = max(samples, int(v[0]) + 1)

@@ -36,6 +36,17 @@ def reach_frozen(learner: EvolvingContextLearner, robot: ReachingRobot, goal: np
         return done.value[1]
 
 
+REACH_STEPS_FACTOR = 10  # a reach may ask for this many times the evaluation's longest budget
+
+
+def reach_steps_limit(learner: EvolvingContextLearner, task_lower, task_upper) -> int:
+    """The most steps one reach may ask for (``/sagg/reach``'s ``max_steps``): 10× the evaluation's
+    budget (:func:`timeout_budget`) for the longest distance in Y, its diagonal; a bound so that
+    no request can pause learning for ever, generous enough for any goal the evaluation reaches."""
+    diagonal = float(np.linalg.norm(np.asarray(task_upper, float) - np.asarray(task_lower, float)))
+    return REACH_STEPS_FACTOR * timeout_budget(diagonal, learner.v, learner.p["eval.timeout_factor"])
+
+
 def frozen_reach(learner: EvolvingContextLearner, alpha: np.ndarray, y: np.ndarray, goal: np.ndarray,
                  tolerance: float = 0.0, max_steps: int = 0) -> Generator:
     """The frozen model's reach of ``goal`` from the posture ``alpha`` (effector at ``y``): reaching

@@ -288,6 +288,13 @@ def step_toward(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: R
                       np.minimum(robot.upper, alpha + max_step))
 
 
+def stepped_move_limit(robot: Robot, max_step: float) -> int:
+    """The most commands a move in steps (:func:`step_toward`) may take: four times the steps
+    across the widest joint range, at least 50; a joint that does not follow ends it there."""
+    span = float((np.asarray(robot.upper) - np.asarray(robot.lower)).max())
+    return max(50, 4 * math.ceil(span / max_step))
+
+
 class EvolvingContextLearner:
     """Low-level goal-directed exploration with evolving context (Alg. 3) + actuator baselines."""
 

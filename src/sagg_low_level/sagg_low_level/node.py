@@ -39,15 +39,15 @@ from sagg_common.envelope import ACCEPT, FUTURE, OUT_OF_ORDER, RejectRun, StampT
 from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common import sources
-from sagg_common.publishers import UNKNOWN_NODE, PublisherWatch, describe
-from sagg_common.robot_model import task_from_params
+from sagg_common.publishers import UNKNOWN_NODE, describe
 from sagg_common.ros_params import HW_DEPTH, params_dir, reliable, run_node
 from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .checkpoint import LearnerCheckpointer
-from .evaluate import frozen_reach
-from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot, step_toward
+from .evaluate import frozen_reach, reach_steps_limit
+from .learner import (Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot, step_toward,
+                      stepped_move_limit)
 from .memory import SampleMemory
 from .reach_server import ACTION, ReachJob, ReachServer
 from .recorder_acks import RecorderAcks
@@ -55,12 +55,8 @@ from .node_base import NODE_NAME, LearnerNodeBase
 from .schema import LEARNER_CORE_SCHEMA as CORE_SCHEMA, LEARNER_SCHEMA as SCHEMA
 
 class ReachDone:
-    """The last request of a reach (:meth:`LearnerNode._reach_requests`): its result."""
-
-    __slots__ = ("result",)
-
-    def __init__(self, result: tuple):
-        self.result = result
+    """The last request of a reach (:meth:`LearnerNode._reach_requests`): the learner's own
+    coroutine takes over again."""
 
 
 SIM_BRIDGE = "sagg_sim_bridge"       # the simulated bridge's node (rest_return 'direct' is for it only)
@@ -133,16 +129,20 @@ class LearnerNode(LearnerNodeBase):
         self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         # hot path: raw CDR in and out (sagg_common.cdr), no message objects; with the message info
         # (the publishers' sequence numbers tell the sources apart)
-        js_sub = self.create_subscription(JointState, "/joint_states", sources.with_message_info(self.on_joint_state),
-                                          reliable(10), raw=True)
+        self.create_subscription(JointState, "/joint_states", sources.with_message_info(self.on_joint_state),
+                                 reliable(10), raw=True)
         # the task point: from task_topic, or from the measured joints through the robot's model
         self.task_fk = None
         if p["task_source"] == "model":
+            # lazy (heavy): mujoco, only for task_source 'model'
+            from sagg_common.robot_model import task_from_params
             self.task_fk = task_from_params(p, self.robot.joint_names, self.m, params_dir() or os.getcwd())
-            for note in self.task_fk.robot.notices:
-                self.get_logger().info(f"task_model: {note}")
-        tip_sub = None if self.task_fk is not None else self.create_subscription(
-            PointStamped, p["task_topic"], sources.with_message_info(self.on_task_point), reliable(10), raw=True)
+            if self.task_fk.robot.mesh_notice:  # (the held joints' rest values come from the model: no notice)
+                self.get_logger().info("task_model: " + self.task_fk.robot.mesh_notice.replace("arm.model",
+                                                                                               "task_model.file"))
+        if self.task_fk is None:
+            self.create_subscription(PointStamped, p["task_topic"], sources.with_message_info(self.on_task_point),
+                                     reliable(10), raw=True)
         # one source per input (DESIGN §8, sagg_common.sources): judged by the messages that arrive,
         # never by who merely publishes; the messages of /joint_states without any of our joints
         # (a gripper's) are not part of the stream
@@ -152,10 +152,6 @@ class LearnerNode(LearnerNodeBase):
         self.other_joints: dict[tuple, int] = {}  # name lists without any of our joints -> messages ignored
         self.source_text: dict[str, str] = {}     # topic -> its current source hold, in words
         self._maps: dict[tuple, tuple] = {}      # name list -> how its messages are mapped (_name_map)
-        self.watch = PublisherWatch(self)        # (names the publishers in holds and on /diagnostics)
-        self.watch.watch("/joint_states", js_sub)
-        if tip_sub is not None:
-            self.watch.watch(p["task_topic"], tip_sub)
         self.js_decoder = JointStateDecoder()
         # the return to rest (rest_return): stepped unless the simulator is the only listener
         self.rest_return = p["rest_return"]
@@ -163,8 +159,7 @@ class LearnerNode(LearnerNodeBase):
         self.rest_final = True      # the command in flight answers the pending request
         self.rest_step_count = 0    # steps of the return to rest in progress
         self._cmd_subs = (-1, None)  # (subscriber count, only the simulator listens) of the commands topic
-        span = float((self.robot.upper - self.robot.lower).max())
-        self.rest_step_limit = max(50, 4 * math.ceil(span / self.learner.p["max_joint_step"]))
+        self.rest_step_limit = stepped_move_limit(self.robot, self.learner.p["max_joint_step"])
         self.create_service(SetBool, "/sagg/pause", self.on_pause)
         # backpressure: a recorder's acknowledgements (recorder_max_lag)
         self.rec_max_lag = p["recorder_max_lag"]
@@ -209,7 +204,8 @@ class LearnerNode(LearnerNodeBase):
         # /sagg/reach (use what was learned): jobs from the action's thread, run one at a time
         self.reach: ReachJob | None = None
         self.reach_saved: tuple | None = None  # the learner's (coroutine, pending request, state)
-        self.reach_server = ReachServer(self, p["task_space.lower"], p["task_space.upper"], self.guard.reject)
+        self.reach_server = ReachServer(self, p["task_space.lower"], p["task_space.upper"],
+                                        reach_steps_limit(self.learner, p["task_space.lower"], p["task_space.upper"]))
         self.goals_received = 0
         self.t_started = time.monotonic()
         self.ma_start = self.learner.micro_actions  # (resumed: those of earlier segments, not in the stop line's rate)
@@ -227,42 +223,48 @@ class LearnerNode(LearnerNodeBase):
     def on_joint_state(self, data: bytes, info: dict = sources.NO_INFO) -> None:
         """A JointState: decoded, mapped to our joints by name (a message without any of them is
         another driver's: ignored), checked (limits, finite, velocity), then its source (one
-        publisher for our joints) and its stamp; only then it is the newest measured posture."""
+        publisher for our joints) and its stamp; only then it is the newest measured posture. A
+        message not taken before the source check is skipped in its publisher's chain (no gap)."""
+        if not self._take_joint_state(data, info):
+            self.js_sources.skip(info["publication_sequence_number"])
+
+    def _take_joint_state(self, data: bytes, info: dict) -> bool:
+        """False: not taken for its content (before the source check)."""
         try:
             st, names, pos, vel = self.js_decoder.decode(data)
         except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
             self._reject_js("joint_states.undecodable", f"/joint_states: undecodable message ({exc})")
-            return
+            return False
         if len(pos) != len(names) or (len(vel) and len(vel) != len(names)):
             self._reject_js("joint_states.length",
                             f"/joint_states: {len(names)} names but {len(pos)} positions and {len(vel)} "
                             "velocities; allowed: one position per name, and no or one velocity per name")
-            return
+            return False
         if names is not self._names and not self._map_names(names):
-            return
+            return False
         idx = self._idx
         alpha = pos[idx]
         v = vel[idx] if len(vel) else None
         # one vector test each (NaN fails a comparison, so non-finite values are caught too)
         if not ((alpha >= self.js_lo).all() and (alpha <= self.js_hi).all()):
             self._reject_js_values(alpha, v)
-            return
+            return False
         if v is not None:  # (min/max serve the settle test below too; NaN fails both comparisons)
             vlo, vhi = v.min(), v.max()
             if not (-self.max_velocity <= vlo and vhi <= self.max_velocity):
                 self._reject_js_values(alpha, v)
-                return
+                return False
         if self.check_sources:
             verdict = self.js_sources.classify(info["publication_sequence_number"], time.monotonic())
             if verdict != sources.ACCEPT:
                 if verdict == sources.AMBIGUOUS:
                     self._second_source("/joint_states", "joint_states", self.js_sources,
                                         "joints " + ", ".join(self.robot.joint_names))
-                return  # (a gap: the chain's next message is taken)
+                return True  # (a gap: the chain's next message is taken)
         verdict = self.js_track.check(st, time.monotonic_ns())
         if verdict != ACCEPT:
             if not self._stamp_verdict(verdict, "joint_states", "/joint_states", self.js_track, st):
-                return
+                return True
             if self.state is self.RUNNING_COMMAND:  # the command's freshness bound moves back too
                 self.js_min = min(self.js_min, st - 1 + self.delay_ns)
         sv = self.settle_velocity
@@ -270,7 +272,11 @@ class LearnerNode(LearnerNodeBase):
         self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
         self.js_rx = time.monotonic()
         if self.task_fk is not None:  # task_source 'model': the task point of this posture
-            self._take_tip(self.task_fk.point(alpha), st)
+            y = self.task_fk.point(alpha)
+            if self._plausible_tip(y, f"the task point of this posture through {self.task_fk.robot.path}"):
+                if self.tip_run.ok():
+                    self._set_hold("task_point", None)
+                self._take_tip(y, st)
         if self.source_text:
             self._source_settled("/joint_states")
         if self.js_run.ok():
@@ -280,6 +286,7 @@ class LearnerNode(LearnerNodeBase):
         if self.state is self.RUNNING_COMMAND and st > self.js_min:
             self.js_fresh = True
             self._try_answer_command(False)
+        return True
 
     def _reject_js(self, kind: str, message: str) -> None:
         """A rejected joint state: counted, logged, and after ``plausibility.hold_after`` in a row a hold."""
@@ -362,12 +369,12 @@ class LearnerNode(LearnerNodeBase):
         names none of them; else ("bad", kind, message)."""
         where = {n: i for i, n in enumerate(names)}
         ours = self.robot.joint_names
+        missing = [j for j in ours if j not in where]
+        if len(missing) == len(ours):  # (another driver's message, however formed: not ours to judge)
+            return ("other",)
         if len(where) != len(names):
             return ("bad", "joint_states.names", f"/joint_states names a joint twice ({', '.join(names)}); "
                     f"allowed: every joint of the 'joints' parameter ({', '.join(ours)}) once")
-        missing = [j for j in ours if j not in where]
-        if len(missing) == len(ours):
-            return ("other",)
         if missing:
             return ("bad", "joint_states.names",
                     f"/joint_states lacks joint(s) {', '.join(missing)}; allowed: every joint of the 'joints' "
@@ -375,34 +382,33 @@ class LearnerNode(LearnerNodeBase):
         return ("ok", np.array([where[j] for j in ours], dtype=np.intp))
 
     def on_task_point(self, data: bytes, info: dict = sources.NO_INFO) -> None:
+        """A task point: decoded, checked (finite, within Y enlarged by ``plausibility.task_margin``),
+        then its source and its stamp. A message rejected for its content is skipped in its
+        publisher's chain (no gap)."""
+        if not self._take_task_point(data, info):
+            self.tip_sources.skip(info["publication_sequence_number"])
+
+    def _take_task_point(self, data: bytes, info: dict) -> bool:
+        """False: not taken for its content (before the source check)."""
         topic = self.params["task_topic"]
         try:
             st, xyz = decode_point_stamped(data)
         except (ValueError, IndexError, struct.error) as exc:
             self._reject_tip("task_point.undecodable", f"{topic}: undecodable message ({exc})")
-            return
+            return False
         xyz = xyz[:self.m]
-        for (lo, hi), x in zip(self.tip_box, xyz):
-            if not lo <= x <= hi:  # (NaN fails too)
-                if all(map(math.isfinite, xyz)):
-                    self._reject_tip("task_point.outside_task_space",
-                                     f"{topic}: point {list(xyz)}; allowed: within "
-                                     f"{[list(b) for b in self.tip_box]} (task_space enlarged by "
-                                     "plausibility.task_margin)")
-                else:
-                    self._reject_tip("task_point.non_finite",
-                                     f"{topic}: NaN/inf coordinate {list(xyz)}; allowed: finite values")
-                return
+        if not self._plausible_tip(xyz, topic):
+            return False
         if self.check_sources:
             verdict = self.tip_sources.classify(info["publication_sequence_number"], time.monotonic())
             if verdict != sources.ACCEPT:
                 if verdict == sources.AMBIGUOUS:
                     self._second_source(topic, "task_point", self.tip_sources, "task points")
-                return
+                return True
         verdict = self.tip_track.check(st, time.monotonic_ns())
         if verdict != ACCEPT:
             if not self._stamp_verdict(verdict, "task_point", topic, self.tip_track, st):
-                return
+                return True
             if self.state is self.RUNNING_COMMAND:
                 self.tip_min = min(self.tip_min, st - 1 + self.delay_ns)
         if self.source_text:
@@ -414,6 +420,7 @@ class LearnerNode(LearnerNodeBase):
             self._check_driver()
         if self.state is self.RUNNING_COMMAND and st > self.tip_min:
             self._try_answer_command(False)
+        return True
 
     def _take_tip(self, y: np.ndarray, st: int) -> None:
         """The newest task point (from task_topic, or computed from the measured joints), stamped ``st``."""
@@ -443,6 +450,22 @@ class LearnerNode(LearnerNodeBase):
         if topic in self.source_text:
             del self.source_text[topic]
             self._set_hold(f"sources {topic}", None)
+
+    def _plausible_tip(self, xyz, where: str) -> bool:
+        """Whether a task point is finite and within Y enlarged by ``plausibility.task_margin``;
+        else rejected, naming ``where`` it came from."""
+        for (lo, hi), x in zip(self.tip_box, xyz):
+            if not lo <= x <= hi:  # (NaN fails too)
+                if all(map(math.isfinite, xyz)):
+                    self._reject_tip("task_point.outside_task_space",
+                                     f"{where}: point {list(map(float, xyz))}; allowed: within "
+                                     f"{[list(b) for b in self.tip_box]} (task_space enlarged by "
+                                     "plausibility.task_margin)")
+                else:
+                    self._reject_tip("task_point.non_finite",
+                                     f"{where}: NaN/inf coordinate {list(map(float, xyz))}; allowed: finite values")
+                return False
+        return True
 
     def _reject_tip(self, kind: str, message: str) -> None:
         self.guard.reject(kind, message)
@@ -487,8 +510,14 @@ class LearnerNode(LearnerNodeBase):
                         f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
         if self.state not in (self.STARTING, self.STOPPED):
             self._check_driver()
+        while self.reach_server.rejections:  # (rejected goals, counted here: the guard is this thread's)
+            self.guard.reject(*self.reach_server.rejections.popleft())
         if self.reach_server.jobs and self.reach is None:
             self._poll_reach()
+        elif (self.reach is not None and self.reach.cancel and self.state is self.PAUSED
+              and getattr(self.pending, "kind", None) in ("reset", "reach")):
+            self.state = None  # canceled while a hold keeps its command waiting: nothing moved
+            self.dispatch(self.coro.send(None))
         if self.rec_waiting and not self._recorder_behind():  # e.g. the recorder is gone
             self._recorder_caught_up()
         if (self.outbox and self.state is not self.STARTING
@@ -551,7 +580,7 @@ class LearnerNode(LearnerNodeBase):
             state["other joint lists on /joint_states"] = "; ".join(", ".join(n) for n in list(self.other_joints)[:4])
         state["sequence gaps (messages not taken)"] = str(self.js_sources.gaps + self.tip_sources.gaps)
         state["second-source episodes"] = str(self.js_sources.episodes + self.tip_sources.episodes)
-        for topic in ("/joint_states", self.task_topic):
+        for topic in ("/joint_states",) + ((self.task_topic,) if self.task_fk is None else ()):
             state[f"publishers {topic}"] = "; ".join(
                 describe(i) for i in self.get_publishers_info_by_topic(topic)) or "none"
         fault = "; ".join(v for k, v in self.holds.items() if k not in ("service", "reach"))
@@ -560,7 +589,9 @@ class LearnerNode(LearnerNodeBase):
     def _ready(self) -> bool:
         if self.js_alpha is None or self.tip is None:
             missing = [w for w, v in (("/joint_states with joints " + ", ".join(self.robot.joint_names), self.js_alpha),
-                                      (f"a task point on {self.params['task_topic']}", self.tip)) if v is None]
+                                      (f"a task point on {self.params['task_topic']}" if self.task_fk is None else
+                                       "a task point (from the joint states through task_model.file) within Y",
+                                       self.tip)) if v is None]
             return self._waiting_for(" and ".join(missing))
         return self._peers_ready(self.cmd_pub, self.cmd_topic, match_reports=True)
 
@@ -632,7 +663,7 @@ class LearnerNode(LearnerNodeBase):
                 req = self.coro.send((self.js_alpha.copy(), self.tip.copy()))
                 continue
             if type(req) is ReachDone:
-                self._finish_reach(req.result)
+                self._finish_reach()
                 return
             raise TypeError(f"unknown learner request {req!r}")
 
@@ -674,33 +705,41 @@ class LearnerNode(LearnerNodeBase):
 
     def _reach_requests(self, job: ReachJob, back: np.ndarray | None):
         """The requests of one reach: back to rest first when asked (``from_rest``, as the
-        evaluation's reaches start), the frozen model's steps (:func:`frozen_reach`), then, when
-        learning is to go on, back to the posture where it paused (in steps), then the result."""
-        if job.from_rest:
-            yield Command(self.robot.rest.copy(), "reset")
+        evaluation's reaches start), the frozen model's steps (:func:`frozen_reach`); the result
+        goes to the client then; then, when learning is to go on, back to the posture where it
+        paused (in steps). The answer None to a command: canceled while it waited (a hold)."""
         y = self.tip.copy()
-        reach = frozen_reach(self.learner, self.js_alpha.copy(), y, job.target, job.tolerance, job.max_steps)
-        job.distance = float(np.linalg.norm(job.target - y))
-        try:
-            target = next(reach)
-            while not job.cancel:
-                alpha, y = yield Command(target, "reach")
-                job.steps += 1
-                job.distance = float(np.linalg.norm(job.target - y))
-                target = reach.send((alpha, y))
-            result = (y, float(np.linalg.norm(job.target - y)), job.steps, "canceled")
-        except StopIteration as done:
-            result = done.value
-        if back is not None:
-            yield Command(back, "return")
-        yield ReachDone(result)
-
-    def _finish_reach(self, result: tuple) -> None:
-        job, self.reach = self.reach, None
+        result = None
+        if job.from_rest and (yield Command(self.robot.rest.copy(), "reset")) is None:
+            result = (y, float(np.linalg.norm(job.target - y)), 0, "canceled")
+        if result is None:
+            y = self.tip.copy()
+            reach = frozen_reach(self.learner, self.js_alpha.copy(), y, job.target, job.tolerance, job.max_steps)
+            job.distance = float(np.linalg.norm(job.target - y))
+            try:
+                target = next(reach)
+                while not job.cancel:
+                    answer = yield Command(target, "reach")
+                    if answer is None:
+                        break
+                    alpha, y = answer
+                    job.steps += 1
+                    job.distance = float(np.linalg.norm(job.target - y))
+                    target = reach.send((alpha, y))
+                result = (y, float(np.linalg.norm(job.target - y)), job.steps, "canceled")
+            except StopIteration as done:
+                result = done.value
         job.result = result
         job.done.set()
         self.get_logger().info(f"reach of {job.target.tolist()}: {result[3]}, error {result[1]:.6g} after "
                                f"{result[2]} steps")
+        if back is not None:
+            yield Command(back, "return")
+        yield ReachDone()
+
+    def _finish_reach(self) -> None:
+        """The reach is over (and the arm back where learning paused): the learner's coroutine again."""
+        self.reach = None
         self.coro, self.pending, self.state = self.reach_saved
         self.reach_saved = None
         if self.reach_server.jobs:
@@ -716,7 +755,11 @@ class LearnerNode(LearnerNodeBase):
         lag = self.rec_max_lag if lag is None else lag
         if self.samples_published <= lag or self.rec_sub.get_publisher_count() == 0:
             return False  # (no recorder left on /sagg/recorded: none to wait for)
-        slowest = self.rec_acks.slowest(time.monotonic())
+        now = time.monotonic()
+        for count in self.rec_acks.newly_stale(now):
+            self.get_logger().info(f"a recorder (acknowledged {count} samples) said nothing new for recorder_timeout "
+                                   f"({self.rec_acks.timeout:g} s): no longer waited for")
+        slowest = self.rec_acks.slowest(now)
         if slowest is None:
             return False
         self.rec_acked = slowest
@@ -900,8 +943,13 @@ class LearnerNode(LearnerNodeBase):
         new.add_done_callback(self.on_goal)
 
     def close(self) -> None:
-        """At shutdown: publish what is queued, then the final checkpoint."""
-        self.reach_server.close()
+        """At shutdown: publish what is queued, then the final checkpoint; the reach server last."""
+        try:
+            self._close_learning()
+        finally:
+            self.reach_server.close()
+
+    def _close_learning(self) -> None:
         if self.rec_waits:
             self.get_logger().info(f"recorder backpressure: {self.rec_waits} waits, "
                                    f"{self.rec_wait_seconds:.3f} s in all (recorder_max_lag {self.rec_max_lag})")

@@ -46,12 +46,19 @@ class ReachJob:
 
 class ReachServer:
     """``/sagg/reach`` on a node of its own (``<learner>_reach``) in a thread; jobs go to
-    ``jobs`` (the learner takes them in order). ``check(target)``: what is wrong with a target
-    ('' if nothing); rejected goals are counted by ``reject(kind, message)``."""
+    ``jobs`` (the learner takes them). One goal at a time: a goal sent while another is active
+    is rejected (its client is told; the two executor threads stay free for cancel and result
+    requests). Rejected goals go to ``rejections`` as ``(kind, message)``: the learner node
+    counts and logs them in its own thread (its input guard is not shared between threads).
+    ``max_steps_limit``: the largest ``max_steps`` a goal may ask for."""
 
-    def __init__(self, owner, task_lower, task_upper, reject):
-        self.lower, self.upper, self.reject = np.asarray(task_lower, float), np.asarray(task_upper, float), reject
+    def __init__(self, owner, task_lower, task_upper, max_steps_limit: int):
+        self.lower, self.upper = np.asarray(task_lower, float), np.asarray(task_upper, float)
+        self.max_steps_limit = int(max_steps_limit)
         self.jobs: collections.deque[ReachJob] = collections.deque()
+        self.rejections: collections.deque[tuple[str, str]] = collections.deque(maxlen=1000)
+        self._lock = threading.Lock()
+        self._active = 0  # goals accepted and not finished
         self.node = Node(owner.get_name() + "_reach", context=owner.context, use_global_arguments=False,
                          start_parameter_services=False)
         self.server = ActionServer(self.node, Reach, ACTION, execute_callback=self._execute,
@@ -73,16 +80,32 @@ class ReachServer:
                 raise
 
     def _on_goal(self, goal) -> GoalResponse:
-        """A target must have one finite value per task dimension, within Y; tolerance and steps >= 0."""
+        """A target must have one finite value per task dimension, within Y; tolerance >= 0;
+        max_steps at most ``max_steps_limit``; no other goal active."""
         _, why = goal_problem(goal.target, self.lower, self.upper)
+        kind = "reach.invalid"
         if not why and not (math.isfinite(goal.tolerance) and goal.tolerance >= 0.0):
             why = f"tolerance {goal.tolerance}; allowed: a finite number >= 0 (0 = eval.tolerance)"
-        if why:
-            self.reject("reach.invalid", f"{ACTION}: target {list(goal.target)} {why}; goal rejected")
-            return GoalResponse.REJECT
+        if not why and goal.max_steps > self.max_steps_limit:
+            why = (f"max_steps {goal.max_steps}; allowed: 0 (the evaluation's budget) to {self.max_steps_limit} "
+                   "(10x the evaluation's budget across Y)")
+        with self._lock:
+            if not why and self._active:
+                kind, why = "reach.busy", "while another reach is active; allowed: one at a time (cancel it first)"
+            if why:
+                self.rejections.append((kind, f"{ACTION}: target {list(goal.target)} {why}; goal rejected"))
+                return GoalResponse.REJECT
+            self._active += 1
         return GoalResponse.ACCEPT
 
     def _execute(self, goal_handle):
+        try:
+            return self._run(goal_handle)
+        finally:
+            with self._lock:
+                self._active -= 1
+
+    def _run(self, goal_handle):
         g = goal_handle.request
         job = ReachJob(np.array(g.target, dtype=float), g.tolerance, g.max_steps, g.from_rest)
         self.jobs.append(job)

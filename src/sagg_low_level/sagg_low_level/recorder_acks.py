@@ -34,13 +34,26 @@ class RecorderAcks:
             self.recorders_seen += new
         entry = chains.data[i]
         if entry is None or count > entry[0]:
-            chains.data[i] = (count, now)  # (largest count of this recorder, when it last moved)
+            # (largest count of this recorder, when it last moved, whether its going stale was said)
+            chains.data[i] = (count, now, False)
+
+    def _alive(self, d, t: float, now: float) -> bool:
+        return now - t <= self.timeout and now - d[1] <= self.timeout
 
     def slowest(self, now: float) -> int | None:
         """The smallest count among the recorders alive at ``now`` (None: none is alive)."""
-        counts = [d[0] for d, t in zip(self.chains.data, self.chains.rx)
-                  if d is not None and now - t <= self.timeout and now - d[1] <= self.timeout]
+        counts = [d[0] for d, t in zip(self.chains.data, self.chains.rx) if d is not None and self._alive(d, t, now)]
         return min(counts) if counts else None
+
+    def newly_stale(self, now: float) -> list[int]:
+        """The counts of the recorders no longer waited for since the last call (each said once,
+        until it moves its count again)."""
+        out = []
+        for i, (d, t) in enumerate(zip(self.chains.data, self.chains.rx)):
+            if d is not None and not d[2] and not self._alive(d, t, now):
+                self.chains.data[i] = (d[0], d[1], True)
+                out.append(d[0])
+        return out
 
     def largest(self) -> int:
         """The largest count any recorder acknowledged (for /diagnostics)."""

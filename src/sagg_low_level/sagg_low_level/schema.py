@@ -111,7 +111,7 @@ LEARNER_NODE_SCHEMA: Schema = (
     Param("rest_return", "str", "stepped",
           "How the learner returns to rest_posture (after every reset_every attempts): 'stepped' = a "
           "sequence of position commands, each at most max_joint_step from the newest measured posture "
-          "(not micro-actions: nothing is stored; counted on /diagnostics as rest steps), the safe "
+          "(not micro-actions: nothing is stored; counted on /diagnostics as rest-return commands), the safe "
           "default for a real arm; 'direct' = one command to the rest posture, as the paper's "
           "simulation does: only for the simulated lockstep bridge (`sagg run` sets it there, so the "
           "graph equals the in-process run bit for bit). 'direct' is refused with --driver external and "

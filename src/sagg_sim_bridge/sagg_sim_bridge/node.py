@@ -4,9 +4,10 @@ Builds ``ArmSim(spec, seed=substream_seed(seed, "sim"))`` from the ``arm.*`` par
 the in-process run does, and speaks like a ros2_control position-controlled arm plus a tracker:
 
 - subscribes ``/<controller>/commands`` (std_msgs/Float64MultiArray, joint order = the arm's joint
-  order ``joint_0..joint_{n-1}``, i.e. the controller's ``joints``);
-- publishes ``/joint_states`` (positions, velocities; names ``joint_i``) and the tip on
-  ``task_topic`` (geometry_msgs/PointStamped, x/y in task units).
+  order: ``joint_0..joint_{n-1}`` for the planar arm, the commanded joints of a model arm, i.e. the
+  controller's ``joints``);
+- publishes ``/joint_states`` (positions, velocities; the arm's joint names) and the tip on
+  ``task_topic`` (geometry_msgs/PointStamped: x, y (, z) in task units).
 
 Timing (parameter ``timing``):
 
@@ -115,7 +116,7 @@ class BridgeNode(Node):
             return
         if len(target) != self.n:
             self.guard.reject("command.length", f"{self.cmd_topic}: got {len(target)} values; allowed: "
-                                                f"{self.n} (joint_0..joint_{self.n - 1})")
+                                                f"{self.n} (one per joint: {', '.join(self.sim.joint_names)})")
             return
         if not all_finite(target):
             self.guard.reject("command.non_finite", f"{self.cmd_topic}: NaN/inf in {target.tolist()}; "
