@@ -48,7 +48,7 @@ from .bag_reader import bag_messages, open_bag
 from .bag_recover import is_unfinished, recover_bag
 from .arm_params import node_schemas
 from .evaluator import evaluate_frozen, evaluation_setup
-from .recorder import BagWriter, _msg_class
+from .recorder import BagWriter, msg_class
 from .topics import command_topics
 from .report import arm_rows, write_report
 from .results import goal_share_stats
@@ -150,7 +150,7 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
     n_total = sum(total[t] for t in wanted)
     try:
         for t in wanted:
-            pubs[t] = node.create_publisher(_msg_class(conns[t].msgtype), t, _rclpy_qos(conns[t]))
+            pubs[t] = node.create_publisher(msg_class(conns[t].msgtype), t, _rclpy_qos(conns[t]))
         if wait_subscribers:
             end = time.monotonic() + wait_timeout
             while not stop and any(p.get_subscription_count() < wait_subscribers for p in pubs.values()):

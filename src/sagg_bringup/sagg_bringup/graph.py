@@ -47,7 +47,7 @@ from .bag_recover import recover_run_bags
 from .evaluator import Evaluator
 from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file, write_run_file
 from .processes import GraphError, check_domain_id, node_processes
-from .recorder import _msg_class
+from .recorder import msg_class
 from .report import arm_rows, write_report
 from .resume_check import compare
 from .results import run_overrides
@@ -146,7 +146,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                         "/sagg/regions": on_regions}
             for topic, msgtype, _, raw in prior:
                 if topic in handlers:
-                    handlers[topic](deserialize_message(bytes(raw), _msg_class(msgtype)))
+                    handlers[topic](deserialize_message(bytes(raw), msg_class(msgtype)))
             st.sample_t0 = st.sample_t1 = None  # rates: this segment only
         prior_samples = st.samples
         extra = run_only_params(params)

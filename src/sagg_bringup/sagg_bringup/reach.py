@@ -24,8 +24,11 @@ import yaml
 
 from sagg_common.params import ConfigError, flatten
 from sagg_low_level.checkpoint import checkpoint_memory
+from sagg_low_level.learner import SCHEMA as LEARNER_CORE
+from sagg_low_level.memory import SampleMemory
 
 from .arm_params import NODES
+from .evaluator import evaluate_frozen, evaluation_setup
 from .params_files import run_bags, write_params_file
 from .processes import GraphError, NodeGroup, check_domain_id, node_processes
 
@@ -145,12 +148,9 @@ def offline_errors(params_file: Path, memory: Path, goals) -> np.ndarray:
     run's simulated arm by the run's own evaluation code (:func:`.evaluator.evaluate_frozen`): what
     the graph's reaches equal in simulation, and the simulated side of a reach on the robot."""
     # lazy (heavy): mujoco
-    from sagg_low_level.learner import SCHEMA as LEARNER_CORE
-    from sagg_low_level.memory import SampleMemory
     from sagg_sim_bridge.arms import arm_spec_from_params
     from sagg_sim_bridge.params import SCHEMA as BRIDGE_CORE
     from .bags import params_from
-    from .evaluator import evaluate_frozen, evaluation_setup
     full = params_from(params_file.parent, params_file)
     lp = {p.name: full["sagg_learner"][p.name] for p in LEARNER_CORE}
     spec = arm_spec_from_params({p.name: full["sagg_sim_bridge"][p.name] for p in BRIDGE_CORE})

@@ -264,7 +264,7 @@ def both(first: Callable, second: Callable) -> Callable:
     return handler
 
 
-def _msg_class(msgtype: str):
+def msg_class(msgtype: str):
     pkg, kind, name = msgtype.split("/")
     return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
 
@@ -360,7 +360,7 @@ class TopicRecorder:
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.serialization import deserialize_message
 
-        cls = _msg_class(t.msgtype)
+        cls = msg_class(t.msgtype)
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST, depth=t.depth,
             reliability=ReliabilityPolicy.BEST_EFFORT if t.best_effort else ReliabilityPolicy.RELIABLE,

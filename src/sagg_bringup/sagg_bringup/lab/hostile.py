@@ -48,7 +48,7 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from sagg_bringup.recorder import _msg_class
+from sagg_bringup.recorder import msg_class
 from sagg_common.cdr import (JointStateDecoder, PointStampedEncoder, decode_f64_array, decode_point_stamped,
                              encode_f64_array, encode_joint_state)
 from sagg_common.msg_codecs import encode_report, encode_sample
@@ -92,6 +92,9 @@ class Outcome:
     reports_lost: int = 0
     longest_resume: float = 0.0  # s from the case's end until micro-actions grew again (largest)
     shares: list = field(default_factory=list)  # micro-actions/s while active / quiet rate, per run
+
+
+REPLAY_STARTUP = 60.0  # s: the longest wait for `sagg replay`'s publishers
 
 
 class Fuzzer:
@@ -179,7 +182,7 @@ class Fuzzer:
     # ------------------------------------------------------------------ publishing
     def _pub(self, topic: str, cls_name: str, transient_local: bool = False):
         if topic not in self.pubs:
-            pub = self.node.create_publisher(_msg_class(cls_name), topic,
+            pub = self.node.create_publisher(msg_class(cls_name), topic,
                                              reliable(1000, transient_local=transient_local))
             # a volatile message published before discovery matched the graph's subscriptions is
             # lost for them: wait, up to MATCH_WAIT s, until every subscription the graph has on the
@@ -252,6 +255,12 @@ class Fuzzer:
                "--domain-id", str(self.domain)]
         self.replaying = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                           start_new_session=True)
+        # the case's time runs from the replay's first publisher on /joint_states: the process's
+        # start-up (seconds on a loaded machine) is not part of it
+        t_end = time.monotonic() + REPLAY_STARTUP
+        while time.monotonic() < t_end and self.replaying.poll() is None and not any(
+                i.node_name == "sagg_replay" for i in self.node.get_publishers_info_by_topic("/joint_states")):
+            self.spin(0.1)
 
     def stop_replay(self) -> None:
         p, self.replaying = self.replaying, None

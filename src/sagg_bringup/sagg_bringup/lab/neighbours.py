@@ -30,7 +30,7 @@ from sagg_common.ros_params import reliable
 from ..arm_params import graph_params, load_graph_config
 
 from ..processes import pick_domain_id
-from ..recorder import TopicSpec, _msg_class
+from ..recorder import TopicSpec, msg_class
 from ..topics import watched_topics
 
 GRIPPER_RATE = 20.0  # Hz: an ordinary gripper driver's joint-state rate
@@ -51,7 +51,7 @@ class Neighbours:
         rclpy.init(context=self.ctx, domain_id=domain)
         self.node = rclpy.create_node("gripper_driver", context=self.ctx)
         self.pub = self.node.create_publisher(JointState, "/joint_states", reliable(10))
-        self.idle = [self.node.create_publisher(_msg_class(t.msgtype), t.name, reliable(10, t.transient_local))
+        self.idle = [self.node.create_publisher(msg_class(t.msgtype), t.name, reliable(10, t.transient_local))
                      for t in idle]
         self.sent = 0
         self._msg = JointState
