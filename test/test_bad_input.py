@@ -127,14 +127,16 @@ def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos
     before, total, ignored = learner_state(n), n.guard.total, sum(n.other_joints.values())
     n.on_joint_state(js_bytes(names, pos, vel))
     where = {nm: i for i, nm in enumerate(names)}
-    well_formed = len(pos) == len(names) and len(vel) in (0, len(names)) and len(where) == len(names)
+    lengths_ok = len(pos) == len(names) and len(vel) in (0, len(names))
+    well_formed = lengths_ok and len(where) == len(names)
     valid = (well_formed and all(j in where for j in JOINTS)
              and all(-1.1 <= pos[where[j]] <= 1.1 for j in JOINTS)  # (NaN fails)
              and (not vel or all(-1000.0 <= vel[where[j]] <= 1000.0 for j in JOINTS)))
     if valid:
         assert np.array_equal(n.js_alpha, [pos[where[j]] for j in JOINTS]) and n.guard.total == total
-    elif well_formed and not any(j in where for j in JOINTS):
-        # another driver's joints only (a gripper's): ignored, counted apart, not an error (issue 24)
+    elif lengths_ok and not any(j in where for j in JOINTS):
+        # another driver's joints only (a gripper's), however it names them: ignored, counted apart,
+        # not an error (issue 24)
         assert n.guard.total == total and sum(n.other_joints.values()) == ignored + 1
         assert learner_state(n)[0] == before[0]
     else:

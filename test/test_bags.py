@@ -126,7 +126,7 @@ def _subscriber(domain: int, topics: dict[str, str]):
     """A test-side node receiving the raw bytes of ``topics`` (name -> type)."""
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from sagg_bringup.recorder import _msg_class
+    from sagg_bringup.recorder import msg_class
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = rclpy.create_node("sagg_test_replay_sub", context=ctx)
@@ -134,7 +134,7 @@ def _subscriber(domain: int, topics: dict[str, str]):
     for t, ty in topics.items():
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if t == "/sagg/regions" else DurabilityPolicy.VOLATILE)
-        node.create_subscription(_msg_class(ty), t, lambda data, t=t: got[t].append(bytes(data)), qos, raw=True)
+        node.create_subscription(msg_class(ty), t, lambda data, t=t: got[t].append(bytes(data)), qos, raw=True)
     ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     return ctx, ex, got
@@ -256,7 +256,7 @@ def _replay_with(bag: Path, node_name: str, *args: str):
     command topic and /joint_states there; returns (exit code, output, received bytes)."""
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from sagg_bringup.recorder import _msg_class
+    from sagg_bringup.recorder import msg_class
     domain = pick_domain_id()
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
@@ -265,7 +265,7 @@ def _replay_with(bag: Path, node_name: str, *args: str):
         got: dict[str, list[bytes]] = {t: [] for t in CMD_TYPES}
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         for t, ty in CMD_TYPES.items():
-            node.create_subscription(_msg_class(ty), t, lambda data, t=t: got[t].append(bytes(data)), qos, raw=True)
+            node.create_subscription(msg_class(ty), t, lambda data, t=t: got[t].append(bytes(data)), qos, raw=True)
         ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
