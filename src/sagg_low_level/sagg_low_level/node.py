@@ -512,6 +512,9 @@ class LearnerNode(LearnerNodeBase):
             self._check_driver()
         while self.reach_server.rejections:  # (rejected goals, counted here: the guard is this thread's)
             self.guard.reject(*self.reach_server.rejections.popleft())
+        for job in self.reach_server.take_canceled():  # (canceled before its turn: nothing moved)
+            y = self.tip if self.tip is not None else np.full(job.target.shape, np.nan)
+            self._answer_reach(job, (y, float(np.linalg.norm(job.target - y)), 0, "canceled"))
         if self.reach_server.jobs and self.reach is None:
             self._poll_reach()
         elif (self.reach is not None and self.reach.cancel and self.state is self.PAUSED
@@ -696,7 +699,9 @@ class LearnerNode(LearnerNodeBase):
             self._set_hold("reach", f"reaching a goal of {ACTION}")
         if self.state not in (self.PAUSED, self.STOPPED):
             return  # (a command or a goal request in flight: its answer comes first)
-        job = self.reach = self.reach_server.jobs.popleft()
+        job = self.reach = self.reach_server.take()
+        if job is None:
+            return
         back = self.js_alpha.copy() if self.state is self.PAUSED else None  # (learning goes on after)
         self.reach_saved = (self.coro, self.pending, self.state)
         self.coro = self._reach_requests(job, back)
@@ -729,13 +734,17 @@ class LearnerNode(LearnerNodeBase):
                 result = (y, float(np.linalg.norm(job.target - y)), job.steps, "canceled")
             except StopIteration as done:
                 result = done.value
-        job.result = result
-        job.done.set()
-        self.get_logger().info(f"reach of {job.target.tolist()}: {result[3]}, error {result[1]:.6g} after "
-                               f"{result[2]} steps")
+        self._answer_reach(job, result)
         if back is not None:
             yield Command(back, "return")
         yield ReachDone()
+
+    def _answer_reach(self, job: ReachJob, result: tuple) -> None:
+        """The result of one reach to its client: (reached point, error, steps, outcome)."""
+        job.result = (np.array(result[0], float), *result[1:])
+        job.done.set()
+        self.get_logger().info(f"reach of {job.target.tolist()}: {result[3]}, error {result[1]:.6g} after "
+                               f"{result[2]} steps")
 
     def _finish_reach(self) -> None:
         """The reach is over (and the arm back where learning paused): the learner's coroutine again."""

@@ -108,7 +108,8 @@ class ReachServer:
     def _run(self, goal_handle):
         g = goal_handle.request
         job = ReachJob(np.array(g.target, dtype=float), g.tolerance, g.max_steps, g.from_rest)
-        self.jobs.append(job)
+        with self._lock:
+            self.jobs.append(job)
         sent = -1
         while not job.done.wait(0.05):
             if goal_handle.is_cancel_requested:
@@ -133,6 +134,20 @@ class ReachServer:
         else:
             goal_handle.abort()
         return result
+
+    def take(self) -> ReachJob | None:
+        """The next job for the learner (None: none waiting)."""
+        with self._lock:
+            return self.jobs.popleft() if self.jobs else None
+
+    def take_canceled(self) -> list[ReachJob]:
+        """The jobs canceled before the learner took them (e.g. while a hold kept the previous
+        reach's return waiting): the learner answers them at once, nothing moved."""
+        with self._lock:
+            gone = [j for j in self.jobs if j.cancel]
+            for j in gone:
+                self.jobs.remove(j)
+        return gone
 
     def close(self) -> None:
         self.stopping.set()
