@@ -33,7 +33,8 @@ def run_dir(tmp_path_factory):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     p = subprocess.run([str(BIN / "sagg"), "run", str(ROOT / "config/arm15_y50.yaml"), "--set", "arm.dof=7",
                         "--set", "arm.mode=kinematic", "--micro-actions", str(STEPS), "--eval-every", "300",
-                        "--out", str(out), "--quiet"], env=env, capture_output=True, text=True, timeout=400)
+                        "--out", str(out), "--quiet", "--no-report"],
+                       env=env, capture_output=True, text=True, timeout=400)
     assert p.returncode == 0, p.stdout + p.stderr
     return out
 
@@ -210,7 +211,7 @@ def test_run_resume_continues_the_run(run_dir, tmp_path):
     first = json.loads((run / "summary.json").read_text())
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     p = subprocess.run([str(BIN / "sagg"), "run", "--resume", str(run), "--micro-actions", str(STEPS + 300),
-                        "--quiet"], env=env, capture_output=True, text=True, timeout=400)
+                        "--quiet", "--no-report"], env=env, capture_output=True, text=True, timeout=400)
     assert p.returncode == 0, p.stdout + p.stderr
     s = json.loads((run / "summary.json").read_text())
     assert s["micro_actions"] == s["memory"]["samples"] == STEPS + 300

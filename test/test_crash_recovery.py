@@ -206,7 +206,8 @@ def test_sigkill_of_a_whole_run_then_resume_and_relearn(tmp_path):
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     log = open(tmp_path / "first.log", "w")
     p = subprocess.Popen([str(BIN / "sagg"), "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", str(steps),
-                          "--eval-every", "1000", "--out", str(run), "--quiet", "--domain-id", str(pick_domain_id())],
+                          "--eval-every", "1000", "--out", str(run), "--quiet", "--no-report",
+                          "--domain-id", str(pick_domain_id())],
                          env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     mcap = run / "bag" / "bag.mcap"
     try:
@@ -224,7 +225,8 @@ def test_sigkill_of_a_whole_run_then_resume_and_relearn(tmp_path):
     before = published(run / "checkpoint")  # what the learner had published when killed
 
     r = subprocess.run([str(BIN / "sagg"), "run", "--resume", str(run), "--eval-every", "1000", "--quiet",
-                        "--domain-id", str(pick_domain_id())], env=env, capture_output=True, text=True, timeout=300)
+                        "--no-report", "--domain-id", str(pick_domain_id())],
+                       env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     rec = json.loads((run / "bag" / REPORT_FILE).read_text())
     n = rec["topics"]["/sagg/sample"]

@@ -205,7 +205,7 @@ def test_evaluation_on_the_robot_during_learning_pauses_and_resumes(tmp_path):
     try:
         proc = subprocess.run([SAGG, "run", str(cfg), "--driver", "external", "--micro-actions", str(n),
                                "--eval-every", str(n), "--robot-eval-goals", "2", "--robot-eval-every", "60",
-                               "--out", str(out), "--quiet", "--domain-id", str(domain)],
+                               "--out", str(out), "--quiet", "--no-report", "--domain-id", str(domain)],
                               env=env, capture_output=True, text=True, timeout=240)
     finally:
         stop(driver)
@@ -261,7 +261,7 @@ def test_driver_with_only_joint_states_learns_through_its_model(tmp_path):
                                env=env, capture_output=True, text=True, timeout=120)
         proc = subprocess.run([SAGG, "run", str(cfg), "--driver", "external", "--micro-actions", str(steps),
                                "--eval-every", str(steps), "--robot-eval-goals", "6", "--out", str(out), "--quiet",
-                               "--domain-id", str(domain), "--driver-timeout", "60"],
+                               "--no-report", "--domain-id", str(domain), "--driver-timeout", "60"],
                               env=env, capture_output=True, text=True, timeout=400)
     finally:
         stop(driver)

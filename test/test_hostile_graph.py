@@ -53,7 +53,8 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
     from sagg_bringup.bag_channels import channel_metadata
     out = tmp_path / "run"
     p = subprocess.run([SAGG, "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", str(N),
-                        "--eval-every", str(N), "--out", str(out), "--quiet", "--set", "recorder_max_lag=16"],
+                        "--eval-every", str(N), "--out", str(out), "--quiet", "--no-report",
+                        "--set", "recorder_max_lag=16"],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     s = json.loads((out / "summary.json").read_text())
@@ -83,7 +84,7 @@ def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):
     from sagg_bringup.setups import run_graph
     n = 12
     s = run_graph("config/quadruped.yaml", n, tmp_path / "q", eval_every=n, progress=False, stall_timeout=120.0,
-                  overrides={"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0})
+                  report=False, overrides={"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0})
     published = published_counts(tmp_path / "q" / "logs")
     assert set(published) == {"/joint_trajectory_controller/joint_trajectory", "/body_pose", "/sagg/sample",
                               "/sagg/competence", "/sagg/goal"}
@@ -99,7 +100,7 @@ def test_fixed_context_arm_bag_holds_exactly_what_the_nodes_published(tmp_path):
     from sagg_bringup.setups import run_graph
     n = 12
     run_graph("config/arm8.yaml", n, tmp_path / "f", eval_every=n, progress=False, stall_timeout=120.0,
-              overrides={"context": "fixed", "eval.goals": 5})
+              report=False, overrides={"context": "fixed", "eval.goals": 5})
     published = published_counts(tmp_path / "f" / "logs")
     cmd = "/forward_position_controller/commands"
     assert published[cmd] == 1 + 2 * n and published["/sagg/sample"] == n
@@ -110,14 +111,13 @@ def test_fixed_context_arm_bag_holds_exactly_what_the_nodes_published(tmp_path):
 
 def test_hostile_bench_short(tmp_path):
     """`sagg bench hostile` in seconds: a few cases per phase on a running arm8 graph; every case
-    survived, was counted and logged, learning went on, and every invariant holds."""
+    survived, was counted and logged, learning went on, and every invariant holds. (The other cases
+    are checked node by node in test_hostile.py, test_sources.py and test_safety.py, and all of them
+    in the 10-minute soak, docs/hostile.md.)"""
     from sagg_bringup.lab.hostile import bench_hostile
     lines: list[str] = []
     res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=2.5, eval_every=200, drain=5.0,
-                        out=lines.append, only=["joint states 3.0 rad", "report seq +10^12", "NaN sample",
-                                                "2,000 joint states/s from a second publisher",
-                                                "forged sample with the next index",
-                                                "forged report at the next seq",
+                        out=lines.append, only=["NaN sample", "forged sample with the next index",
                                                 "gripper publisher (other joints only)",
                                                 "idle publishers on every watched topic",
                                                 "burst, then an idle publisher", "a replayed bag"],
@@ -128,10 +128,10 @@ def test_hostile_bench_short(tmp_path):
     # 90 %, is for a quiet machine; a hold would make this ~0); the others are held and resume
     for name in ("gripper publisher (other joints only)", "idle publishers on every watched topic"):
         assert min(cases[name]["shares"]) >= 0.5, "\n".join(lines)
-    for name in ("2,000 joint states/s from a second publisher", "burst, then an idle publisher", "a replayed bag"):
+    for name in ("burst, then an idle publisher", "a replayed bag"):
         assert cases[name]["learning"] == cases[name]["runs"] >= 1, "\n".join(lines)
     content = res["phases"]["content"]
-    assert set(content["cases"]) == {"joint states 3.0 rad", "report seq +10^12", "NaN sample"}
+    assert set(content["cases"]) == {"NaN sample"}
     # the NaN sample reached sagg run's handler and was dropped there, counted (no crash, no summary lost)
     assert any(k.startswith("/sagg/sample") for k in content["invariants"]["sagg run rejected"])
     for phase in ("content", "publishers"):

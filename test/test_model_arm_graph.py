@@ -26,7 +26,7 @@ N, EVERY = 600, 300
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("model_graph") / "run"
     proc = subprocess.run([SAGG, "run", str(CONFIG), "--micro-actions", str(N), "--eval-every", str(EVERY),
-                           "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=400)
+                           "--out", str(out), "--quiet", "--no-report"], capture_output=True, text=True, timeout=400)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return out, json.loads((out / "summary.json").read_text())
 

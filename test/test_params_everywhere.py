@@ -227,7 +227,7 @@ def test_a_finished_runs_params_file_starts_a_new_run_and_leaves_that_run_alone(
     naming 'resume'); the old run's checkpoint files stay byte for byte as they were."""
     run = tmp_path / "run"
     proc = subprocess.run([str(BIN / "sagg"), "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", "100",
-                           "--eval-every", "100", "--out", str(run), "--quiet"],
+                           "--eval-every", "100", "--out", str(run), "--quiet", "--no-report"],
                           capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-3000:]
     ck = run / "checkpoint"

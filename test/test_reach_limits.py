@@ -283,7 +283,8 @@ def test_graph_learner_reaches_with_the_damped_inverse_like_the_in_process_run(t
     sagg = str(Path(sys.executable).parent / "sagg")
     out = tmp_path / "run"
     proc = subprocess.run([sagg, "run", "config/arm7_ratio15.yaml", "--micro-actions", "200", "--eval-every",
-                           "200", "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
+                           "200", "--out", str(out), "--quiet", "--no-report"],
+                          capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     s = json.loads((out / "summary.json").read_text())
     assert s["config"]["sagg_learner"]["reach_damping"] == 1.0

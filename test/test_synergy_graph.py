@@ -15,7 +15,7 @@ OVERRIDES = {"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0}
 def test_quadruped_graph_equals_in_process_and_records_trajectories(tmp_path):
     n = 16
     graph = run_graph("config/quadruped.yaml", n, tmp_path / "graph", eval_every=8, overrides=OVERRIDES,
-                              progress=False, stall_timeout=120.0)
+                              progress=False, stall_timeout=120.0, report=False)
     inproc = run_experiment("config/quadruped.yaml", None, None, n, 8, tmp_path / "inproc", progress=False,
                             overrides=OVERRIDES)
     # bit-identical samples (θ and outcomes), goals and test errors
@@ -66,7 +66,7 @@ def test_fixed_context_arm_graph_equals_in_process_and_speaks_the_position_contr
     n = 20
     ov = {"context": "fixed", "eval.goals": 5}
     graph = run_graph("config/arm8.yaml", n, tmp_path / "graph", eval_every=10, overrides=ov,
-                              progress=False, stall_timeout=120.0)
+                              progress=False, stall_timeout=120.0, report=False)
     inproc = run_experiment("config/arm8.yaml", None, None, n, 10, tmp_path / "inproc", progress=False,
                             overrides=ov)
     assert graph["memory"]["samples"] == inproc["memory"]["samples"] == n

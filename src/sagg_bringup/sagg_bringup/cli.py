@@ -112,6 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--stall-timeout", type=float, default=None, metavar="S",
                    help="give up after S seconds without a new sample (default 600); the progress line "
                         "shows why the learner holds meanwhile, and the error names it")
+    r.add_argument("--no-report", action="store_true",
+                   help="no report.md / figures (summary.json, the bag and the checkpoints as always)")
     r.add_argument("--driver-timeout", type=float, default=120.0,
                    help="--driver external: seconds to wait for the driver's topics (default 120)")
 
@@ -297,13 +299,14 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _stall(args) -> dict:
-    """``--stall-timeout`` for run_graph (its default when not given)."""
+def _run_options(args) -> dict:
+    """``--stall-timeout`` (its default when not given) and ``--no-report`` for run_graph."""
+    options = {"report": not args.no_report}
     if args.stall_timeout is None:
-        return {}
+        return options
     if not args.stall_timeout > 0:
         raise ConfigError(f"--stall-timeout: got {args.stall_timeout}; allowed: a number > 0 (seconds)")
-    return {"stall_timeout": args.stall_timeout}
+    return {**options, "stall_timeout": args.stall_timeout}
 
 
 def _run(args) -> int:
@@ -327,11 +330,11 @@ def _run(args) -> int:
                           strategy=args.strategy, eval_every=args.eval_every, overrides=parse_set(args.set),
                           progress=not args.quiet, domain_id=args.domain_id,
                           robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
-                          driver_timeout=args.driver_timeout, **_stall(args))
+                          driver_timeout=args.driver_timeout, **_run_options(args))
         else:
             s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
                           timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
-                          progress=not args.quiet, domain_id=args.domain_id, **_stall(args))
+                          progress=not args.quiet, domain_id=args.domain_id, **_run_options(args))
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
@@ -341,12 +344,13 @@ def _run(args) -> int:
                 else f" ({setup.name} runs cannot be resumed: start a new run)")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
+    report = "" if args.no_report else f", {Path(out) / 'report.md'}"
     print(f"{s['strategy']} seed {s['seed']} (graph, {s['timing']}): final mean test error "
           f"{s['final_mean_error']:.3f} (median {s['final_median_error']:.3f}) after {s['micro_actions']} "
           f"micro-actions at {s['micro_actions_per_second']:,.0f}/s; wall {s['wall_seconds']:.1f} s; "
           f"{len(s['goals'])} goals, {len(s['regions'])} regions, "
           f"{sum(t['count'] for t in s['bag']['topics'].values()):,} messages recorded\n"
-          f"-> {Path(out) / 'summary.json'}, {Path(out) / 'report.md'}, {s['bag']['path']}")
+          f"-> {Path(out) / 'summary.json'}{report}, {s['bag']['path']}")
     if "robot_evaluation" in s:
         r = s["robot_evaluation"]
         print(f"on the robot: mean error {r['final_mean_error']:.3f} on {len(r['goals'] or [])} test goals "
@@ -385,7 +389,7 @@ def _resume(args) -> int:
     timing = own.get("timing") or bridge.get("timing", args.timing)
     try:
         s = run_graph(params_file, micro, out, timing=timing, eval_every=eval_every,
-                      progress=not args.quiet, domain_id=args.domain_id, resume=True, **_stall(args))
+                      progress=not args.quiet, domain_id=args.domain_id, resume=True, **_run_options(args))
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code
@@ -393,10 +397,11 @@ def _resume(args) -> int:
         print(f"\nsagg: interrupted; bag closed, partial results in {out} (sagg run --resume {out} continues)",
               file=sys.stderr)
         return 130
+    report = "" if args.no_report else f", {out / 'report.md'}"
     print(f"{s['strategy']} seed {s['seed']} (graph, {s['timing']}, resumed): final mean test error "
           f"{s['final_mean_error']:.3f} (median {s['final_median_error']:.3f}) after {s['micro_actions']} "
           f"micro-actions; {len(s['goals'])} goals, {len(s['regions'])} regions; bags "
-          f"{', '.join(s['bag']['paths'])}\n-> {out / 'summary.json'}, {out / 'report.md'}")
+          f"{', '.join(s['bag']['paths'])}\n-> {out / 'summary.json'}{report}")
     return 0
 
 
