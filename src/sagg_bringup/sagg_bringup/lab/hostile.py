@@ -113,7 +113,7 @@ class Fuzzer:
 
         self.rclpy = rclpy
         self.domain, self.replay_bag, self.replaying = domain, replay_bag, None
-        self.replay_window: tuple | None = None
+        self.replay_windows: list[tuple] = []  # (start, end) of each replay, ns
         self.ctx = Context()
         rclpy.init(context=self.ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("sagg_fuzzer", context=self.ctx)
@@ -249,8 +249,8 @@ class Fuzzer:
     def replay(self) -> None:
         """``sagg replay`` of :attr:`replay_bag` (another run's bag) into the graph's domain, as a
         user would start it beside a live run (its defaults: no command topic); the time it ran
-        (wall clock, ns: the bag's receive times) is kept in :attr:`replay_window`."""
-        self.replay_window = (time.time_ns(), None)
+        (wall clock, ns: the bag's receive times) is kept in :attr:`replay_windows`."""
+        self.replay_windows.append((time.time_ns(), None))
         cmd = [str(Path(sys.executable).parent / "sagg"), "replay", str(self.replay_bag), "--quiet",
                "--domain-id", str(self.domain)]
         self.replaying = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -266,7 +266,7 @@ class Fuzzer:
         p, self.replaying = self.replaying, None
         if p is not None:
             stop_group(p, 10.0)
-            self.replay_window = (self.replay_window[0], time.time_ns() + 5 * SEC)  # (+ what was queued)
+            self.replay_windows[-1] = (self.replay_windows[-1][0], time.time_ns() + 5 * SEC)  # (+ the queued)
 
     def pause(self, on: bool) -> None:
         """/sagg/pause (std_srvs/SetBool), waiting up to 10 s for the answer."""
@@ -441,9 +441,9 @@ def published_counts(logs: Path) -> dict[str, int]:
 
 
 def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None,
-               window: tuple | None = None) -> dict[str, object]:
+               windows: list[tuple] = ()) -> dict[str, object]:
     """The end-of-phase invariants, from the run's summary, checkpoint, bag and logs; ``replayed``:
-    a bag replayed into the run during ``window`` (receive times, ns): its messages in the run's
+    a bag replayed into the run during ``windows`` (receive times, ns): its messages in the run's
     bag then are not the driver's (the same bytes outside it are: two runs' first messages may
     be byte-identical, a posture at rest stamped with the same simulation time)."""
 
@@ -477,10 +477,10 @@ def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None
     driver_postures: set[bytes] = set()
     micro: list[np.ndarray] = []
     counts: dict[str, int] = {}
-    foreign = {bytes(raw) for _, _, _, raw in bag_messages([replayed])} if replayed is not None and window else set()
+    foreign = {bytes(raw) for _, _, _, raw in bag_messages([replayed])} if replayed is not None and windows else set()
     for topic, _, ts, raw in bag_messages([run_dir / "bag"]):
-        fuzz = FUZZ.encode() in bytes(raw[:64]) or (bool(foreign) and window[0] <= ts <= window[1]
-                                                     and bytes(raw) in foreign)
+        fuzz = FUZZ.encode() in bytes(raw[:64]) or (bool(foreign) and bytes(raw) in foreign
+                                                     and any(a <= ts <= b for a, b in windows))
         if topic == "/joint_states":
             st, names, pos, _ = dec.decode(raw)
             if not fuzz:
@@ -572,7 +572,10 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
                             # the 300 forged samples made 30,000 a mixture, which the recorder took
                             # minutes to work through while the learner waited for it)
                             lambda f, j, picks=picks: [p.send(f, j) for p in picks if not (p.once and j)],
-                            seconds=2.0)
+                            seconds=2.0,
+                            # (a case that stops what it started, e.g. the replay, stops it in a mixture
+                            # too: a replay left running republished the first phase's whole bag)
+                            stop=lambda f, picks=picks: [p.stop(f) for p in picks if p.stop is not None])
             o = outcomes.setdefault(case.name, Outcome())
             _run_case(f, case, proc, o, quiet)
             log(f"[{phase}] {case.name}: survived {o.survived}/{o.runs}, counted {o.counted}, learning "
@@ -587,7 +590,7 @@ def run_phase(phase: str, config: str, seconds: float, out: Path, sets: list[str
         f.close()
         stop_group(proc, 180.0)
         fh.close()
-    inv = invariants(run_dir, sent, replay_bag, f.replay_window)
+    inv = invariants(run_dir, sent, replay_bag, f.replay_windows)
     logs_text = "\n".join(p.read_text(errors="replace") for p in (run_dir / "logs").glob("*.log"))
     logs_text += (out / f"{phase}.sagg_run.log").read_text(errors="replace")
     logged = {}
