@@ -378,11 +378,16 @@ def task_from_params(p: dict, joints: Sequence[str], m: int, base_dir: str) -> T
                                 joints=joints, joint_lower=p["joint_limits.lower"], joint_upper=p["joint_limits.upper"],
                                 rest=p["rest_posture"])
         return TaskFromJoints(robot, joints)
-    except ConfigError as exc:  # (the model's errors name the bridge's arm.* parameters: the learner's names)
-        text = str(exc)
-        for bridge, learner in LEARNER_NAMES:
-            text = text.replace(bridge, learner)
-        raise ConfigError(text) from exc
+    except ConfigError as exc:  # (the model's errors name the bridge's arm.* parameters)
+        raise ConfigError(in_learner_terms(str(exc))) from exc
+
+
+def in_learner_terms(text: str) -> str:
+    """A RobotModel error or notice, which names the bridge's ``arm.*`` parameters, in the
+    learner's parameter names (``task_model.*``: :func:`task_from_params`)."""
+    for bridge, learner in LEARNER_NAMES:
+        text = text.replace(bridge, learner)
+    return text
 
 
 # the bridge's parameter names in RobotModel's errors -> the learner's (task_from_params)

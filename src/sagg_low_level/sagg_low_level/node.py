@@ -135,11 +135,10 @@ class LearnerNode(LearnerNodeBase):
         self.task_fk = None
         if p["task_source"] == "model":
             # lazy (heavy): mujoco, only for task_source 'model'
-            from sagg_common.robot_model import task_from_params
+            from sagg_common.robot_model import in_learner_terms, task_from_params
             self.task_fk = task_from_params(p, self.robot.joint_names, self.m, params_dir() or os.getcwd())
             if self.task_fk.robot.mesh_notice:  # (the held joints' rest values come from the model: no notice)
-                self.get_logger().info("task_model: " + self.task_fk.robot.mesh_notice.replace("arm.model",
-                                                                                               "task_model.file"))
+                self.get_logger().info("task_model: " + in_learner_terms(self.task_fk.robot.mesh_notice))
         if self.task_fk is None:
             self.create_subscription(PointStamped, p["task_topic"], sources.with_message_info(self.on_task_point),
                                      reliable(10), raw=True)
