@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SAGG = str(Path(sys.executable).parent / "sagg")
 
 
-def test_reach_during_learning_pauses_it_and_stores_nothing_then_the_finished_run_reaches(tmp_path):
+def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
     from sagg_bringup.reach import ReachClient
     domain = pick_domain_id()
     out = tmp_path / "run"
@@ -82,11 +82,15 @@ def test_reach_during_learning_pauses_it_and_stores_nothing_then_the_finished_ru
     assert "reach of [30.0, 10.0]" in log and "reach hold released" in log
     assert "rejected input [reach.invalid]" in log and "rejected input [reach.busy]" in log
     assert "reach of [20.0, -10.0]: canceled" in log
-    # the finished run: `sagg reach` from rest (the run's own graph started again)
-    _sagg_reach_of_a_finished_run_from_rest(out, tmp_path)
 
 
-def _sagg_reach_of_a_finished_run_from_rest(run, tmp_path):
+def test_sagg_reach_of_a_finished_run_from_rest(tmp_path):
+    # (a run of its own: lockstep, never paused, so its model and the bound below are the same every
+    # time; a run paused for reaches takes another path after each)
+    run = tmp_path / "run"
+    subprocess.run([SAGG, "run", "config/arm8.yaml", "--micro-actions", "600", "--eval-every", "600",
+                    "--out", str(run), "--quiet", "--no-report"],
+                   cwd=ROOT, check=True, capture_output=True, timeout=300)
     p = subprocess.run([SAGG, "reach", str(run), "--test-goals", "4", "--out", str(tmp_path / "reach")],
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:] + p.stdout[-2000:]
