@@ -51,7 +51,7 @@ class SourceChains:
     """The publisher chains of one stream and the verdict for each message (module docstring)."""
 
     __slots__ = ("grace", "keep", "last", "rx", "data", "started", "ambiguous_until", "episodes", "gaps",
-                 "skipped")
+                 "skipped", "current")
     SKIPPED = 64  # the numbers of the last messages not taken that are remembered (a gap of more is a gap)
 
     def __init__(self, grace: float, keep: int = 8):
@@ -67,6 +67,7 @@ class SourceChains:
         self.episodes = 0            # how often the stream became ambiguous
         self.gaps = 0                # messages not taken for a gap
         self.skipped: collections.deque[int] = collections.deque(maxlen=self.SKIPPED)  # (skip)
+        self.current = -1            # the chain of the last message classified (-1: none, or no numbers)
 
     def assign(self, seq: int, now: float) -> tuple[int, bool, bool]:
         """The chain of a message numbered ``seq`` received at ``now`` (updated), whether the message
@@ -107,8 +108,9 @@ class SourceChains:
     def classify(self, seq: int | None, now: float) -> int:
         """The verdict for a message numbered ``seq`` received at ``now`` (any monotonic clock, s)."""
         if seq is None:
+            self.current = -1
             return ACCEPT
-        _, exact, new = self.assign(seq, now)
+        self.current, exact, new = self.assign(seq, now)
         if new and not self.started:
             exact = True  # the stream's first chain: nothing to continue yet
         grace = self.grace
@@ -126,6 +128,16 @@ class SourceChains:
             return GAP
         self.started = True
         return ACCEPT
+
+    def tag(self, value) -> None:
+        """Attach ``value`` to the chain of the last message classified (e.g. "found to be another
+        run's"): it stays with the chain while the chain lives. Without numbers: nothing."""
+        if self.current >= 0:
+            self.data[self.current] = value
+
+    def tagged(self):
+        """The value attached to the chain of the last message classified (None: none)."""
+        return self.data[self.current] if self.current >= 0 else None
 
     def ambiguous(self, now: float) -> bool:
         """Whether the stream is (still) ambiguous at ``now`` (for a timer: the hold ends by itself)."""

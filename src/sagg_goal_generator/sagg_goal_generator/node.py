@@ -41,9 +41,11 @@ from sagg_msgs.srv import NextGoal
 
 from .checkpoint import GeneratorCheckpointer
 from .core import GoalGenerator
+from .report_origin import UNKNOWN, ProcessedDigests, goal_mismatch
 from .schema import CORE_SCHEMA, SCHEMA
 
 NODE_NAME = "sagg_goal_generator"
+FOREIGN = "foreign"  # the tag of a /sagg/competence source found to send another run's reports
 ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
@@ -124,7 +126,14 @@ class GoalGeneratorNode(Node):
         self.resubscribe_due = False  # reports were dropped for a foreign publisher
         self.resubscriptions = 0
         self.duplicate_reports = 0  # reports already processed, received again (dropped)
-        self.early: dict[int, tuple] = {}   # seq -> (kind, target, competence, received): reports ahead of the next
+        # seq -> (kind, target, competence, received, goal_seq, start, key): reports ahead of the
+        # next one, or about a goal not chosen yet (held until the learner's request covers them)
+        self.early: dict[int, tuple] = {}
+        # what tells a silent learner from a replay of another run: the reports' content against
+        # this generator's goals and the reports it processed (report_origin)
+        self.processed = ProcessedDigests(self.params["report_window"])
+        self.announced = 0  # the learner said (in a goal request) it sent reports 1..announced
+        self.foreign_reports = 0
         self._subscribe_reports()
         self.checkpointer = None
         self.replay_goals: list = []  # journaled goals to choose again after a resume
@@ -200,6 +209,13 @@ class GoalGeneratorNode(Node):
         if verdict != sources.ACCEPT:
             self._second_source(msg.seq, verdict)
             return
+        if self.report_sources.tagged() is FOREIGN:
+            self.foreign_reports += 1  # (named once, when its source was found out)
+            return
+        key = ProcessedDigests.key(msg.goal_seq, msg.kind, target, msg.competence)
+        if msg.seq <= gen.reports and self.processed.differs(msg.seq, key):
+            self._foreign(msg.seq, f"report {msg.seq} was processed with another content")
+            return
         if msg.seq <= gen.reports:
             # already processed: re-sent from the learner's history after a restart or a resume (the
             # normal case there, not a bad input: it changes nothing); counted, logged once
@@ -209,29 +225,59 @@ class GoalGeneratorNode(Node):
                                        "(re-sent after a restart or resume): dropped; such reports are counted "
                                        "on /diagnostics (duplicate_reports), not logged again")
             return
-        if msg.seq != gen.reports + 1:
-            # early: kept until the reports before it come (reordered, or re-delivered from the
-            # learner's history after a re-subscription); skipped only after report_reorder_wait
-            if msg.seq not in self.early:
-                self.early[msg.seq] = (msg.kind, target, msg.competence, time.monotonic())
+        why = goal_mismatch(gen.goals, msg.seq, msg.goal_seq, msg.kind, target, msg.start, not self.replay_goals)
+        if why:
+            self._foreign(msg.seq, why)
             return
-        gen.report(msg.kind, target, msg.competence)
-        self._after_report()
+        if msg.seq != gen.reports + 1 or (why is UNKNOWN and msg.seq > self.announced):
+            # early: kept until the reports before it come (reordered, or re-delivered from the
+            # learner's history after a re-subscription; skipped only after report_reorder_wait),
+            # or until its goal is chosen here or the learner's request says it sent it (a
+            # restarted generator; report_origin). The latest with a number is kept.
+            self.early[msg.seq] = (msg.kind, target, msg.competence, time.monotonic(), msg.goal_seq, msg.start, key)
+            return
+        self._take(msg.seq, msg.kind, target, msg.competence, key)
         if self.early:
             self._drain_early()
+
+    def _take(self, seq: int, kind: int, target, competence: float, key: tuple) -> None:
+        self.gen.report(kind, target, competence)
+        self.processed.add(seq, key)
+        self._after_report()
+
+    def _foreign(self, seq: int, why: str, source: bool = True) -> None:
+        """A report that cannot be the learner's: dropped, named, and (``source``: it has just
+        arrived) its source ignored while it lives."""
+        self.foreign_reports += 1
+        if source:
+            self.report_sources.tag(FOREIGN)
+        self.guard.reject("report.foreign", f"competence report {seq} dropped: {why}; not from the learner "
+                                            "this generator serves (another run's reports: a replayed bag?). Its "
+                                            "publisher's reports are dropped while it publishes")
+
+    def _vouched(self) -> list[int]:
+        """The kept early reports that the learner's request covers or whose goal was chosen here
+        (the reports missing before them were really sent)."""
+        goals = self.gen.goals
+        return [q for q, v in self.early.items()
+                if q <= self.announced
+                or goal_mismatch(goals, q, v[4], v[0], v[1], v[5], not self.replay_goals) is not UNKNOWN]
 
     def _check_early(self, now: float | None = None) -> None:
         """Skip the reports missing before the kept early ones after report_reorder_wait."""
         now = time.monotonic() if now is None else now
-        if min(v[3] for v in self.early.values()) <= now - self.params["report_reorder_wait"]:
+        if self.early and min(v[3] for v in self.early.values()) <= now - self.params["report_reorder_wait"]:
             self._drain_early(skip=True)
 
     def _drain_early(self, skip: bool = False) -> None:
         """Process the kept early reports that are now next in line; ``skip``: first count the
-        missing ones before the earliest as lost (they did not come within report_reorder_wait)."""
+        missing ones before the earliest vouched one as lost (they did not come within
+        report_reorder_wait). A kept report about a goal still unknown waits for the learner's
+        request; one whose goal turned out to be another is dropped (report_origin)."""
         gen = self.gen
-        if skip and self.early and gen.reports + 1 not in self.early:
-            first = min(self.early)
+        vouched = self._vouched() if skip and gen.reports + 1 not in self.early else None
+        if vouched:
+            first = min(vouched)
             lost = first - gen.reports - 1
             self.guard.reject("report.lost", f"competence report {first} follows report {gen.reports}: {lost} "
                                              "report(s) lost, counted as skipped (goals no longer match an "
@@ -239,9 +285,16 @@ class GoalGeneratorNode(Node):
             for _ in range(lost):
                 gen.skip_report()
         while gen.reports + 1 in self.early:
-            kind, target, competence, _ = self.early.pop(gen.reports + 1)
-            gen.report(kind, target, competence)
-            self._after_report()
+            seq = gen.reports + 1
+            kind, target, competence, _, goal_seq, start, key = self.early[seq]
+            why = goal_mismatch(gen.goals, seq, goal_seq, kind, target, start, not self.replay_goals)
+            if why is UNKNOWN and seq > self.announced:
+                break
+            del self.early[seq]
+            if why:
+                self._foreign(seq, why, source=False)
+                continue
+            self._take(seq, kind, target, competence, key)
         for seq in [q for q in self.early if q <= gen.reports]:
             del self.early[seq]
 
@@ -267,6 +320,7 @@ class GoalGeneratorNode(Node):
             state["second source"] = self.source_hold
         state["report_resubscriptions"] = str(self.resubscriptions)
         state["duplicate_reports"] = str(self.duplicate_reports)
+        state["foreign_reports"] = str(self.foreign_reports)
         self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state))
 
     def _goal_subscribers_ok(self) -> bool:
@@ -292,6 +346,10 @@ class GoalGeneratorNode(Node):
             response.goal.after_report = request.after_report
             return response
         after = request.after_report
+        if after > self.announced:
+            self.announced = after
+            if self.early:
+                self._drain_early()
         rec = self._goal_for(after)
         if rec is not None:  # a repeated request (learner's goal_retry): the same goal
             return self._fill(response, rec)
