@@ -531,3 +531,39 @@ def test_a_forged_message_queued_after_its_publisher_left_never_moves_the_stream
     stream.commit(101)
     time.sleep(0.001)
     assert stream.check(105, time.time_ns()) == ""   # a real gap (messages missed), sent afterwards
+
+
+def test_a_replay_whose_numbers_catch_up_with_a_silent_publisher_never_takes_its_stream():
+    """Issue 24's long replay: the learner holds (silent at number 100), a replay numbers its
+    messages from 1; its 101st continued the learner's stream exactly and was taken, and from then
+    on every real message was "not after" the replay's numbers (sagg run's bag, summary and
+    relearn took the replay's run as the live one)."""
+    from types import SimpleNamespace
+    from sagg_common.publishers import PublisherStream, PublisherWatch
+
+    def info(node, gid):
+        return SimpleNamespace(node_name=node, node_namespace="/", endpoint_gid=bytes([gid] * 16))
+
+    graph = {"/sagg/competence": [info("sagg_learner", 1)]}
+    node = SimpleNamespace(get_publishers_info_by_topic=lambda t: list(graph[t]),
+                           count_publishers=lambda t: len(graph[t]))
+    watch = PublisherWatch(node)
+    watch.watch("/sagg/competence", None, "sagg_learner")
+    stream = PublisherStream(watch, "/sagg/competence", "sagg_learner")
+    for seq in range(1, 101):
+        assert stream.check(seq, time.time_ns()) == ""
+        stream.commit(seq)
+    graph["/sagg/competence"].append(info("sagg_replay", 2))  # the replay joins; the learner holds
+    watch.refresh("/sagg/competence")
+    for seq in range(1, 101):
+        assert "not after 100" in stream.check(seq, time.time_ns())
+    assert "continues the expected publisher's stream and another's" in stream.check(101, time.time_ns())
+    for seq in range(102, 150):
+        assert stream.check(seq, time.time_ns())  # above ours while the replay is on the topic
+    graph["/sagg/competence"].pop()  # the replay ends; the learner goes on
+    watch.refresh("/sagg/competence")
+    time.sleep(0.001)
+    for seq in range(101, 120):
+        assert stream.check(seq, time.time_ns()) == ""
+        stream.commit(seq)
+    assert stream.last == 119 and stream.gaps == 0

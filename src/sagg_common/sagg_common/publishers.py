@@ -95,7 +95,19 @@ class PublisherStream:
     the stream starts again). A message is *committed* (its number becomes the last one) by the
     caller once its content is accepted too, so a rejected message never moves the stream.
     An rmw without sequence numbers (``None``) leaves the content checks alone.
+
+    The numbers of the rejected messages are followed too, as the other publishers' streams
+    (:attr:`others`): a replay (``ros2 bag play``) numbers its messages from 1, so while the
+    expected publisher is silent (a learner holding for the replay's joint states) the replay's
+    numbers climb to the expected stream's last one, and its next message would continue the
+    expected stream exactly. A message whose number continues both is refused (it may be either);
+    afterwards the replay's numbers are above the expected stream's and never continue it, and the
+    expected publisher's own next message continues its stream again. (If the expected publisher
+    then publishes faster than the other and catches up with it, its messages stay refused, as
+    gaps, until the other leaves the topic.)
     """
+
+    OTHERS = 8  # the other publishers' streams followed (the one heard from longest ago is forgotten)
 
     def __init__(self, watch: PublisherWatch, topic: str, expected_node: str):
         self.watch, self.topic, self.expected = watch, topic, expected_node
@@ -103,6 +115,7 @@ class PublisherStream:
         self.gids: tuple | None = None   # the expected node's publisher GIDs when the stream (re)started
         self.gaps = 0                    # messages missed by this subscriber (numbers skipped)
         self.restarts = 0
+        self.others: list[int] = []      # the last numbers of the other publishers' streams (rejected messages)
 
     def _expected_gids(self) -> tuple | None:
         infos = self.watch.node.get_publishers_info_by_topic(self.topic)
@@ -117,7 +130,18 @@ class PublisherStream:
         from a publisher that has left since (the topic looks fine again) has a later number than
         ours, and taking it would move the stream past every real message (seen in the soak: a
         forger's number 27,312 after our 4,814 stopped every real sample)."""
-        if seq is None or seq == self.last + 1:
+        why = self._why(seq, source_ns)
+        if why:
+            self._other(seq)
+        return why
+
+    def _why(self, seq, source_ns: int | None) -> str:
+        if seq is None:
+            return ""
+        if seq == self.last + 1:
+            if self.last and self.last in self.others:
+                return (f"publisher sequence number {seq} continues the expected publisher's stream and "
+                        f"another's (both stood at {self.last}): which one sent it cannot be told")
             return ""
         if seq > self.last:
             if self.watch.problem(self.topic):
@@ -134,11 +158,24 @@ class PublisherStream:
         return (f"publisher sequence number {seq}, not after {self.last}: another publisher's message "
                 f"(topic publishers: {self.watch.refresh(self.topic) or 'as expected'})")
 
+    def _other(self, seq: int) -> None:
+        """A rejected message numbered ``seq``: it continues the other stream whose last number is the
+        largest below it, or starts one."""
+        others = self.others
+        below = [i for i, n in enumerate(others) if n < seq]
+        if below:
+            i = max(below, key=others.__getitem__)
+            del others[i]
+        elif len(others) >= self.OTHERS:
+            del others[0]
+        others.append(seq)  # (the end of the list: heard from last)
+
     def commit(self, seq) -> None:
         if seq is None:
             return
-        if seq <= self.last:  # a restarted publisher
+        if seq <= self.last:  # a restarted publisher: its stream starts again, the others' are forgotten
             self.restarts += 1
+            self.others.clear()
             self.gids = self._expected_gids()
         elif seq > self.last + 1 and self.last:
             self.gaps += seq - self.last - 1
