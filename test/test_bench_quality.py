@@ -15,7 +15,7 @@ def test_bench_quality_smoke(tmp_path, capsys, monkeypatch):
     assert main(["bench", "quality", "--config", CONFIG, "--strategies", "sagg-riac", "sagg-random",
                  "--seeds", "2", "--points", "50", "100", "--contexts", "evolving", "--set", "eval.goals=20",
                  # the clamp-vs-clip comparison below was measured with the old evaluation budget
-                 # 2·D/v; with the default 5·D/v (docs/evaluation.md) clip misses no more of these
+                 # 2·D/v; with the default 5·D/v (docs/notes/evaluation.md) clip misses no more of these
                  # 20 goals than clamp (3 each), only its mean error stays higher
                  "--set", "eval.timeout_factor=2.0", "--out", str(tmp_path)]) == 0
     text = capsys.readouterr().out

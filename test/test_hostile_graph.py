@@ -113,7 +113,7 @@ def test_hostile_bench_short(tmp_path):
     """`sagg bench hostile` in seconds: a few cases per phase on a running arm8 graph; every case
     survived, was counted and logged, learning went on, and every invariant holds. (The other cases
     are checked node by node in test_hostile.py, test_sources.py and test_safety.py, and all of them
-    in the 10-minute soak, docs/hostile.md.)"""
+    in the 10-minute soak, docs/notes/hostile-input.md.)"""
     from sagg_bringup.lab.hostile import bench_hostile
     lines: list[str] = []
     res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=2.0, eval_every=200, drain=5.0,

@@ -4,7 +4,7 @@ leaves-scanned count, bit for bit, on random memories of every shape the learner
 small and large leaves and fan-outs, several box heights, exact duplicates of the rest posture and
 of stored samples, grid-valued samples with distance ties), and None exactly when the walk scanned
 fewer than k samples. Whole learning runs are bit-identical before/after (checked against b65b5de on
-eleven set-ups: docs/quality.md, session 10)."""
+eleven set-ups: docs/notes/peer-quality.md, session 10)."""
 from __future__ import annotations
 
 import numpy as np

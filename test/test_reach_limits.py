@@ -237,7 +237,7 @@ def test_reach_damping_is_in_units_of_v_over_the_largest_exploratory_micro_actio
 
 # Goals beside the base on the y < 0 side of config/arm7_ratio15.yaml's arm, beyond the base joint's
 # −π/3: every inverse-kinematics solution curls the arm clockwise (joints 1-3 at −π/3), the opposite
-# of the counter-clockwise arc rest (docs/reach_limits.md).
+# of the counter-clockwise arc rest (docs/notes/reaching-joint-limits.md).
 CLOCKWISE_GOALS = np.array([[0.151, -0.42], [-0.236, -0.389], [0.081, -0.54], [-0.212, -0.673],
                             [-0.114, -0.636]])
 

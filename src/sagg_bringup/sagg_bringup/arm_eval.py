@@ -1,7 +1,7 @@
 """The arm's evaluation on the simulator: one evaluation arm per test goal, all goals reached together.
 
 Used by ``sagg experiment`` / ``bench compare`` (``InProcessRun.evaluate``) and by the graph's
-evaluation process alike, so both score the same way (sagg_low_level/eval_metrics.py, docs/evaluation.md).
+evaluation process alike, so both score the same way (sagg_low_level/eval_metrics.py, docs/notes/evaluation.md).
 
 Test goal i is reached from rest on its own ``ArmSim`` whose motor noise comes from its own stream,
 ``substream_seed(seed, "eval_sim/<i>")``. Before 2026-11-23 one simulator reached the goals one after

@@ -36,10 +36,10 @@ NODE_SCHEMA: Schema = (
           "the history after a re-subscription came later). Our choice.", low=0.0, high=3600.0),
     Param("report_window", "int", 10000,
           "A competence report whose seq lies more than this beyond the last one processed is rejected "
-          "(its gap is not skipped; DESIGN §8). The learner's /sagg/competence history (10000) bounds a "
+          "(its gap is not skipped; docs/safety.md). The learner's /sagg/competence history (10000) bounds a "
           "real gap. Our choice.", low=1, high=1_000_000),
     Param("plausibility.source_grace", "float", 2.0,
-          "Reports from one source (DESIGN §8): while a second publisher sends well-formed reports on "
+          "Reports from one source (docs/safety.md): while a second publisher sends well-formed reports on "
           "/sagg/competence (told apart by the publishers' sequence numbers), every report is dropped "
           "and named; this many seconds (s) after the second source's last report the generator "
           "subscribes again and takes the real ones from the learner's history. A publisher that "

@@ -131,7 +131,7 @@ LEARNER_NODE_SCHEMA: Schema = (
           "this long (s) is no longer waited for (logged): a recorder that stopped or died never "
           "stalls learning. Our choice: recorders acknowledge at least every 0.5 s.",
           low=0.0, high=86400.0, low_open=True),
-    # the plausibility envelope of the measurements (DESIGN §8; sagg_common.envelope)
+    # the plausibility envelope of the measurements (docs/safety.md; sagg_common.envelope)
     Param("plausibility.joint_tolerance", "float", 0.1,
           "A joint state is rejected when a position lies outside the joint limits by more than this "
           "(rad): encoders may read slightly past a limit, never far. Our choice.", low=0.0, high=100.0),
@@ -153,7 +153,7 @@ LEARNER_NODE_SCHEMA: Schema = (
           "longest settle in simulation time of a lockstep bridge (1000 steps x 0.01 s).",
           low=0.0, high=1e9, low_open=True),
     Param("plausibility.source_grace", "float", 2.0,
-          "One source per input (DESIGN §8): the messages of /joint_states that carry the learner's "
+          "One source per input (docs/safety.md): the messages of /joint_states that carry the learner's "
           "joints, and those of the task topic, must come from one publisher (told apart by the "
           "publishers' sequence numbers; sagg_common.sources). While a second source sends them, every "
           "such message is rejected and the learner holds, naming the topic's publishers; the hold "

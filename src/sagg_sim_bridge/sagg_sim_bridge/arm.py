@@ -81,7 +81,7 @@ class ArmSpec:
     # avoid starting at the unfolded singularity). "arc" (default; the shape before 2026-11-23):
     # every joint bent by rest_bend/(dof-1) the same way, a C. "zigzag": joints bent alternately
     # by ±rest_bend/(dof-1) (+ first), an accordion: as far from straight per joint as the arc,
-    # but with no net curl. Which one (docs/reach_limits.md): a C-shaped rest commits the arm to
+    # but with no net curl. Which one (docs/notes/reaching-joint-limits.md): a C-shaped rest commits the arm to
     # curling its way when the tip must come in toward the base, which is harmless when the base
     # joint's range covers every direction of the task space (the paper's arm and every arm config
     # here but one: base ±π/2, Y in x ≥ 0), and fatal when it does not: on

@@ -1,4 +1,4 @@
-"""Tables and figures of the synergy experiments for docs/results.md:
+"""Tables and figures of the synergy experiments for docs/notes/early-results.md:
 ``python -m sagg_bringup.lab.synergy_results RUNS_DIR FIG_DIR`` reads every ``result.json`` under
 RUNS_DIR (``sagg experiment`` runs of config/quadruped.yaml and config/fishing.yaml) and prints
 Markdown: explored extents per strategy (Sec. 4.5), test-error curves (Sec. 4.6, 5.3) with Mann-Whitney
