@@ -21,7 +21,7 @@ them apart is the *content*, checked against what this generator itself knows:
 
 Either finding marks the report's source as foreign for as long as it publishes. What is left:
 a replay that starts beyond the reports processed, whose reached points (not goals) happen to
-name the goal in progress here, is not told apart (docs/hostile.md).
+name the goal in progress here, is not told apart (docs/notes/hostile-input.md).
 """
 from __future__ import annotations
 

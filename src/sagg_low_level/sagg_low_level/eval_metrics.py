@@ -36,7 +36,7 @@ Procedure (every set-up, every strategy, every seed the same):
 
 Why the budget is ``5 × D/v`` (a choice: the paper gives none). Principle: the evaluation scores
 the inverse model, so its budget must not cut off a reach that is still converging, for any
-strategy; it must not depend on what a strategy learned. Measured (docs/evaluation.md, 15 DOF,
+strategy; it must not depend on what a strategy learned. Measured (docs/notes/evaluation.md, 15 DOF,
 4 strategies × 3 seeds × 5k): at 2 × D/v more than half of the SAGG strategies' test reaches are
 still under way when the budget ends (median final distance 0.34-0.39 against 0.03-0.06 for the
 ACTUATOR strategies), so that budget scores reaching speed too, and that part falls on SAGG
@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-# Choices (documented above and in docs/evaluation.md): not learning parameters, only how a vector of
+# Choices (documented above and in docs/notes/evaluation.md): not learning parameters, only how a vector of
 # final distances is summarised; every strategy gets the same.
 WITHIN_FRACTION = 0.02
 BAND_EDGES = (0.0, 0.25, 0.5, 0.75, 1.0)

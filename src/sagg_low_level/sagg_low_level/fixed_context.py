@@ -47,7 +47,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "the local model (Sec. 4.4.1). The paper gives none. 0 = 2·(dim(θ) + 1): twice the "
           "parameters of the affine model per task dimension, so the least-squares fit is "
           "over-determined (with dim(θ) + 1 it interpolates the set exactly and its conditioning "
-          "decides the step; docs/issue10_fixed_arm_riac_speed.md).",
+          "decides the step; docs/notes/fixed-context-speed.md).",
           low=0, high=100_000),
     Param("q", "int", 10,
           "q: budget of exploratory experiments per exploration phase (Alg. 4). Not given for the "
@@ -62,7 +62,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "the synergy set-ups. The fixed-context arm fills in its total length (the radius of its "
           "reachable set), so that λ is joint noise per arm length whatever box Y the goals are drawn "
           "from; in Y's units the same metric distance gave 2.7x less joint noise in [-2,2]² than in "
-          "[-0.5,1]x[-1,1] on the 1-length arm (docs/issue10_fixed_arm_riac_speed.md, finding 5).",
+          "[-0.5,1]x[-1,1] on the 1-length arm (docs/notes/fixed-context-speed.md, finding 5).",
           low=0.0, high=1e9),
     Param("rounds", "int", 1,
           "Timeout of a goal: at most this many rounds of (one reaching experiment + an exploration "
@@ -76,7 +76,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "something as the competence of y_i toward the current goal, Sec. 2.4.1's Γ(C(y_g, y_i)); "
           "recorded at y_i) or 'maximal' (Sec. 2.5: 'we can consider y' as another goal reached "
           "with the highest level of competence', 0; with it a region inside the reachable area "
-          "holds a window of zeros and its interest is 0, docs/issue10_fixed_arm_riac_speed.md).",
+          "holds a window of zeros and its interest is 0, docs/notes/fixed-context-speed.md).",
           choices=("goal", "maximal")),
     Param("stop_when_reached", "bool", False,
           "True: end the exploration phase as soon as one of its experiments reaches the goal "

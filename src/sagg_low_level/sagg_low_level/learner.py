@@ -122,7 +122,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "value. Without it the neighbours' Δα collapse onto J⁺'s row space (every attempt starts "
           "at rest with r = 1), the least-squares Jacobian fits curvature along unexcited "
           "directions and reaching stalls: measured on the 15-DOF arm, seeds 0/1, 20k micro-actions, "
-          "mean test error 4.3/6.1 with 0 against 0.69/0.99 with 0.01 (see docs/results.md).",
+          "mean test error 4.3/6.1 with 0 against 0.69/0.99 with 0.01 (see docs/notes/early-results.md).",
           low=0.0, high=10.0),
     Param("reach_limits", "str", "clamp",
           "How a reaching micro-action respects the joint limits, in learning and in the evaluation's "
@@ -130,7 +130,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "with re-solving (Baerlocher & Boulic 2004, The Visual Computer 20(6); Flacco, De Luca & "
           "Khatib 2012, ICRA): every joint the step Δα = J⁺Δy_next would carry past a limit stops "
           "at the limit and the other joints are re-solved for the missing displacement, so a "
-          "saturated joint no longer stalls the reach (DESIGN.md §9). 'clip': the paper's plain "
+          "saturated joint no longer stalls the reach (docs/notes/reaching-joint-limits.md). 'clip': the paper's plain "
           "Δα = J⁺Δy_next (Sec. 3.3), clipped to the limits afterwards; the behaviour before "
           "2026-11-23 (measured on config/arm7_ratio15.yaml with the analytic Jacobian: mean test "
           "error 0.124, 35 of 100 test goals missed).", choices=("clamp", "clip")),
@@ -148,7 +148,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "well (singular value ≫ λ) the step is J⁺'s. Needed near a singularity (the unfolded arm; "
           "a rest without net curl, arm.rest_shape zigzag), where J⁺ turns a small radial "
           "displacement into huge joint steps that commit the arm's curl before the goal's side "
-          "can choose it (docs/reach_limits.md). With damping, Inefficient (Sec. 3.6.1) measures ε "
+          "can choose it (docs/notes/reaching-joint-limits.md). With damping, Inefficient (Sec. 3.6.1) measures ε "
           "against the model's prediction J·Δα of the damped step (learner.step_aim), not against "
           "the shortfall the damping chose.", low=0.0, high=1e6),
     Param("pinv_rcond", "float", 1e-2,
@@ -177,7 +177,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("eval.timeout_factor", "float", 5.0,
           "Evaluation budget: ceil(factor × D(y_rest, goal) / v) micro-actions per test goal "
           "(paper gives none; our choice: a budget that does not bind a reach still converging, "
-          "for every strategy; sagg_low_level/eval_metrics.py, docs/evaluation.md).",
+          "for every strategy; sagg_low_level/eval_metrics.py, docs/notes/evaluation.md).",
           low=0.0, high=1e6, low_open=True),
     Param("eval.tolerance", "float", 0.01,
           "Evaluation stops early when the effector is this close to the test goal (task units).",
