@@ -2,7 +2,9 @@
 
 Wraps :class:`~sagg_goal_generator.core.GoalGenerator`:
 
-- subscribes ``/sagg/competence`` (every report of the learner, in order) and feeds each to the core;
+- subscribes ``/sagg/competence`` (every report of the learner, in order) and feeds each to the core,
+  from one source (``sagg_common.sources``) and only if its content can be the learner's
+  (``report_origin``: its goal, its number, and what an earlier report with its number said);
 - serves ``/sagg/next_goal``: a request ``after_report = N`` is answered only once reports 1..N
   have been processed, so the goal is the same function of the report sequence as in-process
   (deterministic lockstep). A request that arrives early waits in the :class:`GoalServer`'s
