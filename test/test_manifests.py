@@ -76,7 +76,9 @@ def test_every_key_resolves_on_jazzy_noble(pkg):
     known = set(PYTHON_KEYS.values()) | ROS_PACKAGES | OUR_PACKAGES | {
         # build tools of the interface package (ament_cmake), all in jazzy/distribution.yaml
         "ament_cmake", "rosidl_default_generators", "rosidl_default_runtime", "ament_lint_auto",
-        "ament_lint_common", "ament_cmake_pytest"}
+        "ament_lint_common", "ament_cmake_pytest",
+        # the Python headers for sagg_low_level's C extension (ros/rosdistro rosdep/python.yaml: ubuntu python3-dev)
+        "python3-dev"}
     keys = set().union(*manifest(pkg).values())
     unknown = sorted(k for k in keys if k not in known)
     assert not unknown, f"src/{pkg}/package.xml: keys {unknown} are neither ROS packages nor rosdep keys we checked"
