@@ -7,7 +7,6 @@ import contextlib
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -20,9 +19,9 @@ from sagg_bringup.processes import pick_domain_id
 from sagg_low_level.memory import SampleMemory
 
 from sagg_low_level.checkpoint import checkpoint_memory
+from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
 STEPS = 600
 
 
@@ -31,7 +30,7 @@ def run_dir(tmp_path_factory):
     """A small `sagg run` (7-DOF kinematic arm, mostly reachable Y)."""
     out = tmp_path_factory.mktemp("run") / "r"
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    p = subprocess.run([str(BIN / "sagg"), "run", str(ROOT / "config/arm15_y50.yaml"), "--set", "arm.dof=7",
+    p = subprocess.run([SAGG, "run", str(ROOT / "config/arm15_y50.yaml"), "--set", "arm.dof=7",
                         "--set", "arm.mode=kinematic", "--micro-actions", str(STEPS), "--eval-every", "300",
                         "--out", str(out), "--quiet", "--no-report"],
                        env=env, capture_output=True, text=True, timeout=400)
@@ -149,7 +148,7 @@ def _replay(bag, topics: dict[str, str], *args: str):
     domain = pick_domain_id()
     ctx, ex, got = _subscriber(domain, topics)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(bag), *args, "--topics", *topics,
+    proc = subprocess.Popen([SAGG, "replay", str(bag), *args, "--topics", *topics,
                              "--wait-subscribers", "1"], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
@@ -210,7 +209,7 @@ def test_run_resume_continues_the_run(run_dir, tmp_path):
     shutil.copytree(run_dir, run)
     first = json.loads((run / "summary.json").read_text())
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    p = subprocess.run([str(BIN / "sagg"), "run", "--resume", str(run), "--micro-actions", str(STEPS + 300),
+    p = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", str(STEPS + 300),
                         "--quiet", "--no-report"], env=env, capture_output=True, text=True, timeout=400)
     assert p.returncode == 0, p.stdout + p.stderr
     s = json.loads((run / "summary.json").read_text())
@@ -270,7 +269,7 @@ def _replay_with(bag: Path, node_name: str, *args: str):
         ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-        proc = subprocess.Popen([str(BIN / "sagg"), "replay", str(bag), "--rate", "0", "--wait-subscribers", "1",
+        proc = subprocess.Popen([SAGG, "replay", str(bag), "--rate", "0", "--wait-subscribers", "1",
                                  *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             end = time.monotonic() + 60

@@ -12,7 +12,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -24,9 +23,9 @@ from sagg_bringup.compare import curve_stats, pairwise_tests, summary_json
 from sagg_bringup.sweep import (RunSpec, check_fingerprint, make_fingerprint, run_dir,
                                 validate_result, expected_config)
 from sagg_common.params import ConfigError
+from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
-SAGG = Path(sys.executable).parent / "sagg"
 CONFIG = str(ROOT / "config" / "arm15.yaml")
 TINY = ["--set", "arm.dof=7", "--set", "eval.goals=10"]
 STRATS = ["sagg-riac", "actuator-random"]

@@ -8,7 +8,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -23,9 +22,9 @@ from sagg_bringup.bags import relearn
 from sagg_bringup.processes import pick_domain_id
 from sagg_bringup.recorder import BagWriter, TopicSpec, make_typestore
 from sagg_low_level.checkpoint import published
+from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
 
 
 def _finished_bag(tmp_path: Path):
@@ -205,7 +204,7 @@ def test_sigkill_of_a_whole_run_then_resume_and_relearn(tmp_path):
     run = tmp_path / "run"
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     log = open(tmp_path / "first.log", "w")
-    p = subprocess.Popen([str(BIN / "sagg"), "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", str(steps),
+    p = subprocess.Popen([SAGG, "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", str(steps),
                           "--eval-every", "1000", "--out", str(run), "--quiet", "--no-report",
                           "--domain-id", str(pick_domain_id())],
                          env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
@@ -224,7 +223,7 @@ def test_sigkill_of_a_whole_run_then_resume_and_relearn(tmp_path):
     original = _sha(mcap)
     before = published(run / "checkpoint")  # what the learner had published when killed
 
-    r = subprocess.run([str(BIN / "sagg"), "run", "--resume", str(run), "--eval-every", "1000", "--quiet",
+    r = subprocess.run([SAGG, "run", "--resume", str(run), "--eval-every", "1000", "--quiet",
                         "--no-report", "--domain-id", str(pick_domain_id())],
                        env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr

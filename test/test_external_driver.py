@@ -18,10 +18,10 @@ import yaml
 
 from sagg_bringup.processes import pick_domain_id
 from sagg_sim_bridge.arm import ArmSpec
+from installed import SAGG
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-SAGG = str(Path(sys.executable).parent / "sagg")
 RATE, LATENCY = 250.0, 0.008
 # The fake driver's arm = the config's simulated arm: 3 equal links, 45 units, kinematic.
 SPEC = ArmSpec(dof=3, total_length=45.0, mode="kinematic")

@@ -12,7 +12,6 @@ import json
 import os
 import re
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -22,9 +21,9 @@ import pytest
 from sagg_bringup.bags import bag_messages
 from sagg_bringup.lab.hostile import published_counts
 from sagg_bringup.processes import pick_domain_id
+from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
-SAGG = str(Path(sys.executable).parent / "sagg")
 N = 800
 
 
@@ -69,6 +68,11 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
     assert waits and int(waits.group(1)) > 0
     meta = yaml.safe_load((out / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["ros_distro"] == "jazzy"
+    # the mcap's own copy of the bag information says the same (rosbags wrote its name there)
+    from mcap.reader import make_reader
+    with open(out / "bag" / meta["relative_file_paths"][0], "rb") as f:
+        records = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert yaml.safe_load(records["rosbag2"]["serialized_metadata"])["ros_distro"] == "jazzy"
     topics = {t["topic_metadata"]["name"]: t["topic_metadata"] for t in meta["topics_with_message_count"]}
     competence_qos = yaml.safe_load(topics["/sagg/competence"]["offered_qos_profiles"]) \
         if isinstance(topics["/sagg/competence"]["offered_qos_profiles"], str) else topics["/sagg/competence"]["offered_qos_profiles"]

@@ -6,7 +6,6 @@ run's memory and tree, the live markers are 3-D boxes and points, `sagg reach` r
 """
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,9 +14,9 @@ import pytest
 from sagg_bringup.bags import relearn
 from sagg_bringup.setups import run_experiment
 from test_run_graph import read_bag
+from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
-SAGG = str(Path(sys.executable).parent / "sagg")
 CONFIG = ROOT / "config/arm6_mjcf.yaml"
 N, EVERY = 600, 300
 

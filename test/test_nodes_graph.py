@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -36,9 +35,9 @@ from sagg_low_level.memory import SampleMemory
 from sagg_msgs.msg import CompetenceReport, Goal, LearnerStatus, RegionTree, Sample
 from sagg_sim_bridge.arm import ArmSim
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA, arm_spec_from_params
+from installed import executable
 
 ROOT = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
 STARTUP_TIMEOUT = 90.0   # generous: discovery + imports on a loaded 2-core machine
 RUN_TIMEOUT = 180.0
 
@@ -66,7 +65,7 @@ def ros_env(monkeypatch):
 
 def start(ros_env, script: str, params: Path, tmp_path: Path, args: tuple = ()) -> subprocess.Popen:
     """The console script ``script`` on ``params`` (``args``: more ROS arguments, e.g. ``-p x:=1``)."""
-    exe = BIN / script
+    exe = Path(executable(script))
     assert exe.exists(), f"console script {exe} missing (run make setup)"
     log = open(tmp_path / f"{script}.log", "w")
     p = subprocess.Popen([str(exe), "--ros-args", "--params-file", str(params), *args], env=ros_env["env"],
@@ -244,7 +243,7 @@ def test_bad_parameter_exits_2_naming_it(ros_env, tmp_path, script, section, nam
     node[name] = value
     params = tmp_path / "bad.yaml"
     params.write_text(yaml.safe_dump(data))
-    out = subprocess.run([str(BIN / script), "--ros-args", "--params-file", str(params)],
+    out = subprocess.run([executable(script), "--ros-args", "--params-file", str(params)],
                          env=ros_env["env"], capture_output=True, text=True, timeout=STARTUP_TIMEOUT)
     text = out.stdout + out.stderr
     assert out.returncode == 2, text

@@ -26,7 +26,8 @@ from sagg_msgs.msg import CompetenceReport, LearnerStatus
 from sagg_sim_bridge.params import arm_spec_from_params
 
 import test_nodes_graph
-from test_nodes_graph import BIN, STARTUP_TIMEOUT, logs, start, stop
+from test_nodes_graph import STARTUP_TIMEOUT, logs, start, stop
+from installed import SAGG
 
 ros_env = test_nodes_graph.ros_env  # the fixture: a private ROS domain per test
 
@@ -226,7 +227,7 @@ def test_a_finished_runs_params_file_starts_a_new_run_and_leaves_that_run_alone(
     (with its checkpoint_dir) make the learner and generator refuse to start (exit 2, one line
     naming 'resume'); the old run's checkpoint files stay byte for byte as they were."""
     run = tmp_path / "run"
-    proc = subprocess.run([str(BIN / "sagg"), "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", "100",
+    proc = subprocess.run([SAGG, "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", "100",
                            "--eval-every", "100", "--out", str(run), "--quiet", "--no-report"],
                           capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -274,3 +275,13 @@ def test_a_finished_runs_params_file_starts_a_new_run_and_leaves_that_run_alone(
     assert "resumed from" not in log and f"stopped acting ({steps} micro-actions in" in log, log
     ex.shutdown()
     node.destroy_node()
+
+
+def test_sagg_run_takes_a_config_by_name_like_the_launch_file(tmp_path):
+    """`ros2 launch ... config:=arm8` took a name, `sagg run arm8` answered "cannot read" (issue 26):
+    both resolve names the same way (launch_params.resolve_config), from any directory."""
+    bad = subprocess.run([SAGG, "run", "arm99", "--micro-actions", "10"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode == 2 and "config 'arm99': no such file" in bad.stderr, bad.stderr
+    assert "arm8" in bad.stderr.split("allowed:")[1]
+    assert resolve_config("arm8") == resolve_config("arm8.yaml") and resolve_config("arm8").is_file()

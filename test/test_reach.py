@@ -8,7 +8,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -16,9 +15,9 @@ import numpy as np
 import pytest
 
 from sagg_bringup.processes import pick_domain_id
+from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
-SAGG = str(Path(sys.executable).parent / "sagg")
 
 
 def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):

@@ -13,6 +13,7 @@ from sagg_low_level.local_model import clamp_rounds, clamped_step, damped_steps,
 from sagg_sim_bridge.arm import GOLDEN_RATIO, ArmSim, ArmSpec, forward_kinematics, tip_jacobian
 
 from test_learner import StuckRobot, drive, make_learner
+from installed import SAGG
 
 
 # ------------------------------------------------------------------------------ link_ratio
@@ -277,10 +278,8 @@ def test_graph_learner_reaches_with_the_damped_inverse_like_the_in_process_run(t
     takes the damped step and Inefficient's aim exactly as in-process (same samples, same curve)."""
     import json
     import subprocess
-    import sys
-    from pathlib import Path
     from sagg_bringup.setups import run_experiment
-    sagg = str(Path(sys.executable).parent / "sagg")
+    sagg = SAGG
     out = tmp_path / "run"
     proc = subprocess.run([sagg, "run", "config/arm7_ratio15.yaml", "--micro-actions", "200", "--eval-every",
                            "200", "--out", str(out), "--quiet", "--no-report"],

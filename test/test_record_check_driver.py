@@ -22,11 +22,11 @@ from std_srvs.srv import SetBool
 import test_nodes_graph
 from test_nodes_graph import STARTUP_TIMEOUT, logs, start, stop
 from test_run_graph import read_bag
+from installed import SAGG
 
 ros_env = test_nodes_graph.ros_env  # the fixture: a private ROS domain per test
 
 HERE = Path(__file__).resolve().parent
-SAGG = str(Path(sys.executable).parent / "sagg")
 LENGTHS, REST = [20.0, 15.0, 10.0], [0.3, 0.3, 0.3]
 RATE, LATENCY = 250.0, 0.008
 

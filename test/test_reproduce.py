@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,8 +18,8 @@ import pytest
 from sagg_bringup.reproduce import (CLAIM_FIELDS, VERDICTS, claim_verdict, decide, load_registry,
                                     pair_verdict, resolve_config, select, significance_floor)
 from sagg_common.params import ConfigError
+from installed import SAGG
 
-SAGG = Path(sys.executable).parent / "sagg"
 
 
 def test_registry_has_every_claim_of_the_issue_and_valid_setups():

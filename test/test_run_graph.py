@@ -4,7 +4,6 @@ import json
 import re
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -13,9 +12,9 @@ import yaml
 
 from sagg_bringup.setups import run_experiment
 from sagg_bringup.recorder import make_typestore
+from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
-SAGG = str(Path(sys.executable).parent / "sagg")
 CONFIG = ROOT / "config/arm8.yaml"  # the `make run` default: 8-DOF dynamic arm, 20% motor noise
 N, EVERY = 600, 300
 # Stated learning factor: after N micro-actions the mean test error is below this share of the

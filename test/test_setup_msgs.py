@@ -1,10 +1,13 @@
-"""Checks of the project set-up: the sagg_msgs interfaces built into the venv, and the console
+"""Checks of the project set-up: the sagg_msgs interfaces built and installed, and the console
 scripts of the Python packages.
 
-Run inside the project venv (`make test`): sagg_msgs is built with cmake and installed into the
-venv prefix, so importing it needs no sourced environment.
+Either installation: the project venv (`make test`: sagg_msgs built with cmake and installed into
+the venv prefix, the Python packages installed editable, console scripts in the venv's bin) or a
+colcon workspace (`colcon test`: each package in its own prefix of install/, console scripts in
+lib/<package>, the ament index on AMENT_PREFIX_PATH).
 """
 import array
+import importlib
 import importlib.metadata
 import math
 import os
@@ -183,10 +186,22 @@ def test_python_constants_match_the_messages():
         assert getattr(core, name) == getattr(Goal, name)
 
 
-def test_interface_definitions_installed_in_venv():
+def msgs_prefix() -> Path:
+    """The install prefix of sagg_msgs: the first of AMENT_PREFIX_PATH (a sourced workspace), then
+    this Python's prefix (the venv), whose ament index lists the package."""
+    prefixes = [Path(p) for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+    for prefix in prefixes + [Path(sys.prefix)]:
+        if (prefix / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'sagg_msgs').is_file():
+            return prefix
+    pytest.fail(f"sagg_msgs is in no ament index of {[str(p) for p in prefixes + [Path(sys.prefix)]]}: "
+                "run `make msgs` (or `colcon build` and source the workspace)")
+
+
+def test_interface_definitions_installed():
     # The .msg/.srv texts are installed next to the generated code (share/sagg_msgs), where
     # tools such as rosbags can read them; they must match the sources in the repo.
-    share = Path(sys.prefix) / 'share' / 'sagg_msgs'
+    prefix = msgs_prefix()
+    share = prefix / 'share' / 'sagg_msgs'
     for sub, ext in (('msg', '.msg'), ('srv', '.srv')):
         sources = sorted((REPO / 'src' / 'sagg_msgs' / sub).glob('*' + ext))
         assert sources, f'no {ext} files in src/sagg_msgs/{sub}'
@@ -194,7 +209,7 @@ def test_interface_definitions_installed_in_venv():
             installed = share / sub / src.name
             assert installed.is_file(), f'{installed} missing: run `make msgs`'
             assert installed.read_text() == src.read_text(), f'{installed} is stale: run `make msgs`'
-    index = Path(sys.prefix) / 'share' / 'ament_index' / 'resource_index'
+    index = prefix / 'share' / 'ament_index' / 'resource_index'
     assert (index / 'packages' / 'sagg_msgs').is_file()
     assert 'msg/Goal.msg' in (index / 'rosidl_interfaces' / 'sagg_msgs').read_text()
 
@@ -210,14 +225,16 @@ CONSOLE_SCRIPTS = {
 
 
 @pytest.mark.parametrize('script', sorted(CONSOLE_SCRIPTS))
-def test_console_script_in_venv_bin(script):
+def test_console_script_installed(script):
+    # where `sagg run` and `ros2 run` look: the venv's bin (pip) or lib/<package> (colcon)
+    from installed import executable
     dist, target = CONSOLE_SCRIPTS[script]
-    path = Path(sys.executable).parent / script
-    assert path.is_file(), f'{path} missing: run `make setup`'
+    path = Path(executable(script))
     assert os.access(path, os.X_OK)
     module, func = target.split(':')
     text = path.read_text()
-    assert f'from {module} import {func}' in text
+    # pip writes the import; setuptools' develop/install scripts (colcon) load the entry point by name
+    assert f'from {module} import {func}' in text or f"'{script}'" in text, text
     assert text.splitlines()[0].startswith('#!') and 'python' in text.splitlines()[0]
     eps = {ep.name: ep.value for ep in importlib.metadata.distribution(dist).entry_points
            if ep.group == 'console_scripts'}
@@ -230,11 +247,20 @@ def test_common_has_no_console_scripts():
     assert eps == []
 
 
-def test_packages_are_editable_installs_of_this_repo():
-    # `pip install -e`: the installed distributions point at the source folders of this checkout.
+def test_the_imported_packages_are_this_checkouts_code():
+    # `pip install -e` (make), `colcon build --symlink-install` or a copying install: every module
+    # of the imported packages is this checkout's source, byte for byte
     import json
     for dist in ('sagg_common', 'sagg_goal_generator', 'sagg_low_level', 'sagg_sim_bridge',
                  'sagg_bringup'):
-        info = json.loads(importlib.metadata.distribution(dist).read_text('direct_url.json'))
-        assert info['dir_info'].get('editable') is True
-        assert Path(info['url'].removeprefix('file://')).resolve() == REPO / 'src' / dist
+        package = Path(importlib.import_module(dist).__file__).parent
+        source = REPO / 'src' / dist / dist
+        modules = sorted(f.relative_to(source) for f in source.rglob('*.py'))
+        assert modules, source
+        for rel in modules:
+            assert (package / rel).read_bytes() == (source / rel).read_bytes(), f'{package / rel} is not {source / rel}'
+        direct = importlib.metadata.distribution(dist).read_text('direct_url.json')
+        if direct:  # a pip install: editable, from this checkout
+            info = json.loads(direct)
+            assert info['dir_info'].get('editable') is True
+            assert Path(info['url'].removeprefix('file://')).resolve() == REPO / 'src' / dist

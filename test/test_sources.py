@@ -23,6 +23,7 @@ from sagg_low_level.learner import Command, Robot, step_toward
 from sagg_low_level.recorder_acks import RecorderAcks
 from test_bad_input import arm_nodes
 from test_hostile import JOINTS, LIMIT, SEC, fresh_streams, js_bytes, state, tip_bytes, wait_for
+from installed import SAGG
 
 GRACE = 0.4
 
@@ -271,7 +272,6 @@ def test_sagg_run_names_the_hold_it_gives_up_on(tmp_path):
     (it said only "no new sample for 60 s")."""
     import os
     import subprocess
-    import sys
     from pathlib import Path
 
     from rclpy.context import Context
@@ -282,7 +282,7 @@ def test_sagg_run_names_the_hold_it_gives_up_on(tmp_path):
     domain = pick_domain_id()
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     out = tmp_path / "run"
-    proc = subprocess.Popen([str(Path(sys.executable).parent / "sagg"), "run", "config/arm8.yaml",
+    proc = subprocess.Popen([SAGG, "run", "config/arm8.yaml",
                              "--micro-actions", "100000", "--eval-every", "100000", "--out", str(out),
                              "--domain-id", str(domain), "--stall-timeout", "12"],
                             cwd=Path(__file__).resolve().parents[1], env=env, stdout=subprocess.PIPE,

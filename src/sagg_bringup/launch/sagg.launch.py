@@ -9,7 +9,8 @@ from it exactly as ``sagg run`` does (``sagg_bringup.launch_params.launch_plan``
 ``joints``, ``joint_limits``, ``rest_posture`` from the simulated arm (``driver:=sim``) or the
 config's own (``driver:=external``: your arm's driver runs already; no bridge is started), the
 synergy set-ups' nodes. The expanded parameter file is written to a temporary directory and its
-path logged. ``record:=true`` also starts ``sagg record`` (``sagg run``'s topic set, mcap, into
+path logged; the directory is removed when the launch shuts down (every process has read it at its
+start). ``record:=true`` also starts ``sagg record`` (``sagg run``'s topic set, mcap, into
 ``record_out`` or ``runs/record-<time>``): the learner and generator wait for its subscriptions
 before their first sample and goal, the learner then waits whenever it lags (its acknowledgements
 on /sagg/recorded, ``recorder_max_lag``), and at Ctrl-C (SIGINT to every process at once) it
@@ -20,11 +21,13 @@ lost all the same are counted and make it exit with code 3 (``sagg record``'s do
 a config's ``checkpoint_dir`` / ``resume``) are given to the nodes as parameters of their own,
 not in the parameter file (``sagg_bringup.params_files.run_values``).
 """
+import shutil
 import tempfile
 from pathlib import Path
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, ExecuteProcess, LogInfo, OpaqueFunction
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, LogInfo, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnShutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -41,10 +44,12 @@ def _nodes(context):
     if record not in ("true", "false"):
         raise RuntimeError(f"record:={record!r}; allowed: true or false")
     plan = launch_plan(arg("config"), arg("driver"), int(arg("micro_actions")))
-    path = write_plan(plan, Path(tempfile.mkdtemp(prefix="sagg-launch-")) / "params.yaml")
+    tmp = Path(tempfile.mkdtemp(prefix="sagg-launch-"))
+    path = write_plan(plan, tmp / "params.yaml")
     waits = {"sagg_learner": {"min_sample_subscribers": 1}, "sagg_goal_generator": {"min_goal_subscribers": 1}}
     run = run_values(plan.params)  # (the budget, a config's checkpoint_dir / resume: not in the file)
-    actions = [LogInfo(msg=f"sagg: {plan.config} (driver {plan.driver}) -> parameters in {path}")]
+    actions = [LogInfo(msg=f"sagg: {plan.config} (driver {plan.driver}) -> parameters in {path}"),
+               RegisterEventHandler(OnShutdown(on_shutdown=lambda event, context: shutil.rmtree(tmp, True)))]
     for package, executable, name in plan.nodes:
         params = ([str(path)] + ([run[name]] if name in run else [])
                   + ([waits[name]] if record == "true" and name in waits else []))

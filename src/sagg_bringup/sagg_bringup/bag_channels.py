@@ -9,6 +9,10 @@ the bag, :func:`add_type_hashes` rewrites its mcap file record by record with th
 library's public reader and writer: the same header, schemas, messages (order, times, sequence
 numbers, bytes), metadata records and chunking without compression, each channel's metadata plus
 ``topic_type_hash``. metadata.yaml (rosbags') is unchanged: it describes the same messages.
+
+The same pass sets ``ros_distro`` in the mcap's own copy of the bag information (the ``rosbag2``
+metadata record, ``serialized_metadata``), where rosbags writes its own name: with ``distro``,
+the file says what metadata.yaml says (the recorder sets ``jazzy`` there).
 """
 from __future__ import annotations
 
@@ -19,12 +23,14 @@ from mcap.reader import make_reader
 from mcap.records import Channel, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
+import yaml
 
 
-def add_type_hashes(mcap_path: str | Path, hashes: dict[str, str]) -> int:
+def add_type_hashes(mcap_path: str | Path, hashes: dict[str, str], distro: str | None = None) -> int:
     """Rewrite ``mcap_path`` with ``topic_type_hash = hashes[topic]`` on each channel whose topic
-    is in ``hashes`` (others unchanged). Returns the number of channels given a hash. The file is
-    replaced atomically (written next to it, then renamed)."""
+    is in ``hashes`` (others unchanged) and, with ``distro``, the ``rosbag2`` metadata record's
+    ``ros_distro``. Returns the number of channels given a hash. The file is replaced atomically
+    (written next to it, then renamed)."""
     src = Path(mcap_path)
     tmp = src.with_name(src.name + ".tmp")
     schema_ids: dict[int, int] = {}
@@ -51,7 +57,12 @@ def add_type_hashes(mcap_path: str | Path, hashes: dict[str, str]) -> int:
                 writer.add_message(channel_ids[rec.channel_id], rec.log_time, rec.data, rec.publish_time,
                                    rec.sequence)
             elif isinstance(rec, Metadata):
-                writer.add_metadata(rec.name, dict(rec.metadata))
+                meta = dict(rec.metadata)
+                if distro is not None and rec.name == "rosbag2" and "serialized_metadata" in meta:
+                    info = yaml.safe_load(meta["serialized_metadata"])
+                    info["ros_distro"] = distro
+                    meta["serialized_metadata"] = yaml.safe_dump(info, sort_keys=False)
+                writer.add_metadata(rec.name, meta)
             elif isinstance(rec, (DataEnd, Footer)):
                 break  # the summary section is written anew
         if writer is None:

@@ -319,11 +319,13 @@ def _run_options(args) -> dict:
 
 def _run(args) -> int:
     # lazy (heavy): ROS, mujoco
+    from .launch_params import resolve_config
     from .setups import run_graph, setup_of
     if args.resume:
         return _resume(args)
     if args.config is None:
         raise ConfigError("sagg run: CONFIG is required (or --resume DIR)")
+    args.config = str(resolve_config(args.config))  # a file, or an installed config's name (arm8)
     if args.micro_actions is None:
         args.micro_actions = 10_000
     out = args.out

@@ -53,7 +53,7 @@ def resolve_config(config: str) -> Path:
     name = p.name[:-5] if p.name.endswith(".yaml") else p.name
     if name in configs and p.parent == Path("."):
         return configs[name]
-    raise ConfigError(f"config:={config!r}: no such file; allowed: a parameter file or one of "
+    raise ConfigError(f"config {config!r}: no such file; allowed: a parameter file or one of "
                       f"{', '.join(sorted(configs)) or '(no installed config)'}")
 
 

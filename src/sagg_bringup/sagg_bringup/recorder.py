@@ -196,10 +196,10 @@ class BagWriter:
 
     def _set_type_hashes(self, doc: dict) -> None:
         """``topic_type_hash`` (RIHS01) on every mcap channel, as rosbag2 writes it (rosbags does
-        not: :mod:`.bag_channels`)."""
+        not: :mod:`.bag_channels`), and ``ros_distro`` in the mcap's copy of the bag information."""
         hashes = {t: self.typestore.hash_rihs01(ty) for t, ty in self.types.items()}
         for rel in doc["rosbag2_bagfile_information"]["relative_file_paths"]:
-            add_type_hashes(self.path / rel, hashes)
+            add_type_hashes(self.path / rel, hashes, self.ROS_DISTRO)
 
     def abort(self) -> None:
         self.closed = True

@@ -39,7 +39,6 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,7 +57,7 @@ from sagg_low_level.checkpoint import checkpoint_memory
 
 from ..bag_reader import bag_messages
 from ..arm_params import graph_params, load_graph_config
-from ..processes import pick_domain_id
+from ..processes import find_node_executable, pick_domain_id
 from ..topics import watched_topics
 
 SEC = 1_000_000_000
@@ -251,7 +250,7 @@ class Fuzzer:
         user would start it beside a live run (its defaults: no command topic); the time it ran
         (wall clock, ns: the bag's receive times) is kept in :attr:`replay_windows`."""
         self.replay_windows.append((time.time_ns(), None))
-        cmd = [str(Path(sys.executable).parent / "sagg"), "replay", str(self.replay_bag), "--quiet",
+        cmd = [str(find_node_executable("sagg_bringup", "sagg")), "replay", str(self.replay_bag), "--quiet",
                "--domain-id", str(self.domain)]
         self.replaying = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                           start_new_session=True)
@@ -419,7 +418,7 @@ def _run_case(f: Fuzzer, case: Case, proc, out: Outcome, quiet: float) -> None:
 
 
 def _start_run(config: str, out: Path, domain: int, sets: list[str], micro_actions: int, eval_every: int):
-    cmd = [str(Path(sys.executable).parent / "sagg"), "run", config, "--micro-actions", str(micro_actions),
+    cmd = [str(find_node_executable("sagg_bringup", "sagg")), "run", config, "--micro-actions", str(micro_actions),
            "--eval-every", str(eval_every), "--out", str(out), "--domain-id", str(domain), "--quiet"]
     for s in sets:
         cmd += ["--set", s]

@@ -29,7 +29,7 @@ from sagg_common.ros_params import reliable
 
 from ..arm_params import graph_params, load_graph_config
 
-from ..processes import pick_domain_id
+from ..processes import find_node_executable, pick_domain_id
 from ..recorder import TopicSpec, msg_class
 from ..topics import watched_topics
 
@@ -87,7 +87,7 @@ def one_run(config: str, out: Path, timing: str, micro_actions: int, eval_every:
             idle: bool, sets: list[str]) -> dict:
     """One ``sagg run`` (with or without the neighbours); its summary's key numbers."""
     domain = pick_domain_id()
-    cmd = [str(Path(sys.executable).parent / "sagg"), "run", config, "--timing", timing, "--micro-actions",
+    cmd = [str(find_node_executable("sagg_bringup", "sagg")), "run", config, "--timing", timing, "--micro-actions",
            str(micro_actions), "--eval-every", str(eval_every), "--out", str(out), "--domain-id", str(domain),
            "--quiet"] + [a for s in sets for a in ("--set", s)]
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")

@@ -1,0 +1,11 @@
+"""Shared by every test: the tests run from the repository root.
+
+`make test` starts pytest there; `colcon test` starts it in build/sagg_bringup (that package's
+setup.cfg points pytest at this folder). Tests name the repository's configs and robot models as
+`config/...`, as the README and the docs do (colcon installs the same files into
+share/sagg_bringup), so the working directory is the repository root for every test, whoever
+started pytest."""
+import os
+from pathlib import Path
+
+os.chdir(Path(__file__).resolve().parents[1])
