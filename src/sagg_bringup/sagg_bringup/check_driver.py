@@ -33,7 +33,6 @@ from sagg_common.sources import with_message_info
 
 from .external import DriverMonitor, explicit_joints, external_params, model_task
 from .arm_params import load_graph_config
-from .launch_params import resolve_config
 
 
 def learner_params(config: str) -> dict:
@@ -248,5 +247,7 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
 
 
 def main_check_driver(args) -> int:
+    # lazy (heavy): the set-up registry (mujoco)
+    from .launch_params import resolve_config
     res = check_driver(str(resolve_config(args.config)), args.joint, args.step, args.seconds, args.domain_id, args.timeout)
     return 1 if res["problems"] else 0
