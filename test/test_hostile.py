@@ -567,3 +567,29 @@ def test_a_replay_whose_numbers_catch_up_with_a_silent_publisher_never_takes_its
         assert stream.check(seq, time.time_ns()) == ""
         stream.commit(seq)
     assert stream.last == 119 and stream.gaps == 0
+
+
+def test_a_reach_canceled_before_its_turn_releases_its_hold(nodes):
+    """Seen once under colcon test: /sagg/pause while a command was in flight, a reach sent (queued:
+    its hold set, the command's answer first), then canceled; the canceled job was answered, but
+    its 'reach' hold stayed, so releasing the pause left learning held for ever."""
+    from sagg_low_level.reach_server import ReachJob
+    n = nodes["learner"]
+    fresh_streams(n)
+    saved = (n.state, n.pending)
+    try:
+        n.holds["service"] = "paused by the /sagg/pause service"
+        n.state = n.RUNNING_COMMAND                  # the micro-action in flight completes first
+        job = ReachJob(np.array([1.0, 1.0]), 0.1, 10)
+        n.reach_server.jobs.append(job)
+        n._poll_reach()
+        assert "reach" in n.holds and n.reach is None and list(n.reach_server.jobs) == [job]
+        n.state, n.pending = n.PAUSED, None          # its answer came; the next command is held
+        job.cancel = True
+        n.on_poll()
+        assert job.done.is_set() and job.result[3] == "canceled" and job.result[2] == 0
+        assert "reach" not in n.holds and n.holds == {"service": "paused by the /sagg/pause service"}
+    finally:
+        n.holds.clear()
+        n.reach_server.jobs.clear()
+        n.state, n.pending = saved

@@ -511,9 +511,14 @@ class LearnerNode(LearnerNodeBase):
             self._check_driver()
         while self.reach_server.rejections:  # (rejected goals, counted here: the guard is this thread's)
             self.guard.reject(*self.reach_server.rejections.popleft())
-        for job in self.reach_server.take_canceled():  # (canceled before its turn: nothing moved)
+        canceled = self.reach_server.take_canceled()
+        for job in canceled:  # (canceled before its turn: nothing moved)
             y = self.tip if self.tip is not None else np.full(job.target.shape, np.nan)
             self._answer_reach(job, (y, float(np.linalg.norm(job.target - y)), 0, "canceled"))
+        if canceled and self.reach is None and not self.reach_server.jobs:
+            # the hold _poll_reach set for them while a command was in flight: nothing is left to
+            # reach (kept, it held learning for ever once the other holds were gone)
+            self._set_hold("reach", None)
         if self.reach_server.jobs and self.reach is None:
             self._poll_reach()
         elif (self.reach is not None and self.reach.cancel and self.state is self.PAUSED
