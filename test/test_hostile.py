@@ -499,28 +499,36 @@ def _status_reason(n) -> str:
     return got[-1].pause_reason
 
 
+def publisher_info(node: str, gid: int):
+    from types import SimpleNamespace
+    return SimpleNamespace(node_name=node, node_namespace="/", endpoint_gid=bytes([gid] * 16))
+
+
+def stream_at_100(topic: str):
+    """A PublisherStream of ``topic`` over a fake graph whose one publisher (the learner) has sent
+    messages 1..100; returns (graph, watch, stream): change ``graph[topic]`` to add publishers."""
+    from types import SimpleNamespace
+    from sagg_common.publishers import PublisherStream, PublisherWatch
+    graph = {topic: [publisher_info("sagg_learner", 1)]}
+    node = SimpleNamespace(get_publishers_info_by_topic=lambda t: list(graph[t]),
+                           count_publishers=lambda t: len(graph[t]))
+    watch = PublisherWatch(node)
+    watch.watch(topic, None, "sagg_learner")
+    stream = PublisherStream(watch, topic, "sagg_learner")
+    for seq in range(1, 101):
+        assert stream.check(seq, time.time_ns()) == ""
+        stream.commit(seq)
+    return graph, watch, stream
+
+
 def test_a_forged_message_queued_after_its_publisher_left_never_moves_the_stream():
     """The soak's wedge (publishers phase): forged samples numbered far beyond ours, still queued at
     the recorder after the forger had left (the topic looked fine again), were taken as a gap; the
     stream then stood at the forger's number and every real sample was rejected. A gap is taken
     only from a message sent after another publisher was last seen on the topic."""
-    from types import SimpleNamespace
-    from sagg_common.publishers import PublisherStream, PublisherWatch
-
-    def info(node, gid):
-        return SimpleNamespace(node_name=node, node_namespace="/", endpoint_gid=bytes([gid] * 16))
-
-    graph = {"/sagg/sample": [info("sagg_learner", 1)]}
-    node = SimpleNamespace(get_publishers_info_by_topic=lambda t: list(graph[t]),
-                           count_publishers=lambda t: len(graph[t]))
-    watch = PublisherWatch(node)
-    watch.watch("/sagg/sample", None, "sagg_learner")
-    stream = PublisherStream(watch, "/sagg/sample", "sagg_learner")
-    for seq in range(1, 101):
-        assert stream.check(seq, time.time_ns()) == ""
-        stream.commit(seq)
+    graph, watch, stream = stream_at_100("/sagg/sample")
     t_forged = time.time_ns()                  # the forger publishes (numbers up to 27,312) ...
-    graph["/sagg/sample"].append(info("sagg_fuzzer", 2))
+    graph["/sagg/sample"].append(publisher_info("sagg_fuzzer", 2))
     assert "2 publishers" in watch.refresh("/sagg/sample")
     assert "while the topic has" in stream.check(27312, t_forged)
     graph["/sagg/sample"].pop()                # ... and leaves; its messages are still queued
@@ -538,22 +546,8 @@ def test_a_replay_whose_numbers_catch_up_with_a_silent_publisher_never_takes_its
     messages from 1; its 101st continued the learner's stream exactly and was taken, and from then
     on every real message was "not after" the replay's numbers (sagg run's bag, summary and
     relearn took the replay's run as the live one)."""
-    from types import SimpleNamespace
-    from sagg_common.publishers import PublisherStream, PublisherWatch
-
-    def info(node, gid):
-        return SimpleNamespace(node_name=node, node_namespace="/", endpoint_gid=bytes([gid] * 16))
-
-    graph = {"/sagg/competence": [info("sagg_learner", 1)]}
-    node = SimpleNamespace(get_publishers_info_by_topic=lambda t: list(graph[t]),
-                           count_publishers=lambda t: len(graph[t]))
-    watch = PublisherWatch(node)
-    watch.watch("/sagg/competence", None, "sagg_learner")
-    stream = PublisherStream(watch, "/sagg/competence", "sagg_learner")
-    for seq in range(1, 101):
-        assert stream.check(seq, time.time_ns()) == ""
-        stream.commit(seq)
-    graph["/sagg/competence"].append(info("sagg_replay", 2))  # the replay joins; the learner holds
+    graph, watch, stream = stream_at_100("/sagg/competence")
+    graph["/sagg/competence"].append(publisher_info("sagg_replay", 2))  # the replay joins; the learner holds
     watch.refresh("/sagg/competence")
     for seq in range(1, 101):
         assert "not after 100" in stream.check(seq, time.time_ns())
