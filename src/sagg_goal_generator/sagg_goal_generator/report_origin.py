@@ -38,9 +38,10 @@ def goal_mismatch(goals, seq: int, goal_seq: int, kind: int, target, start,
     :data:`UNKNOWN` if it cannot be told now). ``goals``: the generator's goal records in order
     (``goals[k].seq == k + 1``); ``complete``: they are all the goals the learner was given (false
     while a resumed generator has journaled goals to choose again); goal 0 is "no goal"
-    (exploration, actuator strategies): nothing to check. The goal's own report aims at the goal up to rounding: the
-    learner computes its last subgoal as ``start + 1·(goal − start)`` (a few ulps of the larger of
-    the coordinates: 1e-9 of it is far above rounding and far below any two goals' distance)."""
+    (exploration, actuator strategies): nothing to check. The goal's own report aims at the goal
+    up to rounding: the learner computes its last subgoal as ``start + 1·(goal − start)`` (a few
+    ulps of the larger of the coordinates: 1e-9 of it is far above rounding and far below any two
+    goals' distance)."""
     if goal_seq == 0:
         return ""
     if goal_seq > len(goals):
@@ -56,11 +57,12 @@ def goal_mismatch(goals, seq: int, goal_seq: int, kind: int, target, start,
     if goal_seq < len(goals) and seq > goals[goal_seq].after_report:
         return (f"it names goal {goal_seq}, but goal {goal_seq + 1} was asked for after report "
                 f"{goals[goal_seq].after_report}: goal {goal_seq}'s reports end there")
+    if kind != KIND_GOAL:
+        return ""
     target = np.asarray(target, dtype=float)
     scale = 1.0 + max(np.abs(target).max(initial=0.0), np.abs(rec.position).max(initial=0.0),
                       np.abs(np.asarray(start, dtype=float)).max(initial=0.0))
-    if kind == KIND_GOAL and (target.shape != rec.position.shape
-                              or np.abs(target - rec.position).max(initial=0.0) > 1e-9 * scale):
+    if target.shape != rec.position.shape or np.abs(target - rec.position).max(initial=0.0) > 1e-9 * scale:
         return f"its target {np.round(target, 6).tolist()} is not goal {goal_seq}'s position"
     return ""
 
