@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import time
 
+from .sources import SourceChains
+
 
 # the graph cache's name for an endpoint whose node it has not learnt yet (for a moment after discovery)
 UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
@@ -97,7 +99,7 @@ class PublisherStream:
     An rmw without sequence numbers (``None``) leaves the content checks alone.
 
     The numbers of the rejected messages are followed too, as the other publishers' streams
-    (:attr:`others`): a replay (``ros2 bag play``) numbers its messages from 1, so while the
+    (:attr:`others`, chains as :class:`~sagg_common.sources.SourceChains` follows them): a replay (``ros2 bag play``) numbers its messages from 1, so while the
     expected publisher is silent (a learner holding for the replay's joint states) the replay's
     numbers climb to the expected stream's last one, and its next message would continue the
     expected stream exactly. A message whose number continues both is refused (it may be either);
@@ -115,7 +117,7 @@ class PublisherStream:
         self.gids: tuple | None = None   # the expected node's publisher GIDs when the stream (re)started
         self.gaps = 0                    # messages missed by this subscriber (numbers skipped)
         self.restarts = 0
-        self.others: list[int] = []      # the last numbers of the other publishers' streams (rejected messages)
+        self.others = self._new_others()  # the other publishers' streams (the rejected messages' numbers)
 
     def _expected_gids(self) -> tuple | None:
         infos = self.watch.node.get_publishers_info_by_topic(self.topic)
@@ -132,14 +134,14 @@ class PublisherStream:
         forger's number 27,312 after our 4,814 stopped every real sample)."""
         why = self._why(seq, source_ns)
         if why:
-            self._other(seq)
+            self.others.assign(seq, time.monotonic())
         return why
 
     def _why(self, seq, source_ns: int | None) -> str:
         if seq is None:
             return ""
         if seq == self.last + 1:
-            if self.last and self.last in self.others:
+            if self.last and self.last in self.others.last:
                 return (f"publisher sequence number {seq} continues the expected publisher's stream and "
                         f"another's (both stood at {self.last}): which one sent it cannot be told")
             return ""
@@ -158,24 +160,17 @@ class PublisherStream:
         return (f"publisher sequence number {seq}, not after {self.last}: another publisher's message "
                 f"(topic publishers: {self.watch.refresh(self.topic) or 'as expected'})")
 
-    def _other(self, seq: int) -> None:
-        """A rejected message numbered ``seq``: it continues the other stream whose last number is the
-        largest below it, or starts one."""
-        others = self.others
-        below = [i for i, n in enumerate(others) if n < seq]
-        if below:
-            i = max(below, key=others.__getitem__)
-            del others[i]
-        elif len(others) >= self.OTHERS:
-            del others[0]
-        others.append(seq)  # (the end of the list: heard from last)
+    @classmethod
+    def _new_others(cls) -> SourceChains:
+        # only its chains are used (assign: the one a number continues, or a new one), not its verdicts
+        return SourceChains(grace=1.0, keep=cls.OTHERS)
 
     def commit(self, seq) -> None:
         if seq is None:
             return
         if seq <= self.last:  # a restarted publisher: its stream starts again, the others' are forgotten
             self.restarts += 1
-            self.others.clear()
+            self.others = self._new_others()
             self.gids = self._expected_gids()
         elif seq > self.last + 1 and self.last:
             self.gaps += seq - self.last - 1
