@@ -23,6 +23,7 @@ import struct
 import sys
 import threading
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -48,6 +49,17 @@ from .schema import CORE_SCHEMA, SCHEMA
 
 NODE_NAME = "sagg_goal_generator"
 FOREIGN = "foreign"  # the tag of a /sagg/competence source found to send another run's reports
+
+
+class Early(NamedTuple):
+    """A report kept until it is next in line (or its goal can be checked)."""
+    kind: int
+    target: np.ndarray
+    competence: float
+    received: float  # time.monotonic() when it came
+    goal_seq: int
+    start: np.ndarray
+    key: tuple       # ProcessedDigests.key
 ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
@@ -128,9 +140,9 @@ class GoalGeneratorNode(Node):
         self.resubscribe_due = False  # reports were dropped for a foreign publisher
         self.resubscriptions = 0
         self.duplicate_reports = 0  # reports already processed, received again (dropped)
-        # seq -> (kind, target, competence, received, goal_seq, start, key): reports ahead of the
-        # next one, or about a goal not chosen yet (held until the learner's request covers them)
-        self.early: dict[int, tuple] = {}
+        # reports ahead of the next one, or about a goal not chosen yet (held until the learner's
+        # request covers them), by seq
+        self.early: dict[int, Early] = {}
         # what tells a silent learner from a replay of another run: the reports' content against
         # this generator's goals and the reports it processed (report_origin)
         self.processed = ProcessedDigests(self.params["report_window"])
@@ -236,7 +248,7 @@ class GoalGeneratorNode(Node):
             # learner's history after a re-subscription; skipped only after report_reorder_wait),
             # or until its goal is chosen here or the learner's request says it sent it (a
             # restarted generator; report_origin). The latest with a number is kept.
-            self.early[msg.seq] = (msg.kind, target, msg.competence, time.monotonic(), msg.goal_seq, msg.start, key)
+            self.early[msg.seq] = Early(msg.kind, target, msg.competence, time.monotonic(), msg.goal_seq, msg.start, key)
             return
         self._take(msg.seq, msg.kind, target, msg.competence, key)
         if self.early:
@@ -261,14 +273,14 @@ class GoalGeneratorNode(Node):
         """The kept early reports that the learner's request covers or whose goal was chosen here
         (the reports missing before them were really sent)."""
         goals = self.gen.goals
-        return [q for q, v in self.early.items()
+        return [q for q, e in self.early.items()
                 if q <= self.announced
-                or goal_mismatch(goals, q, v[4], v[0], v[1], v[5], not self.replay_goals) is not UNKNOWN]
+                or goal_mismatch(goals, q, e.goal_seq, e.kind, e.target, e.start, not self.replay_goals) is not UNKNOWN]
 
     def _check_early(self, now: float | None = None) -> None:
         """Skip the reports missing before the kept early ones after report_reorder_wait."""
         now = time.monotonic() if now is None else now
-        if self.early and min(v[3] for v in self.early.values()) <= now - self.params["report_reorder_wait"]:
+        if self.early and min(e.received for e in self.early.values()) <= now - self.params["report_reorder_wait"]:
             self._drain_early(skip=True)
 
     def _drain_early(self, skip: bool = False) -> None:
@@ -288,15 +300,15 @@ class GoalGeneratorNode(Node):
                 gen.skip_report()
         while gen.reports + 1 in self.early:
             seq = gen.reports + 1
-            kind, target, competence, _, goal_seq, start, key = self.early[seq]
-            why = goal_mismatch(gen.goals, seq, goal_seq, kind, target, start, not self.replay_goals)
+            e = self.early[seq]
+            why = goal_mismatch(gen.goals, seq, e.goal_seq, e.kind, e.target, e.start, not self.replay_goals)
             if why is UNKNOWN and seq > self.announced:
                 break
             del self.early[seq]
             if why:
                 self._foreign(seq, why, source=False)
                 continue
-            self._take(seq, kind, target, competence, key)
+            self._take(seq, e.kind, e.target, e.competence, e.key)
         for seq in [q for q in self.early if q <= gen.reports]:
             del self.early[seq]
 
