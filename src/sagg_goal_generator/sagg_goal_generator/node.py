@@ -275,7 +275,8 @@ class GoalGeneratorNode(Node):
         goals = self.gen.goals
         return [q for q, e in self.early.items()
                 if q <= self.announced
-                or goal_mismatch(goals, q, e.goal_seq, e.kind, e.target, e.start, not self.replay_goals) is not UNKNOWN]
+                or goal_mismatch(goals, q, e.goal_seq, e.kind, e.target, e.start,
+                                 not self.replay_goals) is not UNKNOWN]
 
     def _check_early(self, now: float | None = None) -> None:
         """Skip the reports missing before the kept early ones after report_reorder_wait."""
