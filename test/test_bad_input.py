@@ -23,7 +23,7 @@ from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.graph.processes import pick_domain_id
 from sagg_common.params import ConfigError, node_params, read_config
 from sagg_goal_generator.node import GoalGeneratorNode, SCHEMA as GEN_SCHEMA
 from sagg_low_level.node import LearnerNode, SCHEMA as LEARNER_SCHEMA

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import rclpy
 
-from sagg_bringup.params_files import write_params_file
-from sagg_bringup.processes import pick_domain_id
-from sagg_bringup.setups import SETUPS
+from sagg_bringup.graph.params_files import write_params_file
+from sagg_bringup.graph.processes import pick_domain_id
+from sagg_bringup.graph.setups import SETUPS
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
 from sagg_low_level.position_link import PositionLink
 from sagg_low_level.synergy_node import SynergyLearnerNode

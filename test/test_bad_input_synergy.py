@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from geometry_msgs.msg import PointStamped
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.graph.processes import pick_domain_id
 from sagg_low_level.synergy_node import SynergyLearnerNode
 from sagg_sim_bridge.synergy_node import SynergyBridgeNode
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.bag_reader import bag_messages
-from sagg_bringup.bags import relearn
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.bags.bag_reader import bag_messages
+from sagg_bringup.bags.bags import relearn
+from sagg_bringup.graph.processes import pick_domain_id
 from sagg_low_level.memory import SampleMemory
 
 from sagg_low_level.checkpoint import checkpoint_memory
@@ -69,7 +69,7 @@ def test_relearn_gives_the_runs_memory_and_tree(run_dir, tmp_path):
 
 def test_relearn_detects_a_tampered_recording(run_dir, tmp_path):
     """A sample missing from the recording is an error naming it, not a silently different memory."""
-    from sagg_bringup.recorder import BagWriter, TopicSpec
+    from sagg_bringup.bags.recorder import BagWriter, TopicSpec
     msgs = list(bag_messages([run_dir / "bag"]))
     types = {t: ty for t, ty, _, _ in msgs}
     bag = BagWriter(tmp_path / "bag", [TopicSpec(t, ty) for t, ty in types.items()])
@@ -89,7 +89,7 @@ def test_relearn_drops_hostile_messages_and_rebuilds_the_real_memory(run_dir, tm
     """Issue 11: a NaN sample, a well-formed sample far ahead, a NaN report, a report with seq
     10^12, a NaN goal and undecodable bytes in a bag: relearn never crashes, counts what it drops,
     and rebuilds exactly the run's memory, goals and tree (no forged message took a real index)."""
-    from sagg_bringup.recorder import BagWriter, TopicSpec
+    from sagg_bringup.bags.recorder import BagWriter, TopicSpec
     from sagg_common.msg_codecs import encode_report, encode_sample
     from rclpy.serialization import serialize_message
     from sagg_msgs.msg import Goal
@@ -126,7 +126,7 @@ def _subscriber(domain: int, topics: dict[str, str]):
     """A test-side node receiving the raw bytes of ``topics`` (name -> type)."""
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from sagg_bringup.recorder import msg_class
+    from sagg_bringup.bags.recorder import msg_class
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = rclpy.create_node("sagg_test_replay_sub", context=ctx)
@@ -240,7 +240,7 @@ CMD_TYPES = {CMD: "std_msgs/msg/Float64MultiArray", "/joint_states": "sensor_msg
 
 def _command_bag(path: Path, n: int = 20) -> Path:
     """A bag of ``n`` position commands and ``n`` joint states (as a `sagg run` records them)."""
-    from sagg_bringup.recorder import BagWriter, TopicSpec
+    from sagg_bringup.bags.recorder import BagWriter, TopicSpec
     from sagg_common.cdr import encode_f64_array, encode_joint_state
     bag = BagWriter(path, [TopicSpec(t, ty) for t, ty in CMD_TYPES.items()])
     for i in range(n):
@@ -256,7 +256,7 @@ def _replay_with(bag: Path, node_name: str, *args: str):
     command topic and /joint_states there; returns (exit code, output, received bytes)."""
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from sagg_bringup.recorder import msg_class
+    from sagg_bringup.bags.recorder import msg_class
     domain = pick_domain_id()
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)

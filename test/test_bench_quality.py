@@ -3,7 +3,7 @@ import json
 
 import pytest
 
-from sagg_bringup.cli import main
+from sagg_bringup.cli.cli import main
 from sagg_bringup.lab.quality import bench_quality, check_context
 from sagg_common.params import ConfigError
 from sagg_low_level.learner import SCHEMA

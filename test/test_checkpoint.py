@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.experiment import InProcessRun
-from sagg_bringup.setups import load_experiment_config
+from sagg_bringup.inprocess.experiment import InProcessRun
+from sagg_bringup.graph.setups import load_experiment_config
 from sagg_common.journal import Journal, read_journal
 from sagg_goal_generator.checkpoint import GeneratorCheckpointer
 from sagg_goal_generator.core import GoalGenerator

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from sagg_bringup.compare import curve_stats, pairwise_tests, summary_json
-from sagg_bringup.sweep import (RunSpec, check_fingerprint, make_fingerprint, run_dir,
+from sagg_bringup.experiments.compare import curve_stats, pairwise_tests, summary_json
+from sagg_bringup.experiments.sweep import (RunSpec, check_fingerprint, make_fingerprint, run_dir,
                                 validate_result, expected_config)
 from sagg_common.params import ConfigError
 from installed import SAGG
@@ -184,7 +184,7 @@ def test_more_seeds_and_strategies_extend_a_comparison(tmp_path):
 
 
 def test_bad_arguments_name_the_field(tmp_path):
-    from sagg_bringup.sweep import run_compare
+    from sagg_bringup.experiments.sweep import run_compare
     with pytest.raises(ConfigError, match="--strategies"):
         run_compare(CONFIG, ["nope"], 1, 10, 10, tmp_path / "o")
     with pytest.raises(ConfigError, match="--set seed"):
@@ -261,8 +261,8 @@ def test_ray_local_instance_gives_the_process_pool_results(resumed, tmp_path):
 
 def test_bench_speed_rows_and_bytes_per_sample():
     from sagg_bringup.lab.bench import babbling_samples, bench_speed
-    from sagg_bringup.experiment import InProcessRun
-    from sagg_bringup.setups import load_experiment_config
+    from sagg_bringup.inprocess.experiment import InProcessRun
+    from sagg_bringup.graph.setups import load_experiment_config
     run = InProcessRun(load_experiment_config(CONFIG, {"arm.dof": 7}))
     a, da, dy = babbling_samples(run, 450, period=200)
     assert a.shape == da.shape == (450, 7) and dy.shape == (450, 2)

@@ -15,12 +15,12 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from sagg_bringup.bag_channels import channel_metadata
-from sagg_bringup.bag_reader import bag_messages
-from sagg_bringup.bag_recover import REPORT_FILE, recover_bag
-from sagg_bringup.bags import relearn
-from sagg_bringup.processes import pick_domain_id
-from sagg_bringup.recorder import BagWriter, TopicSpec, make_typestore
+from sagg_bringup.bags.bag_channels import channel_metadata
+from sagg_bringup.bags.bag_reader import bag_messages
+from sagg_bringup.bags.bag_recover import REPORT_FILE, recover_bag
+from sagg_bringup.bags.bags import relearn
+from sagg_bringup.graph.processes import pick_domain_id
+from sagg_bringup.bags.recorder import BagWriter, TopicSpec, make_typestore
 from sagg_low_level.checkpoint import published
 from installed import SAGG
 
@@ -124,9 +124,9 @@ def test_resume_republishes_the_samples_a_bag_lost_and_names_what_it_cannot(tmp_
     (a short checkpoint_every): `republish_from` republishes the stored samples from the first
     index the bag lacks; reports older than the journals are named, and bags holding more than the
     checkpoints are refused, naming the indices."""
-    from sagg_bringup.experiment import InProcessRun
-    from sagg_bringup.resume_check import compare
-    from sagg_bringup.setups import load_experiment_config
+    from sagg_bringup.inprocess.experiment import InProcessRun
+    from sagg_bringup.graph.resume_check import compare
+    from sagg_bringup.graph.setups import load_experiment_config
     from sagg_common.params import ConfigError
     from sagg_goal_generator.checkpoint import published as gen_published
     from sagg_low_level.checkpoint import LearnerCheckpointer

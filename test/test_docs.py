@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from sagg_bringup.cli import (PARAMS_BEGIN, PARAMS_DOC, PARAMS_END, node_schemas, params_markdown,
+from sagg_bringup.cli.cli import (PARAMS_BEGIN, PARAMS_DOC, PARAMS_END, node_schemas, params_markdown,
                               replace_params_block)
 
 ROOT = Path(__file__).resolve().parents[1]

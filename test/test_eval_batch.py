@@ -3,8 +3,8 @@ bit for bit, on several set-ups; its parts (batch neighbour search, stacked pseu
 import numpy as np
 import pytest
 
-from sagg_bringup.arm_eval import eval_arms, evaluate_arm
-from sagg_bringup.setups import in_process_run
+from sagg_bringup.inprocess.arm_eval import eval_arms, evaluate_arm
+from sagg_bringup.graph.setups import in_process_run
 from sagg_low_level.evaluate import evaluate, evaluate_batch, evaluate_per_goal
 from sagg_low_level.memory import SampleMemory
 from sagg_low_level.memory_batch import neighbours_many

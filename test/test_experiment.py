@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from sagg_bringup.cli import main as cli_main
-from sagg_bringup.experiment import InProcessRun
-from sagg_bringup.setups import load_experiment_config, run_experiment
+from sagg_bringup.cli.cli import main as cli_main
+from sagg_bringup.inprocess.experiment import InProcessRun
+from sagg_bringup.graph.setups import load_experiment_config, run_experiment
 from sagg_common.params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.graph.processes import pick_domain_id
 from sagg_sim_bridge.arm import ArmSpec
 from installed import SAGG
 
@@ -127,7 +127,7 @@ def test_sagg_run_external_driver_learns_and_is_evaluated_on_the_robot(tmp_path)
     assert "## Evaluation on the robot" in report and "simulated" in report
     assert "on the robot: mean error" in proc.stdout
     # the live view, recorded: region leaves, recent goals, the robot's test goals, the tip's path
-    from sagg_bringup.markers import marker_arrays_from_bag, render_markers
+    from sagg_bringup.graph.markers import marker_arrays_from_bag, render_markers
     arrays = marker_arrays_from_bag(out / "bag")
     assert topics["/sagg/markers"]["count"] == len(arrays) >= 1
     last = arrays[-1]
@@ -161,7 +161,7 @@ def test_missing_driver_is_named(tmp_path):
 
 
 def test_robot_test_goals_without_a_model_are_spread_over_reached_points():
-    from sagg_bringup.external import spread_points, sim_model_matches
+    from sagg_bringup.graph.external import spread_points, sim_model_matches
     pts = np.array([[0.0, 0.0], [0.1, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0], [0.05, 0.02]])
     chosen = spread_points(pts, 4, seed=0)
     # farthest-point selection: the four corners, never two of the clustered points near the origin

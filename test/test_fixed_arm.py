@@ -4,9 +4,9 @@ experiment, and learns an inverse model; in-process here (the graph: test_synerg
 import numpy as np
 import pytest
 
-from sagg_bringup.setups import load_experiment_config, run_experiment
-from sagg_bringup.setups import in_process_run, setup_of
-from sagg_bringup.synergy_experiment import ARM_FIXED
+from sagg_bringup.graph.setups import load_experiment_config, run_experiment
+from sagg_bringup.graph.setups import in_process_run, setup_of
+from sagg_bringup.inprocess.synergy_experiment import ARM_FIXED
 from sagg_common.params import ConfigError, STRATEGIES
 
 # noise-free kinematic 8-DOF arm (config/arm8.yaml is dynamic with 20 % motor noise)
@@ -115,7 +115,7 @@ def test_launch_plan_of_a_fixed_context_arm_config(tmp_path):
     """A config file with context: fixed launches the synergy learner (posture) with the MuJoCo arm
     bridge, as `sagg run` does."""
     import yaml
-    from sagg_bringup.launch_params import launch_plan
+    from sagg_bringup.graph.launch_params import launch_plan
     doc = yaml.safe_load(open("config/arm8.yaml"))
     doc["sagg_learner"]["ros__parameters"]["context"] = "fixed"
     path = tmp_path / "arm8_fixed.yaml"

@@ -19,7 +19,7 @@ from rclpy.serialization import serialize_message
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 
-from sagg_bringup.run_state import RunState
+from sagg_bringup.graph.run_state import RunState
 from sagg_low_level.learner import Command
 from sagg_low_level.node import LearnerNode
 from sagg_msgs.msg import CompetenceReport, Goal
@@ -423,7 +423,7 @@ def test_reordered_reports_are_kept_not_skipped(nodes):
 
 
 def test_recorder_counts_the_messages_it_missed_from_publisher_sequence_numbers():
-    from sagg_bringup.recorder import _follow
+    from sagg_bringup.bags.recorder import _follow
     tails: list[int] = []
     assert [_follow(tails, s) for s in (1, 2, 5, 6, 10)] == [0, 0, 2, 0, 3]
     # a restarted publisher (numbers start again) is a new stream, not a loss

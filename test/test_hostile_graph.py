@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.bags import bag_messages
+from sagg_bringup.bags.bags import bag_messages
 from sagg_bringup.lab.hostile import published_counts
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.graph.processes import pick_domain_id
 from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,7 +49,7 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
     (/sagg/competence transient_local, as its publisher), topic_type_hash on every mcap channel
     equal to metadata.yaml's type_description_hash."""
     import yaml
-    from sagg_bringup.bag_channels import channel_metadata
+    from sagg_bringup.bags.bag_channels import channel_metadata
     out = tmp_path / "run"
     p = subprocess.run([SAGG, "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", str(N),
                         "--eval-every", str(N), "--out", str(out), "--quiet", "--no-report",
@@ -85,7 +85,7 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
 
 
 def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):
-    from sagg_bringup.setups import run_graph
+    from sagg_bringup.graph.setups import run_graph
     n = 12
     s = run_graph("config/quadruped.yaml", n, tmp_path / "q", eval_every=n, progress=False, stall_timeout=120.0,
                   report=False, overrides={"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0})
@@ -101,7 +101,7 @@ def test_quadruped_bag_holds_exactly_what_the_nodes_published(tmp_path):
 def test_fixed_context_arm_bag_holds_exactly_what_the_nodes_published(tmp_path):
     """The synergy learner on the arm's position contract (PositionLink): its position commands (a
     rest command, then θ, per experiment) are in its published counts, and the bag equals them."""
-    from sagg_bringup.setups import run_graph
+    from sagg_bringup.graph.setups import run_graph
     n = 12
     run_graph("config/arm8.yaml", n, tmp_path / "f", eval_every=n, progress=False, stall_timeout=120.0,
               report=False, overrides={"context": "fixed", "eval.goals": 5})

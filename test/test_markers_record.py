@@ -1,4 +1,4 @@
-"""The live view's content (ROS-free part of sagg_bringup.markers) and `sagg record`'s topic set and QoS
+"""The live view's content (ROS-free part of sagg_bringup.graph.markers) and `sagg record`'s topic set and QoS
 choice, without a graph (the graph tests are test_external_driver.py and test_record_check_driver.py)."""
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from types import SimpleNamespace
 import numpy as np
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from sagg_bringup.markers import (CUBE, DELETEALL, LINE_STRIP, SPHERE_LIST, competence_colour,
+from sagg_bringup.graph.markers import (CUBE, DELETEALL, LINE_STRIP, SPHERE_LIST, competence_colour,
                                   interest_colour, to_msg, view_markers)
-from sagg_bringup.record import publishers_qos, recorded_topics
-from sagg_bringup.recorder import TopicSpec
+from sagg_bringup.graph.record import publishers_qos, recorded_topics
+from sagg_bringup.bags.recorder import TopicSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -75,7 +75,7 @@ def _diag(node, **published):
 
 
 def test_record_account_acknowledges_from_where_it_joined_and_follows_a_new_learner():
-    from sagg_bringup.record_account import RecordAccount
+    from sagg_bringup.graph.record_account import RecordAccount
     acc = RecordAccount({"/sagg/sample"})
     assert acc.acknowledged() is None  # no publisher before the first sample: the learner must not wait
     assert all(acc.on_sample(_sample(i)) for i in (7, 8, 9))
@@ -90,7 +90,7 @@ def test_record_account_acknowledges_from_where_it_joined_and_follows_a_new_lear
 
 
 def test_record_account_counts_what_the_nodes_announced_and_the_bag_lacks():
-    from sagg_bringup.record_account import RecordAccount
+    from sagg_bringup.graph.record_account import RecordAccount
     rejected = []
     acc = RecordAccount({"/sagg/sample", "/cmd"}, on_reject=lambda *a: rejected.append(a))
     acc.on_diagnostics(_diag("sagg_learner", **{"/sagg/sample": 120, "/cmd": 130, "/not_recorded": 5}))

@@ -217,7 +217,7 @@ def test_task_axes_xy_gives_2d_points(tmp_path):
 
 
 def test_a_task_space_of_another_size_than_the_task_axes_is_one_clear_error(tmp_path):
-    from sagg_bringup.setups import load_experiment_config
+    from sagg_bringup.graph.setups import load_experiment_config
     cfg = tmp_path / "arm6_2d.yaml"
     cfg.write_text(yaml.safe_dump({
         "/**": {"ros__parameters": {"task_space": {"lower": [-1.0, -1.0], "upper": [1.0, 1.0]}}},

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.bags import relearn
-from sagg_bringup.setups import run_experiment
+from sagg_bringup.bags.bags import relearn
+from sagg_bringup.graph.setups import run_experiment
 from test_run_graph import read_bag
 from installed import SAGG
 
@@ -69,7 +69,7 @@ def test_3d_bag_round_trip_and_relearn(run, tmp_path):
 
 def test_3d_markers_are_boxes_and_points_in_space(run):
     out, s = run
-    from sagg_bringup.markers import marker_arrays_from_bag
+    from sagg_bringup.graph.markers import marker_arrays_from_bag
     last = marker_arrays_from_bag(out / "bag")[-1]
     boxes = [m for m in last.markers if m.ns == "regions"]
     assert len(boxes) == len(s["regions"])

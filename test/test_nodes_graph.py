@@ -26,9 +26,9 @@ from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from sagg_bringup.experiment import InProcessRun
-from sagg_bringup.setups import load_experiment_config
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.inprocess.experiment import InProcessRun
+from sagg_bringup.graph.setups import load_experiment_config
+from sagg_bringup.graph.processes import pick_domain_id
 from sagg_common.params import node_params, read_config
 from sagg_common.rng import substream_seed
 from sagg_low_level.memory import SampleMemory

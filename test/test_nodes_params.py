@@ -13,7 +13,7 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.graph.processes import pick_domain_id
 from sagg_common.params import ConfigError, Param
 from sagg_common.ros_params import declare_schema, descriptor, file_parameters
 

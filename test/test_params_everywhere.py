@@ -2,7 +2,7 @@
 
 - the params.yaml a `sagg run` writes starts a learning graph with the three node executables alone
   (no `sagg run`, no recorder): it holds none of the waits only `sagg run`'s recorder satisfies;
-- the launch file's expansion (sagg_bringup.launch_params) fills every derived parameter for every
+- the launch file's expansion (sagg_bringup.graph.launch_params) fills every derived parameter for every
   installed config, for both drivers, and `config:=` defaults to arm8;
 - shared '/**' parameters produce no "parameters not used" line in the nodes that do not declare them.
 """
@@ -18,9 +18,9 @@ import yaml
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from sagg_bringup.arm_params import graph_params, load_graph_config
-from sagg_bringup.params_files import RUN_KEYS, run_only_params, set_checkpoint_dirs, write_params_file
-from sagg_bringup.launch_params import installed_configs, launch_plan, resolve_config, write_plan
+from sagg_bringup.inprocess.arm_params import graph_params, load_graph_config
+from sagg_bringup.graph.params_files import RUN_KEYS, run_only_params, set_checkpoint_dirs, write_params_file
+from sagg_bringup.graph.launch_params import installed_configs, launch_plan, resolve_config, write_plan
 from sagg_common.params import read_config
 from sagg_msgs.msg import CompetenceReport, LearnerStatus
 from sagg_sim_bridge.params import arm_spec_from_params

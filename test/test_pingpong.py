@@ -57,7 +57,7 @@ def test_domain_in_use_sees_a_real_participant_and_pick_avoids_busy_domains(monk
     import sys
     import time
 
-    from sagg_bringup.processes import domain_in_use, pick_domain_id
+    from sagg_bringup.graph.processes import domain_in_use, pick_domain_id
     from sagg_bringup.lab.pingpong import stop_process
 
     monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)

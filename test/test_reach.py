@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.graph.processes import pick_domain_id
 from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
-    from sagg_bringup.reach import ReachClient
+    from sagg_bringup.graph.reach import ReachClient
     domain = pick_domain_id()
     out = tmp_path / "run"
     n = 1500

@@ -175,7 +175,7 @@ def test_blocking_declares_the_goal_or_only_the_subgoal_unreached(scope):
 
 # ------------------------------------------------------------------------------ phases
 def test_result_says_where_the_micro_actions_went(tmp_path):
-    from sagg_bringup.setups import run_experiment
+    from sagg_bringup.graph.setups import run_experiment
     res = run_experiment("config/arm7_ratio15.yaml", "sagg-riac", 0, 600, 600, tmp_path, progress=False)
     ph = res["phases"]
     assert ph["reach"] + ph["explore"] + ph["babble"] == res["micro_actions"] == 600
@@ -278,7 +278,7 @@ def test_graph_learner_reaches_with_the_damped_inverse_like_the_in_process_run(t
     takes the damped step and Inefficient's aim exactly as in-process (same samples, same curve)."""
     import json
     import subprocess
-    from sagg_bringup.setups import run_experiment
+    from sagg_bringup.graph.setups import run_experiment
     sagg = SAGG
     out = tmp_path / "run"
     proc = subprocess.run([sagg, "run", "config/arm7_ratio15.yaml", "--micro-actions", "200", "--eval-every",

@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.experiment import InProcessRun
-from sagg_bringup.setups import load_experiment_config, run_experiment
-from sagg_bringup.setups import write_report as write_setup_report
-from sagg_bringup.report import leaves_after, write_report
+from sagg_bringup.inprocess.experiment import InProcessRun
+from sagg_bringup.graph.setups import load_experiment_config, run_experiment
+from sagg_bringup.graph.setups import write_report as write_setup_report
+from sagg_bringup.report.report import leaves_after, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = {"arm.dof": 7, "task_space.lower": [0.0, -60.0], "task_space.upper": [60.0, 60.0]}

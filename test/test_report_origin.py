@@ -11,7 +11,7 @@ import rclpy
 import yaml
 from rclpy.serialization import serialize_message
 
-from sagg_bringup.processes import pick_domain_id
+from sagg_bringup.graph.processes import pick_domain_id
 from sagg_common.report_kinds import KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_common.sources import SourceChains
 from sagg_goal_generator.core import GoalRecord

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sagg_bringup.reproduce import (CLAIM_FIELDS, VERDICTS, claim_verdict, decide, load_registry,
+from sagg_bringup.experiments.reproduce import (CLAIM_FIELDS, VERDICTS, claim_verdict, decide, load_registry,
                                     pair_verdict, resolve_config, select, significance_floor)
 from sagg_common.params import ConfigError
 from installed import SAGG
@@ -44,7 +44,7 @@ def test_registry_has_every_claim_of_the_issue_and_valid_setups():
 
 
 def test_registry_errors_name_the_claim(tmp_path):
-    reg = (Path(__file__).resolve().parents[1] / "src/sagg_bringup/sagg_bringup/claims.yaml").read_text()
+    reg = (Path(__file__).resolve().parents[1] / "src/sagg_bringup/sagg_bringup/experiments/claims.yaml").read_text()
     bad = tmp_path / "claims.yaml"
     bad.write_text(reg.replace("expect: [[sagg-riac, actuator-random]]\n",
                                "expect: [[sagg-riac, sagg-random]]\n", 1))
@@ -257,7 +257,7 @@ def test_synergy_test_goals_do_not_follow_the_random_synergy_density():
 
 
 def test_estimate_table_sums_core_hours():
-    from sagg_bringup.reproduce import estimate_table
+    from sagg_bringup.experiments.reproduce import estimate_table
     rows = [{"experiment": "a", "section": "3.9", "seeds": 15, "micro_actions": 200_000,
              "strategies": {"sagg-riac": {"rate": 2000.0, "core_hours_per_run": 0.5}},
              "core_hours": 7.5},
@@ -270,7 +270,7 @@ def test_estimate_table_sums_core_hours():
 
 
 def test_compare_summary_carries_the_other_metrics():
-    from sagg_bringup.compare import summary_json, summary_markdown
+    from sagg_bringup.experiments.compare import summary_json, summary_markdown
 
     def run(seed, med, within, bands):
         return {"strategy": "sagg-riac", "seed": seed, "final_mean_error": 1.0,
@@ -291,7 +291,7 @@ def test_compare_summary_carries_the_other_metrics():
 
 # ------------------------------------------------------------ sensitivity (issue 14 item 2)
 def test_sensitivity_registry_has_every_open_choice_at_the_issue_scale():
-    from sagg_bringup.sensitivity import load_sensitivity, variants
+    from sagg_bringup.experiments.sensitivity import load_sensitivity, variants
     reg = load_registry()
     sens = load_sensitivity(reg)
     assert {c["name"] for c in sens["choices"]} == {
@@ -313,8 +313,8 @@ def test_sensitivity_strategies_left_out_of_a_choice_do_not_read_it(tmp_path):
     """A choice that names the strategies reading its parameters lets the default's runs stand for
     the others: each of the others, run with each of the choice's values, must give the default's
     memory and errors bit for bit (and a strategy that does read it must not, or the check is blind)."""
-    from sagg_bringup.experiment import run_arm_experiment
-    from sagg_bringup.sensitivity import load_sensitivity
+    from sagg_bringup.inprocess.experiment import run_arm_experiment
+    from sagg_bringup.experiments.sensitivity import load_sensitivity
     reg = load_registry()
     sens = load_sensitivity(reg)
     base = reg["experiments"][sens["experiment"]]
@@ -340,7 +340,7 @@ def test_sensitivity_strategies_left_out_of_a_choice_do_not_read_it(tmp_path):
 
 
 def test_sensitivity_flips_on_known_inputs():
-    from sagg_bringup.sensitivity import flips
+    from sagg_bringup.experiments.sensitivity import flips
     default = {"verdict": "reproduced", "pairs": [{"a": "x", "b": "y", "verdict": "reproduced"},
                                                   {"a": "x", "b": "z", "verdict": "reproduced"}]}
     same = {"verdict": "reproduced", "pairs": [dict(p) for p in default["pairs"]]}
@@ -357,7 +357,7 @@ def test_sensitivity_smoke_one_choice_end_to_end(tmp_path):
                         "smoke", "--out", str(out), "--workers", "2"], capture_output=True, text=True,
                        timeout=600)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    from sagg_bringup.sensitivity import SENSITIVITY_FIELDS
+    from sagg_bringup.experiments.sensitivity import SENSITIVITY_FIELDS
     rows = json.loads((out / "sensitivity.json").read_text())
     assert [(row["choice"], row["overrides"]) for row in rows] == [
         ("default", {}), ("reached points", {"count_reached": True})]
@@ -395,7 +395,7 @@ def test_sensitivity_smoke_one_choice_end_to_end(tmp_path):
 
 
 def test_run_commits_says_when_an_experiment_spans_several_commits(tmp_path):
-    from sagg_bringup.results import run_commits
+    from sagg_bringup.inprocess.results import run_commits
     assert run_commits(tmp_path, "abc") == {"commit": "abc", "run_commits": {}}
     for i, c in enumerate(["c1", "c1", "c2"]):
         (tmp_path / f"r{i}").mkdir()
@@ -404,7 +404,7 @@ def test_run_commits_says_when_an_experiment_spans_several_commits(tmp_path):
 
 
 def test_mechanisms_average_over_seeds_and_skip_what_a_strategy_lacks():
-    from sagg_bringup.mechanisms import mechanism_table, strategy_mechanisms
+    from sagg_bringup.experiments.mechanisms import mechanism_table, strategy_mechanisms
 
     def run(err, share, goals):
         r = {"final_mean_error": err, "curve": [{"median_error": err / 2, "within_share": 0.5}],

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sagg_bringup.setups import run_experiment
-from sagg_bringup.recorder import make_typestore
+from sagg_bringup.graph.setups import run_experiment
+from sagg_bringup.bags.recorder import make_typestore
 from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 import yaml
 
-from sagg_bringup.experiment import InProcessRun
-from sagg_bringup.setups import load_experiment_config
-from sagg_bringup.arm_params import graph_params, load_graph_config
-from sagg_bringup.params_files import run_only_params, run_values, write_params_file
-from sagg_bringup.processes import pick_domain_id
-from sagg_bringup.split_tracker import SplitTracker
-from sagg_bringup.topics import graph_topics
-from sagg_bringup.recorder import BagWriter, TopicRecorder, TopicSpec, make_typestore
-from sagg_bringup.report import leaves_after
+from sagg_bringup.inprocess.experiment import InProcessRun
+from sagg_bringup.graph.setups import load_experiment_config
+from sagg_bringup.inprocess.arm_params import graph_params, load_graph_config
+from sagg_bringup.graph.params_files import run_only_params, run_values, write_params_file
+from sagg_bringup.graph.processes import pick_domain_id
+from sagg_bringup.graph.split_tracker import SplitTracker
+from sagg_bringup.bags.topics import graph_topics
+from sagg_bringup.bags.recorder import BagWriter, TopicRecorder, TopicSpec, make_typestore
+from sagg_bringup.report.report import leaves_after
 from sagg_common.params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -197,7 +197,7 @@ def test_graph_session_closed_before_run_leaves_a_readable_bag_and_no_context(tm
     # could not read it
     from rosbags.highlevel import AnyReader
 
-    from sagg_bringup.session import GraphSession
+    from sagg_bringup.graph.session import GraphSession
 
     params = graph_params(load_graph_config(ROOT / "config/arm8.yaml"), 100, "lockstep")
     session = GraphSession([], None, graph_topics(params["sagg_learner"], "lockstep"), tmp_path / "bag",
@@ -220,7 +220,7 @@ def test_final_drain_takes_the_stopped_nodes_backlog_and_not_a_live_drivers_stre
     from geometry_msgs.msg import PointStamped
     from sensor_msgs.msg import JointState
 
-    from sagg_bringup.session import GraphSession
+    from sagg_bringup.graph.session import GraphSession
 
     params = graph_params(load_graph_config(ROOT / "config/arm8.yaml"), 100, "lockstep")
     session = GraphSession([], None, graph_topics(params["sagg_learner"], "lockstep"), tmp_path / "bag",

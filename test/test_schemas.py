@@ -25,7 +25,7 @@ import sagg_sim_bridge.params as arm_core
 import sagg_sim_bridge.schema as bridge_schema
 import sagg_sim_bridge.synergy_node as synergy_bridge_node
 import sagg_sim_bridge.synergy_params as synergy_core
-from sagg_bringup.cli import node_schemas
+from sagg_bringup.cli.cli import node_schemas
 
 # node module -> (its schema, the cores' parameters inside it)
 NODES = {

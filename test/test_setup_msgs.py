@@ -218,7 +218,7 @@ CONSOLE_SCRIPTS = {
     'goal_generator': ('sagg_goal_generator', 'sagg_goal_generator.node:main'),
     'learner': ('sagg_low_level', 'sagg_low_level.node:main'),
     'mujoco_bridge': ('sagg_sim_bridge', 'sagg_sim_bridge.node:main'),
-    'sagg': ('sagg_bringup', 'sagg_bringup.cli:main'),
+    'sagg': ('sagg_bringup', 'sagg_bringup.cli.cli:main'),
     'synergy_learner': ('sagg_low_level', 'sagg_low_level.synergy_node:main'),
     'synergy_bridge': ('sagg_sim_bridge', 'sagg_sim_bridge.synergy_node:main'),
 }

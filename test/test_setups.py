@@ -1,4 +1,4 @@
-"""The set-up registry (sagg_bringup.setups, issue 13 item 1): every config is one entry, the entry
+"""The set-up registry (sagg_bringup.graph.setups, issue 13 item 1): every config is one entry, the entry
 names its nodes, schemas, topics and report rows, and what a set-up cannot do is refused by name
 before anything starts."""
 from __future__ import annotations
@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from sagg_bringup import setups
-from sagg_bringup.launch_params import launch_plan
+from sagg_bringup.graph import setups
+from sagg_bringup.graph.launch_params import launch_plan
 from sagg_common.params import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -113,8 +113,9 @@ def _setup_branches(path: Path) -> list[int]:
 
 
 def test_no_setup_branches_outside_the_registry():
-    runners = ["cli.py", "experiment.py", "synergy_experiment.py", "graph.py", "synergy_graph.py", "external.py",
-               "record.py", "launch_params.py", "bags.py", "report.py", "compare.py", "topics.py", "session.py"]
+    runners = ["cli/cli.py", "inprocess/experiment.py", "inprocess/synergy_experiment.py", "graph/graph.py",
+               "graph/synergy_graph.py", "graph/external.py", "graph/record.py", "graph/launch_params.py",
+               "bags/bags.py", "report/report.py", "experiments/compare.py", "bags/topics.py", "graph/session.py"]
     found = {f: _setup_branches(SRC / f) for f in runners}
     assert {f: lines for f, lines in found.items() if lines} == {}
-    assert _setup_branches(SRC / "setups.py")  # (the check sees branches where they are)
+    assert _setup_branches(SRC / "graph/setups.py")  # (the check sees branches where they are)

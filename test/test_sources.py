@@ -276,7 +276,7 @@ def test_sagg_run_names_the_hold_it_gives_up_on(tmp_path):
 
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
-    from sagg_bringup.processes import pick_domain_id
+    from sagg_bringup.graph.processes import pick_domain_id
     from sagg_common.ros_params import reliable
 
     domain = pick_domain_id()

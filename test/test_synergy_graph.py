@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sagg_bringup.setups import load_experiment_config, run_experiment, run_graph
-from sagg_bringup.recorder import make_typestore
+from sagg_bringup.graph.setups import load_experiment_config, run_experiment, run_graph
+from sagg_bringup.bags.recorder import make_typestore
 from sagg_low_level.fixed_context import synergy_from_params
 
 OVERRIDES = {"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0}

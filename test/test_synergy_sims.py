@@ -172,7 +172,7 @@ def test_fishing_runs_are_deterministic():
 
 @pytest.mark.parametrize("config", ["config/quadruped.yaml", "config/fishing.yaml"])
 def test_short_learning_run(config, tmp_path):
-    from sagg_bringup.setups import run_experiment
+    from sagg_bringup.graph.setups import run_experiment
     # 60 experiments: the test goals spread over the reachable outcome set (eval.pool_rounds) lie
     # further out than random synergies' outcomes; 30 experiments did not always beat the rest outcome
     res = run_experiment(config, "sagg-riac", 0, 60, 30, tmp_path, progress=False,

@@ -40,7 +40,7 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={PACKAGE: ['claims.yaml']},  # `sagg reproduce`'s claim registry
+    package_data={PACKAGE + '.experiments': ['claims.yaml']},  # `sagg reproduce`'s claim registry
     data_files=DATA_FILES,
     install_requires=['setuptools'],
     # Optional: `sagg bench compare --ray` (pinned with its dependencies in requirements-ray.txt).
@@ -52,7 +52,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'sagg = sagg_bringup.cli:main',
+            'sagg = sagg_bringup.cli.cli:main',
         ],
     },
 )

@@ -5,7 +5,7 @@
 
 ``config``: an installed config's name (``arm8``, ``arm15``, ``quadruped``, ...) or any parameter
 file (a config, or the ``params.yaml`` a ``sagg run`` wrote). Every derived parameter is filled in
-from it exactly as ``sagg run`` does (``sagg_bringup.launch_params.launch_plan``): the learner's
+from it exactly as ``sagg run`` does (``sagg_bringup.graph.launch_params.launch_plan``): the learner's
 ``joints``, ``joint_limits``, ``rest_posture`` from the simulated arm (``driver:=sim``) or the
 config's own (``driver:=external``: your arm's driver runs already; no bridge is started), the
 synergy set-ups' nodes. The expanded parameter file is written to a temporary directory and its
@@ -19,7 +19,7 @@ lost all the same are counted and make it exit with code 3 (``sagg record``'s do
 ``sigterm_timeout`` (30 s) is above its drain limit (20 s), so launch does not cut that short.
 ``micro_actions``: the learner stops there (0 = never). The run-only values (``max_micro_actions``,
 a config's ``checkpoint_dir`` / ``resume``) are given to the nodes as parameters of their own,
-not in the parameter file (``sagg_bringup.params_files.run_values``).
+not in the parameter file (``sagg_bringup.graph.params_files.run_values``).
 """
 import shutil
 import tempfile
@@ -31,9 +31,9 @@ from launch.event_handlers import OnShutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from sagg_bringup.processes import find_node_executable
-from sagg_bringup.launch_params import launch_plan, write_plan
-from sagg_bringup.params_files import run_values
+from sagg_bringup.graph.processes import find_node_executable
+from sagg_bringup.graph.launch_params import launch_plan, write_plan
+from sagg_bringup.graph.params_files import run_values
 
 
 def _nodes(context):

@@ -23,7 +23,7 @@ Procedure (every set-up, every strategy, every seed the same):
     reaching attempt"). Each test goal has its own evaluation arm (motor noise from the goal's own
     stream, so a goal's score does not depend on the other goals), and all goals are advanced
     together (:func:`sagg_low_level.evaluate.evaluate_batch`: the same floats as goal after goal,
-    the model's work batched; ``sagg_bringup.arm_eval``).
+    the model's work batched; ``sagg_bringup.inprocess.arm_eval``).
   - synergies: :func:`sagg_low_level.fixed_context.evaluate_fixed`: one synergy θ from the reaching
     phase, run once from rest; a trial without outcome scores as the rest outcome.
 * **Metrics** (:func:`error_metrics`, computed at every evaluation point of a curve and stored in

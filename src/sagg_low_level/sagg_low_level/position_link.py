@@ -13,7 +13,7 @@ A command is answered by a *fresh, settled* observation: a joint state and a tip
 than the newest ones received before the command went out, every |velocity| below
 ``settle_velocity`` (or, ``settle_timeout`` s after the command, the latest fresh one). A lockstep
 bridge publishes exactly one such state per command, so the run equals the in-process one
-(:func:`sagg_bringup.synergy_experiment.posture_outcome`). Bad input is rejected through the node's
+(:func:`sagg_bringup.inprocess.synergy_experiment.posture_outcome`). Bad input is rejected through the node's
 InputGuard (field, value, allowed range; counted on /diagnostics) and changes no state.
 """
 from __future__ import annotations

@@ -39,9 +39,9 @@ from sagg_low_level.fixed_context import evaluate_fixed
 from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
 from sagg_sim_bridge.arm import test_goals
 
-from ..arm_eval import eval_arms
-from ..experiment import InProcessRun, cached_reachable_area
-from ..setups import in_process_run
+from ..inprocess.arm_eval import eval_arms
+from ..inprocess.experiment import InProcessRun, cached_reachable_area
+from ..graph.setups import in_process_run
 from .base_tree import check_source, exported, pythonpath, repo_root
 
 SETUPS = {"arm8": ("config/arm8.yaml", {}), "arm15": ("config/arm15.yaml", {}),

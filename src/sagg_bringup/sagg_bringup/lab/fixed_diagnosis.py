@@ -27,7 +27,7 @@ import numpy as np
 from sagg_common.params import parse_set
 from sagg_common.regions import interest_probabilities
 
-from ..setups import in_process_run
+from ..graph.setups import in_process_run
 
 
 def diagnose(config: str, strategy: str, seed: int, points: list[int], overrides: dict) -> list[dict]:

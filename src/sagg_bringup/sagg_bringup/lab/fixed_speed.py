@@ -27,10 +27,13 @@ from .base_tree import check_source, exported, pythonpath, repo_root
 _CHILD = r"""
 import json, sys, time
 try:
-    from sagg_bringup.setups import in_process_run
-except ImportError:  # a checkout from before the set-up registry
-    from sagg_bringup.synergy_experiment import load_synergy_config, SynergyRun
-    in_process_run = lambda c, o: SynergyRun(load_synergy_config(c, o))
+    from sagg_bringup.graph.setups import in_process_run
+except ImportError:
+    try:  # a checkout from before the job sub-packages (issue 26)
+        from sagg_bringup.setups import in_process_run
+    except ImportError:  # a checkout from before the set-up registry
+        from sagg_bringup.synergy_experiment import load_synergy_config, SynergyRun
+        in_process_run = lambda c, o: SynergyRun(load_synergy_config(c, o))
 cfg, strategy, seed, n, ov = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), json.loads(sys.argv[5])
 run = in_process_run(cfg, dict(ov, context="fixed", strategy=strategy, seed=seed))
 c0, w0 = time.process_time(), time.perf_counter()

@@ -47,7 +47,7 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from sagg_bringup.recorder import msg_class
+from sagg_bringup.bags.recorder import msg_class
 from sagg_common.cdr import (JointStateDecoder, PointStampedEncoder, decode_f64_array, decode_point_stamped,
                              encode_f64_array, encode_joint_state)
 from sagg_common.msg_codecs import encode_report, encode_sample
@@ -55,10 +55,10 @@ from sagg_common.params import parse_set
 from sagg_common.ros_params import reliable
 from sagg_low_level.checkpoint import checkpoint_memory
 
-from ..bag_reader import bag_messages
-from ..arm_params import graph_params, load_graph_config
-from ..processes import find_node_executable, pick_domain_id
-from ..topics import watched_topics
+from ..bags.bag_reader import bag_messages
+from ..inprocess.arm_params import graph_params, load_graph_config
+from ..graph.processes import find_node_executable, pick_domain_id
+from ..bags.topics import watched_topics
 
 SEC = 1_000_000_000
 RESUME_LIMIT = 60.0  # s after a case within which learning must have gone on again
@@ -522,7 +522,7 @@ def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None
     # other publishers)
     try:
         # lazy (heavy): relearn loads mujoco (the evaluation set-up); `sagg` imports this module
-        from ..bags import relearn
+        from ..bags.bags import relearn
         r = relearn([run_dir / "bag"], run_dir / "relearn", evaluate=False, report=False, out=lambda _: None)
         out["relearn rebuilds the run's memory"] = (r["memory"]["digest"] == s["memory"]["digest"]
                                                     and r["reports"] == s.get("reports"))

@@ -1,5 +1,5 @@
 """The README's live-view screenshot: the last ``/sagg/markers`` MarkerArray of a bag, drawn from
-above with matplotlib (:func:`sagg_bringup.markers.render_markers`).
+above with matplotlib (:func:`sagg_bringup.graph.markers.render_markers`).
 
     .venv/bin/python -m sagg_bringup.lab.marker_figure RUN/bag docs/figures/markers.png [--title T]
 """
@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from sagg_bringup.markers import marker_arrays_from_bag, render_markers
+from sagg_bringup.graph.markers import marker_arrays_from_bag, render_markers
 
 
 def main(argv: list[str] | None = None) -> int:

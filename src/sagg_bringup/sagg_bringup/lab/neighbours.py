@@ -27,11 +27,11 @@ from pathlib import Path
 from sagg_common.params import parse_set
 from sagg_common.ros_params import reliable
 
-from ..arm_params import graph_params, load_graph_config
+from ..inprocess.arm_params import graph_params, load_graph_config
 
-from ..processes import find_node_executable, pick_domain_id
-from ..recorder import TopicSpec, msg_class
-from ..topics import watched_topics
+from ..graph.processes import find_node_executable, pick_domain_id
+from ..bags.recorder import TopicSpec, msg_class
+from ..bags.topics import watched_topics
 
 GRIPPER_RATE = 20.0  # Hz: an ordinary gripper driver's joint-state rate
 

@@ -40,7 +40,7 @@ from sagg_common.rng import stream
 from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
 from sagg_sim_bridge.params import arm_spec_from_params
 
-from ..setups import load_experiment_config, run_experiment
+from ..graph.setups import load_experiment_config, run_experiment
 from .quality import context_overrides
 
 PEER_SCRIPT = Path(__file__).with_name("peer_explauto.py")

@@ -29,7 +29,7 @@ import time
 
 from sagg_common.ros_params import make_executor
 
-from ..processes import pick_domain_id
+from ..graph.processes import pick_domain_id
 
 PING, PONG = "/sagg_pingpong/ping", "/sagg_pingpong/pong"
 JS, TIP = "/sagg_pingpong/joint_states", "/sagg_pingpong/tip"

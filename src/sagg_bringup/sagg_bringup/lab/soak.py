@@ -4,7 +4,7 @@ no file descriptors or shared-memory segments leak (issue 6, item 6).
 Two modes, each printing a table of (micro-actions, stored samples, RSS, bytes of the sample
 memory, open fds) every ``--every`` micro-actions and a verdict block:
 
-- ``inprocess``: :class:`~sagg_bringup.experiment.InProcessRun` stepped to N micro-actions in this
+- ``inprocess``: :class:`~sagg_bringup.inprocess.experiment.InProcessRun` stepped to N micro-actions in this
   process (no ROS). RSS / fds are this process's (``/proc/self``).
 - ``graph``: the three node processes (the same console scripts and parameter file as ``sagg run``,
   lockstep), N micro-actions; progress read from ``/sagg/status`` by a small node in this process;
@@ -36,9 +36,9 @@ import numpy as np
 from sagg_common.journal import write_json_atomic
 from sagg_common.ros_params import reliable
 
-from ..arm_params import NODES, graph_params, load_graph_config
-from ..params_files import run_values, set_checkpoint_dirs, write_params_file
-from ..processes import GraphError, NodeGroup, node_processes
+from ..inprocess.arm_params import NODES, graph_params, load_graph_config
+from ..graph.params_files import run_values, set_checkpoint_dirs, write_params_file
+from ..graph.processes import GraphError, NodeGroup, node_processes
 
 
 def rss_bytes(pid: int | str = "self") -> int:
@@ -102,8 +102,8 @@ def soak_inprocess(config: str | Path, micro_actions: int, every: int,
                    overrides: dict[str, Any] | None = None, out: Callable[[str], None] = print) -> dict:
     """In-process soak; returns the rows and the verdict numbers."""
     # lazy (heavy): mujoco
-    from ..experiment import InProcessRun
-    from ..setups import load_experiment_config
+    from ..inprocess.experiment import InProcessRun
+    from ..graph.setups import load_experiment_config
 
     shm0 = shm_entries()
     fd0 = open_fds()

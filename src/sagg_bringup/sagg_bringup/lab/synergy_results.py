@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..compare import by_strategy, curve_stats, load_results, pairwise_tests
+from ..experiments.compare import by_strategy, curve_stats, load_results, pairwise_tests
 
 ORDER = ("sagg-riac", "sagg-random", "actuator-random", "actuator-riac")
 

@@ -26,9 +26,9 @@ from sagg_low_level import learner as learner_mod, memory, memory_search, reach_
 from sagg_low_level.evaluate import evaluate_batch
 from sagg_sim_bridge.arm import ArmSim, test_goals
 
-from ..arm_eval import eval_arms
-from ..experiment import InProcessRun, cached_reachable_area
-from ..setups import in_process_run
+from ..inprocess.arm_eval import eval_arms
+from ..inprocess.experiment import InProcessRun, cached_reachable_area
+from ..graph.setups import in_process_run
 
 
 class Counters:

@@ -31,7 +31,10 @@ from .base_tree import check_source, exported, pythonpath, repo_root
 _CHILD = r"""
 import hashlib, json, sys, time
 import numpy as np
-from sagg_bringup.setups import in_process_run
+try:
+    from sagg_bringup.graph.setups import in_process_run
+except ImportError:  # a checkout from before the job sub-packages (issue 26)
+    from sagg_bringup.setups import in_process_run
 cfg, ov = sys.argv[1], json.loads(sys.argv[2])
 run = in_process_run(cfg, ov)
 import sagg_low_level

@@ -1,7 +1,7 @@
 """Run reports: ``report.md`` + PNG figures in the spirit of the paper's (ROS-free).
 
 :func:`write_report` takes a result-like dict, either an in-process ``result.json``
-(:func:`sagg_bringup.experiment.build_result`) or a graph run's ``summary.json`` (same keys, plus the
+(:func:`sagg_bringup.inprocess.experiment.build_result`) or a graph run's ``summary.json`` (same keys, plus the
 recording), and writes into ``out_dir``:
 
 - ``learning_curve.png``: mean / median test error vs micro-actions (paper Fig. 9-12 style);
@@ -375,7 +375,7 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
 
     ``result`` is a result-like dict (or a path to ``result.json`` / ``summary.json``); ``area``
     (optional) the run's ReachableArea of Y when already computed; ``setup_rows``: the rows that
-    describe the run's robot (the set-up registry's :meth:`~sagg_bringup.setups.Setup.report_rows`)."""
+    describe the run's robot (the set-up registry's :meth:`~sagg_bringup.graph.setups.Setup.report_rows`)."""
     if not isinstance(result, dict):
         result = json.loads(Path(result).read_text())
     for key in ("strategy", "seed", "config", "micro_actions", "curve"):

@@ -1,7 +1,7 @@
 """Where an in-process run's micro-actions (fixed context: experiments) went (issue 10): counts by phase (reaching,
 exploration, babbling) and returns to rest, split by whether the self-generated goal they served
 lies in the arm's reachable area; and how close the run's tips came to each test goal. ROS-free;
-written into result.json by :mod:`sagg_bringup.experiment`."""
+written into result.json by :mod:`sagg_bringup.inprocess.experiment`."""
 from __future__ import annotations
 
 import numpy as np

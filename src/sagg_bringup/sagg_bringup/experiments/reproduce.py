@@ -1,8 +1,8 @@
 """``sagg reproduce CLAIM|all``: settle the paper's claims, each at its own set-up and scale.
 
 The claims and the experiments they are decided on are data (``claims.yaml`` next to this module).
-Every experiment runs through ``sagg bench compare`` (:func:`sagg_bringup.sweep.run_compare`): the
-same runs, the same resumable layout and the same statistics (:mod:`sagg_bringup.compare`). This
+Every experiment runs through ``sagg bench compare`` (:func:`sagg_bringup.experiments.sweep.run_compare`): the
+same runs, the same resumable layout and the same statistics (:mod:`sagg_bringup.experiments.compare`). This
 module only picks the experiments, reads their ``summary.json`` and writes the verdicts.
 
 Layout of ``--out DIR``::
@@ -36,7 +36,7 @@ from sagg_common.params import STRATEGIES, ConfigError
 
 from .archive import archive_experiment, archive_run, histogram_counts, histogram_of, restore_experiment
 from .mechanisms import mechanism_table, strategy_mechanisms
-from .results import code_commit, run_commits
+from ..inprocess.results import code_commit, run_commits
 
 REGISTRY = Path(__file__).with_name("claims.yaml")
 CLAIM_FIELDS = ("id", "section", "claim", "setup", "strategies", "seeds", "micro_actions", "paper",
@@ -49,7 +49,7 @@ STATISTICS = ("mannwhitney_p", "welch_p")
 def load_registry(path: str | Path = REGISTRY) -> dict:
     """The claim registry, checked: every claim names a known experiment, known strategies of that
     experiment, a known metric and statistic; every experiment has a paper scale and a config.
-    (Its ``sensitivity`` section is checked by :func:`sagg_bringup.sensitivity.load_sensitivity`.)"""
+    (Its ``sensitivity`` section is checked by :func:`sagg_bringup.experiments.sensitivity.load_sensitivity`.)"""
     reg = yaml.safe_load(Path(path).read_text())
     if not isinstance(reg, dict) or reg.get("format") != "sagg.claims/1":
         raise ConfigError(f"{path}: not a sagg.claims/1 registry")
@@ -103,7 +103,7 @@ def resolve_config(config: str) -> Path:
     repository this package sits in, else the installed share directory."""
     here = Path(__file__).resolve()
     # setup.py installs config/*.yaml to <prefix>/share/sagg_bringup/config
-    candidates = [Path(config), here.parents[3] / config, Path(sys.prefix) / "share" / "sagg_bringup" / config]
+    candidates = [Path(config), here.parents[4] / config, Path(sys.prefix) / "share" / "sagg_bringup" / config]
     for c in candidates:
         if c.is_file():
             return c
@@ -188,7 +188,7 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
                   archive: str | Path | None = None, run: bool = True) -> list[dict]:
     """Run (or resume) every experiment the selected claims need, then write claims.json and
     report.md with figures. Returns the claims.json list. ``archive``: a directory of archived runs
-    (:mod:`sagg_bringup.archive`) restored before and updated after every run. ``run=False``: run
+    (:mod:`sagg_bringup.experiments.archive`) restored before and updated after every run. ``run=False``: run
     nothing and decide on the runs finished so far (an interim verdict while paper-scale runs go
     on): each row's ``seeds`` are then the seeds every strategy of the experiment has finished,
     ``seeds_planned`` the scale's, ``complete`` whether they are all there, and ``ours`` gives each
@@ -310,7 +310,7 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
           f"Written at commit `{commit}`; each experiment below names the commit its runs computed at. "
           f"Every number below comes from `DIR/experiments/<experiment>` "
           f"(one `sagg bench compare` each; seeds 0..n-1). Verdict rules: see "
-          f"`sagg_bringup/reproduce.py` (alpha = {rows[0]['alpha'] if rows else '—'}).", ""]
+          f"`sagg_bringup/experiments/reproduce.py` (alpha = {rows[0]['alpha'] if rows else '—'}).", ""]
     partial = [r["id"] for r in rows if not r.get("complete", True)]
     if partial:
         md += [f"**Interim (`--no-run`)**: {len(partial)} of {len(rows)} claims are decided on fewer seeds "
@@ -353,7 +353,7 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
         md.append("")
         if first.get("mechanisms"):
             md += ["Where the micro-actions went (the evidence behind the verdicts; "
-                   "sagg_bringup/mechanisms.py):", "", mechanism_table(first["mechanisms"]), ""]
+                   "sagg_bringup/experiments/mechanisms.py):", "", mechanism_table(first["mechanisms"]), ""]
         if runs:
             # the comparison's own figure (mean ± std over seeds, drawn by write_summary)
             shutil.copyfile(d / "curves.png", figs / f"{exp}_curves.png")
@@ -368,7 +368,7 @@ def write_report(out: Path, rows: list[dict], reg: dict, scale: str, commit: str
 def plot_goal_histograms(results: list[dict], path: Path, title: str) -> bool:
     """2-D histograms of the self-generated goals (first two task dimensions, all seeds pooled), one
     panel per strategy that chooses goals, with the test goals on top; from each run's goal
-    histogram (:func:`sagg_bringup.archive.histogram_of`: archived runs have no goal list). False
+    histogram (:func:`sagg_bringup.experiments.archive.histogram_of`: archived runs have no goal list). False
     when no strategy has goals (nothing drawn)."""
     # lazy (heavy): matplotlib
     import matplotlib

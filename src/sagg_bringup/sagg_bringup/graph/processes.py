@@ -160,7 +160,7 @@ class NodeGroup:
     """The node processes of one graph on one ROS domain (``domain_id``, or a private random one:
     :func:`pick_domain_id`) with localhost discovery unless ``localhost`` is False (an external
     driver may run on another host: the environment's range then); this process joins the same
-    discovery range (the rmw reads it at init). Used by ``sagg run`` (:class:`~sagg_bringup.session.GraphSession`)
+    discovery range (the rmw reads it at init). Used by ``sagg run`` (:class:`~sagg_bringup.graph.session.GraphSession`)
     and the lab's graph benchmark and soak, so every graph starts and stops its nodes one way."""
 
     def __init__(self, procs: list[NodeProcess], domain_id: int | None = None, localhost: bool = True):

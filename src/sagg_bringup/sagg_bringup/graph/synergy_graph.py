@@ -1,8 +1,8 @@
 """``sagg run`` for the fixed-context set-ups (quadruped, fishing rod, the arm with ``context: fixed``;
-each a :class:`~sagg_bringup.setups.FixedContext` entry of the registry, passed in as ``setup``): goal
+each a :class:`~sagg_bringup.graph.setups.FixedContext` entry of the registry, passed in as ``setup``): goal
 generator, synergy learner and the set-up's bridge as processes, recorded and evaluated.
 
-Like :func:`~sagg_bringup.graph.run_graph` (same helpers: node processes with a private
+Like :func:`~sagg_bringup.graph.graph.run_graph` (same helpers: node processes with a private
 ``ROS_DOMAIN_ID`` and localhost discovery, SIGINT then SIGKILL, the mcap recorder), with three
 differences:
 
@@ -31,10 +31,10 @@ from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
 from .params_files import run_only_params, write_params_file
 from .processes import check_domain_id, node_processes
-from .results import run_overrides
+from ..inprocess.results import run_overrides
 from .run_state import finite_sample_problem
 from .session import STALL_TIMEOUT, GraphSession
-from .synergy_experiment import SynergyRun, load_synergy_config, outcome_extents
+from ..inprocess.synergy_experiment import SynergyRun, load_synergy_config, outcome_extents
 
 
 def resolve_fixed_graph(setup, config_path: str | Path, overrides: dict[str, Any] | None) -> dict[str, dict]:

@@ -1,7 +1,7 @@
 """``sagg run CONFIG --driver external``: the goal generator and the learner against a robot driver
 that is already running (your arm's ros2_control stack, a tracker, or ``test/fake_driver.py``).
 
-Like :func:`~sagg_bringup.graph.run_graph` (same session: private ``ROS_DOMAIN_ID`` unless
+Like :func:`~sagg_bringup.graph.graph.run_graph` (same session: private ``ROS_DOMAIN_ID`` unless
 ``--domain-id`` names the driver's, recorder, progress, summary and report), except:
 
 - no bridge is started; before the nodes start, the driver's side of the contract is checked and
@@ -45,15 +45,15 @@ from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import EvolvingContextLearner, SCHEMA, step_toward, stepped_move_limit
 from sagg_low_level.memory import SampleMemory
 
-from .arm_params import NODES, core_config, graph_params, resolve_arm
-from .evaluator import Evaluator
+from ..inprocess.arm_params import NODES, core_config, graph_params, resolve_arm
+from ..inprocess.evaluator import Evaluator
 from .params_files import run_only_params, set_checkpoint_dirs, write_params_file
 from .processes import GraphError, check_domain_id, node_processes
 from .session import REPORT_PATIENCE, STALL_TIMEOUT, GraphSession
 from .split_tracker import SplitTracker
-from .report import arm_rows, write_report
-from .results import run_overrides
-from .topics import graph_topics
+from ..report.report import arm_rows, write_report
+from ..inprocess.results import run_overrides
+from ..bags.topics import graph_topics
 
 JS_TYPE = "sensor_msgs/msg/JointState"
 TIP_TYPE = "geometry_msgs/msg/PointStamped"
@@ -75,7 +75,7 @@ def explicit_joints(config_path: str | Path, overrides: dict[str, Any] | None) -
 
 
 def external_params(full: dict[str, dict], micro_actions: int, own_joints: bool, spec=None) -> dict[str, dict]:
-    """The nodes' parameters for an external driver: :func:`~sagg_bringup.arm_params.graph_params`, but
+    """The nodes' parameters for an external driver: :func:`~sagg_bringup.inprocess.arm_params.graph_params`, but
     the learner keeps the config's ``joints`` / ``joint_limits`` / ``rest_posture`` when
     ``own_joints`` (they are checked here, before anything starts); ``spec``: the config's arm, when
     the caller has it."""

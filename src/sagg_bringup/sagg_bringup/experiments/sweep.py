@@ -27,8 +27,8 @@ from typing import Any, Callable
 from sagg_common.journal import write_json_atomic
 from sagg_common.params import STRATEGIES, ConfigError
 
-from .results import code_commit
-from .setups import load_experiment_config, run_experiment
+from ..inprocess.results import code_commit
+from ..graph.setups import load_experiment_config, run_experiment
 
 FINGERPRINT_FORMAT = "sagg.compare/1"
 

@@ -18,7 +18,7 @@ Which entry a config is (:func:`setup_of`): the parameter ``setup`` (under ``/**
 the arm (``evolving``) or the fixed-context arm (``fixed``). This module is the only place that
 branches on the set-up: the CLI, the in-process and graph runners, the recorder, ``sagg relearn``,
 the launch plan and the report ask it. A new set-up is one module with its adapter (see
-:class:`~sagg_bringup.synergy_experiment.SynergySetup`) plus one line in :data:`SETUPS`.
+:class:`~sagg_bringup.inprocess.synergy_experiment.SynergySetup`) plus one line in :data:`SETUPS`.
 """
 from __future__ import annotations
 
@@ -33,8 +33,11 @@ from sagg_low_level.learner import CONTEXT
 from sagg_sim_bridge.schema import BRIDGE_SCHEMA as ARM_BRIDGE_SCHEMA
 from sagg_sim_bridge.synergy_params import SETUPS as SYNERGY_SIMS
 
-from . import arm_params, bags, experiment, external, graph, report, synergy_experiment, synergy_graph, topics
-from .recorder import TopicSpec
+from ..bags import bags, topics
+from ..inprocess import arm_params, experiment, synergy_experiment
+from ..report import report
+from . import external, graph, synergy_graph
+from ..bags.recorder import TopicSpec
 
 GOAL_GENERATOR = ("sagg_goal_generator", "goal_generator")  # (package, console script)
 

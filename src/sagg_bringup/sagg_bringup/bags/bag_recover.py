@@ -1,7 +1,7 @@
 """Recovering a bag whose recorder was killed (SIGKILL, the OOM killer, a power cut), as
 ``ros2 bag reindex`` does for rosbag2 (ROS-free).
 
-:class:`~sagg_bringup.recorder.BagWriter` writes ``metadata.yaml`` and the mcap's summary section
+:class:`~sagg_bringup.bags.recorder.BagWriter` writes ``metadata.yaml`` and the mcap's summary section
 only when it closes. A killed recorder leaves ``<bag>/<name>.mcap`` holding the header and the
 chunks written so far (rosbags writes a chunk each time 1 MiB of messages is pending; the open
 chunk lives in the recorder's memory and dies with it), maybe a torn record at the end, and no

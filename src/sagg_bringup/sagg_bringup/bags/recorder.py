@@ -218,7 +218,7 @@ ACK_TOPIC = "/sagg/recorded"
 class Acknowledger:
     """The recorder's side of the learner's backpressure (``recorder_max_lag``): ``source()``, the
     samples recorded and accepted contiguously (from index 0, or from where the recorder's stream
-    started: :meth:`~sagg_bringup.run_state.RunState.start_samples_at`), on /sagg/recorded
+    started: :meth:`~sagg_bringup.graph.run_state.RunState.start_samples_at`), on /sagg/recorded
     (std_msgs/UInt64) at every :meth:`tick` where it changed, and at least every ``period`` s (a
     learner that subscribes later, e.g. a resumed one, gets it too). The publisher is created at
     the first value ``source()`` knows (not None): the learner waits while /sagg/recorded has a

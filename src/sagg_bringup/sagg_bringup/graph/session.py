@@ -15,10 +15,10 @@ from sagg_common.progress import Progress
 
 from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
 from .processes import GraphError, NodeGroup, NodeProcess
-from .recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
-from .results import goal_share_stats
+from ..bags.recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
+from ..inprocess.results import goal_share_stats
 from .run_state import RunState
-from .topics import awaited_topics
+from ..bags.topics import awaited_topics
 
 # s without a new competence report after which a finished run stops waiting for the missing ones
 # (they are counted as dropped; RunState.all_recorded)
@@ -41,7 +41,7 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
 
 class GraphSession:
     """The orchestration one ``sagg run`` graph run needs, for the arm (:func:`run_graph`) and the
-    synergy set-ups (:func:`~sagg_bringup.synergy_graph.run_synergy_graph`): the node processes on
+    synergy set-ups (:func:`~sagg_bringup.graph.synergy_graph.run_synergy_graph`): the node processes on
     a private ``ROS_DOMAIN_ID`` (``domain_id``, or a random one) with localhost discovery; this
     process's rclpy node, executor and ``/sagg/evaluation`` publisher; the mcap bag of ``topics``
     and its recorder (feeding :attr:`st`, a :class:`RunState`); Ctrl-C / SIGTERM as a flag; the wait

@@ -29,7 +29,7 @@ def config_dirs() -> list[Path]:
     dirs = [Path(p) / "share" / "sagg_bringup" / "config"
             for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
     dirs.append(Path(sys.prefix) / "share" / "sagg_bringup" / "config")
-    dirs.append(Path(__file__).resolve().parents[3] / "config")
+    dirs.append(Path(__file__).resolve().parents[4] / "config")
     return dirs
 
 
@@ -63,14 +63,14 @@ class LaunchPlan:
 
     config: Path
     driver: str
-    setup: str  # the set-up registry's name (sagg_bringup.setups)
+    setup: str  # the set-up registry's name (sagg_bringup.graph.setups)
     nodes: list[tuple[str, str, str]] = field(default_factory=list)
     params: dict[str, dict] = field(default_factory=dict)
 
 
 def launch_plan(config: str, driver: str = "sim", max_micro_actions: int = 0) -> LaunchPlan:
     """The parameters ``sagg run`` would give the nodes for ``config`` (without its recorder waits:
-    :func:`~sagg_bringup.params_files.run_only_params`), and the nodes for ``driver`` (``sim``: with the
+    :func:`~sagg_bringup.graph.params_files.run_only_params`), and the nodes for ``driver`` (``sim``: with the
     MuJoCo bridge; ``external``: the goal generator and the learner only). ``max_micro_actions``:
     the learner's stop (0 = never)."""
     if driver not in DRIVERS:

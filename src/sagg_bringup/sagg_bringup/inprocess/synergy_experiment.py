@@ -2,7 +2,7 @@
 fixed context): the goal generator, the fixed-context learner (Alg. 4) and a simulator wired together
 without ROS (``sagg experiment`` with a config whose ``setup`` is ``quadruped`` or ``fishing``, or an
 arm config with the learner parameter ``context: fixed``). Writes the same ``result.json`` keys as
-the arm's :func:`~sagg_bringup.experiment.run_experiment` (``micro_actions`` counts experiments, i.e.
+the arm's :func:`~sagg_bringup.inprocess.experiment.run_experiment` (``micro_actions`` counts experiments, i.e.
 executions with an outcome) plus a ``synergy`` section (trials, discarded trials, outcomes).
 
 What differs between the set-ups is one small adapter (:class:`SynergySetup`, :class:`ArmPostureSetup`):

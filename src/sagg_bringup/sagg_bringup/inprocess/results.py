@@ -113,7 +113,7 @@ def result_dict(run, curve: list[dict], area, total: int, eval_seconds: float, d
                 memory: dict) -> dict:
     """The ``result.json`` keys every in-process run writes (arm and synergy runs): ``done`` =
     micro-actions (experiments) learned, ``memory`` = the memory's size and digest; ``phases``:
-    where they went (``run.phases``, a :class:`~sagg_bringup.phases.PhaseCounter`)."""
+    where they went (``run.phases``, a :class:`~sagg_bringup.inprocess.phases.PhaseCounter`)."""
     gen, learner = run.generator, run.learner
     goals = [{"seq": g.seq, "position": g.position.tolist(), "mode": g.mode,
               "mode_name": MODE_NAMES[g.mode], "competence": g.competence,

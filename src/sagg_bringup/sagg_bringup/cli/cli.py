@@ -11,16 +11,16 @@ import yaml
 
 from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
 
-from .check_driver import main_check_driver
-from .params_files import read_run_file
-from .processes import GraphError
-from .reach import main_reach
-from .lab.hostile import bench_hostile
-from .lab.soak import main_soak
-from .record import LOST_EXIT_CODE, default_out, record
-from .report import write_report
-from .reproduce import estimate, run_reproduce
-from .sensitivity import run_sensitivity
+from ..graph.check_driver import main_check_driver
+from ..graph.params_files import read_run_file
+from ..graph.processes import GraphError
+from ..graph.reach import main_reach
+from ..lab.hostile import bench_hostile
+from ..lab.soak import main_soak
+from ..graph.record import LOST_EXIT_CODE, default_out, record
+from ..report.report import write_report
+from ..experiments.reproduce import estimate, run_reproduce
+from ..experiments.sensitivity import run_sensitivity
 
 # A command whose modules load rclpy, mujoco or matplotlib imports them when it runs (`# lazy (heavy)`:
 # they take seconds to import, and `sagg params` or `sagg bench table` need none of them); light
@@ -40,7 +40,7 @@ def positive_int(text: str) -> int:
 def node_schemas() -> dict:
     """Every node's full parameter schema (core parameters + node-only ones: topics, timing...)."""
     # lazy (heavy): ROS, mujoco
-    from .setups import node_tables
+    from ..graph.setups import node_tables
     return node_tables()  # (the set-ups' nodes; another set-up's node of a section: "section (script)")
 
 
@@ -182,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--no-eval", action="store_true", help="skip the evaluation on the test goals")
     rl.add_argument("--no-report", action="store_true", help="no report.md / figures")
 
-    rq = sub.add_parser("reproduce", help="settle the paper's claims (registry sagg_bringup/claims.yaml) "
+    rq = sub.add_parser("reproduce", help="settle the paper's claims (registry sagg_bringup/experiments/claims.yaml) "
                                           "through bench compare: claims.json, report.md; resumable")
     rq.add_argument("claims", nargs="+", metavar="CLAIM",
                     help="claim ids, experiment names, or all; or 'sensitivity': the Sec. 3.9 15-DOF "
@@ -319,8 +319,8 @@ def _run_options(args) -> dict:
 
 def _run(args) -> int:
     # lazy (heavy): ROS, mujoco
-    from .launch_params import resolve_config
-    from .setups import run_graph, setup_of
+    from ..graph.launch_params import resolve_config
+    from ..graph.setups import run_graph, setup_of
     if args.resume:
         return _resume(args)
     if args.config is None:
@@ -373,7 +373,7 @@ def _resume(args) -> int:
     """``sagg run --resume DIR``: the same run, continued (timing and budget from DIR unless given)."""
 
     # lazy (heavy): ROS, mujoco
-    from .setups import run_graph
+    from ..graph.setups import run_graph
     out = Path(args.resume)
     params_file = out / "params.yaml"
     if args.config is not None or args.seed is not None or args.strategy is not None or args.set:
@@ -420,7 +420,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "experiment":
             # lazy (heavy): ROS, mujoco
-            from .setups import run_experiment
+            from ..graph.setups import run_experiment
             res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions,
                                  args.eval_every, args.out, progress=not args.quiet,
                                  overrides=parse_set(args.set))
@@ -431,14 +431,14 @@ def main(argv: list[str] | None = None) -> int:
                   f"{Path(args.out) / 'result.json'}")
             if args.report:
                 # lazy (heavy): ROS, mujoco
-                from .setups import write_report
+                from ..graph.setups import write_report
                 print(f"report: {write_report(res, args.out)}")
             return 0
         if args.command == "run":
             return _run(args)
         if args.command == "replay":
             # lazy (heavy): mujoco
-            from .bags import replay
+            from ..bags.bags import replay
             res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
                          domain_id=args.domain_id, progress=not args.quiet, include_commands=args.include_commands)
             return 130 if res["interrupted"] else 0
@@ -454,7 +454,7 @@ def main(argv: list[str] | None = None) -> int:
             return main_reach(args)
         if args.command == "relearn":
             # lazy (heavy): ROS, mujoco
-            from .setups import relearn
+            from ..graph.setups import relearn
             s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
             return 0 if s["goals_match"] and s["regions_match"] is not False else 1
         if args.command == "reproduce":
@@ -482,12 +482,12 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "bench" and args.bench == "graph":
             # lazy (heavy): mujoco
-            from .lab.bench import bench_graph
+            from ..lab.bench import bench_graph
             bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
             return 0
         if args.command == "bench" and args.bench == "riac":
             # lazy (heavy): mujoco
-            from .lab.riac_speed import bench_riac
+            from ..lab.riac_speed import bench_riac
             res = bench_riac(args.config, args.micro_actions, args.window, overrides=parse_set(args.set))
             return 0 if all(res["identical"].values()) else 1
         if args.command == "bench" and args.bench == "soak":
@@ -497,33 +497,33 @@ def main(argv: list[str] | None = None) -> int:
             return 0 if res["ok"] else 1
         if args.command == "bench" and args.bench == "table":
             # lazy (heavy): scipy
-            from .compare import load_results, summary_markdown
+            from ..experiments.compare import load_results, summary_markdown
             results = load_results(args.results)
             if not results:
                 raise ConfigError(f"no result.json found under {', '.join(args.results)}")
             print(summary_markdown(results))
             if args.plot:
                 # lazy (heavy): scipy
-                from .compare import plot_curves
+                from ..experiments.compare import plot_curves
                 plot_curves(results, args.plot, args.title)
             return 0
         if args.command == "bench" and args.bench == "compare":
             # lazy (heavy): mujoco
-            from .sweep import run_compare
+            from ..experiments.sweep import run_compare
             summ = run_compare(args.config, args.strategies, args.seeds, args.micro_actions,
                                args.eval_every, args.out, workers=args.workers, ray_address=args.ray,
                                overrides=parse_set(args.set), base_seed=args.base_seed)
             return 1 if summ["failed_runs"] else 0
         if args.command == "bench" and args.bench == "quality":
             # lazy (heavy): mujoco, scipy
-            from .lab.quality import bench_quality
+            from ..lab.quality import bench_quality
             bench_quality(args.config, args.strategies, args.seeds, args.points, args.contexts,
                           args.wide, parse_set(args.set), args.base_seed, args.out,
                           analytic=not args.no_analytic)
             return 0
         if args.command == "bench" and args.bench == "speed":
             # lazy (heavy): mujoco
-            from .lab.bench import bench_speed
+            from ..lab.bench import bench_speed
             bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,
                         graph=args.graph, graph_micro_actions=args.graph_micro_actions,
                         profile=args.profile, graph_config=args.graph_config,

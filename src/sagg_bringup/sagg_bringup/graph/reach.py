@@ -27,8 +27,8 @@ from sagg_low_level.checkpoint import checkpoint_memory
 from sagg_low_level.learner import SCHEMA as LEARNER_CORE
 from sagg_low_level.memory import SampleMemory
 
-from .arm_params import NODES
-from .evaluator import evaluate_frozen, evaluation_setup
+from ..inprocess.arm_params import NODES
+from ..inprocess.evaluator import evaluate_frozen, evaluation_setup
 from .params_files import run_bags, write_params_file
 from .processes import GraphError, NodeGroup, check_domain_id, node_processes
 
@@ -49,7 +49,7 @@ def frozen_model(source: Path, out: Path, say=print) -> tuple[dict, Path]:
     """The run's node parameters and its sample memory written to ``out/memory.npz``: the
     learner's final checkpoint when the run has one, else rebuilt from its bags."""
     # lazy (heavy): mujoco (relearn's evaluation set-up)
-    from .bags import relearn
+    from ..bags.bags import relearn
     params_file, bags = _model_source(source)
     doc = yaml.safe_load(params_file.read_text()) or {}
     memory = out / "memory.npz"
@@ -150,7 +150,7 @@ def offline_errors(params_file: Path, memory: Path, goals) -> np.ndarray:
     # lazy (heavy): mujoco
     from sagg_sim_bridge.arms import arm_spec_from_params
     from sagg_sim_bridge.params import SCHEMA as BRIDGE_CORE
-    from .bags import params_from
+    from ..bags.bags import params_from
     full = params_from(params_file.parent, params_file)
     lp = {p.name: full["sagg_learner"][p.name] for p in LEARNER_CORE}
     spec = arm_spec_from_params({p.name: full["sagg_sim_bridge"][p.name] for p in BRIDGE_CORE})

@@ -38,7 +38,7 @@ from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError
 
 from .reproduce import REGISTRY, decide, finished_seeds, fmt_number, load_registry, run_claim_experiment
-from .results import code_commit, run_commits
+from ..inprocess.results import code_commit, run_commits
 
 SENSITIVITY_FIELDS = ("choice", "value", "overrides", "experiment", "claim", "strategies", "reused", "verdict",
                       "p_value", "pairs", "flips", "seeds", "seeds_planned", "complete", "micro_actions",
@@ -132,7 +132,7 @@ def run_sensitivity(scale: str = "smoke", out: str | Path | None = None, workers
                     archive: str | Path | None = None, run: bool = True) -> list[dict]:
     """Run (or resume) the default and every variant, decide the claim on each, write
     sensitivity.json and sensitivity.md. Returns the rows. ``archive`` and ``run=False`` (decide
-    on the runs finished so far, run nothing): as :func:`~sagg_bringup.reproduce.run_reproduce`;
+    on the runs finished so far, run nothing): as :func:`~sagg_bringup.experiments.reproduce.run_reproduce`;
     each row's ``seeds`` are then the seeds every strategy of the variant (its own runs and the
     default's it reuses) has finished, ``complete`` whether all the scale's are there."""
     reg = load_registry(registry)
@@ -189,7 +189,7 @@ def sensitivity_table(rows: list[dict], sens: dict, reg: dict) -> str:
             f"overrides {base['set']}), {r0.get('seeds_planned', len(r0['seeds']))} seeds × {r0['micro_actions']:,} "
             f"micro-actions per variant, code commit `{r0['commit']}`. One choice changed at a time; "
             "final mean test error, mean ± std over seeds; verdict and p as `sagg reproduce` "
-            "(sagg_bringup/reproduce.py); *flips*: pairs whose verdict differs from the default's; "
+            "(sagg_bringup/experiments/reproduce.py); *flips*: pairs whose verdict differs from the default's; "
             "*default's runs*: a strategy that does not read the choice's parameters (the default's "
             "runs are its runs under the variant, bit for bit).", "",
             "| choice | value | " + " | ".join(strategies) + " | verdict | p | flips vs default |",

@@ -6,7 +6,7 @@
   (reliability, durability, depth; /sagg/regions is transient_local), so Foxglove, PlotJuggler or
   a second learner see the run. It joins the caller's ``ROS_DOMAIN_ID`` (the usual ROS default),
   unlike ``sagg run``'s private one, where a real robot's driver may listen: the command topics
-  (:data:`~sagg_bringup.topics.COMMAND_TYPES`) are left out unless ``include_commands``, and even
+  (:data:`~sagg_bringup.bags.topics.COMMAND_TYPES`) are left out unless ``include_commands``, and even
   then refused while a node other than sagg's simulator (:data:`SIM_BRIDGE_NODE`) subscribes to one.
 - :func:`relearn`: rebuilds, offline, the learner's sample memory from ``/sagg/sample`` (index
   order) and the goal generator's region tree by feeding the recorded ``/sagg/competence`` reports
@@ -46,12 +46,12 @@ from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
 
 from .bag_reader import bag_messages, open_bag
 from .bag_recover import is_unfinished, recover_bag
-from .arm_params import node_schemas
-from .evaluator import evaluate_frozen, evaluation_setup
+from ..inprocess.arm_params import node_schemas
+from ..inprocess.evaluator import evaluate_frozen, evaluation_setup
 from .recorder import BagWriter, msg_class
 from .topics import command_topics
-from .report import arm_rows, write_report
-from .results import goal_share_stats
+from ..report.report import arm_rows, write_report
+from ..inprocess.results import goal_share_stats
 
 
 # ------------------------------------------------------------------------------------ replay

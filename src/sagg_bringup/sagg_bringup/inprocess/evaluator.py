@@ -1,6 +1,6 @@
 """The evaluation process of an evolving-context arm run (``sagg run``; ``sagg relearn`` uses its
 set-up): the memory rebuilt from ``/sagg/sample`` and the frozen model evaluated on its own
-simulator, exactly as :meth:`~sagg_bringup.experiment.InProcessRun.evaluate`."""
+simulator, exactly as :meth:`~sagg_bringup.inprocess.experiment.InProcessRun.evaluate`."""
 from __future__ import annotations
 
 import multiprocessing

@@ -30,7 +30,7 @@ import numpy as np
 from sagg_common.report_kinds import KIND_GOAL
 from sagg_common.ros_params import reliable
 
-from .recorder import make_typestore
+from ..bags.recorder import make_typestore
 
 MARKER_TOPIC = "/sagg/markers"
 FRAME = "world"

@@ -5,7 +5,7 @@ nodes as processes, recorded, evaluated and reported. The jobs it composes live 
 
 One run:
 
-1. resolves the config (like :func:`~sagg_bringup.experiment.load_experiment_config`, with the
+1. resolves the config (like :func:`~sagg_bringup.inprocess.experiment.load_experiment_config`, with the
    nodes' full schemas, so node-only parameters such as the bridge's ``timing`` are accepted) and
    writes ``DIR/params.yaml`` for the nodes: every resolved parameter, plus the learner's
    ``joints`` / ``joint_limits`` / ``rest_posture`` from the simulated arm and
@@ -41,19 +41,19 @@ from sagg_msgs.msg import Evaluation
 
 from sagg_sim_bridge.arms import arm_reachable_area
 
-from .arm_params import NODES, TIMINGS, core_config, graph_params, resolve_arm
-from .bag_reader import bag_messages
-from .bag_recover import recover_run_bags
-from .evaluator import Evaluator
+from ..inprocess.arm_params import NODES, TIMINGS, core_config, graph_params, resolve_arm
+from ..bags.bag_reader import bag_messages
+from ..bags.bag_recover import recover_run_bags
+from ..inprocess.evaluator import Evaluator
 from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file, write_run_file
 from .processes import GraphError, check_domain_id, node_processes
-from .recorder import msg_class
-from .report import arm_rows, write_report
+from ..bags.recorder import msg_class
+from ..report.report import arm_rows, write_report
 from .resume_check import compare
-from .results import run_overrides
+from ..inprocess.results import run_overrides
 from .session import STALL_TIMEOUT, GraphSession
 from .split_tracker import SplitTracker
-from .topics import graph_topics
+from ..bags.topics import graph_topics
 
 
 def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,

@@ -7,7 +7,7 @@ A topic is subscribed when its first publisher appears, with the publishers' QoS
 one of them is best effort; transient_local when all of them are, so the latched
 ``/sagg/regions``, ``/sagg/markers`` and the learner's ``/sagg/competence`` history arrive even when
 the recorder starts late), and its connection is added to the bag with that QoS. Raw CDR is written
-as received (:class:`~sagg_bringup.recorder.TopicRecorder`: sequence gaps counted, handlers fed
+as received (:class:`~sagg_bringup.bags.recorder.TopicRecorder`: sequence gaps counted, handlers fed
 from the expected publisher only).
 
 Like ``sagg run``'s recorder it acknowledges the samples it has recorded on /sagg/recorded, so the
@@ -36,8 +36,8 @@ from sagg_common.ros_params import reliable
 
 from .markers import MarkerView, MARKER_TOPIC
 from .record_account import RecordAccount
-from .recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
-from .topics import COMMAND_TYPES, STREAM_TOPICS, awaited_topics, graph_topics
+from ..bags.recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
+from ..bags.topics import COMMAND_TYPES, STREAM_TOPICS, awaited_topics, graph_topics
 
 # exit code of `sagg record` when messages were lost (cli)
 LOST_EXIT_CODE = 3
@@ -66,7 +66,7 @@ def publishers_qos(infos, spec: TopicSpec) -> TopicSpec:
 
 
 class LiveRecorder(TopicRecorder):
-    """A :class:`~sagg_bringup.recorder.TopicRecorder` whose topics are subscribed once they have a
+    """A :class:`~sagg_bringup.bags.recorder.TopicRecorder` whose topics are subscribed once they have a
     publisher of the expected type (checked by :meth:`poll`), with the publishers' QoS.
 
     ``gate`` topics (/sagg/sample) are subscribed only once every ``wait_for`` topic (the hardware

@@ -1,0 +1,1 @@
+"""The ``sagg`` command line: parser and dispatch."""
