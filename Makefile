@@ -1,9 +1,11 @@
 # sagg: set-up, build and entry points.
 #
 #   make run     set up (if needed), then run the main experiment: sagg run config/arm8.yaml
-#   make test    set up (if needed) + the optional Ray extra, then run the test suite
+#   make test    set up (if needed) + the lab tools + the optional Ray extra, then run the test suite
 #   make ray     install the optional Ray extra (requirements-ray.txt) for sagg bench compare --ray
-#   make setup   everything but running: .venv + pinned wheels + sagg_msgs + editable packages
+#   make lab     install the lab tools (sagg_lab: sagg bench speed/graph/riac/soak/hostile/quality,
+#                python -m sagg_lab.NAME); make test installs them, make run does not
+#   make setup   everything but running: .venv + pinned wheels + sagg_msgs + the product's editable packages
 #   make msgs    (re)build and install the sagg_msgs interface package into .venv
 #   make lock    regenerate requirements.txt (full pinned lock) from requirements.in
 #   make clean   remove .venv (including the sagg_msgs build folder) and egg-info folders
@@ -28,6 +30,9 @@ PIP := $(PY) -m pip
 MSGS_BUILD := $(VENV)/build/sagg_msgs
 
 PY_PKGS := sagg_common sagg_goal_generator sagg_low_level sagg_sim_bridge sagg_bringup
+# the measuring tools: a package of their own that the runtime never imports (installed by make lab/test)
+LAB_PKGS := sagg_lab
+LAB_PKG_META := $(foreach p,$(LAB_PKGS),src/$(p)/setup.py src/$(p)/setup.cfg src/$(p)/package.xml src/$(p)/resource/$(p))
 PY_PKG_META := $(foreach p,$(PY_PKGS),src/$(p)/setup.py src/$(p)/setup.cfg src/$(p)/package.xml src/$(p)/resource/$(p))
 # compiled sources (setup.py ext_modules): a changed one is rebuilt by the editable reinstall
 PY_PKG_C := $(wildcard $(foreach p,$(PY_PKGS),src/$(p)/$(p)/*.c))
@@ -39,11 +44,12 @@ STAMP_MSGS := $(VENV)/.stamp-msgs
 STAMP_PKGS := $(VENV)/.stamp-pkgs
 DATA_LIST := $(VENV)/.stamp-datafiles
 STAMP_RAY := $(VENV)/.stamp-ray
+STAMP_LAB := $(VENV)/.stamp-lab
 
 # Keep ROS 2 discovery on this machine (the default multicasts on every interface).
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup msgs run test lock clean ray FORCE
+.PHONY: setup msgs run test lock clean ray lab FORCE
 
 setup: $(STAMP_MSGS) $(STAMP_PKGS)
 
@@ -52,8 +58,14 @@ msgs: $(STAMP_MSGS)
 run: setup
 	$(VENV)/bin/sagg run config/arm8.yaml
 
-test: setup $(STAMP_RAY)
+test: setup $(STAMP_LAB) $(STAMP_RAY)
 	$(PY) -m pytest -q test/
+
+lab: $(STAMP_LAB)
+
+$(STAMP_LAB): $(STAMP_PKGS) $(LAB_PKG_META)
+	PYTHONWARNINGS=ignore::UserWarning $(PIP) install --no-input -q --no-deps --no-build-isolation $(foreach p,$(LAB_PKGS),-e src/$(p))
+	@touch $@
 
 # Optional Ray extra (sagg bench compare --ray); the tests cover that path, `make run` does not need it.
 ray: $(STAMP_RAY)
@@ -129,7 +141,7 @@ lock:
 
 clean:
 	rm -rf $(VENV) $(VENV)-lock
-	rm -rf $(foreach p,$(PY_PKGS),src/$(p)/$(p).egg-info src/$(p)/build)
+	rm -rf $(foreach p,$(PY_PKGS) $(LAB_PKGS),src/$(p)/$(p).egg-info src/$(p)/build)
 	rm -f $(foreach p,$(PY_PKGS),src/$(p)/$(p)/*.so)
 
 FORCE:

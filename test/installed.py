@@ -1,9 +1,9 @@
 """The installed executables the tests start, found the way `sagg run` finds its nodes'
-(sagg_bringup.processes.find_node_executable): next to this Python (the make set-up's venv), in an
+(sagg_bringup.graph.processes.find_node_executable): next to this Python (the make set-up's venv), in an
 ament prefix's lib/<package> (a colcon workspace, the `ros2 run` layout), or on PATH."""
 from __future__ import annotations
 
-from sagg_bringup.processes import find_node_executable
+from sagg_bringup.graph.processes import find_node_executable
 
 # console script -> the package that installs it
 PACKAGE = {"sagg": "sagg_bringup", "goal_generator": "sagg_goal_generator", "learner": "sagg_low_level",

@@ -17,7 +17,7 @@ from sagg_sim_bridge.arm import (
     reachable_area,
 )
 from sagg_sim_bridge.arm import test_goals as make_test_goals
-from sagg_bringup.lab.arm_bench import bench_arm
+from sagg_lab.arm_bench import bench_arm
 
 L = 50.0
 

@@ -4,7 +4,7 @@ import json
 import pytest
 
 from sagg_bringup.cli.cli import main
-from sagg_bringup.lab.quality import bench_quality, check_context
+from sagg_lab.quality import bench_quality, check_context
 from sagg_common.params import ConfigError
 from sagg_low_level.learner import SCHEMA
 
@@ -43,7 +43,7 @@ def test_bench_quality_smoke(tmp_path, capsys, monkeypatch):
     r = json.loads((tmp_path / "evolving/config/sagg-riac/seed-1/result.json").read_text())
     assert r["phases"]["reach"] + r["phases"]["explore"] == 100
     # rerun into the same directory: every finished run is reused, nothing is recomputed
-    import sagg_bringup.lab.quality as quality
+    import sagg_lab.quality as quality
 
     def no_run(*a, **k):
         raise AssertionError("a finished run was recomputed")

@@ -260,7 +260,7 @@ def test_ray_local_instance_gives_the_process_pool_results(resumed, tmp_path):
 
 
 def test_bench_speed_rows_and_bytes_per_sample():
-    from sagg_bringup.lab.bench import babbling_samples, bench_speed
+    from sagg_lab.bench import babbling_samples, bench_speed
     from sagg_bringup.inprocess.experiment import InProcessRun
     from sagg_bringup.graph.setups import load_experiment_config
     run = InProcessRun(load_experiment_config(CONFIG, {"arm.dof": 7}))
@@ -286,7 +286,7 @@ def test_bench_speed_rows_and_bytes_per_sample():
 
 
 def test_competence_over_time_figure(tmp_path):
-    from sagg_bringup.lab.competence_figure import plot_competence_over_time
+    from sagg_lab.competence_figure import plot_competence_over_time
     cfg = {"sagg_learner": {"task_space.lower": [0.0, -150.0], "task_space.upper": [150.0, 150.0]},
            "sagg_sim_bridge": {"arm.total_length": 50.0}}
     goals = [{"position": [10.0 * i, 5.0], "competence": -i / 10, "micro_actions": 100 * i}

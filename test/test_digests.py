@@ -1,4 +1,4 @@
-"""sagg_bringup.lab.digests: the digests of a run change with any bit of its samples, goals or
+"""sagg_lab.digests: the digests of a run change with any bit of its samples, goals or
 curve, and not with what is not behaviour (timings, summary.json's rebuilt splits)."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from sagg_bringup.lab.digests import main, run_digests
+from sagg_lab.digests import main, run_digests
 
 
 def _result(position=(1.0, 2.0), mean=0.5, seconds=3.0, splits=()):

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from sagg_bringup.bags.bags import bag_messages
-from sagg_bringup.lab.hostile import published_counts
+from sagg_lab.hostile import published_counts
 from sagg_bringup.graph.processes import pick_domain_id
 from installed import SAGG
 
@@ -118,7 +118,7 @@ def test_hostile_bench_short(tmp_path):
     survived, was counted and logged, learning went on, and every invariant holds. (The other cases
     are checked node by node in test_hostile.py, test_sources.py and test_safety.py, and all of them
     in the 10-minute soak, docs/notes/hostile-input.md.)"""
-    from sagg_bringup.lab.hostile import bench_hostile
+    from sagg_lab.hostile import bench_hostile
     lines: list[str] = []
     res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=2.0, eval_every=200, drain=5.0,
                         out=lines.append, only=["NaN sample", "forged sample with the next index",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sagg_bringup.lab.peer import arm_of, compare, table
+from sagg_lab.peer import arm_of, compare, table
 from sagg_common.params import ConfigError
 
 

@@ -2,8 +2,8 @@
 the bit-identity check sees equal runs as equal, and the parts table is printed."""
 from pathlib import Path
 
-from sagg_bringup.lab import eval_cost, time_parts, window_speed
-from sagg_bringup.lab.base_tree import repo_root
+from sagg_lab import eval_cost, time_parts, window_speed
+from sagg_lab.base_tree import repo_root
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 

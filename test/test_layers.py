@@ -1,10 +1,10 @@
 """The package layers (issue 13): imports point down, no import cycles, no private rclpy API.
 
 Layers: sagg_msgs <- sagg_common <- {sagg_goal_generator, sagg_low_level, sagg_sim_bridge} <-
-sagg_bringup; the three middle packages do not import each other. Inside sagg_bringup, the job
-packages are layered too (:data:`BRINGUP_JOBS`, bottom to top: report <- inprocess <- bags <- graph
-<- experiments <- cli): each imports only the ones below it; ``lab`` (the measuring tools) may
-import any, and only the CLI imports it. Every ``import`` statement
+sagg_bringup <- sagg_lab; the three middle packages do not import each other, and nothing imports
+sagg_lab (the measuring tools: ``sagg bench`` finds its benchmarks as entry points). Inside
+sagg_bringup, the job packages are layered too (:data:`BRINGUP_JOBS`, bottom to top: report <-
+inprocess <- bags <- graph <- experiments <- cli): each imports only the ones below it. Every ``import`` statement
 counts, at module level or inside a function: an import hidden in a function still makes the
 dependency (lazy imports are only for start-up cost, never to dodge a cycle). An import inside a
 function must be of a heavy module (:data:`HEAVY_ROOTS`, ROS interface packages, or a project module
@@ -21,7 +21,7 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS = {"sagg_msgs": 0, "sagg_common": 1, "sagg_goal_generator": 2, "sagg_low_level": 2,
-          "sagg_sim_bridge": 2, "sagg_bringup": 3}
+          "sagg_sim_bridge": 2, "sagg_bringup": 3, "sagg_lab": 4}
 # The sub-packages of sagg_bringup by job, bottom to top (docs/architecture.md): each imports only
 # the ones before it. report: run reports; inprocess: one run without ROS and what every run shares;
 # bags: writing, reading, replaying and relearning bags; graph: the ROS 2 graph of a run and the
@@ -92,17 +92,15 @@ def layer_violations(graph: dict[str, set[str]]) -> list[str]:
 
 def bringup_job_violations(graph: dict[str, set[str]]) -> list[str]:
     """Imports between sagg_bringup's job packages that do not point down :data:`BRINGUP_JOBS`
-    (``lab`` may import any package; the CLI may import ``lab``)."""
+    """
     bad = []
     for mod, deps in graph.items():
         parts = mod.split(".")
-        if parts[0] != "sagg_bringup" or len(parts) < 2 or parts[1] == "lab":
+        if parts[0] != "sagg_bringup" or len(parts) < 2:
             continue
         for dep in deps:
             dparts = dep.split(".")
             if dparts[0] != "sagg_bringup" or len(dparts) < 2 or dparts[1] == parts[1]:
-                continue
-            if parts[1] == "cli" and dparts[1] == "lab":
                 continue
             if (parts[1] not in BRINGUP_JOBS or dparts[1] not in BRINGUP_JOBS
                     or BRINGUP_JOBS.index(dparts[1]) >= BRINGUP_JOBS.index(parts[1])):
@@ -253,13 +251,14 @@ def test_no_import_cycles():
     assert cycles(import_graph()) == []
 
 
-def test_lab_tools_only_behind_the_command_line():
-    """Lab tools (sagg_bringup.lab: benchmarks, soaks, figure scripts) are imported by each other and
-    by the ``sagg bench`` commands of the CLI, never by the product modules."""
+def test_nothing_imports_the_lab():
+    """The measuring tools (sagg_lab) sit above the product: no module of another package imports
+    them, not even inside a function (``sagg bench`` loads them as entry points)."""
     g = import_graph()
+    assert "sagg_lab.benches" in g
     users = {mod for mod, deps in g.items() for dep in deps
-             if dep.startswith("sagg_bringup.lab") and not mod.startswith("sagg_bringup.lab")}
-    assert users == {"sagg_bringup.cli.cli"}
+             if dep.startswith("sagg_lab") and not mod.startswith("sagg_lab")}
+    assert users == set()
 
 
 def test_bringup_job_packages_import_down():
@@ -267,24 +266,24 @@ def test_bringup_job_packages_import_down():
 
 
 def test_every_bringup_module_sits_in_a_job_package():
-    """sagg_bringup holds no flat module: each module is in one job package or in lab."""
+    """sagg_bringup holds no flat module: each module is in one job package."""
     root = SRC / "sagg_bringup" / "sagg_bringup"
     flat = sorted(f.name for f in root.glob("*.py") if f.name != "__init__.py")
     packages = sorted(d.name for d in root.iterdir() if (d / "__init__.py").is_file())
     assert flat == []
-    assert packages == sorted(BRINGUP_JOBS + ("lab",))
+    assert packages == sorted(BRINGUP_JOBS)
 
 
 def test_the_job_check_sees_what_it_must():
     g = {"sagg_bringup.report.report": {"sagg_bringup.graph.session", "sagg_common.params"},
          "sagg_bringup.graph.session": {"sagg_bringup.report.report", "sagg_bringup.graph.processes"},
          "sagg_bringup.experiments.sweep": {"sagg_bringup.cli.cli"},
-         "sagg_bringup.cli.cli": {"sagg_bringup.lab.bench", "sagg_bringup.experiments.sweep"},
-         "sagg_bringup.lab.bench": {"sagg_bringup.graph.setups", "sagg_bringup.cli.cli"},
-         "sagg_bringup.graph.setups": {"sagg_bringup.lab.bench"}}
+         "sagg_bringup.cli.cli": {"sagg_bringup.experiments.sweep", "sagg_bringup.cli.benches"},
+         "sagg_bringup.graph.setups": {"sagg_bringup.inprocess.experiment"}}
     assert bringup_job_violations(g) == ["sagg_bringup.experiments.sweep -> sagg_bringup.cli.cli",
-                                         "sagg_bringup.graph.setups -> sagg_bringup.lab.bench",
                                          "sagg_bringup.report.report -> sagg_bringup.graph.session"]
+    g2 = {"sagg_bringup.graph.setups": {"sagg_lab.bench"}, "sagg_lab.bench": {"sagg_bringup.graph.setups"}}
+    assert layer_violations(g2) == ["sagg_bringup.graph.setups -> sagg_lab.bench"]
 
 
 def test_the_checks_see_what_they_must(tmp_path):

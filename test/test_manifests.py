@@ -19,7 +19,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PY_PACKAGES = ("sagg_common", "sagg_goal_generator", "sagg_low_level", "sagg_sim_bridge", "sagg_bringup")
+PY_PACKAGES = ("sagg_common", "sagg_goal_generator", "sagg_low_level", "sagg_sim_bridge", "sagg_bringup",
+               "sagg_lab")
 OUR_PACKAGES = set(PY_PACKAGES) | {"sagg_msgs"}
 # Python module -> rosdep key (rosdistro rosdep/python.yaml, ubuntu noble)
 PYTHON_KEYS = {"numpy": "python3-numpy", "yaml": "python3-yaml", "scipy": "python3-scipy",

@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sagg_low_level.memory import SampleMemory, squared_distances
-from sagg_bringup.lab.memory_bench import trajectory_alphas
+from sagg_lab.memory_bench import trajectory_alphas
 
 # Tiny index parameters: a few hundred samples already give many blocks, merges and box heights.
 TINY = dict(buffer_size=8, leaf_size=2, fanout=2, max_roots=2, refine_nodes=3, refine_leaves=1)

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from sagg_bringup.lab.pingpong import measure
+from sagg_lab.pingpong import measure
 
 
 @pytest.mark.parametrize("pattern,raw", [("pingpong", False), ("lockstep", True), ("lockstep", False)])
@@ -24,7 +24,7 @@ def test_unknown_pattern_is_refused_by_name():
 def test_bench_graph_reports_all_four_measurements_and_their_ratios():
     from pathlib import Path
 
-    from sagg_bringup.lab.bench import bench_graph
+    from sagg_lab.bench import bench_graph
 
     lines = []
     res = bench_graph(Path(__file__).resolve().parents[1] / "config/arm8.yaml", micro_actions=300, repeats=1,
@@ -58,7 +58,7 @@ def test_domain_in_use_sees_a_real_participant_and_pick_avoids_busy_domains(monk
     import time
 
     from sagg_bringup.graph.processes import domain_in_use, pick_domain_id
-    from sagg_bringup.lab.pingpong import stop_process
+    from sagg_lab.pingpong import stop_process
 
     monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
     # a real DDS participant (an rclpy node in another process) makes its domain busy

@@ -264,7 +264,7 @@ def test_clockwise_curl_goals_need_a_rest_without_net_curl_and_the_damped_invers
 
 
 def test_arm7_ratio15_reaches_its_test_goals_with_the_true_jacobian_and_the_paper_rest_does_not():
-    from sagg_bringup.lab.quality import analytic_reach
+    from sagg_lab.quality import analytic_reach
     cfg = "config/arm7_ratio15.yaml"
     now = analytic_reach(cfg, modes=("clamp",))["clamp"]          # zigzag rest + reach_damping 1
     assert now["mean"] <= 0.001                                  # issue 10's target

@@ -2,7 +2,7 @@
 interests as the tree walk it replaced, and the same seeded runs bit for bit."""
 import numpy as np
 
-from sagg_bringup.lab.riac_speed import bench_riac, walk_compatible
+from sagg_lab.riac_speed import bench_riac, walk_compatible
 from sagg_common.region_arrays import restore_tree, tree_arrays
 from sagg_common.regions import RegionTree
 from sagg_low_level.riac_leaves import RiacLeaves

@@ -22,7 +22,7 @@ Supported field types (what sagg_msgs uses; anything else raises NotImplementedE
 the numeric primitives and bool, string, std_msgs/Header, unbounded sequences of numeric
 primitives, our own messages and unbounded sequences of them. Constants and comments are skipped.
 ``test_nodes_cdr`` checks every codec against rclpy's serializer and against a .msg edited in a
-temporary copy; ``python -m sagg_bringup.lab.cdr_bench`` measures them against the hand-written
+temporary copy; ``python -m sagg_lab.cdr_bench`` measures them against the hand-written
 codecs they replaced.
 """
 from __future__ import annotations

@@ -17,7 +17,7 @@ nearest-neighbour index (FLANN, "Muja09"). Two modes:
   gets), of timing, or of save/load. When the budget covers every leaf the search needs, the
   answer is the exact one. See :meth:`SampleMemory._knn_approx`.
 
-Design (measured with ``python -m sagg_bringup.lab.memory_bench``; numbers in the commit messages):
+Design (measured with ``python -m sagg_lab.memory_bench``; numbers in the commit messages):
 
 * Samples live in preallocated float64 arrays that double their capacity (amortised O(1) add).
   Storage: :mod:`sagg_low_level.memory_store`.

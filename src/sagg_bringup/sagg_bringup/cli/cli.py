@@ -12,11 +12,10 @@ import yaml
 from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
 
 from ..graph.check_driver import main_check_driver
+from .benches import LAB_HINT, installed_benches, positive_int
 from ..graph.params_files import read_run_file
 from ..graph.processes import GraphError
 from ..graph.reach import main_reach
-from ..lab.hostile import bench_hostile
-from ..lab.soak import main_soak
 from ..graph.record import LOST_EXIT_CODE, default_out, record
 from ..report.report import write_report
 from ..experiments.reproduce import estimate, run_reproduce
@@ -25,16 +24,6 @@ from ..experiments.sensitivity import run_sensitivity
 # A command whose modules load rclpy, mujoco or matplotlib imports them when it runs (`# lazy (heavy)`:
 # they take seconds to import, and `sagg params` or `sagg bench table` need none of them); light
 # modules are imported above (test_layers checks both).
-
-
-def positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {v}")
-    return v
 
 
 def node_schemas() -> dict:
@@ -213,50 +202,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help=f"rewrite the tables between the parameter markers of FILE ({PARAMS_DOC}); "
                          "--update-docs and the older --update-readme are aliases")
 
-    b = sub.add_parser("bench", help="benchmarks")
+    benches = installed_benches()
+    b = sub.add_parser("bench", help="benchmarks: compare strategies, tables; the lab's with sagg_lab",
+                       epilog=None if benches else LAB_HINT)
     bsub = b.add_subparsers(dest="bench", required=True)
-    s = bsub.add_parser("speed", help="in-process micro-actions/s against stored samples")
-    s.add_argument("--config", default="config/arm15.yaml")
-    s.add_argument("--dof", type=positive_int, nargs="+", default=[7, 15, 30])
-    s.add_argument("--modes", nargs="+", choices=["kinematic", "dynamic"], default=["kinematic"])
-    s.add_argument("--sizes", type=positive_int, nargs="+", default=[10_000, 100_000, 1_000_000],
-                   help="stored samples before timing (cost ratios against the smallest)")
-    s.add_argument("--measure", type=positive_int, default=2000,
-                   help="micro-actions timed at each size")
-    s.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
-    s.add_argument("--graph", action=argparse.BooleanOptionalAction, default=True,
-                   help="also measure graph vs in-process vs bare rclpy ping-pong (sagg bench graph)")
-    s.add_argument("--graph-config", default="config/arm8.yaml")
-    s.add_argument("--graph-micro-actions", type=positive_int, default=2000)
-    s.add_argument("--repeats", type=positive_int, default=1,
-                   help="timed windows per row on fresh runs, sizes interleaved; the best is kept")
-    s.add_argument("--profile", type=int, default=0, metavar="N",
-                   help="print the N functions with the most own time in the last timed window")
-    rs = bsub.add_parser("riac", help="ACTUATOR-RIAC micro-actions/s: the leaf table against the tree walk "
-                                      "it replaced, same seeded run, bit-identity checked")
-    rs.add_argument("--config", default="config/arm15.yaml")
-    rs.add_argument("--micro-actions", type=positive_int, default=60_000)
-    rs.add_argument("--window", type=positive_int, default=5_000, help="micro-actions per timed window")
-    rs.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
-    g = bsub.add_parser("graph", help="graph vs in-process micro-actions/s vs a bare rclpy ping-pong, "
-                                      "and the contract floor (the lockstep exchange with no work)")
-    g.add_argument("--config", default="config/arm8.yaml")
-    g.add_argument("--micro-actions", type=positive_int, default=3000,
-                   help="lockstep micro-actions per graph and in-process run")
-    g.add_argument("--repeats", type=positive_int, default=2,
-                   help="interleaved repeats of all four measurements; the best of each is kept")
-    g.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
-    sk = bsub.add_parser("soak", help="long run: RSS growth per stored sample, fds, /dev/shm "
-                                      "(in-process and/or through the graph)")
-    sk.add_argument("--config", default="config/arm8.yaml")
-    sk.add_argument("--mode", choices=["inprocess", "graph"], nargs="+", default=["inprocess", "graph"])
-    sk.add_argument("--micro-actions", type=positive_int, default=None,
-                    help="default: 1,000,000 in-process, 100,000 through the graph")
-    sk.add_argument("--every", type=positive_int, default=None, help="rows every K micro-actions "
-                    "(default: micro-actions / 20)")
-    sk.add_argument("--out", default=None, help="directory for the graph's logs/params and soak.json "
-                    "(default runs/soak-<time>)")
-    sk.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
+    for name, bench in benches.items():
+        bench.add_arguments(bsub.add_parser(name, help=bench.help))
     c = bsub.add_parser("compare", help="every (strategy, seed) experiment in parallel (process pool "
                                         "or Ray), resumable; mean ± std tables, Mann-Whitney / Welch "
                                         "tests, curves")
@@ -275,30 +226,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "(needs the optional extra: make ray)")
     c.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override any parameter for every run (repeatable)")
-    h = bsub.add_parser("hostile", help="a running graph under a fuzzer publishing every hostile case of "
-                                        "issue 11 on every topic; per-case table and invariants")
-    h.add_argument("--config", default="config/arm8.yaml")
-    h.add_argument("--minutes", type=float, default=10.0, help="total fuzzing time (two phases, half each)")
-    h.add_argument("--quiet", type=float, default=3.0, help="seconds watched after each case")
-    h.add_argument("--out", default=None, help="directory (default runs/hostile-<time>)")
-    h.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override")
-    qu = bsub.add_parser("quality", help="test error against queries for both learner contexts and "
-                                         "every strategy, over seeds, in the config's Y and a wide one; "
-                                         "queries/s, mean ± std, SAGG-RIAC vs SAGG-RANDOM p-values, the "
-                                         "analytic-Jacobian reach check (issue 10)")
-    qu.add_argument("--config", default="config/arm7_ratio15.yaml")
-    qu.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
-    qu.add_argument("--seeds", type=positive_int, default=5, help="number of seeds: base seed + i")
-    qu.add_argument("--base-seed", type=int, default=0)
-    qu.add_argument("--points", type=positive_int, nargs="+", default=[5000, 20000],
-                    help="queries (micro-actions) at which the test error is reported")
-    qu.add_argument("--contexts", nargs="+", choices=["evolving", "fixed"], default=["evolving", "fixed"],
-                    help="learner contexts (fixed = --set context=fixed on every run)")
-    qu.add_argument("--wide", type=float, nargs=4, default=[-2.0, -2.0, 2.0, 2.0],
-                    metavar=("XLO", "YLO", "XHI", "YHI"), help="the second task space")
-    qu.add_argument("--no-analytic", action="store_true", help="skip the analytic-Jacobian reach check")
-    qu.add_argument("--out", help="directory for quality.json, quality.md and every result.json")
-    qu.add_argument("--set", action="append", metavar="NAME=VALUE", help="parameter override (every run)")
     t = bsub.add_parser("table", help="compare strategies from result.json files (Markdown table "
                                       "and Mann-Whitney / Welch tests)")
     t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
@@ -416,7 +343,13 @@ def _resume(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:
+        if exc.code == 2 and argv[:1] == ["bench"] and not installed_benches():
+            print(f"sagg: {LAB_HINT}", file=sys.stderr)
+        raise
     try:
         if args.command == "experiment":
             # lazy (heavy): ROS, mujoco
@@ -480,21 +413,8 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 print(params_markdown(args.node))
             return 0
-        if args.command == "bench" and args.bench == "graph":
-            # lazy (heavy): mujoco
-            from ..lab.bench import bench_graph
-            bench_graph(args.config, args.micro_actions, args.repeats, overrides=parse_set(args.set))
-            return 0
-        if args.command == "bench" and args.bench == "riac":
-            # lazy (heavy): mujoco
-            from ..lab.riac_speed import bench_riac
-            res = bench_riac(args.config, args.micro_actions, args.window, overrides=parse_set(args.set))
-            return 0 if all(res["identical"].values()) else 1
-        if args.command == "bench" and args.bench == "soak":
-            return main_soak(args, parse_set(args.set))
-        if args.command == "bench" and args.bench == "hostile":
-            res = bench_hostile(args.config, args.minutes, args.out, args.set or [], args.quiet)
-            return 0 if res["ok"] else 1
+        if args.command == "bench" and args.bench not in ("compare", "table"):
+            return installed_benches()[args.bench].run(args)
         if args.command == "bench" and args.bench == "table":
             # lazy (heavy): scipy
             from ..experiments.compare import load_results, summary_markdown
@@ -514,21 +434,6 @@ def main(argv: list[str] | None = None) -> int:
                                args.eval_every, args.out, workers=args.workers, ray_address=args.ray,
                                overrides=parse_set(args.set), base_seed=args.base_seed)
             return 1 if summ["failed_runs"] else 0
-        if args.command == "bench" and args.bench == "quality":
-            # lazy (heavy): mujoco, scipy
-            from ..lab.quality import bench_quality
-            bench_quality(args.config, args.strategies, args.seeds, args.points, args.contexts,
-                          args.wide, parse_set(args.set), args.base_seed, args.out,
-                          analytic=not args.no_analytic)
-            return 0
-        if args.command == "bench" and args.bench == "speed":
-            # lazy (heavy): mujoco
-            from ..lab.bench import bench_speed
-            bench_speed(args.config, args.dof, args.modes, args.sizes, args.measure, args.strategies,
-                        graph=args.graph, graph_micro_actions=args.graph_micro_actions,
-                        profile=args.profile, graph_config=args.graph_config,
-                        repeats=args.repeats)
-            return 0
     except ConfigError as exc:
         print(f"sagg: error: {exc}", file=sys.stderr)
         return 2

@@ -1,5 +1,5 @@
 """Learning speed of the fixed-context learner (issue 10), this tree against an older commit, in one
-command: ``python -m sagg_bringup.lab.fixed_speed --base <commit>``.
+command: ``python -m sagg_lab.fixed_speed --base <commit>``.
 
 The base commit's ``src/`` is exported with ``git archive`` into a temporary directory and run in a
 subprocess whose ``PYTHONPATH`` puts it before the installed (editable) packages; this tree runs in

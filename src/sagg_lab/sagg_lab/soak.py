@@ -36,9 +36,9 @@ import numpy as np
 from sagg_common.journal import write_json_atomic
 from sagg_common.ros_params import reliable
 
-from ..inprocess.arm_params import NODES, graph_params, load_graph_config
-from ..graph.params_files import run_values, set_checkpoint_dirs, write_params_file
-from ..graph.processes import GraphError, NodeGroup, node_processes
+from sagg_bringup.inprocess.arm_params import NODES, graph_params, load_graph_config
+from sagg_bringup.graph.params_files import run_values, set_checkpoint_dirs, write_params_file
+from sagg_bringup.graph.processes import GraphError, NodeGroup, node_processes
 
 
 def rss_bytes(pid: int | str = "self") -> int:
@@ -102,8 +102,8 @@ def soak_inprocess(config: str | Path, micro_actions: int, every: int,
                    overrides: dict[str, Any] | None = None, out: Callable[[str], None] = print) -> dict:
     """In-process soak; returns the rows and the verdict numbers."""
     # lazy (heavy): mujoco
-    from ..inprocess.experiment import InProcessRun
-    from ..graph.setups import load_experiment_config
+    from sagg_bringup.inprocess.experiment import InProcessRun
+    from sagg_bringup.graph.setups import load_experiment_config
 
     shm0 = shm_entries()
     fd0 = open_fds()

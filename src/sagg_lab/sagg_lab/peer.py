@@ -1,6 +1,6 @@
 """sagg against issue 10's peer (explauto 1.4) on the same arm, the same test goals, in one command::
 
-    python -m sagg_bringup.lab.peer --peer-python /path/to/peer-venv/bin/python \\
+    python -m sagg_lab.peer --peer-python /path/to/peer-venv/bin/python \\
         [--config config/arm7_ratio15.yaml] [--seeds 3] [--points 5000 20000] [--out DIR]
 
 The issue compares sagg with the peer's numbers from another machine; speeds measured on two
@@ -40,7 +40,7 @@ from sagg_common.rng import stream
 from sagg_sim_bridge.arm import ArmSim, reachable_area, test_goals
 from sagg_sim_bridge.params import arm_spec_from_params
 
-from ..graph.setups import load_experiment_config, run_experiment
+from sagg_bringup.graph.setups import load_experiment_config, run_experiment
 from .quality import context_overrides
 
 PEER_SCRIPT = Path(__file__).with_name("peer_explauto.py")
@@ -143,7 +143,7 @@ def table(results: dict, points) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sagg_bringup.lab.peer", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m sagg_lab.peer", description=__doc__.split("\n\n")[0])
     ap.add_argument("--peer-python", required=True, help="the interpreter of a venv with explauto 1.4")
     ap.add_argument("--config", default="config/arm7_ratio15.yaml")
     ap.add_argument("--seeds", type=int, default=3)

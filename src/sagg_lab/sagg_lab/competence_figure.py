@@ -1,7 +1,7 @@
 """Paper Fig. 6 for one run: the competence of every self-generated goal in windows of micro-actions
 (a figure script: nothing in the product calls it).
 
-    .venv/bin/python -m sagg_bringup.lab.competence_figure RUN/result.json out.png [--windows 6]
+    .venv/bin/python -m sagg_lab.competence_figure RUN/result.json out.png [--windows 6]
 """
 from __future__ import annotations
 

@@ -22,10 +22,10 @@ import numpy as np
 from sagg_common.params import ConfigError
 from sagg_sim_bridge.arm import reachable_area, test_goals, tip_jacobian
 
-from ..experiments.compare import pairwise_tests
-from ..inprocess.experiment import InProcessRun
-from ..graph.setups import load_experiment_config, run_experiment
-from ..experiments.sweep import RunSpec, expected_config, validate_result
+from sagg_bringup.experiments.compare import pairwise_tests
+from sagg_bringup.inprocess.experiment import InProcessRun
+from sagg_bringup.graph.setups import load_experiment_config, run_experiment
+from sagg_bringup.experiments.sweep import RunSpec, expected_config, validate_result
 
 CONTEXTS = ("evolving", "fixed")
 # Issue 10's targets for SAGG-RIAC on config/arm7_ratio15.yaml (20 % below the peer's tree):

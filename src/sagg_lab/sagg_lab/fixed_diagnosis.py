@@ -1,5 +1,5 @@
 """Where the fixed-context arm's queries go and what limits its test error (issue 10):
-``python -m sagg_bringup.lab.fixed_diagnosis --strategies sagg-riac sagg-random --seeds 5
+``python -m sagg_lab.fixed_diagnosis --strategies sagg-riac sagg-random --seeds 5
 --points 5000 20000 [--set NAME=VALUE ...]``.
 
 For each (strategy, seed, point) on the config's test goals:
@@ -27,7 +27,7 @@ import numpy as np
 from sagg_common.params import parse_set
 from sagg_common.regions import interest_probabilities
 
-from ..graph.setups import in_process_run
+from sagg_bringup.graph.setups import in_process_run
 
 
 def diagnose(config: str, strategy: str, seed: int, points: list[int], overrides: dict) -> list[dict]:

@@ -1,4 +1,4 @@
-"""``python -m sagg_bringup.lab.neighbours``: ``sagg run`` beside the ordinary neighbours of a real
+"""``python -m sagg_lab.neighbours``: ``sagg run`` beside the ordinary neighbours of a real
 ROS graph (issue 24), paired with the same run without them, in one command.
 
 A neighbour here is a gripper driver that publishes only its own joint on ``/joint_states``
@@ -10,7 +10,7 @@ weighs on both. Printed: per run the exit code, micro-actions per second and the
 curve; per pair the rate with the neighbours as a share of the rate without (the target is
 >= 0.9: they must not slow learning). Written: ``OUT/neighbours.json``.
 
-    python -m sagg_bringup.lab.neighbours --config config/arm8.yaml --timing realtime \\
+    python -m sagg_lab.neighbours --config config/arm8.yaml --timing realtime \\
         --micro-actions 1500 --pairs 1 --out runs/neighbours
 """
 from __future__ import annotations
@@ -27,11 +27,11 @@ from pathlib import Path
 from sagg_common.params import parse_set
 from sagg_common.ros_params import reliable
 
-from ..inprocess.arm_params import graph_params, load_graph_config
+from sagg_bringup.inprocess.arm_params import graph_params, load_graph_config
 
-from ..graph.processes import find_node_executable, pick_domain_id
-from ..bags.recorder import TopicSpec, msg_class
-from ..bags.topics import watched_topics
+from sagg_bringup.graph.processes import find_node_executable, pick_domain_id
+from sagg_bringup.bags.recorder import TopicSpec, msg_class
+from sagg_bringup.bags.topics import watched_topics
 
 GRIPPER_RATE = 20.0  # Hz: an ordinary gripper driver's joint-state rate
 

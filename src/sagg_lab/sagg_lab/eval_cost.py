@@ -1,6 +1,6 @@
 """The cost of one evaluation, as a ratio to a 5k learning phase, before and after batching (issue 14).
 
-    .venv/bin/python -m sagg_bringup.lab.eval_cost [--setups arm8 arm15 ...] [--strategy S]
+    .venv/bin/python -m sagg_lab.eval_cost [--setups arm8 arm15 ...] [--strategy S]
         [--micro-actions 5000] [--seed 0] [--repeat 2] [--base COMMIT]
 
 Per set-up, one process, one seeded run: the learning phase from 0 to ``--micro-actions`` is timed,
@@ -39,9 +39,9 @@ from sagg_low_level.fixed_context import evaluate_fixed
 from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
 from sagg_sim_bridge.arm import test_goals
 
-from ..inprocess.arm_eval import eval_arms
-from ..inprocess.experiment import InProcessRun, cached_reachable_area
-from ..graph.setups import in_process_run
+from sagg_bringup.inprocess.arm_eval import eval_arms
+from sagg_bringup.inprocess.experiment import InProcessRun, cached_reachable_area
+from sagg_bringup.graph.setups import in_process_run
 from .base_tree import check_source, exported, pythonpath, repo_root
 
 SETUPS = {"arm8": ("config/arm8.yaml", {}), "arm15": ("config/arm15.yaml", {}),
@@ -91,7 +91,7 @@ def measure(name: str, strategy: str, micro_actions: int, seed: int, repeat: int
 _CHILD = r"""
 import json, sys
 import sagg_low_level
-from sagg_bringup.lab import eval_cost
+from sagg_lab import eval_cost
 errors = []
 def keep(f):
     def g(*a):
@@ -144,7 +144,7 @@ def compare_base(base: str, setups, strategy: str, micro_actions: int, seed: int
 
 
 def main(argv=None) -> list[dict]:
-    ap = argparse.ArgumentParser(prog="python -m sagg_bringup.lab.eval_cost", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m sagg_lab.eval_cost", description=__doc__.split("\n")[0])
     ap.add_argument("--setups", nargs="+", default=["arm8", "arm15", "arm7_ratio15", "quadruped", "fishing"],
                     choices=sorted(SETUPS))
     ap.add_argument("--strategy", default="sagg-riac")

@@ -1,6 +1,6 @@
 """Digests of finished runs, for bit-identity proofs (a refactoring must not change behaviour)::
 
-    python -m sagg_bringup.lab.digests RUN_DIR_OR_JSON...
+    python -m sagg_lab.digests RUN_DIR_OR_JSON...
 
 Each argument is a ``result.json`` (``sagg experiment``), a ``summary.json`` (``sagg run``) or the
 directory holding one. Per run it prints the number of samples and the memory digest the run

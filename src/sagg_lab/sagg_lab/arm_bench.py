@@ -1,7 +1,7 @@
 """Benchmark of ArmSim.command (micro-actions per second), ROS-free.
 
-    python -m sagg_bringup.lab.arm_bench            # 7 and 15 DOF, both modes
-    python -m sagg_bringup.lab.arm_bench 8 dynamic 2000
+    python -m sagg_lab.arm_bench            # 7 and 15 DOF, both modes
+    python -m sagg_lab.arm_bench 8 dynamic 2000
 
 Each micro-action moves every joint by U(-step, step) rad from the previous target (a clipped
 random walk from the rest posture, drawn before timing). Besides the command rate the result

@@ -1,5 +1,5 @@
 """Tables and figures of the synergy experiments for docs/notes/early-results.md:
-``python -m sagg_bringup.lab.synergy_results RUNS_DIR FIG_DIR`` reads every ``result.json`` under
+``python -m sagg_lab.synergy_results RUNS_DIR FIG_DIR`` reads every ``result.json`` under
 RUNS_DIR (``sagg experiment`` runs of config/quadruped.yaml and config/fishing.yaml) and prints
 Markdown: explored extents per strategy (Sec. 4.5), test-error curves (Sec. 4.6, 5.3) with Mann-Whitney
 tests over seeds; it draws the explored (u, v) positions, the float-position histograms (Sec. 5.2)
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..experiments.compare import by_strategy, curve_stats, load_results, pairwise_tests
+from sagg_bringup.experiments.compare import by_strategy, curve_stats, load_results, pairwise_tests
 
 ORDER = ("sagg-riac", "sagg-random", "actuator-random", "actuator-riac")
 

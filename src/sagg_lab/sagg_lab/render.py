@@ -1,4 +1,4 @@
-"""Pictures of the synergy robots for the README: ``MUJOCO_GL=egl python -m sagg_bringup.lab.render DIR``.
+"""Pictures of the synergy robots for the README: ``MUJOCO_GL=egl python -m sagg_lab.render DIR``.
 
 Writes ``DIR/quadruped.png`` (the quadruped half-way through a gait) and ``DIR/fishing.png`` (the
 fishing rod during a cast, float in flight). Headless rendering needs ``MUJOCO_GL=egl`` (or osmesa).

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..inprocess.experiment import InProcessRun
-from ..graph.setups import load_experiment_config
+from sagg_bringup.inprocess.experiment import InProcessRun
+from sagg_bringup.graph.setups import load_experiment_config
 
 
 def walk_compatible(tree, alpha: np.ndarray, n: int) -> list:

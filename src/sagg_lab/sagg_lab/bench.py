@@ -19,11 +19,11 @@ import numpy as np
 from sagg_common.rng import stream
 from sagg_low_level.memory import SampleMemory
 
-from ..inprocess.arm_params import NODES, graph_params, load_graph_config
-from ..inprocess.experiment import InProcessRun
-from ..graph.params_files import run_values, write_params_file
-from ..graph.processes import NodeGroup, node_processes
-from ..graph.setups import load_experiment_config
+from sagg_bringup.inprocess.arm_params import NODES, graph_params, load_graph_config
+from sagg_bringup.inprocess.experiment import InProcessRun
+from sagg_bringup.graph.params_files import run_values, write_params_file
+from sagg_bringup.graph.processes import NodeGroup, node_processes
+from sagg_bringup.graph.setups import load_experiment_config
 from .pingpong import measure
 
 

@@ -55,10 +55,10 @@ from sagg_common.params import parse_set
 from sagg_common.ros_params import reliable
 from sagg_low_level.checkpoint import checkpoint_memory
 
-from ..bags.bag_reader import bag_messages
-from ..inprocess.arm_params import graph_params, load_graph_config
-from ..graph.processes import find_node_executable, pick_domain_id
-from ..bags.topics import watched_topics
+from sagg_bringup.bags.bag_reader import bag_messages
+from sagg_bringup.inprocess.arm_params import graph_params, load_graph_config
+from sagg_bringup.graph.processes import find_node_executable, pick_domain_id
+from sagg_bringup.bags.topics import watched_topics
 
 SEC = 1_000_000_000
 RESUME_LIMIT = 60.0  # s after a case within which learning must have gone on again
@@ -522,7 +522,7 @@ def invariants(run_dir: Path, sent: dict[str, int], replayed: Path | None = None
     # other publishers)
     try:
         # lazy (heavy): relearn loads mujoco (the evaluation set-up); `sagg` imports this module
-        from ..bags.bags import relearn
+        from sagg_bringup.bags.bags import relearn
         r = relearn([run_dir / "bag"], run_dir / "relearn", evaluate=False, report=False, out=lambda _: None)
         out["relearn rebuilds the run's memory"] = (r["memory"]["digest"] == s["memory"]["digest"]
                                                     and r["reports"] == s.get("reports"))

@@ -1,7 +1,7 @@
 """Speed of the sagg_msgs codecs: the ones generated from the .msg files (sagg_common.msg_codecs)
 and rosbags' serializer, each against the hand-written codecs they replaced, in one process.
 
-``python -m sagg_bringup.lab.cdr_bench [--baseline REV] [--n N] [--rounds R]``
+``python -m sagg_lab.cdr_bench [--baseline REV] [--n N] [--rounds R]``
 
 The baseline is the hand-written ``sagg_common/cdr.py`` of git revision REV (default cb9d36b, the
 last commit with hand-written sagg_msgs codecs), loaded from ``git show`` into a private module.
@@ -28,7 +28,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from sagg_common import msg_codecs
 
-REPO = Path(__file__).resolve().parents[4]
+REPO = Path(__file__).resolve().parents[3]
 BASELINE_REV = "cb9d36b"
 
 

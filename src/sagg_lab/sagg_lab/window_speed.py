@@ -1,7 +1,7 @@
 """Learning speed by window, an older commit against this tree, in one command, with a bit-identity
 check::
 
-    python -m sagg_bringup.lab.window_speed --base <commit> --config config/arm15.yaml \\
+    python -m sagg_lab.window_speed --base <commit> --config config/arm15.yaml \\
         --strategies actuator-riac sagg-riac --micro-actions 200000 --window 20000 [--set NAME=VALUE]
 
 Per strategy, two child processes learn the same seeded in-process run (any set-up, either context:
@@ -131,7 +131,7 @@ def compare(base_src: Path, new_src: Path, config: str, overrides: dict, micro_a
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sagg_bringup.lab.window_speed",
+    ap = argparse.ArgumentParser(prog="python -m sagg_lab.window_speed",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--base", required=True, help="git commit of the old code")
     ap.add_argument("--config", default="config/arm15.yaml")

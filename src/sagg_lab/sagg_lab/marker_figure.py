@@ -1,7 +1,7 @@
 """The README's live-view screenshot: the last ``/sagg/markers`` MarkerArray of a bag, drawn from
 above with matplotlib (:func:`sagg_bringup.graph.markers.render_markers`).
 
-    .venv/bin/python -m sagg_bringup.lab.marker_figure RUN/bag docs/figures/markers.png [--title T]
+    .venv/bin/python -m sagg_lab.marker_figure RUN/bag docs/figures/markers.png [--title T]
 """
 from __future__ import annotations
 

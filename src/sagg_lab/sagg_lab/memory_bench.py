@@ -1,7 +1,7 @@
 """Benchmark of SampleMemory: cost of one micro-action's (k-NN query + add) as the memory grows.
 
-    python -m sagg_bringup.lab.memory_bench            # n = 7, 15, 30, exact and approximate (~10 min)
-    python -m sagg_bringup.lab.memory_bench --help
+    python -m sagg_lab.memory_bench            # n = 7, 15, 30, exact and approximate (~10 min)
+    python -m sagg_lab.memory_bench --help
 
 Per size N the memory is filled to N samples (bulk, giving exactly the index state N incremental adds
 would leave), then ``queries`` micro-actions are timed: neighbours(alpha_t, k) followed by add(alpha_t,

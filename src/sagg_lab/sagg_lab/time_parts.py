@@ -1,6 +1,6 @@
 """Where the CPU time of a learning window, or of one evaluation, goes::
 
-    python -m sagg_bringup.lab.time_parts --config config/arm15.yaml --strategy actuator-riac \\
+    python -m sagg_lab.time_parts --config config/arm15.yaml --strategy actuator-riac \\
         --start 180000 --stop 200000 [--eval] [--set NAME=VALUE]
 
 One in-process run (evolving-context arm) is learned to ``--start``. Then, without ``--eval``, the
@@ -26,9 +26,9 @@ from sagg_low_level import learner as learner_mod, memory, memory_search, reach_
 from sagg_low_level.evaluate import evaluate_batch
 from sagg_sim_bridge.arm import ArmSim, test_goals
 
-from ..inprocess.arm_eval import eval_arms
-from ..inprocess.experiment import InProcessRun, cached_reachable_area
-from ..graph.setups import in_process_run
+from sagg_bringup.inprocess.arm_eval import eval_arms
+from sagg_bringup.inprocess.experiment import InProcessRun, cached_reachable_area
+from sagg_bringup.graph.setups import in_process_run
 
 
 class Counters:
@@ -91,7 +91,7 @@ def eval_parts(c: Counters) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sagg_bringup.lab.time_parts", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m sagg_lab.time_parts", description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default="config/arm15.yaml")
     ap.add_argument("--strategy", default="sagg-riac")
     ap.add_argument("--seed", type=int, default=0)

@@ -2,7 +2,7 @@
 
 The graph's cost per micro-action is compared with this: one lockstep micro-action is at least one
 topic round trip (command out, observation back). :func:`measure` starts an echo process and a ping
-process (both ``python -m sagg_bringup.lab.pingpong``) on a private ``ROS_DOMAIN_ID`` and returns the
+process (both ``python -m sagg_lab.pingpong``) on a private ``ROS_DOMAIN_ID`` and returns the
 ping side's result. The message is the learner's command type (std_msgs/Float64MultiArray with
 ``size`` doubles), echoed back on a second topic; reliable QoS, depth 10, as in the graph.
 
@@ -14,8 +14,8 @@ floor of any lockstep graph that speaks the contract: three messages per micro-a
 round trip has two. With ``--work-us W`` the echo side also computes for W µs (a busy loop) before
 it answers each command: zero-overhead nodes doing a given amount of work per micro-action.
 
-    python -m sagg_bringup.lab.pingpong --count 3000 --executor events
-    python -m sagg_bringup.lab.pingpong --count 3000 --pattern lockstep --raw
+    python -m sagg_lab.pingpong --count 3000 --executor events
+    python -m sagg_lab.pingpong --count 3000 --pattern lockstep --raw
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ import time
 
 from sagg_common.ros_params import make_executor
 
-from ..graph.processes import pick_domain_id
+from sagg_bringup.graph.processes import pick_domain_id
 
 PING, PONG = "/sagg_pingpong/ping", "/sagg_pingpong/pong"
 JS, TIP = "/sagg_pingpong/joint_states", "/sagg_pingpong/tip"
@@ -188,7 +188,7 @@ def measure(count: int = 3000, warmup: int = 300, executor: str = "events", size
         domain_id = pick_domain_id()
     env["ROS_DOMAIN_ID"] = str(domain_id)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    cmd = ([sys.executable, "-m", "sagg_bringup.lab.pingpong", "--executor", executor, "--pattern", pattern,
+    cmd = ([sys.executable, "-m", "sagg_lab.pingpong", "--executor", executor, "--pattern", pattern,
             "--size", str(size), "--work-us", repr(work * 1e6)] + (["--raw"] if raw else []))
     echo = subprocess.Popen(cmd + ["--echo"], env=env)
     try:
