@@ -14,7 +14,7 @@ from sagg_bringup.graph.processes import pick_domain_id
 from sagg_bringup.graph.setups import SETUPS
 from sagg_common.cdr import JointStateEncoder, PointStampedEncoder, decode_f64_array
 from sagg_low_level.position_link import PositionLink
-from sagg_low_level.synergy_node import SynergyLearnerNode
+from sagg_low_level.fixed_node import SynergyLearnerNode
 
 from sagg_common.cdr import encode_joint_state
 

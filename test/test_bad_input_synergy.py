@@ -16,7 +16,7 @@ from geometry_msgs.msg import PointStamped
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from sagg_bringup.graph.processes import pick_domain_id
-from sagg_low_level.synergy_node import SynergyLearnerNode
+from sagg_low_level.fixed_node import SynergyLearnerNode
 from sagg_sim_bridge.synergy_node import SynergyBridgeNode
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,12 +1,12 @@
 """The arm in the fixed context (learner parameter context: fixed): the Alg. 4 fixed-context learner
 drives the simulated arm with absolute joint targets θ, one position command from rest per
-experiment, and learns an inverse model; in-process here (the graph: test_synergy_graph.py)."""
+experiment, and learns an inverse model; in-process here (the graph: test_fixed_graph.py)."""
 import numpy as np
 import pytest
 
 from sagg_bringup.graph.setups import load_experiment_config, run_experiment
 from sagg_bringup.graph.setups import in_process_run, setup_of
-from sagg_bringup.inprocess.synergy_experiment import ARM_FIXED
+from sagg_bringup.inprocess.fixed_experiment import ARM_FIXED
 from sagg_common.params import ConfigError, STRATEGIES
 
 # noise-free kinematic 8-DOF arm (config/arm8.yaml is dynamic with 20 % motor noise)
@@ -123,7 +123,7 @@ def test_launch_plan_of_a_fixed_context_arm_config(tmp_path):
     plan = launch_plan(str(path))
     assert plan.setup == ARM_FIXED
     scripts = {name: script for _, script, name in plan.nodes}
-    assert scripts == {"sagg_goal_generator": "goal_generator", "sagg_learner": "synergy_learner",
+    assert scripts == {"sagg_goal_generator": "goal_generator", "sagg_learner": "fixed_learner",
                        "sagg_sim_bridge": "mujoco_bridge"}
     lp = plan.params["sagg_learner"]
     assert lp["synergy.kind"] == "posture" and lp["controller"] == plan.params["sagg_sim_bridge"]["controller"]

@@ -133,7 +133,7 @@ def test_launch_plan_fills_every_derived_parameter(name, driver, tmp_path):
         assert [e for _, e, _ in plan.nodes if e != "goal_generator"] == (["learner", "mujoco_bridge"] if driver == "sim"
                                                                          else ["learner"]) or driver == "sim"
     else:  # synergy set-ups: their own learner and bridge
-        assert ("sagg_low_level", "synergy_learner", "sagg_learner") in plan.nodes
+        assert ("sagg_low_level", "fixed_learner", "sagg_learner") in plan.nodes
     path = write_plan(plan, tmp_path / "params.yaml")
     assert set(yaml.safe_load(path.read_text())) == set(plan.params)
 

@@ -19,7 +19,7 @@ import sagg_low_level.fixed_context as fixed_core
 import sagg_low_level.learner as learner_core
 import sagg_low_level.node as learner_node
 import sagg_low_level.schema as learner_schema
-import sagg_low_level.synergy_node as synergy_learner_node
+import sagg_low_level.fixed_node as fixed_learner_node
 import sagg_sim_bridge.node as bridge_node
 import sagg_sim_bridge.params as arm_core
 import sagg_sim_bridge.schema as bridge_schema
@@ -31,7 +31,7 @@ from sagg_bringup.cli.cli import node_schemas
 NODES = {
     gen_node: (gen_schema.SCHEMA, gen_core.SCHEMA),
     learner_node: (learner_schema.LEARNER_SCHEMA, learner_core.SCHEMA),
-    synergy_learner_node: (learner_schema.SYNERGY_LEARNER_SCHEMA, fixed_core.SCHEMA + fixed_core.SYNERGY_SCHEMA),
+    fixed_learner_node: (learner_schema.FIXED_LEARNER_SCHEMA, fixed_core.SCHEMA + fixed_core.SYNERGY_SCHEMA),
     bridge_node: (bridge_schema.BRIDGE_SCHEMA, arm_core.SCHEMA),
     synergy_bridge_node: (bridge_schema.SYNERGY_BRIDGE_SCHEMA, synergy_core.SCHEMA),
 }

@@ -219,7 +219,9 @@ CONSOLE_SCRIPTS = {
     'learner': ('sagg_low_level', 'sagg_low_level.node:main'),
     'mujoco_bridge': ('sagg_sim_bridge', 'sagg_sim_bridge.node:main'),
     'sagg': ('sagg_bringup', 'sagg_bringup.cli.cli:main'),
-    'synergy_learner': ('sagg_low_level', 'sagg_low_level.synergy_node:main'),
+    'fixed_learner': ('sagg_low_level', 'sagg_low_level.fixed_node:main'),
+    # the old name of fixed_learner (issue 26), an alias for one release
+    'synergy_learner': ('sagg_low_level', 'sagg_low_level.fixed_node:main'),
     'synergy_bridge': ('sagg_sim_bridge', 'sagg_sim_bridge.synergy_node:main'),
 }
 
@@ -252,7 +254,7 @@ def test_the_imported_packages_are_this_checkouts_code():
     # of the imported packages is this checkout's source, byte for byte
     import json
     for dist in ('sagg_common', 'sagg_goal_generator', 'sagg_low_level', 'sagg_sim_bridge',
-                 'sagg_bringup'):
+                 'sagg_bringup', 'sagg_lab'):
         package = Path(importlib.import_module(dist).__file__).parent
         source = REPO / 'src' / dist / dist
         modules = sorted(f.relative_to(source) for f in source.rglob('*.py'))

@@ -28,7 +28,7 @@ def test_each_config_is_one_setup_with_its_nodes_and_schemas(config, overrides, 
     s = setups.setup_of(ROOT / "config" / config, overrides)
     assert s.name == name and s.context == ("evolving" if name == "arm" else "fixed")
     assert s.nodes["sagg_sim_bridge"] == ("sagg_sim_bridge", bridge)
-    assert s.nodes["sagg_learner"][1] == ("learner" if name == "arm" else "synergy_learner")
+    assert s.nodes["sagg_learner"][1] == ("learner" if name == "arm" else "fixed_learner")
     schemas = s.node_schemas()
     assert set(schemas) == set(s.nodes)
     # the graph config resolves against exactly these schemas, the in-process one against the cores
@@ -69,8 +69,8 @@ def test_what_a_setup_cannot_do_is_refused_by_name(tmp_path):
 def test_node_tables_list_every_node_once():
     tables = setups.node_tables()
     assert list(tables) == ["sagg_goal_generator", "sagg_learner", "sagg_sim_bridge",
-                            "sagg_learner (synergy_learner)", "sagg_sim_bridge (synergy_bridge)"]
-    assert tables["sagg_learner (synergy_learner)"] is setups.SETUPS["quadruped"].node_schemas()["sagg_learner"]
+                            "sagg_learner (fixed_learner)", "sagg_sim_bridge (synergy_bridge)"]
+    assert tables["sagg_learner (fixed_learner)"] is setups.SETUPS["quadruped"].node_schemas()["sagg_learner"]
 
 
 def test_launch_plan_names_the_setup_and_its_nodes():
@@ -113,8 +113,8 @@ def _setup_branches(path: Path) -> list[int]:
 
 
 def test_no_setup_branches_outside_the_registry():
-    runners = ["cli/cli.py", "inprocess/experiment.py", "inprocess/synergy_experiment.py", "graph/graph.py",
-               "graph/synergy_graph.py", "graph/external.py", "graph/record.py", "graph/launch_params.py",
+    runners = ["cli/cli.py", "inprocess/experiment.py", "inprocess/fixed_experiment.py", "graph/graph.py",
+               "graph/fixed_graph.py", "graph/external.py", "graph/record.py", "graph/launch_params.py",
                "bags/bags.py", "report/report.py", "experiments/compare.py", "bags/topics.py", "graph/session.py"]
     found = {f: _setup_branches(SRC / f) for f in runners}
     assert {f: lines for f, lines in found.items() if lines} == {}

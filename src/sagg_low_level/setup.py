@@ -33,7 +33,9 @@ setup(
     entry_points={
         'console_scripts': [
             'learner = sagg_low_level.node:main',
-            'synergy_learner = sagg_low_level.synergy_node:main',
+            'fixed_learner = sagg_low_level.fixed_node:main',
+            # the old name of fixed_learner, kept as an alias for one release (issue 26)
+            'synergy_learner = sagg_low_level.fixed_node:main',
         ],
     },
 )

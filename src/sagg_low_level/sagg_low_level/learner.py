@@ -30,7 +30,7 @@ CONTEXT = Param(
     "Which low level drives an arm: 'evolving' (Sec. 3: micro-actions Δα from the current posture, "
     "the reacher of this module, node 'learner') or 'fixed' (the arm driven like a synergy, Sec. 4.4 / "
     "Alg. 4: θ = absolute joint targets within the joint limits, each experiment one position command "
-    "from the rest posture, outcome = the settled tip; node 'synergy_learner' with synergy.kind "
+    "from the rest posture, outcome = the settled tip; node 'fixed_learner' with synergy.kind "
     "'posture'). `sagg experiment` / `sagg run` choose the learner and node from it.",
     choices=("evolving", "fixed"))
 
@@ -304,7 +304,7 @@ class EvolvingContextLearner:
         self.robot = robot
         if params.get("context", "evolving") != "evolving":
             raise ValueError(f"context: got {params['context']!r}; allowed here: 'evolving' (the fixed "
-                             "context is the FixedContextLearner, node synergy_learner)")
+                             "context is the FixedContextLearner, node fixed_learner)")
         self.strategy = params["strategy"]
         self.task_lower = np.asarray(params["task_space.lower"], dtype=float)
         self.task_upper = np.asarray(params["task_space.upper"], dtype=float)

@@ -1,5 +1,5 @@
-"""What the two learner nodes share (``learner``: :mod:`.node`; ``synergy_learner``:
-:mod:`.synergy_node`): the ``/sagg`` endpoints, the start-up readiness of the goal generator and the
+"""What the two learner nodes share (``learner``: :mod:`.node`; ``fixed_learner``:
+:mod:`.fixed_node`): the ``/sagg`` endpoints, the start-up readiness of the goal generator and the
 recorder, the check of an answered goal, and the status message.
 
 None of this is on the per-micro-action path: the nodes' observation callbacks, ``dispatch`` and

@@ -1,4 +1,4 @@
-"""The arm's hardware contract for the fixed-context learner node (``synergy_learner`` with
+"""The arm's hardware contract for the fixed-context learner node (``fixed_learner`` with
 ``synergy.kind`` 'posture', i.e. the arm with ``context: fixed``): how θ becomes commands and how
 the outcome is read. The same contract as the evolving-context learner node (:mod:`.node`):
 
@@ -13,7 +13,7 @@ A command is answered by a *fresh, settled* observation: a joint state and a tip
 than the newest ones received before the command went out, every |velocity| below
 ``settle_velocity`` (or, ``settle_timeout`` s after the command, the latest fresh one). A lockstep
 bridge publishes exactly one such state per command, so the run equals the in-process one
-(:func:`sagg_bringup.inprocess.synergy_experiment.posture_outcome`). Bad input is rejected through the node's
+(:func:`sagg_bringup.inprocess.fixed_experiment.posture_outcome`). Bad input is rejected through the node's
 InputGuard (field, value, allowed range; counted on /diagnostics) and changes no state.
 """
 from __future__ import annotations

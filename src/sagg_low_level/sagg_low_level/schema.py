@@ -179,7 +179,7 @@ LEARNER_NODE_SCHEMA: Schema = (
 LEARNER_SCHEMA: Schema = LEARNER_CORE_SCHEMA + LEARNER_NODE_SCHEMA
 
 
-SYNERGY_NODE_SCHEMA: Schema = (
+FIXED_NODE_SCHEMA: Schema = (
     Param("controller", "str", "joint_trajectory_controller",
           "Trajectory controller name: synergies go to /<controller>/joint_trajectory "
           "(trajectory_msgs/JointTrajectory, the joint_trajectory_controller contract)."),
@@ -204,5 +204,5 @@ SYNERGY_NODE_SCHEMA: Schema = (
           low=0.0, high=1e6, low_open=True),
     CONTEXT,
 )
-# the node `synergy_learner` (fixed context: quadruped, fishing rod, the arm with context: fixed)
-SYNERGY_LEARNER_SCHEMA: Schema = FIXED_CORE_SCHEMA + SYNERGY_SCHEMA + SYNERGY_NODE_SCHEMA
+# the node `fixed_learner` (fixed context: quadruped, fishing rod, the arm with context: fixed)
+FIXED_LEARNER_SCHEMA: Schema = FIXED_CORE_SCHEMA + SYNERGY_SCHEMA + FIXED_NODE_SCHEMA

@@ -41,7 +41,7 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
 
 class GraphSession:
     """The orchestration one ``sagg run`` graph run needs, for the arm (:func:`run_graph`) and the
-    synergy set-ups (:func:`~sagg_bringup.graph.synergy_graph.run_synergy_graph`): the node processes on
+    synergy set-ups (:func:`~sagg_bringup.graph.fixed_graph.run_fixed_graph`): the node processes on
     a private ``ROS_DOMAIN_ID`` (``domain_id``, or a random one) with localhost discovery; this
     process's rclpy node, executor and ``/sagg/evaluation`` publisher; the mcap bag of ``topics``
     and its recorder (feeding :attr:`st`, a :class:`RunState`); Ctrl-C / SIGTERM as a flag; the wait

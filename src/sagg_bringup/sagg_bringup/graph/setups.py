@@ -9,7 +9,7 @@ report. Two implementations of one interface (:class:`Setup`):
   current posture, :class:`~sagg_low_level.learner.EvolvingContextLearner`, nodes ``learner`` +
   ``mujoco_bridge``; resumable, relearnable from bags, runs against an external driver;
 - :class:`FixedContext`: synergies θ → outcome y from a rest state (Sec. 4-5),
-  :class:`~sagg_low_level.fixed_context.FixedContextLearner`, node ``synergy_learner``; entries
+  :class:`~sagg_low_level.fixed_context.FixedContextLearner`, node ``fixed_learner``; entries
   ``quadruped`` and ``fishing`` (bridge ``synergy_bridge``, trajectories) and ``arm-fixed`` (the arm
   with the learner parameter ``context: fixed``: bridge ``mujoco_bridge``, the position contract).
 
@@ -18,7 +18,7 @@ Which entry a config is (:func:`setup_of`): the parameter ``setup`` (under ``/**
 the arm (``evolving``) or the fixed-context arm (``fixed``). This module is the only place that
 branches on the set-up: the CLI, the in-process and graph runners, the recorder, ``sagg relearn``,
 the launch plan and the report ask it. A new set-up is one module with its adapter (see
-:class:`~sagg_bringup.inprocess.synergy_experiment.SynergySetup`) plus one line in :data:`SETUPS`.
+:class:`~sagg_bringup.inprocess.fixed_experiment.SynergySetup`) plus one line in :data:`SETUPS`.
 """
 from __future__ import annotations
 
@@ -34,9 +34,9 @@ from sagg_sim_bridge.schema import BRIDGE_SCHEMA as ARM_BRIDGE_SCHEMA
 from sagg_sim_bridge.synergy_params import SETUPS as SYNERGY_SIMS
 
 from ..bags import bags, topics
-from ..inprocess import arm_params, experiment, synergy_experiment
+from ..inprocess import arm_params, experiment, fixed_experiment
 from ..report import report
-from . import external, graph, synergy_graph
+from . import external, graph, fixed_graph
 from ..bags.recorder import TopicSpec
 
 GOAL_GENERATOR = ("sagg_goal_generator", "goal_generator")  # (package, console script)
@@ -157,7 +157,7 @@ class EvolvingArm(Setup):
 class FixedContext(Setup):
     """A fixed-context set-up (Sec. 4-5): ``adapter`` is its in-process simulator adapter (how θ is
     executed and the outcome read, its test goals and reachable area; a class of
-    :mod:`.synergy_experiment`), ``bridge`` its bridge node (package, console script) and
+    :mod:`.fixed_experiment`), ``bridge`` its bridge node (package, console script) and
     ``bridge_schema`` that node's schema, ``learner_schema`` the learner node's (with the set-up's
     defaults), ``topics_of`` its recorded topics, ``rows_of`` its report rows."""
 
@@ -168,7 +168,7 @@ class FixedContext(Setup):
     bridge_schema: tuple
     topics_of: Callable[[dict], list[TopicSpec]]
     rows_of: Callable[[dict], list[tuple[str, str]]]
-    learner_schema: tuple = synergy_experiment.LEARNER_SCHEMA
+    learner_schema: tuple = fixed_experiment.LEARNER_SCHEMA
     context: str = "fixed"
     learner: str = "FixedContextLearner (Alg. 4, one synergy θ per experiment)"
     figures: tuple = ("learning_curve",)
@@ -176,7 +176,7 @@ class FixedContext(Setup):
 
     def __post_init__(self):
         object.__setattr__(self, "nodes", {"sagg_goal_generator": GOAL_GENERATOR,
-                                           "sagg_learner": ("sagg_low_level", "synergy_learner"),
+                                           "sagg_learner": ("sagg_low_level", "fixed_learner"),
                                            "sagg_sim_bridge": self.bridge})
 
     def node_schemas(self):
@@ -184,25 +184,25 @@ class FixedContext(Setup):
                 "sagg_sim_bridge": self.bridge_schema}
 
     def load_config(self, path, overrides=None):
-        return synergy_experiment.load_synergy_config(path, overrides, self.adapter)
+        return fixed_experiment.load_fixed_config(path, overrides, self.adapter)
 
     def in_process_run(self, config):
-        return synergy_experiment.SynergyRun(config, self.adapter)
+        return fixed_experiment.FixedRun(config, self.adapter)
 
     def run_experiment(self, path, strategy, seed, micro_actions, eval_every, out_dir, progress=True,
                        overrides=None):
-        return synergy_experiment.run_synergy_experiment(self.adapter, path, strategy, seed, micro_actions,
+        return fixed_experiment.run_fixed_experiment(self.adapter, path, strategy, seed, micro_actions,
                                                          eval_every, out_dir, progress=progress,
                                                          overrides=overrides)
 
     def graph_config(self, path, overrides=None):
-        return synergy_graph.resolve_fixed_graph(self, path, overrides)
+        return fixed_graph.resolve_fixed_graph(self, path, overrides)
 
     def graph_params(self, full, budget, driver="sim", path=None):
-        return synergy_graph.synergy_graph_params(full, budget)
+        return fixed_graph.fixed_graph_params(full, budget)
 
     def run_graph(self, path, micro_actions, out_dir, driver: str = "sim", **options):
-        return synergy_graph.run_synergy_graph(self, path, micro_actions, out_dir, **options)
+        return fixed_graph.run_fixed_graph(self, path, micro_actions, out_dir, **options)
 
     def topics(self, learner_params, timing="lockstep"):
         return self.topics_of(learner_params)
@@ -227,15 +227,15 @@ def _fixed_arm_rows(config: dict) -> list[tuple[str, str]]:
 SETUPS: dict[str, Setup] = {s.name: s for s in (
     EvolvingArm(),
     FixedContext("quadruped", "MuJoCo quadruped, 12 joints, sinusoid synergies (sagg_sim_bridge.quadruped)",
-                 synergy_experiment.SynergySetup, ("sagg_sim_bridge", "synergy_bridge"),
-                 synergy_experiment.SYN_BRIDGE_SCHEMA, topics.trajectory_topics, _synergy_rows),
+                 fixed_experiment.SynergySetup, ("sagg_sim_bridge", "synergy_bridge"),
+                 fixed_experiment.SYN_BRIDGE_SCHEMA, topics.trajectory_topics, _synergy_rows),
     FixedContext("fishing", "MuJoCo 4-DOF arm with a rod and a float, velocity synergies (sagg_sim_bridge.fishing)",
-                 synergy_experiment.SynergySetup, ("sagg_sim_bridge", "synergy_bridge"),
-                 synergy_experiment.SYN_BRIDGE_SCHEMA, topics.trajectory_topics, _synergy_rows),
-    FixedContext(synergy_experiment.ARM_FIXED, "MuJoCo N-DOF planar arm, θ = joint targets from rest "
-                 "(position contract)", synergy_experiment.ArmPostureSetup, ("sagg_sim_bridge", "mujoco_bridge"),
+                 fixed_experiment.SynergySetup, ("sagg_sim_bridge", "synergy_bridge"),
+                 fixed_experiment.SYN_BRIDGE_SCHEMA, topics.trajectory_topics, _synergy_rows),
+    FixedContext(fixed_experiment.ARM_FIXED, "MuJoCo N-DOF planar arm, θ = joint targets from rest "
+                 "(position contract)", fixed_experiment.ArmPostureSetup, ("sagg_sim_bridge", "mujoco_bridge"),
                  ARM_BRIDGE_SCHEMA, _arm_position_topics, _fixed_arm_rows,
-                 synergy_experiment.fixed_arm_learner_schema()),
+                 fixed_experiment.fixed_arm_learner_schema()),
 )}
 
 
@@ -248,7 +248,7 @@ def _setup_name(sections: dict[str, dict], overrides: dict[str, Any] | None = No
         return name
     context = sections.get("sagg_learner", {}).get("context", sections.get("/**", {}).get("context", "evolving"))
     context = CONTEXT.validate((overrides or {}).get("context", context))
-    return synergy_experiment.ARM_FIXED if context == "fixed" else "arm"
+    return fixed_experiment.ARM_FIXED if context == "fixed" else "arm"
 
 
 def setup_of(path: str | Path, overrides: dict[str, Any] | None = None) -> Setup:

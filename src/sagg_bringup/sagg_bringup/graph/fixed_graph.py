@@ -6,14 +6,14 @@ Like :func:`~sagg_bringup.graph.graph.run_graph` (same helpers: node processes w
 ``ROS_DOMAIN_ID`` and localhost discovery, SIGINT then SIGKILL, the mcap recorder), with three
 differences:
 
-- nodes: ``goal_generator``, ``synergy_learner``, ``synergy_bridge``; the learner stops at
+- nodes: ``goal_generator``, ``fixed_learner``, ``synergy_bridge``; the learner stops at
   ``max_experiments`` = ``--micro-actions`` (one micro-action = one synergy experiment);
 - recorded hardware topics: ``/<controller>/joint_trajectory`` (trajectory_msgs/JointTrajectory) and
   the outcome topic (PoseStamped body / PointStamped float);
 - evaluation after learning, from the recorded ``/sagg/sample`` stream: the model's reaching phase
   is a function of the stored samples only (no random draw), so a learner rebuilt from the first n
   samples answers the test goals exactly as the live learner did at n experiments; the test goals
-  and evaluation simulator are those of the in-process run (:class:`SynergyRun`). The bridge runs
+  and evaluation simulator are those of the in-process run (:class:`FixedRun`). The bridge runs
   each trajectory to completion before answering, so the graph is lockstep by construction
   (``--timing realtime`` is refused).
 """
@@ -34,22 +34,22 @@ from .processes import check_domain_id, node_processes
 from ..inprocess.results import run_overrides
 from .run_state import finite_sample_problem
 from .session import STALL_TIMEOUT, GraphSession
-from ..inprocess.synergy_experiment import SynergyRun, load_synergy_config, outcome_extents
+from ..inprocess.fixed_experiment import FixedRun, load_fixed_config, outcome_extents
 
 
 def resolve_fixed_graph(setup, config_path: str | Path, overrides: dict[str, Any] | None) -> dict[str, dict]:
     """The nodes' parameters (full node schemas) of a fixed-context config for the registry's set-up
     ``setup`` (its ``adapter`` and ``node_schemas()``)."""
     schemas = setup.node_schemas()
-    full = load_synergy_config(config_path, overrides, setup.adapter, learner_schema=schemas["sagg_learner"],
+    full = load_fixed_config(config_path, overrides, setup.adapter, learner_schema=schemas["sagg_learner"],
                                bridge_schema=schemas["sagg_sim_bridge"])
-    # the goal generator's node-only parameters (load_synergy_config resolved its core schema)
+    # the goal generator's node-only parameters (load_fixed_config resolved its core schema)
     full["sagg_goal_generator"] = node_params(read_config(config_path), "sagg_goal_generator",
                                               schemas["sagg_goal_generator"], overrides)
     return full
 
 
-def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, dict]:
+def fixed_graph_params(full: dict[str, dict], experiments: int) -> dict[str, dict]:
     params = {name: dict(values) for name, values in full.items()}
     lp, bp = params["sagg_learner"], params["sagg_sim_bridge"]
     lp["max_experiments"] = int(experiments)
@@ -63,7 +63,7 @@ def synergy_graph_params(full: dict[str, dict], experiments: int) -> dict[str, d
     return params
 
 
-def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
+def run_fixed_graph(setup, config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
                       seed: int | None = None, strategy: str | None = None, timing: str = "lockstep",
                       eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
                       domain_id: int | None = None, stall_timeout: float = STALL_TIMEOUT, report: bool = True) -> dict:
@@ -81,7 +81,7 @@ def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_di
         raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
     procs = node_processes(setup.nodes, out / "logs")
     t_start = time.perf_counter()
-    params = synergy_graph_params(full, micro_actions)
+    params = fixed_graph_params(full, micro_actions)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
     lp = full["sagg_learner"]
@@ -117,7 +117,7 @@ def run_synergy_graph(setup, config_path: str | Path, micro_actions: int, out_di
                                      lambda now: bar.update(st.samples, **st.progress()),
                                      lambda waited: waited > 0.5)
             # ---- evaluation from the recorded samples (same test goals and simulator as in-process)
-            run = SynergyRun({"sagg_goal_generator": full["sagg_goal_generator"], "sagg_learner": lp,
+            run = FixedRun({"sagg_goal_generator": full["sagg_goal_generator"], "sagg_learner": lp,
                               "sagg_sim_bridge": full["sagg_sim_bridge"]}, setup.adapter)
             goals_test, area, _ = run.test_goals()
             checkpoints = [c for c in list(range(0, micro_actions, eval_every)) + [micro_actions] if c <= len(samples)]

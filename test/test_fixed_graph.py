@@ -1,4 +1,4 @@
-"""The synergy graph (goal_generator + synergy_learner + synergy_bridge as processes, private
+"""The synergy graph (goal_generator + fixed_learner + synergy_bridge as processes, private
 ROS_DOMAIN_ID, SIGKILL fallback in stop_processes) equals the in-process run, and its bag holds the
 trajectories and outcomes."""
 from __future__ import annotations
@@ -60,7 +60,7 @@ def test_quadruped_graph_equals_in_process_and_records_trajectories(tmp_path):
 
 
 def test_fixed_context_arm_graph_equals_in_process_and_speaks_the_position_contract(tmp_path):
-    """The arm with context: fixed through the graph (goal_generator + synergy_learner + mujoco_bridge
+    """The arm with context: fixed through the graph (goal_generator + fixed_learner + mujoco_bridge
     in lockstep; config/arm8.yaml: dynamic, 20 % motor noise) equals the in-process run bit for bit,
     and the bag holds one rest command then θ per experiment on the position controller's topic."""
     n = 20

@@ -1,4 +1,4 @@
-"""The synergy learner node (``synergy_learner``): the fixed-context low level (paper Sec. 4-5, Alg. 4)
+"""The synergy learner node (``fixed_learner``): the fixed-context low level (paper Sec. 4-5, Alg. 4)
 on ROS 2, speaking the joint_trajectory_controller contract.
 
 It drives the :class:`~sagg_low_level.fixed_context.FixedContextLearner` coroutine from callbacks:
@@ -43,7 +43,7 @@ from .fixed_context import Execute, FixedContextLearner, ThetaSpace, synergy_fro
 from .learner import GoalRequest, Observe, Report
 from .node_base import NODE_NAME, LearnerNodeBase
 from .position_link import PositionLink
-from .schema import FIXED_CORE_SCHEMA as CORE_SCHEMA, SYNERGY_LEARNER_SCHEMA as SCHEMA
+from .schema import FIXED_CORE_SCHEMA as CORE_SCHEMA, FIXED_LEARNER_SCHEMA as SCHEMA
 
 
 def trajectory_msg(traj, stamp_ns: int) -> JointTrajectory:

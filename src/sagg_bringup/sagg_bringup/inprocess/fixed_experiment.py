@@ -29,7 +29,7 @@ from sagg_low_level.fixed_context import (SCHEMA as FC_SCHEMA, Driver, FixedCont
 from sagg_low_level.fixed_eval_batch import evaluate_fixed_batch
 from sagg_low_level.learner import SCHEMA as EVOLVING_SCHEMA
 from sagg_low_level.outcome_set import reachable_outcomes
-from sagg_low_level.schema import SYNERGY_LEARNER_SCHEMA as LEARNER_SCHEMA
+from sagg_low_level.schema import FIXED_LEARNER_SCHEMA as LEARNER_SCHEMA
 from sagg_sim_bridge.arms import (arm_base_point, arm_reach, arm_reachable_area, arm_spec_from_params,
                                   arm_test_goals, make_arm_sim)
 from sagg_sim_bridge.params import SCHEMA as ARM_SCHEMA
@@ -57,7 +57,7 @@ def fixed_arm_learner_schema(node_schema=LEARNER_SCHEMA):
     return tuple(dataclasses.replace(p, default=arm[p.name]) if p.name in arm else p for p in node_schema)
 
 
-def load_synergy_config(path: str | Path, overrides: dict[str, Any] | None, adapter,
+def load_fixed_config(path: str | Path, overrides: dict[str, Any] | None, adapter,
                         learner_schema=LEARNER_SCHEMA, bridge_schema=None) -> dict[str, dict]:
     """Resolve the three nodes' parameters of a fixed-context config (+ overrides applied to every
     node) for the set-up adapter ``adapter`` (:class:`SynergySetup` or :class:`ArmPostureSetup`,
@@ -224,7 +224,7 @@ class ArmPostureSetup:
         return goals, area, {}
 
 
-class SynergyRun:
+class FixedRun:
     """A fixed-context learning run of one strategy and seed (synergy set-up or the arm in the fixed
     context), stepped in-process; ``adapter``: the set-up's class (:class:`SynergySetup`,
     :class:`ArmPostureSetup`), named by the set-up registry."""
@@ -286,15 +286,15 @@ def outcome_extents(outcomes: np.ndarray) -> dict:
             "p99": np.percentile(outcomes, 99, axis=0).tolist()}
 
 
-def run_synergy_experiment(adapter, config_path: str | Path, strategy: str | None, seed: int | None,
+def run_fixed_experiment(adapter, config_path: str | Path, strategy: str | None, seed: int | None,
                            micro_actions: int, eval_every: int, out_dir: str | Path | None,
                            progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
     """Run one (strategy, seed) fixed-context experiment of the set-up ``adapter`` in-process and
     write ``out_dir/result.json``. ``micro_actions`` is the number of experiments (synergy
     executions with an outcome)."""
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
-    config = load_synergy_config(config_path, ov, adapter)
-    run = SynergyRun(config, adapter)
+    config = load_fixed_config(config_path, ov, adapter)
+    run = FixedRun(config, adapter)
     lp = config["sagg_learner"]
     t0 = time.perf_counter()
     goals, area, goal_info = run.test_goals()
