@@ -1,1 +1,1 @@
-"""Lab tools: benchmarks, soaks and figure scripts; never imported by the runtime nodes."""
+"""sagg_lab: the measuring tools (benchmarks, soaks, diagnoses, figure scripts, the peer comparison). Nothing of the product imports it; ``sagg bench`` finds its benchmarks as entry points."""
