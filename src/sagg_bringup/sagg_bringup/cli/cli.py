@@ -12,7 +12,6 @@ import yaml
 from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
 
 from ..graph.check_driver import main_check_driver
-from .benches import LAB_HINT, installed_benches, positive_int
 from ..graph.params_files import read_run_file
 from ..graph.processes import GraphError
 from ..graph.reach import main_reach
@@ -20,6 +19,7 @@ from ..graph.record import LOST_EXIT_CODE, default_out, record
 from ..report.report import write_report
 from ..experiments.reproduce import estimate, run_reproduce
 from ..experiments.sensitivity import run_sensitivity
+from .benches import LAB_HINT, installed_benches, positive_int
 
 # A command whose modules load rclpy, mujoco or matplotlib imports them when it runs (`# lazy (heavy)`:
 # they take seconds to import, and `sagg params` or `sagg bench table` need none of them); light
