@@ -247,3 +247,58 @@ def test_sigkill_of_a_whole_run_then_resume_and_relearn(tmp_path):
     assert re["memory"]["samples"] == steps
     assert re["memory"]["digest"] == s["memory"]["digest"] == ck["memory_digest"]
     assert re["goals_match"] and re["regions_match"] and re["reports"] == s["reports"]
+
+
+def _children(pid: int) -> dict[int, str]:
+    """pid -> command line of the live processes whose parent is ``pid`` (from /proc)."""
+    out = {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            if ppid == pid:
+                out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, IndexError, ValueError):
+            pass
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_the_evaluation_process_ends_when_sagg_run_is_killed_alone(tmp_path):
+    """SIGKILL of the `sagg run` process only (the OOM killer, `kill -9 PID`, a timeout that kills
+    the child): its evaluation process (multiprocessing, spawn) notices within seconds and exits
+    instead of waiting on its queue for ever (it held both ends of it)."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    p = subprocess.Popen([SAGG, "run", str(ROOT / "config/arm8.yaml"), "--micro-actions", "100000",
+                          "--eval-every", "50000", "--out", str(tmp_path / "run"), "--quiet", "--no-report",
+                          "--domain-id", str(pick_domain_id())],
+                         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        end = time.monotonic() + 120
+        evaluator = []
+        while not evaluator:
+            assert p.poll() is None and time.monotonic() < end
+            evaluator = [c for c, cmd in _children(p.pid).items() if "multiprocessing.spawn" in cmd]
+            time.sleep(0.2)
+        assert _alive(evaluator[0])
+        os.kill(p.pid, signal.SIGKILL)
+        p.wait(timeout=30)
+        end = time.monotonic() + 15
+        while _alive(evaluator[0]) and time.monotonic() < end:
+            time.sleep(0.2)
+        assert not _alive(evaluator[0]), f"evaluation process {evaluator[0]} outlived sagg run"
+        # (multiprocessing's resource tracker, also a child of sagg run, ends once the last process
+        # holding its pipe has: not checked here, it holds no resource of ours)
+    finally:
+        try:
+            os.killpg(p.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass

@@ -7,6 +7,7 @@ import multiprocessing
 import os
 import queue
 import signal
+import threading
 import time
 
 import numpy as np
@@ -49,6 +50,22 @@ def evaluate_frozen(learner, spec, learner_params: dict, goals: np.ndarray) -> n
     return evaluate_arm(learner, spec, learner_params["seed"], goals)
 
 
+def _exit_with_parent() -> None:
+    """In the evaluation process: a daemon thread that ends the process as soon as the process that
+    started it has died. `sagg run` stops it with a message; a `sagg run` killed with SIGKILL (the
+    OOM killer, ``kill -9``, a caller's timeout) cannot, and the queues never close (this process
+    holds both ends of them): without this it would wait for ever, holding its memory."""
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def watch() -> None:
+        parent.join()
+        os._exit(0)
+
+    threading.Thread(target=watch, name="sagg-evaluator-parent", daemon=True).start()
+
+
 def _eval_worker(inbox, outbox, learner_params: dict, spec, checkpoints: list[int],
                  nice: int) -> None:
     """Evaluation process: computes the reachable area and the test goals (as ``run_experiment``
@@ -56,7 +73,9 @@ def _eval_worker(inbox, outbox, learner_params: dict, spec, checkpoints: list[in
     sample batches in ``inbox`` and, whenever it holds exactly a checkpoint's number of samples,
     evaluates the frozen model as ``InProcessRun.evaluate`` does (fresh
     ``ArmSim(spec, substream_seed(seed, "eval_sim"))``). Sends ``("area", ...)``, then
-    ``("eval", at, errors, seconds)`` per checkpoint, or ``("error", text)``, to ``outbox``."""
+    ``("eval", at, errors, seconds)`` per checkpoint, or ``("error", text)``, to ``outbox``. Ends
+    at ``("stop",)``, or at once when its parent has died (:func:`_exit_with_parent`)."""
+    _exit_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # `sagg run` stops us (a terminal Ctrl-C reaches us too)
     try:
         os.nice(nice)
