@@ -44,7 +44,7 @@ setup(
     data_files=DATA_FILES,
     install_requires=['setuptools'],
     # Optional: `sagg bench compare --ray` (pinned with its dependencies in requirements-ray.txt).
-    extras_require={'ray': ['ray==2.60.0'], 'test': ['pytest']},  # 'test': colcon runs pytest for it
+    extras_require={'ray': ['ray==2.60.0']},
     zip_safe=True,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',

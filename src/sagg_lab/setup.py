@@ -11,6 +11,8 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
     ],
     install_requires=['setuptools'],
+    # 'test': colcon runs the repository's suite with pytest from this package (setup.cfg testpaths)
+    extras_require={'test': ['pytest']},
     zip_safe=True,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',
