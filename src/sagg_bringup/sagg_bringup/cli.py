@@ -9,7 +9,7 @@ from pathlib import Path
 
 import yaml
 
-from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
+from sagg_common.params import PAPER_STRATEGIES, STRATEGIES, ConfigError, parse_set, schema_markdown
 
 from .check_driver import main_check_driver
 from .params_files import read_run_file
@@ -223,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stored samples before timing (cost ratios against the smallest)")
     s.add_argument("--measure", type=positive_int, default=2000,
                    help="micro-actions timed at each size")
-    s.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    s.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(PAPER_STRATEGIES))
     s.add_argument("--graph", action=argparse.BooleanOptionalAction, default=True,
                    help="also measure graph vs in-process vs bare rclpy ping-pong (sagg bench graph)")
     s.add_argument("--graph-config", default="config/arm8.yaml")
@@ -261,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
                                         "or Ray), resumable; mean ± std tables, Mann-Whitney / Welch "
                                         "tests, curves")
     c.add_argument("--config", required=True, help="experiment YAML (ROS 2 parameter-file form)")
-    c.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    c.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(PAPER_STRATEGIES))
     c.add_argument("--seeds", type=positive_int, required=True,
                    help="number of seeds: seed i = base seed + i")
     c.add_argument("--base-seed", type=int, help="first seed (default: the config's seed)")
@@ -287,7 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
                                          "queries/s, mean ± std, SAGG-RIAC vs SAGG-RANDOM p-values, the "
                                          "analytic-Jacobian reach check (issue 10)")
     qu.add_argument("--config", default="config/arm7_ratio15.yaml")
-    qu.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    qu.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(PAPER_STRATEGIES))
     qu.add_argument("--seeds", type=positive_int, default=5, help="number of seeds: base seed + i")
     qu.add_argument("--base-seed", type=int, default=0)
     qu.add_argument("--points", type=positive_int, nargs="+", default=[5000, 20000],
