@@ -129,7 +129,7 @@ def test_the_mixture_puts_its_highest_alp_component_where_competence_changes():
     ({"alp_gmm.k_max": 30, "alp_gmm.fit_every": 20, "alp_gmm.bootstrap": 20}, "alp_gmm.k_max"),
 ])
 def test_inconsistent_alp_gmm_parameters_are_refused_by_name(bad, match):
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(ConfigError, match=match):
         generator("alp-gmm", **bad)
     generator("sagg-riac", **bad)  # read only by alp-gmm
 

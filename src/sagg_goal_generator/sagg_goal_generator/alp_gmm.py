@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from sagg_common.journal import restore_rng, rng_state
-from sagg_common.params import Param, Schema
+from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.report_kinds import KIND_GOAL
 from sagg_common.rng import stream
 
@@ -75,15 +75,16 @@ SCHEMA: Schema = (
 
 
 def check_params(params: dict) -> None:
-    """Cross-parameter checks (each parameter's own range is the schema's)."""
+    """Cross-parameter checks (each parameter's own range is the schema's): ConfigError naming the
+    parameter."""
     if params[P + "bootstrap"] < params[P + "fit_every"]:
-        raise ValueError(f"{P}bootstrap: got {params[P + 'bootstrap']}; allowed: at least "
+        raise ConfigError(f"{P}bootstrap: got {params[P + 'bootstrap']}; allowed: at least "
                          f"{P}fit_every ({params[P + 'fit_every']})")
     if params[P + "k_min"] > params[P + "k_max"]:
-        raise ValueError(f"{P}k_min: got {params[P + 'k_min']}; allowed: at most {P}k_max "
+        raise ConfigError(f"{P}k_min: got {params[P + 'k_min']}; allowed: at most {P}k_max "
                          f"({params[P + 'k_max']})")
     if params[P + "k_max"] > params[P + "fit_every"]:
-        raise ValueError(f"{P}k_max: got {params[P + 'k_max']}; allowed: at most {P}fit_every "
+        raise ConfigError(f"{P}k_max: got {params[P + 'k_max']}; allowed: at most {P}fit_every "
                          f"({params[P + 'fit_every']}: a fit has that many points)")
 
 
