@@ -134,6 +134,13 @@ def test_inconsistent_alp_gmm_parameters_are_refused_by_name(bad, match):
     generator("sagg-riac", **bad)  # read only by alp-gmm
 
 
+def test_a_grid_too_large_for_memory_is_refused_by_name():
+    big = {"discretized_progress.cells": 1_000_000, "discretized_progress.window": 20}
+    with pytest.raises(ConfigError, match=r"discretized_progress\.cells x discretized_progress\.window"):
+        generator("discretized-progress", **big)
+    generator("sagg-riac", **big)  # read only by discretized-progress
+
+
 @pytest.mark.parametrize("name, value", [
     ("alp_gmm.random_share", 1.5), ("alp_gmm.fit_every", 1), ("alp_gmm.criterion", "aicc"),
     ("alp_gmm.covariance", "tied"), ("alp_gmm.history", 0), ("discretized_progress.random_share", -0.1),

@@ -66,7 +66,7 @@ SCHEMA: Schema = (
     Param(P + "history", "int", 10000,
           "Earlier goals kept for the nearest-neighbour ALP, the oldest forgotten (the reference keeps "
           "all, alp_max_size = None; bounded here so a goal's cost is bounded; our choice).",
-          low=1, high=10_000_000),
+          low=1, high=1_000_000),
     Param(P + "unit_goals", "bool", False,
           "Nearest neighbours and the mixture in Y scaled to [0, 1] per dimension (true) or in Y's "
           "own units (false, as the reference, whose tasks are raw parameters). With Y in "

@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from sagg_common.params import Param, Schema
+from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 
 from .modes import MODE_GLOBAL, MODE_REGION
@@ -41,10 +41,11 @@ P = "discretized_progress."
 SCHEMA: Schema = (
     Param(P + "cells", "int", 400,
           "Number of grid cells aimed at: floor(cells^(1/dim)) bins per dimension of Y (explauto "
-          "x_card = 400: 20 x 20 in 2-D, 7 x 7 x 7 in 3-D).", low=1, high=10_000_000),
+          "x_card = 400: 20 x 20 in 2-D, 7 x 7 x 7 in 3-D). cells x window at most 10^7 (the windows' "
+          "memory).", low=1, high=1_000_000),
     Param(P + "window", "int", 10,
           "Competences kept per cell; progress compares the older half with the newer (explauto "
-          "win_size = 10).", low=2, high=100_000),
+          "win_size = 10).", low=2, high=10_000),
     Param(P + "random_share", "float", 0.3,
           "Probability of a uniform cell instead of one chosen by progress (explauto eps_random = 0.3).",
           low=0.0, high=1.0),
@@ -91,6 +92,9 @@ class DiscretizedProgress:
         p = gen.params
         self.gen = gen
         self.p = {q.name[len(P):]: p[q.name] for q in SCHEMA}
+        if self.p["cells"] * self.p["window"] > 10_000_000:
+            raise ConfigError(f"{P}cells x {P}window: got {self.p['cells']} x {self.p['window']}; allowed: at "
+                              "most 10^7 competences kept")
         self.shape = grid_shape(self.p["cells"], gen.dim)
         self.n_cells = int(np.prod(self.shape))
         self.width = (gen.upper - gen.lower) / np.array(self.shape)
