@@ -26,7 +26,9 @@ PYTHON_KEYS = {"numpy": "python3-numpy", "yaml": "python3-yaml", "scipy": "pytho
                "matplotlib": "python3-matplotlib", "pytest": "python3-pytest",
                "mujoco": "python3-mujoco-pip", "rosbags": "python3-rosbags-pip", "sklearn": "python3-sklearn",
                # (no key installs `mcap` alone; the pip package mcap-ros2-support requires it)
-               "mcap": "mcap-ros2-support"}
+               "mcap": "mcap-ros2-support",
+               # (no key installs `threadpoolctl` alone; python3-sklearn's package requires it)
+               "threadpoolctl": "python3-sklearn"}
 # ROS 2 Jazzy packages (jazzy/distribution.yaml): importable module = package name
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "std_srvs", "sensor_msgs", "geometry_msgs",
                 "trajectory_msgs", "diagnostic_msgs", "builtin_interfaces", "rosgraph_msgs",

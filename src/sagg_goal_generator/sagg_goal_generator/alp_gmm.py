@@ -27,6 +27,7 @@ scikit-learn's ``random_state`` of each fit is an integer drawn from the named s
 from __future__ import annotations
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from sagg_common.journal import restore_rng, rng_state
 from sagg_common.params import ConfigError, Param, Schema
@@ -117,17 +118,20 @@ def fit_mixture(data: np.ndarray, k_min: int, k_max: int, criterion: str, covari
     """Fit one Gaussian mixture per k in ``k_min..k_max`` to ``data`` (rows: goal then ALP) and keep
     the one of least ``criterion`` (AIC or BIC; Portelas et al. 2019 Sec. 4.1, reference: AIC).
     Returns (weights (k,), means (k, D), covariances (k, D, D), full matrices whatever the type).
-    scikit-learn is imported here, so that the other strategies do not load it."""
+    scikit-learn is imported here, so that the other strategies do not load it. BLAS runs on one
+    thread here: its matrices are 3 x 3 or 4 x 4, and a BLAS thread pool waiting on a busy machine
+    made a fit of 250 points take 10 s instead of 0.3 s (docs/notes/teachers.md)."""
     # lazy (heavy): scikit-learn (about a second to import)
     from sklearn.mixture import GaussianMixture
 
     best, best_score = None, np.inf
-    for k in range(k_min, k_max + 1):
-        gm = GaussianMixture(n_components=k, covariance_type=covariance, n_init=em_inits,
-                             random_state=random_state).fit(data)
-        score = gm.aic(data) if criterion == "aic" else gm.bic(data)
-        if score < best_score:  # ties: the fewest Gaussians
-            best, best_score = gm, score
+    with threadpool_limits(limits=1):
+        for k in range(k_min, k_max + 1):
+            gm = GaussianMixture(n_components=k, covariance_type=covariance, n_init=em_inits,
+                                 random_state=random_state).fit(data)
+            score = gm.aic(data) if criterion == "aic" else gm.bic(data)
+            if score < best_score:  # ties: the fewest Gaussians
+                best, best_score = gm, score
     cov = best.covariances_
     if covariance == "diag":
         cov = np.stack([np.diag(c) for c in cov])
