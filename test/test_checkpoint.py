@@ -241,18 +241,25 @@ def test_learner_sigkill_then_resume_keeps_every_published_sample_once(ros_env, 
     assert "were lost or reordered" not in (tmp_path / "goal_generator.log").read_text()
 
 
-def test_generator_sigkill_then_resume_leaves_the_run_unchanged(ros_env, tmp_path):
+# alp-gmm fitting every 5 goals: fits before and after the kill (~26 goals in the run)
+TEACHER_SETS = {"sagg-riac": {}, "alp-gmm": {"alp_gmm.fit_every": 5, "alp_gmm.bootstrap": 5, "alp_gmm.k_max": 3},
+                "discretized-progress": {}}
+
+
+@pytest.mark.parametrize("strategy", TEACHER_SETS)
+def test_generator_sigkill_then_resume_leaves_the_run_unchanged(ros_env, tmp_path, strategy):
     """The generator is killed mid-run and restarted from its checkpoint + goal journal; the
     reports it missed come from the learner's history: the lockstep run still equals the
-    in-process one bit for bit (samples, goals, region tree)."""
+    in-process one bit for bit (samples, goals, region tree), whatever teacher chooses the goals."""
     base = ROOT / "config" / "arm15_y50.yaml"
     arm = {"dof": 7, "mode": "kinematic"}
     steps, kill_at = 1200, 500
     ck = tmp_path / "ck"
+    sets = TEACHER_SETS[strategy]
     params = graph_params(base, tmp_path / "params.yaml", arm,
                           learner={"max_micro_actions": steps, "min_sample_subscribers": 1, "goal_retry": 1.0},
                           generator={"min_goal_subscribers": 1, "checkpoint_dir": str(ck), "checkpoint_every": 150,
-                                     "resume": True})
+                                     "resume": True, **sets}, everyone={"strategy": strategy})
     col = Collector(ros_env["ctx"])
     bridge = start(ros_env, "mujoco_bridge", params, tmp_path)
     gen = start(ros_env, "goal_generator", params, tmp_path)
@@ -266,10 +273,12 @@ def test_generator_sigkill_then_resume_leaves_the_run_unchanged(ros_env, tmp_pat
     ok = col.spin_until(lambda: col.stopped() and len(_samples_by_index(col)) >= steps,
                         STARTUP_TIMEOUT + RUN_TIMEOUT, [bridge, gen, learner])
     assert ok, logs(tmp_path)
-    run, reports = in_process(base, {f"arm.{k}": v for k, v in arm.items()}, steps)
+    run, reports = in_process(base, {**{f"arm.{k}": v for k, v in arm.items()}, "strategy": strategy, **sets}, steps)
     col.spin_until(lambda: col.regions is not None and col.regions.reports >= len(reports), 30.0)
     col.spin_for(0.5)
     assert "resumed from" in (tmp_path / "goal_generator.log").read_text(), logs(tmp_path)
+    if strategy == "alp-gmm":
+        assert len(run.generator.teacher.fits) >= 3
     got = _samples_by_index(col)
     mem = SampleMemory(7, 7, 2)
     for i in range(steps):

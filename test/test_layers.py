@@ -149,7 +149,7 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 # Third-party packages worth loading only on the paths that use them (import times measured here at
 # load ~3: rclpy 0.45 s, mujoco 0.64 s, matplotlib 0.49 s, scipy 0.17-0.47 s, rosbags.highlevel
 # 0.09 s), and ROS interface packages (their type support is loaded with rclpy).
-HEAVY_ROOTS = frozenset({"rclpy", "mujoco", "matplotlib", "scipy", "rosbags", "ray"})
+HEAVY_ROOTS = frozenset({"rclpy", "mujoco", "matplotlib", "scipy", "rosbags", "ray", "sklearn"})
 LAZY_MARK = "# lazy (heavy)"
 
 

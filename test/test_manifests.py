@@ -4,7 +4,7 @@ key that resolves on Ubuntu 24.04 (noble) / Jazzy.
 
 The rosdep keys below were looked up in ros/rosdistro (commit 8468e88, 2026-08-22):
 rosdep/python.yaml has python3-numpy, python3-yaml, python3-scipy, python3-matplotlib,
-python3-pytest with an `ubuntu` entry (apt) and python3-mujoco-pip, python3-rosbags-pip with an
+python3-pytest (and, looked up at commit 000730d, python3-sklearn) with an `ubuntu` entry (apt) and python3-mujoco-pip, python3-rosbags-pip with an
 `ubuntu: pip:` entry (PyPI mujoco / rosbags); jazzy/distribution.yaml releases every ROS package
 listed in ROS_PACKAGES. (`python3-mujoco` and `python3-rosbags`, used before, are not keys.)
 mcap-ros2-support (a `pip` entry for every platform) is the key whose PyPI package requires `mcap`.
@@ -25,9 +25,11 @@ OUR_PACKAGES = set(PY_PACKAGES) | {"sagg_msgs"}
 # Python module -> rosdep key (rosdistro rosdep/python.yaml, ubuntu noble)
 PYTHON_KEYS = {"numpy": "python3-numpy", "yaml": "python3-yaml", "scipy": "python3-scipy",
                "matplotlib": "python3-matplotlib", "pytest": "python3-pytest",
-               "mujoco": "python3-mujoco-pip", "rosbags": "python3-rosbags-pip",
+               "mujoco": "python3-mujoco-pip", "rosbags": "python3-rosbags-pip", "sklearn": "python3-sklearn",
                # (no key installs `mcap` alone; the pip package mcap-ros2-support requires it)
-               "mcap": "mcap-ros2-support"}
+               "mcap": "mcap-ros2-support",
+               # (no key installs `threadpoolctl` alone; python3-sklearn's package requires it)
+               "threadpoolctl": "python3-sklearn"}
 # ROS 2 Jazzy packages (jazzy/distribution.yaml): importable module = package name
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "std_srvs", "sensor_msgs", "geometry_msgs",
                 "trajectory_msgs", "diagnostic_msgs", "builtin_interfaces", "rosgraph_msgs",

@@ -138,15 +138,24 @@ class Param:
 
 Schema = tuple[Param, ...]
 
-# Strategies of paper Sec. 3.7 (shared by the generator and the learner)
-STRATEGIES = ("sagg-riac", "sagg-random", "actuator-random", "actuator-riac")
+# The strategies (shared by the generator and the learner): one list of names. Goal strategies: the
+# learner asks the goal generator for goals, which chooses them with that strategy's teacher
+# (sagg_goal_generator.core.TEACHERS, whose keys are GOAL_STRATEGIES; test_teachers.py checks).
+# Actuator strategies: no goals (the generator is idle).
+GOAL_STRATEGIES = ("sagg-riac", "sagg-random", "alp-gmm", "discretized-progress")
+ACTUATOR_STRATEGIES = ("actuator-random", "actuator-riac")
+# the four of paper Sec. 3.7: what the benchmarks compare unless told otherwise
+PAPER_STRATEGIES = ("sagg-riac", "sagg-random", "actuator-random", "actuator-riac")
+STRATEGIES = PAPER_STRATEGIES + tuple(s for s in GOAL_STRATEGIES if s not in PAPER_STRATEGIES)
 
 # Parameters every learning node declares; set them once under ``/**`` in a config.
 SHARED_SCHEMA: Schema = (
     Param("seed", "int", 0, "Run seed; every random stream is derived from it.", low=0),
     Param("strategy", "str", "sagg-riac",
           "Exploration strategy (Sec. 3.7): sagg-riac (goals by competence progress), sagg-random "
-          "(goals uniform in Y), actuator-random, actuator-riac. The generator is idle for the "
+          "(goals uniform in Y), actuator-random, actuator-riac; beyond the paper (docs/notes/teachers.md): "
+          "alp-gmm (Portelas et al. 2019: goals from a Gaussian mixture over absolute learning progress), "
+          "discretized-progress (explauto's grid of competence progress). The generator is idle for the "
           "actuator strategies.", choices=STRATEGIES),
     Param("task_space.lower", "float_list", [0.0, -150.0], "Lower corner of the task space Y."),
     Param("task_space.upper", "float_list", [150.0, 150.0], "Upper corner of the task space Y."),

@@ -6,8 +6,10 @@ Files in the checkpoint directory (``g`` = generation):
   (``bit_generator.state`` of the goal stream and of the split stream), the number of splits, the
   state file's name and the seed / strategy / task space it belongs to;
 - ``generator_state_<g>.npz``: the region tree (every region: box, split, children, the points and
-  competences of the leaves, the order of the leaves), the split history and every goal (seq,
-  position, mode, after_report, competence);
+  competences of the leaves, the order of the leaves), the split history, every goal (seq,
+  position, mode, after_report, competence) and the arrays of the strategy's teacher
+  (``teacher_<name>``; its JSON values are ``teacher`` in ``generator.json``: e.g. alp-gmm's
+  history, mixtures and fit stream; none for sagg-riac and sagg-random);
 - ``generator_journal_<k>.bin``: write-ahead journal of the goals chosen after checkpoint ``k``
   (one record per goal, written before the goal is answered or published). Generation ``g``
   keeps journal ``g - 1`` too: a resumed node publishes the goals of both again on /sagg/goal
@@ -36,6 +38,7 @@ from sagg_common.region_arrays import restore_tree, splits_arrays, splits_from_a
 from .core import GoalGenerator, GoalRecord
 
 REC_GOAL = 3
+TEACHER_PREFIX = "teacher_"
 FORMAT = "sagg.generator_checkpoint/1"
 
 
@@ -68,6 +71,7 @@ class GeneratorCheckpointer(Checkpointer):
         gen = self.gen
         g = self._next_journal()
         goals = gen.goals
+        teacher_arrays, teacher_meta = gen.teacher.state()
         state = self._path("state", g)
         save_npz_atomic(
             state, **tree_arrays(gen.tree), **splits_arrays(gen.tree.splits, gen.dim),
@@ -75,11 +79,13 @@ class GeneratorCheckpointer(Checkpointer):
             goal_position=np.array([r.position for r in goals], float).reshape(-1, gen.dim),
             goal_mode=np.array([r.mode for r in goals], np.int64),
             goal_after=np.array([r.after_report for r in goals], np.int64),
-            goal_competence=np.array([np.nan if r.competence is None else r.competence for r in goals], float))
+            goal_competence=np.array([np.nan if r.competence is None else r.competence for r in goals], float),
+            **{TEACHER_PREFIX + k: v for k, v in teacher_arrays.items()})
         write_json_atomic(self.dir / "generator.json", {
             "format": FORMAT, "generation": g, **self._identity(), "reports": gen.reports,
             "ignored_outside": gen.ignored_outside, "goals": len(goals), "rng": rng_state(gen.rng),
-            "split_rng": rng_state(gen.tree.rng), "splits": len(gen.tree.splits), "state_file": state.name})
+            "split_rng": rng_state(gen.tree.rng), "splits": len(gen.tree.splits), "state_file": state.name,
+            "teacher": teacher_meta})
         self._saved(g, "state")  # journal g - 1 is kept: its goals are published again at a resume
 
     def resume(self) -> list[GoalRecord]:
@@ -97,6 +103,8 @@ class GeneratorCheckpointer(Checkpointer):
             gen.goals = [GoalRecord(int(s), p.copy(), int(m), int(a), None if np.isnan(c) else float(c))
                          for s, p, m, a, c in zip(z["goal_seq"], z["goal_position"], z["goal_mode"],
                                                   z["goal_after"], z["goal_competence"])]
+            gen.teacher.restore({k[len(TEACHER_PREFIX):]: z[k] for k in z.files if k.startswith(TEACHER_PREFIX)},
+                                meta.get("teacher", {}))
         gen.reports = int(meta["reports"])
         gen.ignored_outside = int(meta["ignored_outside"])
         restore_rng(gen.rng, meta["rng"])

@@ -15,10 +15,9 @@ from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import stream
 
-# Goal modes (same values as sagg_msgs/Goal constants)
-MODE_INITIAL, MODE_REGION, MODE_GLOBAL, MODE_LOW_COMPETENCE, MODE_RANDOM = 0, 1, 2, 3, 4
-MODE_NAMES = {MODE_INITIAL: "initial", MODE_REGION: "region", MODE_GLOBAL: "global",
-              MODE_LOW_COMPETENCE: "low-competence", MODE_RANDOM: "random"}
+from . import alp_gmm, discretized_progress
+from .modes import (MODE_GLOBAL, MODE_INITIAL, MODE_LOW_COMPETENCE, MODE_NAMES,  # noqa: F401 - re-exported
+                    MODE_RANDOM, MODE_REGION)
 
 
 SCHEMA: Schema = SHARED_SCHEMA + (
@@ -42,7 +41,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (
     Param("count_reached", "bool", True,
           "Every reached point (reaching and exploration micro-actions) counts as a goal of "
           "maximal competence (Sec. 2.5, 3.5). The paper turns it off for the DOF experiments."),
-)
+) + alp_gmm.SCHEMA + discretized_progress.SCHEMA
 
 
 @dataclass
@@ -54,8 +53,71 @@ class GoalRecord:
     competence: float | None = None  # filled by the goal's own report
 
 
+class Teacher:
+    """How a goal strategy chooses goals (a plug-in of :class:`GoalGenerator`, registered in
+    :data:`TEACHERS`). Built with the generator, whose ``params``, bounds, goal stream ``rng``,
+    ``_uniform`` and region tree it may use. Subclasses define :meth:`choose`; the others are
+    no-ops here (a teacher with no state of its own: the tree and the goal stream are the
+    generator's, saved by its checkpoint)."""
+
+    def __init__(self, gen: "GoalGenerator"):
+        self.gen = gen
+
+    def choose(self) -> tuple[np.ndarray, int]:
+        """The next goal and its mode."""
+        raise NotImplementedError
+
+    def report(self, kind: int, target, competence: float) -> None:
+        """Every report the generator takes (whatever ``count_reached`` says; before its tree takes it)."""
+
+    def state(self) -> tuple[dict[str, np.ndarray], dict]:
+        """The teacher's own state: arrays (for the checkpoint's npz) and JSON values."""
+        return {}, {}
+
+    def restore(self, arrays: dict, meta: dict) -> None:
+        """Set the state :meth:`state` returned (arrays by the same names)."""
+
+    def snapshot(self) -> dict | None:
+        """JSON for the run's result (the report's "where goals went"); None: nothing of its own."""
+        return None
+
+
+class RegionInterest(Teacher):
+    """``sagg-riac``: the three modes over the region tree (Sec. 2.4.4), after an initial uniform
+    phase while the tree has one region."""
+
+    def choose(self) -> tuple[np.ndarray, int]:
+        gen = self.gen
+        if len(gen.tree.leaves()) < 2:
+            return gen._uniform(gen.lower, gen.upper), MODE_INITIAL
+        mode = int(gen.rng.choice(3, p=gen.mode_probs)) + 1
+        if mode == MODE_GLOBAL:
+            return gen._uniform(gen.lower, gen.upper), mode
+        region = gen._region_by_interest()
+        return (gen._uniform(region.lower, region.upper) if mode == MODE_REGION
+                else gen._near_lowest(region)), mode
+
+
+class UniformGoals(Teacher):
+    """``sagg-random``: goals uniform in Y (Sec. 3.7)."""
+
+    def choose(self) -> tuple[np.ndarray, int]:
+        return self.gen._uniform(self.gen.lower, self.gen.upper), MODE_RANDOM
+
+
+# The goal strategies' teachers, by strategy name (keys: sagg_common.params.GOAL_STRATEGIES).
+TEACHERS: dict[str, type] = {
+    "sagg-riac": RegionInterest,
+    "sagg-random": UniformGoals,
+    alp_gmm.NAME: alp_gmm.AlpGmm,
+    discretized_progress.NAME: discretized_progress.DiscretizedProgress,
+}
+
+
 class GoalGenerator:
-    """High-level goal self-generation (Sec. 2.4.4) over a region tree of Y."""
+    """High-level goal self-generation (Sec. 2.4.4) over a region tree of Y; the goals are chosen by
+    the strategy's teacher (:data:`TEACHERS`). The tree takes every report whatever the strategy
+    (it is what /sagg/regions shows)."""
 
     def __init__(self, params: dict):
         self.params = params
@@ -80,6 +142,8 @@ class GoalGenerator:
         self.reports = 0  # number of reports processed (== seq of the last one)
         self.ignored_outside = 0
         self.skipped_reports = 0  # rejected or lost reports (skip_report)
+        # actuator strategies choose no goals; their generator keeps sagg-riac's teacher (never asked)
+        self.teacher: Teacher = TEACHERS.get(self.strategy, RegionInterest)(self)
 
     @property
     def dim(self) -> int:
@@ -98,6 +162,7 @@ class GoalGenerator:
         self.reports += 1
         if kind == KIND_GOAL and self.goals:
             self.goals[-1].competence = float(competence)
+        self.teacher.report(kind, target, competence)
         if kind in (KIND_REACHED, KIND_EXPLORATION) and not self.count_reached:
             return
         if self.tree.add(target, competence, stamp=len(self.goals)) is None:
@@ -112,19 +177,8 @@ class GoalGenerator:
 
     # ------------------------------------------------------------------ goals
     def next_goal(self) -> GoalRecord:
-        """Self-generate the next goal (Sec. 2.4.4)."""
-        if self.strategy == "sagg-random":
-            y, mode = self._uniform(self.lower, self.upper), MODE_RANDOM
-        elif len(self.tree.leaves()) < 2:
-            y, mode = self._uniform(self.lower, self.upper), MODE_INITIAL
-        else:
-            mode = int(self.rng.choice(3, p=self.mode_probs)) + 1
-            if mode == MODE_GLOBAL:
-                y = self._uniform(self.lower, self.upper)
-            else:
-                region = self._region_by_interest()
-                y = (self._uniform(region.lower, region.upper) if mode == MODE_REGION
-                     else self._near_lowest(region))
+        """Self-generate the next goal (Sec. 2.4.4; the strategy's teacher chooses it)."""
+        y, mode = self.teacher.choose()
         rec = GoalRecord(len(self.goals) + 1, y, mode, self.reports)
         self.goals.append(rec)
         return rec

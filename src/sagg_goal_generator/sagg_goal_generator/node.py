@@ -34,7 +34,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.msg_codecs import decode_report, encode_region_tree
 from sagg_common.diagnostics import InputGuard, diagnostic_array, report_problem
-from sagg_common.params import ConfigError
+from sagg_common.params import GOAL_STRATEGIES, ConfigError
 from sagg_common import sources
 from sagg_common.publishers import describe
 from sagg_common.report_kinds import KIND_NAMES
@@ -60,7 +60,6 @@ class Early(NamedTuple):
     goal_seq: int
     start: np.ndarray
     key: tuple       # ProcessedDigests.key
-ACTIVE_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
 class GoalServer:
@@ -116,7 +115,7 @@ class GoalGeneratorNode(Node):
             self.gen = GoalGenerator(core)
         except ValueError as exc:
             raise ConfigError(str(exc)) from exc
-        self.active = core["strategy"] in ACTIVE_STRATEGIES
+        self.active = core["strategy"] in GOAL_STRATEGIES
         self.exit_code = 0
         # the generator's state is shared with the goal server's thread: every callback holds this
         self.cond = threading.Condition()

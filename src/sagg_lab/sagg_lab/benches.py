@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from sagg_common.params import STRATEGIES, parse_set
+from sagg_common.params import PAPER_STRATEGIES, STRATEGIES, parse_set
 from sagg_bringup.cli.benches import Bench, positive_int
 
 from .hostile import bench_hostile
@@ -21,7 +21,7 @@ def _speed_arguments(p: argparse.ArgumentParser) -> None:
                    help="stored samples before timing (cost ratios against the smallest)")
     p.add_argument("--measure", type=positive_int, default=2000,
                    help="micro-actions timed at each size")
-    p.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    p.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(PAPER_STRATEGIES))
     p.add_argument("--graph", action=argparse.BooleanOptionalAction, default=True,
                    help="also measure graph vs in-process vs bare rclpy ping-pong (sagg bench graph)")
     p.add_argument("--graph-config", default="config/arm8.yaml")
@@ -70,7 +70,7 @@ def _hostile_arguments(p: argparse.ArgumentParser) -> None:
 
 def _quality_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default="config/arm7_ratio15.yaml")
-    p.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    p.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(PAPER_STRATEGIES))
     p.add_argument("--seeds", type=positive_int, default=5, help="number of seeds: base seed + i")
     p.add_argument("--base-seed", type=int, default=0)
     p.add_argument("--points", type=positive_int, nargs="+", default=[5000, 20000],

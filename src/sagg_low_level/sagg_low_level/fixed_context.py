@@ -24,7 +24,7 @@ from typing import Callable, Generator
 import numpy as np
 
 from sagg_common.competence import competence, competence_toward, gamma, is_reached
-from sagg_common.params import SHARED_SCHEMA, Param, Schema
+from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
@@ -478,7 +478,7 @@ class FixedContextLearner:
         """The learner's whole life: yields requests, receives answers, never returns."""
         y_rest = yield Observe()
         self.y_rest = np.asarray(y_rest, dtype=float)
-        if self.strategy in ("sagg-riac", "sagg-random"):
+        if self.strategy in GOAL_STRATEGIES:
             while True:
                 yield from self._goal_attempt()
         else:

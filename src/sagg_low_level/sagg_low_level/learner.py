@@ -16,7 +16,7 @@ from typing import Callable, Generator
 import numpy as np
 
 from sagg_common.competence import competence, gamma, is_reached
-from sagg_common.params import SHARED_SCHEMA, Param, Schema
+from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_common.rng import stream
@@ -428,7 +428,7 @@ class EvolvingContextLearner:
         alpha, y = yield Observe()
         self.alpha = np.asarray(alpha, dtype=float)
         self.y = np.asarray(y, dtype=float)
-        if self.strategy in ("sagg-riac", "sagg-random"):
+        if self.strategy in GOAL_STRATEGIES:
             while True:
                 yield from self._sagg_attempt()
         else:

@@ -12,14 +12,12 @@ from rclpy.node import Node
 from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.diagnostics import goal_problem
-from sagg_common.params import ConfigError, Schema
+from sagg_common.params import GOAL_STRATEGIES, ConfigError, Schema
 from sagg_common.ros_params import declare_schema, reliable
 from sagg_msgs.msg import CompetenceReport, LearnerStatus, Sample
 from sagg_msgs.srv import NextGoal
 
 NODE_NAME = "sagg_learner"
-# strategies whose learner asks the goal generator for goals (/sagg/next_goal)
-GOAL_STRATEGIES = ("sagg-riac", "sagg-random")
 
 
 class LearnerNodeBase(Node):

@@ -434,7 +434,8 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
         summary.update({
             "config": {"sagg_goal_generator": gp, "sagg_learner": lp, "sagg_sim_bridge": bp},
             "micro_actions": len(mem), "goals": goals_out, "regions": gen.region_snapshot(),
-            "splits": gen.tree.splits, "goal_stats": goal_share_stats(pos, gma, area, len(mem))})
+            "splits": gen.tree.splits, "goal_stats": goal_share_stats(pos, gma, area, len(mem)),
+            **({} if (teacher := gen.teacher.snapshot()) is None else {"teacher": teacher})})
         write_report(summary, outp, area=area, setup_rows=arm_rows(bp))
         summary["goals"] = len(gen.goals)  # summary.json keeps counts; regions.json has the tree
         summary["regions"] = len(gen.tree.leaves())

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import yaml
 
-from sagg_common.params import STRATEGIES, ConfigError, parse_set, schema_markdown
+from sagg_common.params import PAPER_STRATEGIES, STRATEGIES, ConfigError, parse_set, schema_markdown
 
 from ..graph.check_driver import main_check_driver
 from ..graph.params_files import read_run_file
@@ -212,7 +212,7 @@ def build_parser() -> argparse.ArgumentParser:
                                         "or Ray), resumable; mean ± std tables, Mann-Whitney / Welch "
                                         "tests, curves")
     c.add_argument("--config", required=True, help="experiment YAML (ROS 2 parameter-file form)")
-    c.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(STRATEGIES))
+    c.add_argument("--strategies", nargs="+", choices=STRATEGIES, default=list(PAPER_STRATEGIES))
     c.add_argument("--seeds", type=positive_int, required=True,
                    help="number of seeds: seed i = base seed + i")
     c.add_argument("--base-seed", type=int, help="first seed (default: the config's seed)")

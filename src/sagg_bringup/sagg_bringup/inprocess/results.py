@@ -120,6 +120,7 @@ def result_dict(run, curve: list[dict], area, total: int, eval_seconds: float, d
               "micro_actions": run.goal_micro_actions.get(g.seq, 0)} for g in gen.goals]
     pos = np.array([g["position"] for g in goals]).reshape(-1, len(gen.lower))
     gma = np.array([g["micro_actions"] for g in goals])
+    teacher = gen.teacher.snapshot()  # the strategy's own "where goals went" (None: the tree says it)
     return {
         "format": "sagg.result/1",
         "strategy": run.config["sagg_learner"]["strategy"],
@@ -140,4 +141,5 @@ def result_dict(run, curve: list[dict], area, total: int, eval_seconds: float, d
         "regions": gen.region_snapshot(),
         "splits": gen.tree.splits,
         "phases": phase_breakdown(run.phases, [g["seq"] for g in goals], pos, area),
+        **({} if teacher is None else {"teacher": teacher}),
     }

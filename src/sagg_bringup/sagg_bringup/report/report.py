@@ -312,6 +312,58 @@ def fig_competence_map(result: dict, path: Path, area) -> Path | None:
     return path
 
 
+def fig_teacher(result: dict, path: Path, area) -> Path | None:
+    """Where a teacher beyond the paper sent its goals (``result["teacher"]``, issue 27), plane y1-y2:
+    alp-gmm: its mixtures at up to REGION_PANELS fits, each Gaussian's 2-sigma ellipse coloured by
+    its mean ALP, over the goals chosen until the next fit; discretized-progress: its grid's final
+    absolute progress per cell and the mean normalised competence of each cell's window."""
+    t = result.get("teacher")
+    lower, upper = _task_box(result)
+    if not t or len(lower) < 2:
+        return None
+    plt = _plt()
+    # lazy (heavy): matplotlib
+    from matplotlib.patches import Ellipse
+    width = 4.6
+    height = _panel_size(lower, upper, (0, 1), width)
+    if t["teacher"] == "alp-gmm":
+        fits = t["fits"]
+        if not fits:
+            return None
+        pick = sorted({int(round(i)) for i in np.linspace(0, len(fits) - 1, min(REGION_PANELS, len(fits)))})
+        pos = _goal_arrays(result)[0]
+        fig, axes = plt.subplots(1, len(pick), figsize=(width * len(pick), 0.87 * height + 0.6), dpi=110,
+                                 squeeze=False)
+        top = max(max(m[-1] for m in f["means"]) for f in fits) or 1.0
+        for ax, i in zip(axes.flat, pick):
+            f = fits[i]
+            end = fits[i + 1]["goals"] if i + 1 < len(fits) else len(pos)
+            _draw_area(ax, area, plane=(0, 1))
+            ax.scatter(pos[f["goals"]:end, 0], pos[f["goals"]:end, 1], s=5, c="0.5", zorder=3)
+            for m, c in zip(f["means"], f["covariances"]):
+                vals, vecs = np.linalg.eigh(np.asarray(c)[:2, :2])
+                angle = math.degrees(math.atan2(vecs[1, -1], vecs[0, -1]))
+                ax.add_patch(Ellipse(m[:2], *(4 * np.sqrt(np.clip(vals[::-1], 0, None))), angle=angle, fill=False,
+                                     lw=1.5, color=plt.cm.viridis(m[-1] / top), zorder=4))
+            _setup_axes(ax, lower, upper, f"mixture fitted after {f['goals']} goals", (0, 1), len(lower))
+    else:
+        shape = t["shape"]
+        grids = [np.abs(np.reshape(t["progress"], shape)), np.reshape(t["competence"], shape)]
+        if len(shape) > 2:  # 3-D: the largest over y3 (progress), the mean over y3 (competence)
+            grids = [grids[0].max(axis=tuple(range(2, len(shape)))), grids[1].mean(axis=tuple(range(2, len(shape))))]
+        fig, axes = plt.subplots(1, 2, figsize=(width * 2, 0.87 * height + 0.6), dpi=110, squeeze=False)
+        titles = ("|progress| per cell (final)", "window mean competence (0-1) per cell")
+        for ax, g, title, cmap in zip(axes.flat, grids, titles, ("magma", "RdYlGn")):
+            im = ax.imshow(g.T, origin="lower", extent=(lower[0], upper[0], lower[1], upper[1]), cmap=cmap,
+                           aspect="auto")
+            _draw_area(ax, area, plane=(0, 1))
+            _setup_axes(ax, lower, upper, title, (0, 1), len(lower))
+            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, shrink=0.8)
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
 # ----------------------------------------------------------------------------------- markdown
 def _fmt(x: Any, digits: int = 4) -> str:
     if isinstance(x, float):
@@ -390,6 +442,7 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
         "goals_over_time": fig_goals_over_time(result, out / "goals_over_time.png", area),
         "regions_over_time": fig_regions_over_time(result, out / "regions_over_time.png", area),
         "competence_map": fig_competence_map(result, out / "competence_map.png", area),
+        "teacher": fig_teacher(result, out / "teacher.png", area),
     }
     lp = result["config"]["sagg_learner"]
     bp = result["config"].get("sagg_sim_bridge", {})
@@ -448,6 +501,9 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
         ("competence_map", "Competence map (cf. paper Fig. 5/6)",
          "Each goal coloured by the competence Γ of its reaching attempt."),
     ]
+    if figs["teacher"]:  # only the teachers beyond the paper have a view of their own
+        sections.append(("teacher", f"Where {result['strategy']} sent its goals", "The teacher's own model "
+                         "of Y: its mixtures (alp-gmm) or its grid (discretized-progress)."))
     for key, title, text in sections:
         lines += [f"## {title}", "", text, ""]
         lines += [f"![{key.replace('_', ' ')}]({key}.png)", ""] if figs[key] else ["(no figure: no goals, "

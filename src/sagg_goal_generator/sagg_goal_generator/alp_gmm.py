@@ -1,0 +1,241 @@
+"""``alp-gmm``: goals from a Gaussian mixture over absolute learning progress. ROS-free.
+
+Portelas, Colas, Hofmann & Oudeyer, "Teacher algorithms for curriculum learning of Deep RL in
+continuously parameterized environments", CoRL 2019 (arXiv:1910.07224), Sec. 4.1 "ALP-GMM", and
+its reference implementation (the ``ALPGMM`` teacher of flowersteam's teachDeepRL / TeachMyAgent,
+``teachers/algos/alp_gmm.py``), whose defaults are the parameters' defaults here:
+
+- every attempted goal gets an absolute learning progress (:func:`absolute_learning_progress`):
+  its competence against that of the nearest earlier goal;
+- every ``fit_every`` goals (after ``bootstrap`` uniform goals) mixtures of ``k_min..k_max``
+  Gaussians are fitted over the last ``fit_every`` (goal, ALP) points and the one with the best
+  information criterion is kept (:func:`fit_mixture`);
+- a goal is uniform in Y with probability ``random_share``, else drawn from a component chosen in
+  proportion to its mean ALP (:func:`component_probabilities`), without its ALP coordinate,
+  clipped to Y.
+
+Competence here is the paper's C in [-1, 0] (sagg_common.competence); the reference normalises
+rewards to [0, 1] first: ALP is a difference, so the shift changes nothing. Only goal reports
+(``KIND_GOAL``: an attempted goal and its competence) feed the teacher, as only sampled tasks feed
+the reference's; reached points and exploration samples do not.
+
+The chosen mixture is kept as plain arrays (weights, means, covariances), so a checkpoint is
+arrays + JSON (no pickle) and a resumed teacher draws exactly what an uninterrupted one draws.
+scikit-learn's ``random_state`` of each fit is an integer drawn from the named stream
+``alp_gmm.fit`` (sagg_common.rng), never a global RNG.
+"""
+from __future__ import annotations
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from sagg_common.journal import restore_rng, rng_state
+from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.report_kinds import KIND_GOAL
+from sagg_common.rng import stream
+
+from .modes import MODE_GLOBAL, MODE_INITIAL, MODE_REGION
+
+NAME = "alp-gmm"
+P = "alp_gmm."
+
+SCHEMA: Schema = (
+    Param(P + "fit_every", "int", 250,
+          "Goals between two fits of the mixture; each fit uses the last this many (goal, ALP) points "
+          "(Portelas et al. 2019 Sec. 4.1; reference fit_rate = 250).", low=2, high=1_000_000),
+    Param(P + "bootstrap", "int", 250,
+          "Uniform goals before the first fit (reference nb_bootstrap, default fit_rate). At least "
+          "fit_every.", low=2, high=1_000_000),
+    Param(P + "k_min", "int", 2, "Fewest Gaussians tried at a fit (reference potential_ks = 2..10).",
+          low=1, high=100),
+    Param(P + "k_max", "int", 10, "Most Gaussians tried at a fit (reference potential_ks = 2..10). At "
+          "most fit_every.", low=1, high=100),
+    Param(P + "criterion", "str", "aic",
+          "Information criterion that picks the number of Gaussians (reference gmm_fitness_func = "
+          "'aic'; 'bic' offered).", choices=("aic", "bic")),
+    Param(P + "covariance", "str", "full",
+          "Covariance of each Gaussian (reference covariance_type = 'full'; 'diag' offered).",
+          choices=("full", "diag")),
+    Param(P + "em_inits", "int", 1, "EM initialisations per fit, the best kept (reference nb_em_init = 1).",
+          low=1, high=100),
+    Param(P + "random_share", "float", 0.2,
+          "Probability of a uniform goal in Y after the bootstrap (reference random_task_ratio = 0.2).",
+          low=0.0, high=1.0),
+    Param(P + "min_history", "int", 6,
+          "A goal's ALP is 0 until at least this many earlier goals are in the history (reference: "
+          "ALP computed once its dataset holds more than 5).", low=1, high=1_000_000),
+    Param(P + "history", "int", 10000,
+          "Earlier goals kept for the nearest-neighbour ALP, the oldest forgotten (the reference keeps "
+          "all, alp_max_size = None; bounded here so a goal's cost is bounded; our choice).",
+          low=1, high=1_000_000),
+    Param(P + "unit_goals", "bool", False,
+          "Nearest neighbours and the mixture in Y scaled to [0, 1] per dimension (true) or in Y's "
+          "own units (false, as the reference, whose tasks are raw parameters). With Y in "
+          "different units per dimension, true weighs them alike."),
+)
+
+
+def check_params(params: dict) -> None:
+    """Cross-parameter checks (each parameter's own range is the schema's): ConfigError naming the
+    parameter."""
+    if params[P + "bootstrap"] < params[P + "fit_every"]:
+        raise ConfigError(f"{P}bootstrap: got {params[P + 'bootstrap']}; allowed: at least "
+                         f"{P}fit_every ({params[P + 'fit_every']})")
+    if params[P + "k_min"] > params[P + "k_max"]:
+        raise ConfigError(f"{P}k_min: got {params[P + 'k_min']}; allowed: at most {P}k_max "
+                         f"({params[P + 'k_max']})")
+    if params[P + "k_max"] > params[P + "fit_every"]:
+        raise ConfigError(f"{P}k_max: got {params[P + 'k_max']}; allowed: at most {P}fit_every "
+                         f"({params[P + 'fit_every']}: a fit has that many points)")
+
+
+def absolute_learning_progress(goal, competence: float, past_goals: np.ndarray, past_competences: np.ndarray,
+                               min_history: int) -> float:
+    """ALP of one attempted goal (Portelas et al. 2019, Sec. 4.1, "alp_new = |r_new - r_old|").
+
+    ``r_old`` is the competence of the earlier goal nearest (Euclidean) to ``goal`` among
+    ``past_goals`` (rows; ``past_competences`` theirs). 0 while fewer than ``min_history`` earlier
+    goals are known (reference: ALP is computed once its dataset holds more than 5 tasks). Ties of
+    distance: the first such row."""
+    if len(past_goals) < min_history:
+        return 0.0
+    d = past_goals - np.asarray(goal, float)
+    nearest = int(np.argmin(np.einsum("ij,ij->i", d, d)))
+    return abs(float(competence) - float(past_competences[nearest]))
+
+
+def component_probabilities(alp_means: np.ndarray) -> np.ndarray:
+    """Probability of choosing each Gaussian: proportional to its mean ALP (Portelas et al. 2019,
+    Sec. 4.1; reference ``proportional_choice`` with eps = 0); uniform when every mean is 0. A mean
+    below 0 (possible only numerically: ALP >= 0) counts as 0."""
+    w = np.clip(np.asarray(alp_means, float), 0.0, None)
+    total = w.sum()
+    return np.full(len(w), 1.0 / len(w)) if total <= 0.0 else w / total
+
+
+def fit_mixture(data: np.ndarray, k_min: int, k_max: int, criterion: str, covariance: str, em_inits: int,
+                random_state: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fit one Gaussian mixture per k in ``k_min..k_max`` to ``data`` (rows: goal then ALP) and keep
+    the one of least ``criterion`` (AIC or BIC; Portelas et al. 2019 Sec. 4.1, reference: AIC).
+    Returns (weights (k,), means (k, D), covariances (k, D, D), full matrices whatever the type).
+    scikit-learn is imported here, so that the other strategies do not load it. BLAS runs on one
+    thread here: its matrices are 3 x 3 or 4 x 4, and a BLAS thread pool waiting on a busy machine
+    made a fit of 250 points take 10 s instead of 0.3 s (docs/notes/teachers.md)."""
+    # lazy (heavy): scikit-learn (about a second to import)
+    from sklearn.mixture import GaussianMixture
+
+    best, best_score = None, np.inf
+    with threadpool_limits(limits=1):
+        for k in range(k_min, k_max + 1):
+            gm = GaussianMixture(n_components=k, covariance_type=covariance, n_init=em_inits,
+                                 random_state=random_state).fit(data)
+            score = gm.aic(data) if criterion == "aic" else gm.bic(data)
+            if score < best_score:  # ties: the fewest Gaussians
+                best, best_score = gm, score
+    cov = best.covariances_
+    if covariance == "diag":
+        cov = np.stack([np.diag(c) for c in cov])
+    return best.weights_.copy(), best.means_.copy(), np.array(cov, float)
+
+
+class AlpGmm:
+    """The ``alp-gmm`` teacher of a :class:`~sagg_goal_generator.core.GoalGenerator`: goal draws from
+    the generator's goal stream, fit seeds from the stream ``alp_gmm.fit``."""
+
+    def __init__(self, gen):
+        p = gen.params
+        check_params(p)
+        self.gen = gen
+        self.p = {q.name[len(P):]: p[q.name] for q in SCHEMA}
+        self.fit_rng = stream(p["seed"], "alp_gmm.fit")
+        # the space of the nearest neighbours and the mixture: Y itself, or Y scaled to [0, 1]
+        unit = self.p["unit_goals"]
+        self.offset = gen.lower.copy() if unit else np.zeros(gen.dim)
+        self.scale = (gen.upper - gen.lower) if unit else np.ones(gen.dim)
+        d, h = gen.dim, self.p["history"]
+        self.n = 0  # goal reports taken
+        self.hist_goals = np.zeros((h, d))  # ring of the last `history` goals (scaled) ...
+        self.hist_comp = np.zeros(h)        # ... and their competences
+        self.fit_data = np.zeros((self.p["fit_every"], d + 1))  # ring of the last (goal, ALP) rows
+        self.mixture: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.fits: list[dict] = []  # every fit, for the report's "where goals went"
+
+    def _scaled(self, y) -> np.ndarray:
+        return (np.asarray(y, float) - self.offset) / self.scale
+
+    # ------------------------------------------------------------------ reports
+    def report(self, kind: int, target, competence: float) -> None:
+        if kind != KIND_GOAL:
+            return
+        x = self._scaled(target)
+        h = len(self.hist_comp)
+        filled = min(self.n, h)
+        alp = absolute_learning_progress(x, competence, self.hist_goals[:filled], self.hist_comp[:filled],
+                                         self.p["min_history"])
+        self.hist_goals[self.n % h] = x
+        self.hist_comp[self.n % h] = competence
+        self.fit_data[self.n % len(self.fit_data)] = np.append(x, alp)
+        self.n += 1
+        if self.n >= self.p["bootstrap"] and self.n % self.p["fit_every"] == 0:
+            self._fit()
+
+    def _fit(self) -> None:
+        seed = int(self.fit_rng.integers(0, 2**31 - 1))
+        p = self.p
+        self.mixture = fit_mixture(self.fit_data, p["k_min"], p["k_max"], p["criterion"], p["covariance"],
+                                   p["em_inits"], seed)
+        w, m, c = self.mixture
+        self.fits.append({"goals": self.n, "weights": w, "means": m, "covariances": c})
+
+    # -------------------------------------------------------------------- goals
+    def choose(self) -> tuple[np.ndarray, int]:
+        gen, rng = self.gen, self.gen.rng
+        if self.n < self.p["bootstrap"]:
+            return gen._uniform(gen.lower, gen.upper), MODE_INITIAL
+        if rng.random() < self.p["random_share"] or self.mixture is None:
+            return gen._uniform(gen.lower, gen.upper), MODE_GLOBAL
+        w, means, covs = self.mixture
+        i = int(rng.choice(len(w), p=component_probabilities(means[:, -1])))
+        x = rng.multivariate_normal(means[i], covs[i])[:-1]
+        return np.clip(self.offset + x * self.scale, gen.lower, gen.upper), MODE_REGION
+
+    # -------------------------------------------------------------------- state
+    def state(self) -> tuple[dict[str, np.ndarray], dict]:
+        """Arrays (npz) and JSON of the teacher's state (the goal stream is the generator's)."""
+        f = self.fits
+        arrays = {"hist_goals": self.hist_goals, "hist_comp": self.hist_comp, "fit_data": self.fit_data,
+                  "fit_goals": np.array([x["goals"] for x in f], np.int64),
+                  "fit_k": np.array([len(x["weights"]) for x in f], np.int64),
+                  "fit_weights": np.concatenate([x["weights"] for x in f]) if f else np.zeros(0),
+                  "fit_means": (np.concatenate([x["means"] for x in f]) if f
+                                else np.zeros((0, self.gen.dim + 1))),
+                  "fit_covariances": (np.concatenate([x["covariances"] for x in f]) if f
+                                      else np.zeros((0, self.gen.dim + 1, self.gen.dim + 1)))}
+        return arrays, {"n": self.n, "fit_rng": rng_state(self.fit_rng)}
+
+    def restore(self, arrays: dict, meta: dict) -> None:
+        for key in ("hist_goals", "hist_comp", "fit_data"):
+            if arrays[key].shape != getattr(self, key).shape:
+                raise ValueError(f"alp-gmm checkpoint: {key} has shape {arrays[key].shape}; this run's "
+                                 f"parameters give {getattr(self, key).shape}")
+            setattr(self, key, np.array(arrays[key], float))
+        self.n = int(meta["n"])
+        restore_rng(self.fit_rng, meta["fit_rng"])
+        self.fits, start = [], 0
+        for n, k in zip(arrays["fit_goals"], arrays["fit_k"]):
+            s = slice(start, start + int(k))
+            self.fits.append({"goals": int(n), "weights": arrays["fit_weights"][s].copy(),
+                              "means": arrays["fit_means"][s].copy(),
+                              "covariances": arrays["fit_covariances"][s].copy()})
+            start += int(k)
+        last = self.fits[-1] if self.fits else None
+        self.mixture = None if last is None else (last["weights"], last["means"], last["covariances"])
+
+    def snapshot(self) -> dict:
+        """JSON for the result: every fit's goal count, weights and means / covariances mapped back
+        to Y units (last coordinate: ALP)."""
+        scale, shift = np.append(self.scale, 1.0), np.append(self.offset, 0.0)
+        return {"teacher": NAME, "fits": [
+            {"goals": f["goals"], "weights": f["weights"].tolist(),
+             "means": (shift + f["means"] * scale).tolist(),
+             "covariances": (f["covariances"] * np.outer(scale, scale)).tolist()} for f in self.fits]}

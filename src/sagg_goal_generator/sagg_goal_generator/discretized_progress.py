@@ -1,0 +1,154 @@
+"""``discretized-progress``: competence progress on a fixed grid of Y. ROS-free.
+
+The grid interest model of explauto (Moulin-Frier, Rouanet & Oudeyer; flowersteam/explauto,
+``explauto/interest_model/discrete_progress.py``: ``DiscretizedProgress`` and ``DiscreteProgress``,
+default configuration ``x_card = 400, win_size = 10, eps_random = 0.3``), whose defaults are the
+parameters' defaults here:
+
+- Y is cut into ``floor(cells ** (1 / dim))`` equal bins per dimension (:func:`grid_shape`);
+- every cell keeps a window of its last ``window`` normalised competences, filled with 0 (the least
+  competence) at the start;
+- a cell's progress is the mean of the older half of its window minus the mean of the newer half
+  (:func:`cell_progress`);
+- a goal's cell is uniform with probability ``random_share``, else chosen in proportion to the
+  absolute progress of the cells, uniform when every progress is 0 (:func:`cell_probabilities`);
+  the goal is uniform in its cell;
+- novelty bonus: a reached point in a cell whose window sums to 0 gives that cell the maximal
+  competence (explauto: "if novel cell is reached, give it competence").
+
+Competence: the paper's C in [-1, 0] normalised to [0, 1] as explauto normalises its own
+(``(c - c_min) / (c_max - c_min)``), i.e. ``C + 1``. Where our reports differ from explauto's update
+(which sees the goal and the reached point together, and credits the goal's cell only when the
+reached point falls in it): a goal report carries the goal and its competence only, so every goal's
+competence goes to the goal's cell (our choice: C already measures how far the goal was missed);
+the novelty bonus is given by the reached-point and exploration reports (every micro-action's
+outcome, sent whatever ``count_reached`` says).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
+
+from .modes import MODE_GLOBAL, MODE_REGION
+
+NAME = "discretized-progress"
+P = "discretized_progress."
+
+SCHEMA: Schema = (
+    Param(P + "cells", "int", 400,
+          "Number of grid cells aimed at: floor(cells^(1/dim)) bins per dimension of Y (explauto "
+          "x_card = 400: 20 x 20 in 2-D, 7 x 7 x 7 in 3-D). cells x window at most 10^7 (the windows' "
+          "memory).", low=1, high=1_000_000),
+    Param(P + "window", "int", 10,
+          "Competences kept per cell; progress compares the older half with the newer (explauto "
+          "win_size = 10).", low=2, high=10_000),
+    Param(P + "random_share", "float", 0.3,
+          "Probability of a uniform cell instead of one chosen by progress (explauto eps_random = 0.3).",
+          low=0.0, high=1.0),
+    Param(P + "novelty_bonus", "bool", True,
+          "A reached point in a cell whose window sums to 0 gives that cell the maximal competence "
+          "(explauto's novelty bonus)."),
+)
+
+
+def grid_shape(cells: int, dim: int) -> tuple[int, ...]:
+    """Bins per dimension: ``floor(cells ** (1 / dim))`` each (explauto ``DiscretizedProgress``:
+    ``int(x_card ** (1. / len(expl_dims)))``); the root is taken exactly (integer check), so 1000
+    cells in 3-D give 10 bins, not 9 from a rounding error."""
+    b = max(1, int(math.floor(cells ** (1.0 / dim))))
+    while (b + 1) ** dim <= cells:
+        b += 1
+    while b > 1 and b ** dim > cells:
+        b -= 1
+    return (b,) * dim
+
+
+def cell_progress(window: np.ndarray) -> float:
+    """Progress of one cell (explauto ``DiscreteProgress.update_from_index_and_competence``): the mean
+    of the older half of its window (oldest first) minus the mean of the newer half. Negative when
+    the competence rises; the choice uses its absolute value. An odd window's newer half is the
+    larger (explauto's ``range(win_size / 2)`` split)."""
+    h = len(window) // 2
+    return float(np.mean(window[:h]) - np.mean(window[h:]))
+
+
+def cell_probabilities(progress: np.ndarray) -> np.ndarray:
+    """Probability of each cell: its absolute progress over the sum (explauto ``DiscreteProgress.sample``,
+    ``discrete_random_draw``); uniform when every progress is 0."""
+    w = np.abs(np.asarray(progress, float))
+    total = w.sum()
+    return np.full(len(w), 1.0 / len(w)) if total <= 0.0 else w / total
+
+
+class DiscretizedProgress:
+    """The ``discretized-progress`` teacher of a :class:`~sagg_goal_generator.core.GoalGenerator`
+    (its draws from the generator's goal stream)."""
+
+    def __init__(self, gen):
+        p = gen.params
+        self.gen = gen
+        self.p = {q.name[len(P):]: p[q.name] for q in SCHEMA}
+        if self.p["cells"] * self.p["window"] > 10_000_000:
+            raise ConfigError(f"{P}cells x {P}window: got {self.p['cells']} x {self.p['window']}; allowed: at "
+                              "most 10^7 competences kept")
+        self.shape = grid_shape(self.p["cells"], gen.dim)
+        self.n_cells = int(np.prod(self.shape))
+        self.width = (gen.upper - gen.lower) / np.array(self.shape)
+        self.windows = np.zeros((self.n_cells, self.p["window"]))  # oldest first
+        self.progress = np.zeros(self.n_cells)
+
+    def cell_of(self, y) -> int | None:
+        """Flat index of the cell holding ``y`` (the upper faces belong to the last bins); None
+        outside Y."""
+        y = np.asarray(y, float)
+        g = self.gen
+        if y.shape != g.lower.shape or not np.all((y >= g.lower) & (y <= g.upper)):
+            return None
+        idx = np.minimum(((y - g.lower) / self.width).astype(int), np.array(self.shape) - 1)
+        return int(np.ravel_multi_index(tuple(idx), self.shape))
+
+    def _append(self, cell: int, value: float) -> None:
+        w = self.windows[cell]
+        w[:-1] = w[1:]
+        w[-1] = value
+        self.progress[cell] = cell_progress(w)
+
+    def report(self, kind: int, target, competence: float) -> None:
+        cell = self.cell_of(target)
+        if cell is None:
+            return
+        if kind == KIND_GOAL:
+            self._append(cell, min(1.0, max(0.0, float(competence) + 1.0)))
+        elif (kind in (KIND_REACHED, KIND_EXPLORATION) and self.p["novelty_bonus"]
+              and self.windows[cell].sum() == 0.0):
+            self._append(cell, 1.0)
+
+    def choose(self) -> tuple[np.ndarray, int]:
+        rng = self.gen.rng
+        if rng.random() < self.p["random_share"] or not self.progress.any():
+            cell, mode = int(rng.integers(self.n_cells)), MODE_GLOBAL
+        else:
+            cell, mode = int(rng.choice(self.n_cells, p=cell_probabilities(self.progress))), MODE_REGION
+        lo = self.gen.lower + np.array(np.unravel_index(cell, self.shape)) * self.width
+        return np.minimum(self.gen._uniform(lo, lo + self.width), self.gen.upper), mode
+
+    def state(self) -> tuple[dict[str, np.ndarray], dict]:
+        return {"windows": self.windows}, {"cells": self.n_cells}
+
+    def restore(self, arrays: dict, meta: dict) -> None:
+        w = np.asarray(arrays["windows"], float)
+        if w.shape != self.windows.shape:
+            raise ValueError(f"discretized-progress checkpoint: windows of shape {w.shape}; this run's "
+                             f"parameters give {self.windows.shape}")
+        self.windows = w.copy()
+        self.progress = np.array([cell_progress(x) for x in self.windows])
+
+    def snapshot(self) -> dict:
+        """JSON for the result: the grid (shape, Y) and every cell's progress and window mean."""
+        return {"teacher": NAME, "shape": list(self.shape), "lower": self.gen.lower.tolist(),
+                "upper": self.gen.upper.tolist(), "progress": self.progress.tolist(),
+                "competence": self.windows.mean(axis=1).tolist()}

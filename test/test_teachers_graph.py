@@ -1,0 +1,48 @@
+"""The teachers beyond the paper through the graph (issue 27): `sagg run` with alp-gmm and with
+discretized-progress learns what the in-process run of the same config learns (lockstep), and
+`sagg relearn` of its bag chooses every recorded goal again."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+
+import pytest
+
+from sagg_bringup.bags.bags import relearn
+from sagg_bringup.graph.setups import run_experiment
+from installed import SAGG
+
+N = 400
+# a 7-DOF kinematic arm, and alp-gmm fitting every 10 goals so that its mixtures choose goals
+SETS = {"arm.dof": 7, "arm.mode": "kinematic", "alp_gmm.fit_every": 10, "alp_gmm.bootstrap": 10,
+        "alp_gmm.k_max": 3}
+
+
+@pytest.fixture(scope="module", params=["alp-gmm", "discretized-progress"])
+def graph_run(request, tmp_path_factory):
+    out = tmp_path_factory.mktemp("teacher") / "r"
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    sets = [a for k, v in SETS.items() for a in ("--set", f"{k}={v}")]
+    p = subprocess.run([SAGG, "run", "config/arm15_y50.yaml", "--strategy", request.param, *sets,
+                        "--micro-actions", str(N), "--eval-every", str(N), "--out", str(out), "--quiet",
+                        "--no-report"], env=env, capture_output=True, text=True, timeout=400)
+    assert p.returncode == 0, p.stdout + p.stderr
+    return request.param, out, json.loads((out / "summary.json").read_text())
+
+
+def test_graph_run_of_a_teacher_equals_its_in_process_run(graph_run):
+    strategy, _, s = graph_run
+    r = run_experiment("config/arm15_y50.yaml", strategy, None, N, N, None, progress=False, overrides=SETS)
+    assert s["strategy"] == strategy
+    assert s["memory"]["digest"] == r["memory"]["digest"]
+    assert [g["position"] for g in s["goals"]] == [g["position"] for g in r["goals"]]
+    assert "region" in {g["mode_name"] for g in r["goals"]}  # the teacher's interest chose goals
+
+
+def test_relearn_of_a_teachers_bag_chooses_its_goals_again(graph_run, tmp_path):
+    strategy, out, s = graph_run
+    re = relearn([out / "bag"], tmp_path / "re", evaluate=False, report=False, out=lambda _: None)
+    assert re["strategy"] == strategy
+    assert re["goals_match"] and re["goals"] == len(s["goals"]) > 5
+    assert re["memory"]["digest"] == s["memory"]["digest"]
