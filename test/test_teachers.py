@@ -276,16 +276,16 @@ def _apply(gen, e) -> bool:
 def _paper_next_goal(gen):
     """``GoalGenerator.next_goal`` as it was before the teachers (main 5431257), as the oracle."""
     if gen.strategy == "sagg-random":
-        y, mode = gen._uniform(gen.lower, gen.upper), MODE_RANDOM
+        y, mode = gen.uniform(gen.lower, gen.upper), MODE_RANDOM
     elif len(gen.tree.leaves()) < 2:
-        y, mode = gen._uniform(gen.lower, gen.upper), MODE_INITIAL
+        y, mode = gen.uniform(gen.lower, gen.upper), MODE_INITIAL
     else:
         mode = int(gen.rng.choice(3, p=gen.mode_probs)) + 1
         if mode == MODE_GLOBAL:
-            y = gen._uniform(gen.lower, gen.upper)
+            y = gen.uniform(gen.lower, gen.upper)
         else:
             region = gen._region_by_interest()
-            y = (gen._uniform(region.lower, region.upper) if mode == MODE_REGION else gen._near_lowest(region))
+            y = (gen.uniform(region.lower, region.upper) if mode == MODE_REGION else gen._near_lowest(region))
     rec = GoalRecord(len(gen.goals) + 1, y, mode, gen.reports)
     gen.goals.append(rec)
     return rec

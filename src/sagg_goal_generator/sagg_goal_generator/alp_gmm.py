@@ -34,6 +34,7 @@ from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.report_kinds import KIND_GOAL
 from sagg_common.rng import stream
 
+from .teacher import Teacher
 from .modes import MODE_GLOBAL, MODE_INITIAL, MODE_REGION
 
 NAME = "alp-gmm"
@@ -138,14 +139,14 @@ def fit_mixture(data: np.ndarray, k_min: int, k_max: int, criterion: str, covari
     return best.weights_.copy(), best.means_.copy(), np.array(cov, float)
 
 
-class AlpGmm:
+class AlpGmm(Teacher):
     """The ``alp-gmm`` teacher of a :class:`~sagg_goal_generator.core.GoalGenerator`: goal draws from
     the generator's goal stream, fit seeds from the stream ``alp_gmm.fit``."""
 
     def __init__(self, gen):
         p = gen.params
         check_params(p)
-        self.gen = gen
+        super().__init__(gen)
         self.p = {q.name[len(P):]: p[q.name] for q in SCHEMA}
         self.fit_rng = stream(p["seed"], "alp_gmm.fit")
         # the space of the nearest neighbours and the mixture: Y itself, or Y scaled to [0, 1]
@@ -191,9 +192,9 @@ class AlpGmm:
     def choose(self) -> tuple[np.ndarray, int]:
         gen, rng = self.gen, self.gen.rng
         if self.n < self.p["bootstrap"]:
-            return gen._uniform(gen.lower, gen.upper), MODE_INITIAL
+            return gen.uniform(gen.lower, gen.upper), MODE_INITIAL
         if rng.random() < self.p["random_share"] or self.mixture is None:
-            return gen._uniform(gen.lower, gen.upper), MODE_GLOBAL
+            return gen.uniform(gen.lower, gen.upper), MODE_GLOBAL
         w, means, covs = self.mixture
         i = int(rng.choice(len(w), p=component_probabilities(means[:, -1])))
         x = rng.multivariate_normal(means[i], covs[i])[:-1]

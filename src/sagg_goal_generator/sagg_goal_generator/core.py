@@ -16,6 +16,7 @@ from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import stream
 
 from . import alp_gmm, discretized_progress
+from .teacher import Teacher
 from .modes import (MODE_GLOBAL, MODE_INITIAL, MODE_LOW_COMPETENCE, MODE_NAMES,  # noqa: F401 - re-exported
                     MODE_RANDOM, MODE_REGION)
 
@@ -53,35 +54,6 @@ class GoalRecord:
     competence: float | None = None  # filled by the goal's own report
 
 
-class Teacher:
-    """How a goal strategy chooses goals (a plug-in of :class:`GoalGenerator`, registered in
-    :data:`TEACHERS`). Built with the generator, whose ``params``, bounds, goal stream ``rng``,
-    ``_uniform`` and region tree it may use. Subclasses define :meth:`choose`; the others are
-    no-ops here (a teacher with no state of its own: the tree and the goal stream are the
-    generator's, saved by its checkpoint)."""
-
-    def __init__(self, gen: "GoalGenerator"):
-        self.gen = gen
-
-    def choose(self) -> tuple[np.ndarray, int]:
-        """The next goal and its mode."""
-        raise NotImplementedError
-
-    def report(self, kind: int, target, competence: float) -> None:
-        """Every report the generator takes (whatever ``count_reached`` says; before its tree takes it)."""
-
-    def state(self) -> tuple[dict[str, np.ndarray], dict]:
-        """The teacher's own state: arrays (for the checkpoint's npz) and JSON values."""
-        return {}, {}
-
-    def restore(self, arrays: dict, meta: dict) -> None:
-        """Set the state :meth:`state` returned (arrays by the same names)."""
-
-    def snapshot(self) -> dict | None:
-        """JSON for the run's result (the report's "where goals went"); None: nothing of its own."""
-        return None
-
-
 class RegionInterest(Teacher):
     """``sagg-riac``: the three modes over the region tree (Sec. 2.4.4), after an initial uniform
     phase while the tree has one region."""
@@ -89,12 +61,12 @@ class RegionInterest(Teacher):
     def choose(self) -> tuple[np.ndarray, int]:
         gen = self.gen
         if len(gen.tree.leaves()) < 2:
-            return gen._uniform(gen.lower, gen.upper), MODE_INITIAL
+            return gen.uniform(gen.lower, gen.upper), MODE_INITIAL
         mode = int(gen.rng.choice(3, p=gen.mode_probs)) + 1
         if mode == MODE_GLOBAL:
-            return gen._uniform(gen.lower, gen.upper), mode
+            return gen.uniform(gen.lower, gen.upper), mode
         region = gen._region_by_interest()
-        return (gen._uniform(region.lower, region.upper) if mode == MODE_REGION
+        return (gen.uniform(region.lower, region.upper) if mode == MODE_REGION
                 else gen._near_lowest(region)), mode
 
 
@@ -102,7 +74,7 @@ class UniformGoals(Teacher):
     """``sagg-random``: goals uniform in Y (Sec. 3.7)."""
 
     def choose(self) -> tuple[np.ndarray, int]:
-        return self.gen._uniform(self.gen.lower, self.gen.upper), MODE_RANDOM
+        return self.gen.uniform(self.gen.lower, self.gen.upper), MODE_RANDOM
 
 
 # The goal strategies' teachers, by strategy name (keys: sagg_common.params.GOAL_STRATEGIES).
@@ -183,7 +155,7 @@ class GoalGenerator:
         self.goals.append(rec)
         return rec
 
-    def _uniform(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    def uniform(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
         return self.rng.uniform(lower, upper)
 
     def region_probabilities(self) -> np.ndarray:
@@ -198,7 +170,7 @@ class GoalGenerator:
         """Mode 3: a goal close to the region's point of lowest competence. Spread is
         ``mode3_sigma`` × region extent per dimension (our choice); clipped to Y."""
         if region.count == 0:
-            return self._uniform(region.lower, region.upper)
+            return self.uniform(region.lower, region.upper)
         worst = region.filled_points[int(np.argmin(region.filled_values))]
         sigma = self.params["mode3_sigma"] * (region.upper - region.lower)
         return np.clip(worst + self.rng.normal(0.0, 1.0, self.dim) * sigma, self.lower, self.upper)

@@ -33,6 +33,7 @@ import numpy as np
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 
+from .teacher import Teacher
 from .modes import MODE_GLOBAL, MODE_REGION
 
 NAME = "discretized-progress"
@@ -84,13 +85,13 @@ def cell_probabilities(progress: np.ndarray) -> np.ndarray:
     return np.full(len(w), 1.0 / len(w)) if total <= 0.0 else w / total
 
 
-class DiscretizedProgress:
+class DiscretizedProgress(Teacher):
     """The ``discretized-progress`` teacher of a :class:`~sagg_goal_generator.core.GoalGenerator`
     (its draws from the generator's goal stream)."""
 
     def __init__(self, gen):
         p = gen.params
-        self.gen = gen
+        super().__init__(gen)
         self.p = {q.name[len(P):]: p[q.name] for q in SCHEMA}
         if self.p["cells"] * self.p["window"] > 10_000_000:
             raise ConfigError(f"{P}cells x {P}window: got {self.p['cells']} x {self.p['window']}; allowed: at "
@@ -134,7 +135,7 @@ class DiscretizedProgress:
         else:
             cell, mode = int(rng.choice(self.n_cells, p=cell_probabilities(self.progress))), MODE_REGION
         lo = self.gen.lower + np.array(np.unravel_index(cell, self.shape)) * self.width
-        return np.minimum(self.gen._uniform(lo, lo + self.width), self.gen.upper), mode
+        return np.minimum(self.gen.uniform(lo, lo + self.width), self.gen.upper), mode
 
     def state(self) -> tuple[dict[str, np.ndarray], dict]:
         return {"windows": self.windows}, {"cells": self.n_cells}

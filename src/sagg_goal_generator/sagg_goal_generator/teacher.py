@@ -1,0 +1,37 @@
+"""The interface of a goal strategy (a teacher) of the goal generator. ROS-free.
+
+A teacher chooses goals for :class:`~sagg_goal_generator.core.GoalGenerator`, which keeps one per
+run, registered by strategy name in :data:`~sagg_goal_generator.core.TEACHERS`: the paper's two in
+``core.py``, the others in a module each (``alp_gmm.py``, ``discretized_progress.py``)."""
+from __future__ import annotations
+
+import numpy as np
+
+
+class Teacher:
+    """How a goal strategy chooses goals (a plug-in of :class:`GoalGenerator`, registered in
+    :data:`TEACHERS`). Built with the generator, whose ``params``, bounds, goal stream ``rng``,
+    ``uniform`` and region tree it may use. Subclasses define :meth:`choose`; the others are
+    no-ops here (a teacher with no state of its own: the tree and the goal stream are the
+    generator's, saved by its checkpoint)."""
+
+    def __init__(self, gen):  # gen: the GoalGenerator (not imported here: it imports the teachers)
+        self.gen = gen
+
+    def choose(self) -> tuple[np.ndarray, int]:
+        """The next goal and its mode."""
+        raise NotImplementedError
+
+    def report(self, kind: int, target, competence: float) -> None:
+        """Every report the generator takes (whatever ``count_reached`` says; before its tree takes it)."""
+
+    def state(self) -> tuple[dict[str, np.ndarray], dict]:
+        """The teacher's own state: arrays (for the checkpoint's npz) and JSON values."""
+        return {}, {}
+
+    def restore(self, arrays: dict, meta: dict) -> None:
+        """Set the state :meth:`state` returned (arrays by the same names)."""
+
+    def snapshot(self) -> dict | None:
+        """JSON for the run's result (the report's "where goals went"); None: nothing of its own."""
+        return None
