@@ -78,7 +78,8 @@ def _set_two_components(gen, alp_a, alp_b):
     t = gen.teacher
     t.n = t.p["bootstrap"]
     cov = np.diag([1e-4, 1e-4, 1e-6])
-    t.mixture = (np.array([0.5, 0.5]), np.array([[1.0, 0.0, alp_a], [3.0, 0.0, alp_b]]), np.stack([cov, cov]))
+    t.fits = [{"goals": t.n, "weights": np.array([0.5, 0.5]),
+               "means": np.array([[1.0, 0.0, alp_a], [3.0, 0.0, alp_b]]), "covariances": np.stack([cov, cov])}]
 
 
 def test_goal_component_follows_mean_alp_and_the_uniform_share():

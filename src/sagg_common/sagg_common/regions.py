@@ -33,6 +33,14 @@ def interest(values: np.ndarray, zeta: int) -> float:
     return abs(float(older.sum()) - float(recent.sum())) / (2 * h)
 
 
+def proportional(weights: np.ndarray) -> np.ndarray:
+    """Choice probabilities proportional to non-negative ``weights``; uniform when they sum to 0.
+    The last step of every interest-driven choice here (regions, mixture components, grid cells),
+    each of whose sources leaves the all-zero case open or uniform."""
+    total = weights.sum()
+    return np.full(len(weights), 1.0 / len(weights)) if total <= 0 else weights / total
+
+
 def interest_probabilities(interests: np.ndarray) -> np.ndarray:
     """Region selection probabilities of SAGG-RIAC's goal mode 1: paper Sec. 2.4.4, equation
     (tex line 238): ``P_n = (interest_n − min_i interest_i) / Σ_i (interest_i − min_i interest_i)``.
@@ -41,9 +49,7 @@ def interest_probabilities(interests: np.ndarray) -> np.ndarray:
     paper's formula is undefined there). ACTUATOR-RIAC chooses its regions with the same formula.
     """
     it = np.asarray(interests, dtype=float)
-    w = it - it.min()
-    s = w.sum()
-    return np.full(len(it), 1.0 / len(it)) if s <= 0 else w / s
+    return proportional(it - it.min())
 
 
 @dataclass(eq=False)

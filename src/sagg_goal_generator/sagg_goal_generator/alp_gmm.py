@@ -31,6 +31,7 @@ from threadpoolctl import threadpool_limits
 
 from sagg_common.journal import restore_rng, rng_state
 from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.regions import proportional
 from sagg_common.report_kinds import KIND_GOAL
 from sagg_common.rng import stream
 
@@ -109,9 +110,7 @@ def component_probabilities(alp_means: np.ndarray) -> np.ndarray:
     """Probability of choosing each Gaussian: proportional to its mean ALP (Portelas et al. 2019,
     Sec. 4.1; reference ``proportional_choice`` with eps = 0); uniform when every mean is 0. A mean
     below 0 (possible only numerically: ALP >= 0) counts as 0."""
-    w = np.clip(np.asarray(alp_means, float), 0.0, None)
-    total = w.sum()
-    return np.full(len(w), 1.0 / len(w)) if total <= 0.0 else w / total
+    return proportional(np.clip(np.asarray(alp_means, float), 0.0, None))
 
 
 def fit_mixture(data: np.ndarray, k_min: int, k_max: int, criterion: str, covariance: str, em_inits: int,
@@ -158,8 +157,15 @@ class AlpGmm(Teacher):
         self.hist_goals = np.zeros((h, d))  # ring of the last `history` goals (scaled) ...
         self.hist_comp = np.zeros(h)        # ... and their competences
         self.fit_data = np.zeros((self.p["fit_every"], d + 1))  # ring of the last (goal, ALP) rows
-        self.mixture: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.fits: list[dict] = []  # every fit, for the report's "where goals went"
+        self.fits: list[dict] = []  # every fit (the last one draws goals; all: the report's "where goals went")
+
+    @property
+    def mixture(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The last fit's (weights, means, covariances); None before the first fit."""
+        if not self.fits:
+            return None
+        f = self.fits[-1]
+        return f["weights"], f["means"], f["covariances"]
 
     def _scaled(self, y) -> np.ndarray:
         return (np.asarray(y, float) - self.offset) / self.scale
@@ -183,9 +189,8 @@ class AlpGmm(Teacher):
     def _fit(self) -> None:
         seed = int(self.fit_rng.integers(0, 2**31 - 1))
         p = self.p
-        self.mixture = fit_mixture(self.fit_data, p["k_min"], p["k_max"], p["criterion"], p["covariance"],
-                                   p["em_inits"], seed)
-        w, m, c = self.mixture
+        w, m, c = fit_mixture(self.fit_data, p["k_min"], p["k_max"], p["criterion"], p["covariance"],
+                              p["em_inits"], seed)
         self.fits.append({"goals": self.n, "weights": w, "means": m, "covariances": c})
 
     # -------------------------------------------------------------------- goals
@@ -229,8 +234,6 @@ class AlpGmm(Teacher):
                               "means": arrays["fit_means"][s].copy(),
                               "covariances": arrays["fit_covariances"][s].copy()})
             start += int(k)
-        last = self.fits[-1] if self.fits else None
-        self.mixture = None if last is None else (last["weights"], last["means"], last["covariances"])
 
     def snapshot(self) -> dict:
         """JSON for the result: every fit's goal count, weights and means / covariances mapped back

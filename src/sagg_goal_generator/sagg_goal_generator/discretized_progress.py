@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.regions import proportional
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 
 from .teacher import Teacher
@@ -80,9 +81,7 @@ def cell_progress(window: np.ndarray) -> float:
 def cell_probabilities(progress: np.ndarray) -> np.ndarray:
     """Probability of each cell: its absolute progress over the sum (explauto ``DiscreteProgress.sample``,
     ``discrete_random_draw``); uniform when every progress is 0."""
-    w = np.abs(np.asarray(progress, float))
-    total = w.sum()
-    return np.full(len(w), 1.0 / len(w)) if total <= 0.0 else w / total
+    return proportional(np.abs(np.asarray(progress, float)))
 
 
 class DiscretizedProgress(Teacher):
