@@ -155,6 +155,11 @@ def test_resume_republishes_the_samples_a_bag_lost_and_names_what_it_cannot(tmp_
         compare(1200, 10, 2, str(tmp_path), str(tmp_path))
 
 
+def _stat(proc: Path) -> list[str]:
+    """The fields of ``/proc/<pid>/stat`` after the command name: state, parent pid, ..."""
+    return (proc / "stat").read_text().rsplit(")", 1)[1].split()
+
+
 def _wait_gone(marker: str, timeout: float = 30.0) -> None:
     """Until no live process has ``marker`` in its command line (the killed run's nodes)."""
     end = time.monotonic() + timeout
@@ -163,7 +168,7 @@ def _wait_gone(marker: str, timeout: float = 30.0) -> None:
         for d in Path("/proc").iterdir():
             try:
                 if d.name.isdigit() and marker in (d / "cmdline").read_bytes().decode(errors="replace") \
-                        and (d / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+                        and _stat(d)[0] != "Z":
                     alive.append(d.name)
             except OSError:
                 continue
@@ -256,7 +261,7 @@ def _children(pid: int) -> dict[int, str]:
         if not d.name.isdigit():
             continue
         try:
-            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            ppid = int(_stat(d)[1])
             if ppid == pid:
                 out[int(d.name)] = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode()
         except (OSError, IndexError, ValueError):
@@ -266,7 +271,7 @@ def _children(pid: int) -> dict[int, str]:
 
 def _alive(pid: int) -> bool:
     try:
-        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        state = _stat(Path("/proc") / str(pid))[0]
     except OSError:
         return False
     return state != "Z"
