@@ -39,9 +39,13 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
         while not (status and status[-1].micro_actions >= 400) and time.monotonic() < t_end:
             client.ex.spin_once(timeout_sec=0.1)
         before = status[-1].micro_actions
-        r = client.reach(None, [30.0, 10.0])                       # inside Y, reachable
+        r = client.reach(None, [30.0, 10.0])                       # inside Y, reachable, from where the arm is
         assert r["outcome"] in ("reached", "budget") and np.isfinite(r["error"]) and r["steps"] >= 1
-        assert r["error"] < 5.0, r                                  # (arm8's test error is ~1 at 400)
+        # (from where learning left the arm the model may know nothing: no bound on that error. From
+        # rest it is bounded: in-process, arm8's model reaches this goal from rest within 0.9 at every
+        # 50th micro-action from 400 to 1,500; the pause lands at any of them)
+        r = client.reach(None, [30.0, 10.0], from_rest=True)
+        assert r["outcome"] in ("reached", "budget") and r["error"] < 5.0, r
         bad = client.client.send_goal_async(client.Reach.Goal(target=[1e9, 0.0]))
         client._spin_until(None, bad.done, 30.0, "no answer")
         assert not bad.result().accepted                            # outside Y: rejected
