@@ -186,6 +186,24 @@ def test_a_cells_window_and_progress_follow_its_goal_reports():
     assert abs(pos[:, 0].mean() - 1.0) < 0.1
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_cell_of_is_numpys_flat_index_of_the_bins(dim):
+    # cell_of runs on every report in Python floats: numpy's arithmetic is the reference
+    lower, upper = np.array([-0.5, -1.0, 0.2][:dim]), np.array([1.0, 1.0, 3.0][:dim])
+    gen = GoalGenerator(resolve(SCHEMA, {"strategy": "discretized-progress", "task_space.lower": lower.tolist(),
+                                         "task_space.upper": upper.tolist(), "discretized_progress.cells": 300}))
+    t = gen.teacher
+    rng = np.random.default_rng(3)
+    edges = lower + np.arange(t.shape[0] + 1)[:, None] * t.width  # bin faces, the upper face of Y
+    ys = np.concatenate([rng.uniform(lower, upper, (2000, dim)), edges, [upper, lower]])
+    for y in ys:
+        y = np.minimum(np.maximum(y, lower), upper)
+        idx = np.minimum(((y - lower) / t.width).astype(int), np.array(t.shape) - 1)
+        assert t.cell_of(y) == int(np.ravel_multi_index(tuple(idx), t.shape)), y
+    for bad in (upper + 1e-9, lower - 1e-9, np.full(dim, np.nan), np.zeros(dim + 1)):
+        assert t.cell_of(bad) is None
+
+
 def test_novelty_bonus_credits_a_new_cell_once():
     gen = generator("discretized-progress", **{"discretized_progress.cells": 4, "discretized_progress.window": 4})
     t = gen.teacher

@@ -75,7 +75,8 @@ def cell_progress(window: np.ndarray) -> float:
     the competence rises; the choice uses its absolute value. An odd window's newer half is the
     larger (explauto's ``range(win_size / 2)`` split)."""
     h = len(window) // 2
-    return float(np.mean(window[:h]) - np.mean(window[h:]))
+    # (np.mean's arithmetic, without its dispatch: the sum of each half over its length)
+    return float(window[:h].sum() / h - window[h:].sum() / (len(window) - h))
 
 
 def cell_probabilities(progress: np.ndarray) -> np.ndarray:
@@ -100,16 +101,21 @@ class DiscretizedProgress(Teacher):
         self.width = (gen.upper - gen.lower) / np.array(self.shape)
         self.windows = np.zeros((self.n_cells, self.p["window"]))  # oldest first
         self.progress = np.zeros(self.n_cells)
+        # per dimension (lower, upper, bin width, bins), as Python floats: cell_of runs per report
+        self._bins = list(zip(gen.lower.tolist(), gen.upper.tolist(), self.width.tolist(), self.shape))
 
     def cell_of(self, y) -> int | None:
-        """Flat index of the cell holding ``y`` (the upper faces belong to the last bins); None
-        outside Y."""
+        """Flat index (C order, as ``np.ravel_multi_index``) of the cell holding ``y`` (the upper
+        faces belong to the last bins); None outside Y (or NaN)."""
         y = np.asarray(y, float)
-        g = self.gen
-        if y.shape != g.lower.shape or not np.all((y >= g.lower) & (y <= g.upper)):
+        if y.shape != self.gen.lower.shape:
             return None
-        idx = np.minimum(((y - g.lower) / self.width).astype(int), np.array(self.shape) - 1)
-        return int(np.ravel_multi_index(tuple(idx), self.shape))
+        flat = 0
+        for v, (lo, hi, width, bins) in zip(y.tolist(), self._bins):
+            if not lo <= v <= hi:
+                return None
+            flat = flat * bins + min(int((v - lo) / width), bins - 1)
+        return flat
 
     def _append(self, cell: int, value: float) -> None:
         w = self.windows[cell]
