@@ -38,6 +38,16 @@ def test_graph_run_of_a_teacher_equals_its_in_process_run(graph_run):
     assert s["memory"]["digest"] == r["memory"]["digest"]
     assert [g["position"] for g in s["goals"]] == [g["position"] for g in r["goals"]]
     assert "region" in {g["mode_name"] for g in r["goals"]}  # the teacher's interest chose goals
+    # the teacher's own view, read back from the generator node's last checkpoint: the in-process one
+    assert s["teacher"]["teacher"] == strategy and s["teacher"] == r["teacher"]
+
+
+def test_the_report_of_a_teachers_graph_run_draws_the_teacher(graph_run, tmp_path):
+    from sagg_bringup.report.report import write_report
+    _, _, s = graph_run
+    write_report(s, tmp_path)
+    assert (tmp_path / "teacher.png").stat().st_size > 10_000
+    assert "teacher.png" in (tmp_path / "report.md").read_text()
 
 
 def test_relearn_of_a_teachers_bag_chooses_its_goals_again(graph_run, tmp_path):

@@ -97,18 +97,7 @@ class GeneratorCheckpointer(Checkpointer):
         if meta is None:
             return []
         gen = self.gen
-        with np.load(self.dir / meta["state_file"], allow_pickle=False) as z:
-            restore_tree(gen.tree, z)
-            gen.tree.splits = splits_from_arrays(z)
-            gen.goals = [GoalRecord(int(s), p.copy(), int(m), int(a), None if np.isnan(c) else float(c))
-                         for s, p, m, a, c in zip(z["goal_seq"], z["goal_position"], z["goal_mode"],
-                                                  z["goal_after"], z["goal_competence"])]
-            gen.teacher.restore({k[len(TEACHER_PREFIX):]: z[k] for k in z.files if k.startswith(TEACHER_PREFIX)},
-                                meta.get("teacher", {}))
-        gen.reports = int(meta["reports"])
-        gen.ignored_outside = int(meta["ignored_outside"])
-        restore_rng(gen.rng, meta["rng"])
-        restore_rng(gen.tree.rng, meta["split_rng"])
+        restore_state(gen, self.dir, meta)
         g = int(meta["generation"])
         pending: list[GoalRecord] = []
         self.republish = []
@@ -127,6 +116,36 @@ class GeneratorCheckpointer(Checkpointer):
         self.resumed_from = {"generation": g, "reports": gen.reports, "goals": len(gen.goals),
                              "pending_goals": len(pending), "torn_bytes": self.torn_bytes}
         return pending
+
+
+def restore_state(gen: GoalGenerator, directory: Path, meta: dict) -> None:
+    """Put the state of ``generator.json`` (``meta``) and its state file into ``gen``: the tree,
+    the split history, the goals, the teacher's state, the counters and both random streams."""
+    with np.load(directory / meta["state_file"], allow_pickle=False) as z:
+        restore_tree(gen.tree, z)
+        gen.tree.splits = splits_from_arrays(z)
+        gen.goals = [GoalRecord(int(s), p.copy(), int(m), int(a), None if np.isnan(c) else float(c))
+                     for s, p, m, a, c in zip(z["goal_seq"], z["goal_position"], z["goal_mode"],
+                                              z["goal_after"], z["goal_competence"])]
+        gen.teacher.restore({k[len(TEACHER_PREFIX):]: z[k] for k in z.files if k.startswith(TEACHER_PREFIX)},
+                            meta.get("teacher", {}))
+    gen.reports = int(meta["reports"])
+    gen.ignored_outside = int(meta["ignored_outside"])
+    restore_rng(gen.rng, meta["rng"])
+    restore_rng(gen.tree.rng, meta["split_rng"])
+
+
+def teacher_snapshot(directory: str | Path, params: dict) -> dict | None:
+    """The teacher's ``snapshot`` (what reports draw) as of the generator checkpoint in
+    ``directory`` (the node's last one: it writes one at shutdown), read only; None without a
+    checkpoint or for a teacher without a view of its own (sagg-riac, sagg-random). ``params``:
+    the generator node's parameters of the run."""
+    directory = Path(directory)
+    if not (directory / "generator.json").is_file():
+        return None
+    gen = GoalGenerator(params)
+    restore_state(gen, directory, json.loads((directory / "generator.json").read_text()))
+    return gen.teacher.snapshot()
 
 
 def published(directory: str | Path) -> dict | None:

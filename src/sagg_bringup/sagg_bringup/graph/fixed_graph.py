@@ -35,6 +35,7 @@ from ..inprocess.results import run_overrides
 from .run_state import finite_sample_problem
 from .session import STALL_TIMEOUT, GraphSession
 from ..inprocess.fixed_experiment import FixedRun, load_fixed_config, outcome_extents
+from ..report.report import fig_teacher
 
 
 def resolve_fixed_graph(setup, config_path: str | Path, overrides: dict[str, Any] | None) -> dict[str, dict]:
@@ -168,6 +169,8 @@ def write_synergy_report(summary: dict, out: Path) -> Path:
              f"| final mean test error | {summary['final_mean_error']:.3f} |", "",
              "## Learning curve", "", "| experiments | mean error | median error |", "|---|---|---|"]
     lines += [f"| {c['micro_actions']} | {c['mean_error']:.3f} | {c['median_error']:.3f} |" for c in summary["curve"]]
+    if summary.get("teacher") and fig_teacher(summary, out / "teacher.png", None):
+        lines += ["", f"## Where {summary['strategy']} sent its goals", "", "![teacher](teacher.png)"]
     lines += ["", "## Recorded topics", "", "| topic | type | messages |", "|---|---|---|"]
     lines += [f"| `{t}` | {v['type']} | {v['count']} |" for t, v in summary["bag"]["topics"].items()]
     path = out / "report.md"

@@ -12,6 +12,7 @@ import numpy as np
 
 from sagg_common.journal import write_json_atomic
 from sagg_common.progress import Progress
+from sagg_goal_generator.checkpoint import teacher_snapshot
 
 from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
 from .processes import GraphError, NodeGroup, NodeProcess
@@ -36,7 +37,8 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
                 "resumed_segments", "learn_seconds", "startup_seconds", "eval_seconds", "wall_seconds", "curve",
                 "final_mean_error", "final_median_error", "memory", "learner_status", "reports", "goals",
                 "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
-                "interrupted", "error", "driver", "curve_source", "simulated_evaluation", "robot_evaluation")
+                "interrupted", "error", "driver", "curve_source", "simulated_evaluation", "robot_evaluation",
+                "teacher")
 
 
 class GraphSession:
@@ -313,6 +315,11 @@ class GraphSession:
         pos = np.array([g["position"] for g in goals], float).reshape(-1, len(lp["task_space.lower"]))
         gma = np.array([g["micro_actions"] for g in goals], float)
         out = dict(specific)
+        gp = params.get("sagg_goal_generator") or {}
+        if gp.get("checkpoint_dir"):  # the teacher's own view, from the generator's last checkpoint
+            teacher = teacher_snapshot(gp["checkpoint_dir"], gp)
+            if teacher is not None:
+                out["teacher"] = teacher
         out.update({
             "format": "sagg.summary/1",
             "strategy": lp["strategy"],
