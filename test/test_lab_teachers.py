@@ -40,3 +40,24 @@ def test_teacher_cost_times_the_teacher_apart_from_the_tree(strategy):
     assert r["goals"] > 0 and r["micro_actions_per_goal"] == pytest.approx(800 / r["goals"])
     assert 0.0 < r["share"] < 1.0 and 0.0 < r["tree_share"] < 1.0 and r["share"] + r["tree_share"] < 1.0
     assert "| " + strategy + " |" in teacher_cost.table([r])
+
+
+def test_teachers_table_marks_what_beats_the_baseline(tmp_path):
+    import json
+    from sagg_lab import teachers_table
+    finals = {"sagg-random": [1.0, 1.1, 1.2, 1.3, 1.4], "alp-gmm": [0.1, 0.2, 0.3, 0.4, 0.5],
+              "discretized-progress": [1.05, 1.15, 1.25, 1.35, 1.45]}
+    for strategy, errors in finals.items():
+        for seed, e in enumerate(errors):
+            d = tmp_path / "cmp" / strategy / f"seed-{seed}"
+            d.mkdir(parents=True)
+            curve = [{"micro_actions": 0, "mean_error": 2.0}, {"micro_actions": 100, "mean_error": e}]
+            (d / "result.json").write_text(json.dumps({"strategy": strategy, "seed": seed, "final_mean_error": e,
+                                                       "curve": curve}))
+    assert teachers_table.main(["--out", str(tmp_path / "t"), f"toy={tmp_path / 'cmp'}"]) == 0
+    row = [line for line in (tmp_path / "t" / "teachers.md").read_text().splitlines() if line.startswith("| toy | 5")][0]
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1] == "5 × 100" and cells[2] == "1.2 ± 0.16"  # columns: sagg-random (baseline), alp-gmm, d-p
+    assert cells[3].startswith("0.3 ± 0.16") and cells[3].endswith("**better**")  # every alp-gmm seed lower
+    assert "**" not in cells[4] and "p 0.69" in cells[4]  # discretized-progress: not different
+    assert (tmp_path / "t" / "teachers_curves.png").stat().st_size > 5000
