@@ -61,3 +61,18 @@ def test_teachers_table_marks_what_beats_the_baseline(tmp_path):
     assert cells[3].startswith("0.3 ± 0.16") and cells[3].endswith("**better**")  # every alp-gmm seed lower
     assert "**" not in cells[4] and "p 0.69" in cells[4]  # discretized-progress: not different
     assert (tmp_path / "t" / "teachers_curves.png").stat().st_size > 5000
+
+
+def test_interest_on_reachable_reads_each_teachers_snapshot():
+    from sagg_bringup.inprocess.experiment import load_arm_config
+    from sagg_lab.teachers_table import interest_on_reachable
+    config = load_arm_config("config/arm8.yaml")  # Y = [0,100] x [-60,60]; reachable: the half-disk of radius 50
+    grid = {"teacher": "discretized-progress", "shape": [2, 2], "lower": [0.0, -60.0], "upper": [100.0, 60.0],
+            "progress": [0.3, -0.1, 0.6, 0.0], "competence": [1.0, 0.8, 0.0, 0.2]}  # cells at x 25 reachable, x 75 not
+    r = interest_on_reachable({"config": config, "teacher": grid})
+    assert r == pytest.approx({"share": 0.4, "competence_inside": 0.9, "competence_outside": 0.1})
+    fits = [{"means": [[80.0, 0.0, 1.0]]},  # (first half: the choice right after the bootstrap, left out)
+            {"means": [[25.0, 0.0, 0.3], [80.0, 40.0, 0.1]]}, {"means": [[25.0, 0.0, 0.0], [80.0, 40.0, 0.0]]}]
+    r = interest_on_reachable({"config": config, "teacher": {"teacher": "alp-gmm", "fits": fits}})
+    assert r["share"] == pytest.approx((0.75 + 0.5) / 2) and r["fits"] == 3  # all-zero ALP: uniform
+    assert interest_on_reachable({"config": config, "teacher": None}) is None

@@ -7,7 +7,9 @@ Per set-up: each strategy's final mean test error (mean ± std over seeds), and 
 against ``--baseline`` (default sagg-random): two-sided Mann-Whitney p and Welch p on the final
 errors (``experiments.compare.pairwise_tests``), marked where p < 0.05 (better or worse); then
 where the goals went (``experiments.mechanisms``: goals in the reachable area in the second
-half, coverage of the test goals, test goals within tolerance). Writes ``teachers.md`` and
+half, coverage of the test goals, test goals within tolerance), and where each teacher's own
+interest lay (:func:`interest_on_reachable`: the share of its choice weight on the reachable area,
+and for the grid the mean competence inside and outside it). Writes ``teachers.md`` and
 ``teachers_curves.png`` (one panel per set-up, mean ± std over seeds) in ``--out``.
 """
 from __future__ import annotations
@@ -22,10 +24,42 @@ from sagg_common.params import GOAL_STRATEGIES, STRATEGIES
 
 from sagg_bringup.experiments.compare import by_strategy, curve_stats, load_results, pairwise_tests
 from sagg_bringup.experiments.mechanisms import strategy_mechanisms
+from sagg_bringup.report.report import reachable_mask
 
 ALPHA = 0.05
 MECHANISMS = (("goal_share_reachable_second_half", "reachable goals, 2nd half", "{:.0%}"),
               ("coverage_median", "coverage (median)", "{:.3g}"), ("within_share", "within tolerance", "{:.0%}"))
+
+
+def interest_on_reachable(result: dict) -> dict | None:
+    """Where a teacher's choice weight lay, from its snapshot in ``result`` (None for the paper's
+    strategies or a run without a reachable area): ``discretized-progress``: the share of the
+    final |progress| on cells centred in the reachable area, and the mean normalised competence
+    of the windows of the cells inside and outside it; ``alp-gmm``: the share of the choice weight
+    (∝ mean ALP) on components centred in the reachable area, averaged over the second half of its
+    fits (the bootstrap chose uniformly)."""
+    t = result.get("teacher")
+    area = reachable_mask(result) if t else None
+    if area is None:
+        return None
+    if t["teacher"] == "discretized-progress":
+        shape = np.array(t["shape"])
+        lower, upper = np.array(t["lower"]), np.array(t["upper"])
+        idx = np.array(np.unravel_index(np.arange(int(shape.prod())), tuple(shape))).T
+        inside = area.contains(lower + (idx + 0.5) * (upper - lower) / shape)
+        progress, comp = np.abs(np.array(t["progress"])), np.array(t["competence"])
+        return {"share": float(progress[inside].sum() / progress.sum()) if progress.sum() > 0 else math.nan,
+                "competence_inside": float(comp[inside].mean()), "competence_outside": float(comp[~inside].mean())}
+    fits = t["fits"][len(t["fits"]) // 2:]
+    if not fits:
+        return {"share": math.nan}
+    shares = []
+    for f in fits:
+        means = np.array(f["means"])
+        alp = np.clip(means[:, -1], 0.0, None)
+        w = alp / alp.sum() if alp.sum() > 0 else np.full(len(alp), 1.0 / len(alp))
+        shares.append(float(w[area.contains(means[:, :-1])].sum()))
+    return {"share": float(np.mean(shares)), "fits": len(t["fits"])}
 
 
 def setup_rows(name: str, directory: str, baseline: str) -> dict:
@@ -39,7 +73,13 @@ def setup_rows(name: str, directory: str, baseline: str) -> dict:
         rows[strategy] = {"seeds": len(runs), "mean": float(np.mean(final)), "std": float(np.std(final, ddof=1)),
                           "budget": runs[0]["curve"][-1]["micro_actions"],
                           **({} if strategy == baseline else pairwise_tests(final, base))}
-    return {"name": name, "rows": rows, "mechanisms": strategy_mechanisms(groups), "groups": groups}
+    interest = {}
+    for strategy, runs in groups.items():
+        found = [x for x in map(interest_on_reachable, runs) if x is not None]
+        if found:
+            interest[strategy] = {k: float(np.nanmean([x.get(k, math.nan) for x in found])) for k in found[0]}
+    return {"name": name, "rows": rows, "mechanisms": strategy_mechanisms(groups), "groups": groups,
+            "interest": interest}
 
 
 def _verdict(row: dict, base_mean: float) -> str:
@@ -78,6 +118,16 @@ def markdown(setups: list[dict], baseline: str) -> str:
             m = st["mechanisms"].get(s)
             cells.append("–" if m is None else " / ".join(
                 "–" if not np.isfinite(m[k]) else fmt.format(m[k]) for k, _, fmt in MECHANISMS))
+        lines.append(f"| {st['name']} | " + " | ".join(cells) + " |")
+    lines += ["", "Where each teacher's interest lay: share of its choice weight on the reachable area "
+              "(discretized-progress: final |progress| of the cells, with the windows' mean normalised "
+              "competence inside / outside; alp-gmm: components by mean ALP, second half of its fits).", "",
+              "| set-up | discretized-progress | alp-gmm |", "|---|---|---|"]
+    for st in setups:
+        dp, alp = st["interest"].get("discretized-progress"), st["interest"].get("alp-gmm")
+        cells = ["–" if dp is None else f"{dp['share']:.0%} (competence {dp['competence_inside']:.2f} / "
+                 f"{dp['competence_outside']:.2f})",
+                 "–" if alp is None or not np.isfinite(alp["share"]) else f"{alp['share']:.0%} ({alp['fits']:.0f} fits)"]
         lines.append(f"| {st['name']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
