@@ -14,7 +14,7 @@ from sagg_common.params import (ACTUATOR_STRATEGIES, GOAL_STRATEGIES, PAPER_STRA
                                 resolve)
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_goal_generator.alp_gmm import absolute_learning_progress, component_probabilities, fit_mixture
-from sagg_goal_generator.checkpoint import GeneratorCheckpointer
+from sagg_goal_generator.checkpoint import GeneratorCheckpointer, teacher_snapshot
 from sagg_goal_generator.core import (MODE_GLOBAL, MODE_INITIAL, MODE_LOW_COMPETENCE, MODE_RANDOM, MODE_REGION,
                                       SCHEMA, TEACHERS, GoalGenerator, GoalRecord)
 from sagg_goal_generator.discretized_progress import cell_probabilities, cell_progress, grid_shape
@@ -276,9 +276,23 @@ def test_resume_equals_an_uninterrupted_run(tmp_path, strategy):
     assert _same_goals(resumed.goals, full.goals) and len(full.goals) == 160
     assert resumed.rng.bit_generator.state == full.rng.bit_generator.state
     assert resumed.teacher.snapshot() == full.teacher.snapshot()
+    # what `sagg run` draws: the snapshot read back from the checkpoint, read only, is the teacher's own
+    assert teacher_snapshot(tmp_path, first.params) == first.teacher.snapshot()
     assert resumed.next_goal().position.tobytes() == full.next_goal().position.tobytes()
     if strategy == "alp-gmm":
         assert len(full.teacher.fits) >= 6 and {g.mode for g in full.goals} >= {MODE_INITIAL, MODE_REGION}
+
+
+def test_teacher_snapshot_without_or_with_a_broken_checkpoint(tmp_path):
+    gen = generator("discretized-progress", **{"discretized_progress.cells": 16})
+    assert teacher_snapshot(tmp_path, gen.params) is None  # no checkpoint: no view
+    GeneratorCheckpointer(tmp_path, gen, 10**6).save()
+    assert teacher_snapshot(tmp_path, gen.params)["teacher"] == "discretized-progress"
+    assert teacher_snapshot(tmp_path, generator("sagg-riac").params) is None  # the paper's: no view of its own
+    for p in tmp_path.glob("generator_state_*.npz"):
+        p.write_bytes(b"not an npz")
+    with pytest.raises((OSError, ValueError, KeyError)):  # (what sagg run's summary catches and names)
+        teacher_snapshot(tmp_path, gen.params)
 
 
 def _apply(gen, e) -> bool:

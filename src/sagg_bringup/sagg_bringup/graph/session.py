@@ -4,6 +4,7 @@ cleanup and the summary's common keys."""
 from __future__ import annotations
 
 import signal
+import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -317,7 +318,12 @@ class GraphSession:
         out = dict(specific)
         gp = params.get("sagg_goal_generator") or {}
         if gp.get("checkpoint_dir"):  # the teacher's own view, from the generator's last checkpoint
-            teacher = teacher_snapshot(gp["checkpoint_dir"], gp)
+            try:
+                teacher = teacher_snapshot(gp["checkpoint_dir"], gp)
+            except (OSError, ValueError, KeyError) as exc:  # (a view lost, not the run's summary)
+                print(f"sagg: the teacher's view is left out of the summary: checkpoint "
+                      f"{gp['checkpoint_dir']} unreadable ({exc})", file=sys.stderr)
+                teacher = None
             if teacher is not None:
                 out["teacher"] = teacher
         out.update({
