@@ -48,13 +48,13 @@ def test_teachers_table_marks_what_beats_the_baseline(tmp_path):
     finals = {"sagg-random": [1.0, 1.1, 1.2, 1.3, 1.4], "alp-gmm": [0.1, 0.2, 0.3, 0.4, 0.5],
               "discretized-progress": [1.05, 1.15, 1.25, 1.35, 1.45]}
     for strategy, errors in finals.items():
-        for seed, e in enumerate(errors):
-            d = tmp_path / "cmp" / strategy / f"seed-{seed}"
+        for seed, e in enumerate(errors):  # (the baseline's runs in a directory of their own)
+            d = tmp_path / ("base" if strategy == "sagg-random" else "cmp") / strategy / f"seed-{seed}"
             d.mkdir(parents=True)
             curve = [{"micro_actions": 0, "mean_error": 2.0}, {"micro_actions": 100, "mean_error": e}]
             (d / "result.json").write_text(json.dumps({"strategy": strategy, "seed": seed, "final_mean_error": e,
                                                        "curve": curve}))
-    assert teachers_table.main(["--out", str(tmp_path / "t"), f"toy={tmp_path / 'cmp'}"]) == 0
+    assert teachers_table.main(["--out", str(tmp_path / "t"), f"toy={tmp_path / 'cmp'},{tmp_path / 'base'}"]) == 0
     row = [line for line in (tmp_path / "t" / "teachers.md").read_text().splitlines() if line.startswith("| toy | 5")][0]
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1] == "5 × 100" and cells[2] == "1.2 ± 0.16"  # columns: sagg-random (baseline), alp-gmm, d-p

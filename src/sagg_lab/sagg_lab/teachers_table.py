@@ -1,7 +1,10 @@
 """The side-by-side of the goal strategies over several set-ups (issue 27 item 3), from the output
 directories of ``sagg bench compare``::
 
-    python -m sagg_lab.teachers_table --out DIR arm8=/tmp/cmp/arm8 quadruped=/tmp/cmp/quadruped ...
+    python -m sagg_lab.teachers_table --out DIR arm8=/tmp/cmp/arm8 quadruped=/tmp/cmp/q1,/tmp/cmp/q2 ...
+
+(a set-up's runs may come from several directories, comma-separated: e.g. the teachers' runs
+beside an archive's runs of the paper's strategies on the same seeds, budget and test goals).
 
 Per set-up: each strategy's final mean test error (mean ± std over seeds), and each strategy
 against ``--baseline`` (default sagg-random): two-sided Mann-Whitney p and Welch p on the final
@@ -62,10 +65,10 @@ def interest_on_reachable(result: dict) -> dict | None:
     return {"share": float(np.mean(shares)), "fits": len(t["fits"])}
 
 
-def setup_rows(name: str, directory: str, baseline: str) -> dict:
-    groups = by_strategy(load_results([directory]))
+def setup_rows(name: str, directories: str, baseline: str) -> dict:
+    groups = by_strategy(load_results(directories.split(",")))
     if baseline not in groups:
-        raise SystemExit(f"{name}: no {baseline} runs under {directory}")
+        raise SystemExit(f"{name}: no {baseline} runs under {directories}")
     base = [r["final_mean_error"] for r in groups[baseline]]
     rows = {}
     for strategy, runs in groups.items():
@@ -156,7 +159,7 @@ def figure(setups: list[dict], path: Path) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m sagg_lab.teachers_table", description=__doc__.split("::")[0])
-    ap.add_argument("setups", nargs="+", metavar="NAME=DIR")
+    ap.add_argument("setups", nargs="+", metavar="NAME=DIR[,DIR...]")
     ap.add_argument("--baseline", default="sagg-random")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
@@ -164,7 +167,7 @@ def main(argv=None) -> int:
     for item in a.setups:
         name, sep, directory = item.partition("=")
         if not sep:
-            ap.error(f"{item!r}: expected NAME=DIR")
+            ap.error(f"{item!r}: expected NAME=DIR[,DIR...]")
         setups.append(setup_rows(name, directory, a.baseline))
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
