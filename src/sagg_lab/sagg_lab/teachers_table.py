@@ -85,6 +85,12 @@ def setup_rows(name: str, directories: str, baseline: str) -> dict:
             "interest": interest}
 
 
+def _rank(strategy: str) -> int:
+    """A strategy's column and colour: the goal strategies first, then the paper's others."""
+    order = list(GOAL_STRATEGIES) + [s for s in STRATEGIES if s not in GOAL_STRATEGIES]
+    return order.index(strategy) if strategy in order else len(order)
+
+
 def _verdict(row: dict, base_mean: float) -> str:
     p = row.get("mannwhitney_p", math.nan)
     if not p < ALPHA:
@@ -93,8 +99,7 @@ def _verdict(row: dict, base_mean: float) -> str:
 
 
 def markdown(setups: list[dict], baseline: str) -> str:
-    order = list(GOAL_STRATEGIES) + [s for s in STRATEGIES if s not in GOAL_STRATEGIES]
-    strategies = sorted({s for st in setups for s in st["rows"]}, key=lambda s: (order + [s]).index(s))
+    strategies = sorted({s for st in setups for s in st["rows"]}, key=_rank)
     head = ["set-up", "seeds × budget"] + strategies
     lines = [f"Final mean test error (mean ± std over seeds); for each strategy against {baseline}: two-sided "
              f"Mann-Whitney p / Welch p, **better** or **worse** where the Mann-Whitney p < {ALPHA}.", "",
@@ -142,11 +147,12 @@ def figure(setups: list[dict], path: Path) -> None:
     rows = math.ceil(len(setups) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.4 * rows), squeeze=False)
     for ax, st in zip(axes.flat, setups):
-        for strategy, runs in st["groups"].items():
-            c = curve_stats(runs)
+        for strategy in sorted(st["groups"], key=_rank):
+            c = curve_stats(st["groups"][strategy])
             x, m, s = np.array(c["micro_actions"]), np.array(c["mean"]), np.array(c["std"])
-            line, = ax.plot(x, m, marker="o", ms=3, label=strategy)
-            ax.fill_between(x, m - s, m + s, color=line.get_color(), alpha=0.12)
+            color = plt.cm.tab10(_rank(strategy) % 10)
+            ax.plot(x, m, marker="o", ms=3, label=strategy, color=color)
+            ax.fill_between(x, np.maximum(m - s, m / 10), m + s, color=color, alpha=0.12)  # (log axis: floored)
         ax.set(title=st["name"], xlabel="micro-actions", ylabel="mean test error", yscale="log")
         ax.grid(alpha=0.3)
     for ax in list(axes.flat)[len(setups):]:
