@@ -56,3 +56,18 @@ def test_relearn_of_a_teachers_bag_chooses_its_goals_again(graph_run, tmp_path):
     assert re["strategy"] == strategy
     assert re["goals_match"] and re["goals"] == len(s["goals"]) > 5
     assert re["memory"]["digest"] == s["memory"]["digest"]
+
+
+def test_a_fixed_context_graph_run_of_a_teacher_reports_its_view(tmp_path):
+    # the other graph path (fixed_graph: the fixed-context learner), with its own short report
+    out = tmp_path / "r"
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    p = subprocess.run([SAGG, "run", "config/arm7_ratio15.yaml", "--set", "context=fixed", "--strategy",
+                        "discretized-progress", "--micro-actions", "300", "--eval-every", "300", "--out", str(out),
+                        "--quiet"], env=env, capture_output=True, text=True, timeout=400)
+    assert p.returncode == 0, p.stdout + p.stderr
+    s = json.loads((out / "summary.json").read_text())
+    r = run_experiment("config/arm7_ratio15.yaml", "discretized-progress", None, 300, 300, None, progress=False,
+                       overrides={"context": "fixed"})
+    assert s["teacher"] == r["teacher"] and any(s["teacher"]["progress"])
+    assert (out / "teacher.png").stat().st_size > 10_000 and "teacher.png" in (out / "report.md").read_text()

@@ -19,6 +19,7 @@ differences:
 """
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,7 @@ from sagg_common.params import ConfigError, node_params, read_config
 from sagg_common.progress import Progress
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
-from .params_files import run_only_params, write_params_file
+from .params_files import run_only_params, set_checkpoint_dirs, write_params_file
 from .processes import check_domain_id, node_processes
 from ..inprocess.results import run_overrides
 from .run_state import finite_sample_problem
@@ -83,6 +84,10 @@ def run_fixed_graph(setup, config_path: str | Path, micro_actions: int, out_dir:
     procs = node_processes(setup.nodes, out / "logs")
     t_start = time.perf_counter()
     params = fixed_graph_params(full, micro_actions)
+    # the goal generator checkpoints into DIR/checkpoint (no resume here: its last checkpoint, written
+    # at its shutdown, gives the summary the teacher's view)
+    for note in set_checkpoint_dirs(params, out):
+        print(f"sagg run: {note}", file=sys.stderr)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
     lp = full["sagg_learner"]
