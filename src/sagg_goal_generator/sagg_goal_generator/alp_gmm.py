@@ -19,15 +19,17 @@ rewards to [0, 1] first: ALP is a difference, so the shift changes nothing. Only
 (``KIND_GOAL``: an attempted goal and its competence) feed the teacher, as only sampled tasks feed
 the reference's; reached points and exploration samples do not.
 
-The chosen mixture is kept as plain arrays (weights, means, covariances), so a checkpoint is
-arrays + JSON (no pickle) and a resumed teacher draws exactly what an uninterrupted one draws.
-scikit-learn's ``random_state`` of each fit is an integer drawn from the named stream
-``alp_gmm.fit`` (sagg_common.rng), never a global RNG.
+The mixtures are fitted by :mod:`.gaussian_mixture` (the EM of scikit-learn's ``GaussianMixture``,
+which the reference uses, with all components in each step at once: ~20x cheaper; why and how it is
+checked against scikit-learn: that module's docstring). The chosen mixture is kept as plain arrays
+(weights, means, covariances), so a checkpoint is arrays + JSON (no pickle) and a resumed teacher
+draws exactly what an uninterrupted one draws. The k-means initialisations of a fit draw from a
+generator seeded by an integer drawn from the named stream ``alp_gmm.fit`` (sagg_common.rng), one
+per number of components, never a global RNG.
 """
 from __future__ import annotations
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from sagg_common.journal import restore_rng, rng_state
 from sagg_common.params import ConfigError, Param, Schema
@@ -35,6 +37,7 @@ from sagg_common.regions import proportional
 from sagg_common.report_kinds import KIND_GOAL
 from sagg_common.rng import stream
 
+from . import gaussian_mixture
 from .teacher import Teacher
 from .modes import MODE_GLOBAL, MODE_INITIAL, MODE_REGION
 
@@ -60,6 +63,16 @@ SCHEMA: Schema = (
           choices=("full", "diag")),
     Param(P + "em_inits", "int", 1, "EM initialisations per fit, the best kept (reference nb_em_init = 1).",
           low=1, high=100),
+    Param(P + "em_tol", "float", 1e-3,
+          "EM stops when the mean log-likelihood of the fitted points changes by less than this "
+          "(the reference's GaussianMixture default, tol = 1e-3).", low=0.0, high=1e6, low_open=True),
+    Param(P + "em_max_iter", "int", 100,
+          "Most EM iterations per initialisation (the reference's GaussianMixture default, "
+          "max_iter = 100).", low=1, high=100_000),
+    Param(P + "reg_covar", "float", 1e-6,
+          "Added to the diagonal of every covariance, keeping it positive definite (the reference's "
+          "GaussianMixture default, reg_covar = 1e-6; in the units of the fitted points: Y's, or "
+          "[0, 1] with unit_goals, and ALP's).", low=0.0, high=1e6, low_open=True),
     Param(P + "random_share", "float", 0.2,
           "Probability of a uniform goal in Y after the bootstrap (reference random_task_ratio = 0.2).",
           low=0.0, high=1.0),
@@ -114,28 +127,20 @@ def component_probabilities(alp_means: np.ndarray) -> np.ndarray:
 
 
 def fit_mixture(data: np.ndarray, k_min: int, k_max: int, criterion: str, covariance: str, em_inits: int,
-                random_state: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                random_state: int, tol: float = 1e-3, max_iter: int = 100,
+                reg_covar: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit one Gaussian mixture per k in ``k_min..k_max`` to ``data`` (rows: goal then ALP) and keep
     the one of least ``criterion`` (AIC or BIC; Portelas et al. 2019 Sec. 4.1, reference: AIC).
     Returns (weights (k,), means (k, D), covariances (k, D, D), full matrices whatever the type).
-    scikit-learn is imported here, so that the other strategies do not load it. BLAS runs on one
-    thread here: its matrices are 3 x 3 or 4 x 4, and a BLAS thread pool waiting on a busy machine
-    made a fit of 250 points take 10 s instead of 0.3 s (docs/notes/teachers.md)."""
-    # lazy (heavy): scikit-learn (about a second to import)
-    from sklearn.mixture import GaussianMixture
-
+    Each k's k-means initialisations draw from ``numpy.random.default_rng((random_state, k))``."""
     best, best_score = None, np.inf
-    with threadpool_limits(limits=1):
-        for k in range(k_min, k_max + 1):
-            gm = GaussianMixture(n_components=k, covariance_type=covariance, n_init=em_inits,
-                                 random_state=random_state).fit(data)
-            score = gm.aic(data) if criterion == "aic" else gm.bic(data)
-            if score < best_score:  # ties: the fewest Gaussians
-                best, best_score = gm, score
-    cov = best.covariances_
-    if covariance == "diag":
-        cov = np.stack([np.diag(c) for c in cov])
-    return best.weights_.copy(), best.means_.copy(), np.array(cov, float)
+    for k in range(k_min, k_max + 1):
+        m = gaussian_mixture.fit(data, k, np.random.default_rng((random_state, k)), covariance, em_inits,
+                                 reg_covar, tol, max_iter)
+        score = gaussian_mixture.information_criterion(data, m, criterion)
+        if score < best_score:  # ties: the fewest Gaussians
+            best, best_score = m, score
+    return best.weights.copy(), best.means.copy(), np.array(best.full_covariances(), float)
 
 
 class AlpGmm(Teacher):
@@ -190,7 +195,7 @@ class AlpGmm(Teacher):
         seed = int(self.fit_rng.integers(0, 2**31 - 1))
         p = self.p
         w, m, c = fit_mixture(self.fit_data, p["k_min"], p["k_max"], p["criterion"], p["covariance"],
-                              p["em_inits"], seed)
+                              p["em_inits"], seed, p["em_tol"], p["em_max_iter"], p["reg_covar"])
         self.fits.append({"goals": self.n, "weights": w, "means": m, "covariances": c})
 
     # -------------------------------------------------------------------- goals
