@@ -5,6 +5,7 @@ import pytest
 
 from sagg_bringup.inprocess.arm_eval import eval_arms, evaluate_arm
 from sagg_bringup.graph.setups import in_process_run
+from sagg_low_level import compiled
 from sagg_low_level.evaluate import evaluate, evaluate_batch, evaluate_per_goal
 from sagg_low_level.memory import SampleMemory
 from sagg_low_level.memory_batch import neighbours_many
@@ -91,7 +92,8 @@ def test_reach_steps_match_reach_step_rows():
     want = np.stack([learner.reach_step(a, d) for a, d in zip(alphas, dys)])
     assert got.tobytes() == want.tobytes()
     # some rows hit a joint limit (the clamped re-solve), others not
-    plain = np.stack([np.linalg.pinv(learner.jacobian_at(a), rcond=learner.p["pinv_rcond"]) @ d
+    lo, up, rcond = learner.robot.lower, learner.robot.upper, learner.p["pinv_rcond"]
+    plain = np.stack([compiled.reach_step(learner.jacobian_at(a), d, a, lo, up, rcond, learner.damping, False)
                       for a, d in zip(alphas, dys)])
     differs = np.any(plain != want, axis=1)
     assert differs.any() and not differs.all()

@@ -15,6 +15,15 @@ DATA_FILES = [
 KNN_KERNEL = Extension(
     PACKAGE + '.knn_kernel',
     sources=[PACKAGE + '/knn_kernel.c'],
+    depends=[PACKAGE + '/kernel_buffers.h'],
+    extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
+)
+# The local model's small linear algebra (sagg_low_level/reach_kernel.c: least-squares Jacobians,
+# pseudo-inverse / damped / clamped reaching steps), same flags.
+REACH_KERNEL = Extension(
+    PACKAGE + '.reach_kernel',
+    sources=[PACKAGE + '/reach_kernel.c'],
+    depends=[PACKAGE + '/kernel_buffers.h'],
     extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
 )
 
@@ -24,7 +33,7 @@ setup(
     packages=find_packages(exclude=['test', 'test.*']),
     data_files=DATA_FILES,
     install_requires=['setuptools'],
-    ext_modules=[KNN_KERNEL],
+    ext_modules=[KNN_KERNEL, REACH_KERNEL],
     zip_safe=False,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',

@@ -28,11 +28,11 @@ from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
-from sagg_common.rng import stream
+from sagg_common.rng import choice_index, stream
 from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 
 from .learner import CONTEXT, EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
-from .local_model import local_jacobian, pseudo_inverse_step
+from .compiled import jacobian, pinv_step
 from .memory import SampleTable
 from .memory_distance import squared_distances
 from .riac_leaves import RiacLeaves
@@ -280,12 +280,14 @@ def local_inverse(theta_norm: np.ndarray, y_scaled: np.ndarray, goal: np.ndarray
     Fits the forward model ``Δy = J Δθ`` by least squares on the set's deviations from its means
     (:func:`~sagg_low_level.local_model.local_jacobian`), then ``θ_g = θ_r + J⁺ (y_g − y_r)`` from the
     set member r whose outcome is closest to the goal (our choice of linearisation point; eq.
-    jacobianPseudo of Sec. 3.3). Normalised θ, rescaled y in, normalised θ out (unclipped)."""
+    jacobianPseudo of Sec. 3.3, :func:`~sagg_low_level.local_model.pseudo_inverse_step`); both
+    computed by the compiled routines of :mod:`sagg_low_level.compiled`. Normalised θ, rescaled y
+    in, normalised θ out (unclipped)."""
     dth = theta_norm - _mean_rows(theta_norm)
     dy = y_scaled - _mean_rows(y_scaled)
-    jac = local_jacobian(dth, dy, jacobian_rcond)
+    jac = jacobian(dth, dy, None, jacobian_rcond)
     r = int(np.argmin(np.add.reduce((y_scaled - goal) ** 2, axis=1)))
-    return theta_norm[r] + pseudo_inverse_step(jac, goal - y_scaled[r], pinv_rcond)
+    return theta_norm[r] + pinv_step(jac, goal - y_scaled[r], pinv_rcond)
 
 
 def _mean_rows(x: np.ndarray) -> np.ndarray:
@@ -431,7 +433,7 @@ class FixedContextLearner:
         idx = self.theta_index.query(tq[None], k)[0]
         tn = self.by_theta.alpha[idx]
         ys = self.by_y.alpha[idx]
-        jac = local_jacobian(tn - tn.mean(axis=0), ys - ys.mean(axis=0), self.p["jacobian_rcond"])
+        jac = jacobian(tn - tn.mean(axis=0), ys - ys.mean(axis=0), None, self.p["jacobian_rcond"])
         return (ys[0] + jac @ (tq - tn[0])) * self.scale
 
     # ------------------------------------------------------------- helpers
@@ -627,7 +629,7 @@ class FixedContextLearner:
             return self._uniform_theta()
         it = self.riac_leaves.interests()  # = [r.interest for r in leaves], kept up to date
         probs = interest_probabilities(it)
-        region = leaves[int(self.rng.choice(len(leaves), p=probs))]
+        region = leaves[choice_index(self.rng, probs)]
         return self.denorm_theta(self.rng.uniform(region.lower, region.upper))
 
 

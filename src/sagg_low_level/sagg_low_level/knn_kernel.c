@@ -41,36 +41,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-typedef struct {
-    Py_buffer view;
-    int held;
-} Buf;
-
-static int get_buf(PyObject *obj, Buf *b, const char *name, const char *fmt, Py_ssize_t itemsize,
-                   int writable) {
-    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(obj, &b->view, flags) < 0) {
-        PyErr_Format(PyExc_TypeError, "knn_kernel: %s must be a C-contiguous %s array", name,
-                     fmt[0] == 'd' ? "float64" : "int64");
-        return -1;
-    }
-    b->held = 1;
-    const char *f = b->view.format ? b->view.format : "B";
-    if (f[0] == '<' || f[0] == '=' || f[0] == '@') f++;
-    int ok = b->view.itemsize == itemsize &&
-             (fmt[0] == 'd' ? (f[0] == 'd' && f[1] == 0) : ((f[0] == 'l' || f[0] == 'q') && f[1] == 0));
-    if (!ok) {
-        PyErr_Format(PyExc_TypeError, "knn_kernel: %s must be %s, got format '%s'", name,
-                     fmt[0] == 'd' ? "float64" : "int64", b->view.format ? b->view.format : "B");
-        return -1;
-    }
-    return 0;
-}
-
-static void release(Buf *b) {
-    if (b->held) PyBuffer_Release(&b->view);
-    b->held = 0;
-}
+#include "kernel_buffers.h"
 
 /* canonical squared distances to q of the columns c0 .. c0 + count - 1 of the dimension-major x
    (n rows of `stride` doubles) into out[0..count): coordinate-major (numpy's order, and the rows of

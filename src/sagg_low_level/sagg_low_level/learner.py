@@ -19,9 +19,10 @@ from sagg_common.competence import competence, gamma, is_reached
 from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
-from sagg_common.rng import stream
+from sagg_common.rng import choice_index, stream
 
-from .local_model import clamped_step, desired_displacement, local_jacobian, pseudo_inverse_step
+from .compiled import jacobian, reach_step
+from .local_model import desired_displacement
 from .memory import SampleMemory
 from .riac_leaves import RiacLeaves
 
@@ -369,18 +370,20 @@ class EvolvingContextLearner:
         self.y = np.asarray(y, dtype=float)
 
     def jacobian_at(self, alpha: np.ndarray) -> np.ndarray | None:
-        """Local Jacobian J(α) from the k nearest samples in α (None while memory is too small)."""
+        """Local Jacobian J(α) from the k nearest samples in α (None while memory is too small):
+        :func:`~sagg_low_level.local_model.local_jacobian` (Sec. 3.3), computed by the compiled
+        :func:`~sagg_low_level.compiled.jacobian`."""
         if len(self.memory) < self.min_samples:
             return None
         idx = self.memory.neighbours(alpha, self.k)
-        return local_jacobian(self.memory.delta_alpha[idx], self.memory.delta_y[idx],
-                              self.p["jacobian_rcond"])
+        return jacobian(self.memory.delta_alpha, self.memory.delta_y, idx, self.p["jacobian_rcond"])
 
     def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
-        """Δα = J⁺(α)·Δy_next from the local model (None while memory is too small)."""
+        """Δα = J⁺(α)·Δy_next from the local model (None while memory is too small):
+        :func:`~sagg_low_level.local_model.pseudo_inverse_step`, compiled."""
         jac = self.jacobian_at(alpha)
-        return None if jac is None else pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"],
-                                                            self.damping)
+        return None if jac is None else reach_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper,
+                                                   self.p["pinv_rcond"], self.damping, False)
 
     def reach_step(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
         """The reaching micro-action Δα for a desired effector displacement (Sec. 3.6.1), within
@@ -390,14 +393,15 @@ class EvolvingContextLearner:
 
     def reach_plan(self, alpha: np.ndarray, dy_next: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
         """(J(α), Δα) of :meth:`reach_step`: the local Jacobian the step was computed from, and
-        the step; (None, None) while the memory is too small."""
+        the step; (None, None) while the memory is too small. The step is
+        :func:`~sagg_low_level.local_model.clamped_step` ('clamp') or
+        :func:`~sagg_low_level.local_model.pseudo_inverse_step` ('clip'), compiled
+        (:func:`~sagg_low_level.compiled.reach_step`)."""
         jac = self.jacobian_at(alpha)
         if jac is None:
             return None, None
-        if self.p["reach_limits"] == "clip":
-            return jac, pseudo_inverse_step(jac, dy_next, self.p["pinv_rcond"], self.damping)
-        return jac, clamped_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper,
-                                 self.p["pinv_rcond"], self.damping)
+        return jac, reach_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper, self.p["pinv_rcond"],
+                               self.damping, self.p["reach_limits"] == "clamp")
 
     def step_aim(self, jac: np.ndarray, dalpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray:
         """The effector displacement a reaching micro-action was computed to produce, against
@@ -566,5 +570,5 @@ class EvolvingContextLearner:
         alpha = np.clip(self.alpha, self.robot.lower, self.robot.upper)
         rows, it = self._riac_leaves().compatible(alpha)
         probs = interest_probabilities(it)
-        region = self.riac_tree.leaves()[int(rows[int(self.rng.choice(len(rows), p=probs))])]
+        region = self.riac_tree.leaves()[int(rows[choice_index(self.rng, probs)])]
         return self.rng.uniform(region.lower[n:], region.upper[n:])

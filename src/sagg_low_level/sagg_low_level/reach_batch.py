@@ -7,18 +7,14 @@ floats, bit for bit), while the memory does not change (the evaluation freezes t
 * the k nearest samples of every posture with one batch search
   (:func:`sagg_low_level.memory_batch.neighbours_many`, the single search's answers);
 * the local Jacobian (:func:`~sagg_low_level.local_model.local_jacobian`, one least-squares fit per
-  neighbour set, as the learner) is computed once per distinct ordered neighbour set and kept in
-  ``cache``: the same input rows give the same floats, and along a reach (and at the common rest
-  posture) consecutive steps often share their neighbours; ``cache`` also keeps it by posture, so a
-  posture met again (a reach stuck at a joint limit repeats its posture) needs no search;
-* the pseudo-inverse for all rows with one stacked ``numpy.linalg.pinv`` (numpy computes a stack
-  one matrix at a time with the same LAPACK call, so each slice equals the single call; checked by
-  test/test_eval_batch.py) and ``J⁺ · Δy_next`` as a stacked matmul; with ``reach_damping`` the
-  stacked :func:`~sagg_low_level.local_model.damped_steps` (the single step calls it with a stack
-  of one);
-* ``reach_limits = clamp``: rows whose plain step leaves the joint limits are re-solved by
-  :func:`~sagg_low_level.local_model.clamped_steps`: clamped_step's own rounds, the solves of all
-  rows in one round stacked (the others end after the first round, which is the plain step).
+  neighbour set, as the learner, by the compiled :func:`~sagg_low_level.compiled.jacobians`) is
+  computed once per distinct ordered neighbour set and kept in ``cache``: the same input rows give
+  the same floats, and along a reach (and at the common rest posture) consecutive steps often share
+  their neighbours; ``cache`` also keeps it by posture, so a posture met again (a reach stuck at a
+  joint limit repeats its posture) needs no search;
+* the steps of all rows in one call of the compiled :func:`~sagg_low_level.compiled.reach_steps`,
+  the same C routine per row as the learner's single step (the pseudo-inverse or damped step and,
+  with ``reach_limits = clamp``, clamped_step's rounds), so each row gives the single step's floats.
 
 Nothing here changes the reaching semantics: the per-goal functions stay the definition, this module
 reproduces them faster; test/test_eval_batch.py compares the two on several set-ups.
@@ -27,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .local_model import clamped_steps, local_jacobian, pseudo_inverse_steps
+from .compiled import jacobians, reach_steps as compiled_steps
 from .memory_batch import neighbours_many
 
 
@@ -55,17 +51,17 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
     new = [i for i, key in enumerate(keys) if key not in cache]
     if new:
         idx = neighbours_many(mem, alphas[new], learner.k)
-        da, dy = mem.delta_alpha, mem.delta_y
+        sets = {}  # the new neighbour sets, fitted together below
         for i, row in zip(new, idx):
             key = ("set", row.tobytes())
-            jac = cache.get(key)
-            if jac is None:
-                jac = cache[key] = local_jacobian(da[row], dy[row], p["jacobian_rcond"])
-            cache[keys[i]] = jac
+            if key not in cache:
+                sets.setdefault(key, row)
+        if sets:
+            fitted = jacobians(mem.delta_alpha, mem.delta_y, np.stack(list(sets.values())), p["jacobian_rcond"])
+            cache.update(zip(sets, fitted))
+        for i, row in zip(new, idx):
+            cache[keys[i]] = cache[("set", row.tobytes())]
     for i, key in enumerate(keys):
         jacs[i] = cache[key]
-    steps = pseudo_inverse_steps(jacs, dys, p["pinv_rcond"], learner.damping)
-    if p["reach_limits"] == "clip":
-        return steps
-    return clamped_steps(jacs, dys, alphas, learner.robot.lower, learner.robot.upper, p["pinv_rcond"], steps,
-                         learner.damping)
+    return compiled_steps(jacs, dys, alphas, learner.robot.lower, learner.robot.upper, p["pinv_rcond"],
+                          learner.damping, p["reach_limits"] == "clamp")
