@@ -35,7 +35,7 @@ from sagg_common.journal import restore_rng, rng_state
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.regions import proportional
 from sagg_common.report_kinds import KIND_GOAL
-from sagg_common.rng import stream
+from sagg_common.rng import choice_index, stream
 
 from . import gaussian_mixture
 from .teacher import Teacher
@@ -206,7 +206,7 @@ class AlpGmm(Teacher):
         if rng.random() < self.p["random_share"] or self.mixture is None:
             return gen.uniform(gen.lower, gen.upper), MODE_GLOBAL
         w, means, covs = self.mixture
-        i = int(rng.choice(len(w), p=component_probabilities(means[:, -1])))
+        i = choice_index(rng, component_probabilities(means[:, -1]))
         x = rng.multivariate_normal(means[i], covs[i])[:-1]
         return np.clip(self.offset + x * self.scale, gen.lower, gen.upper), MODE_REGION
 

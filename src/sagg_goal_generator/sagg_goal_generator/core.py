@@ -13,7 +13,7 @@ import numpy as np
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
-from sagg_common.rng import stream
+from sagg_common.rng import choice_index, stream
 
 from . import alp_gmm, discretized_progress
 from .teacher import Teacher
@@ -62,7 +62,7 @@ class RegionInterest(Teacher):
         gen = self.gen
         if len(gen.tree.leaves()) < 2:
             return gen.uniform(gen.lower, gen.upper), MODE_INITIAL
-        mode = int(gen.rng.choice(3, p=gen.mode_probs)) + 1
+        mode = choice_index(gen.rng, gen.mode_probs) + 1
         if mode == MODE_GLOBAL:
             return gen.uniform(gen.lower, gen.upper), mode
         region = gen._region_by_interest()
@@ -164,7 +164,7 @@ class GoalGenerator:
 
     def _region_by_interest(self):
         leaves = self.tree.leaves()
-        return leaves[int(self.rng.choice(len(leaves), p=self.region_probabilities()))]
+        return leaves[choice_index(self.rng, self.region_probabilities())]
 
     def _near_lowest(self, region) -> np.ndarray:
         """Mode 3: a goal close to the region's point of lowest competence. Spread is

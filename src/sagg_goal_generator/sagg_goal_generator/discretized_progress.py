@@ -33,6 +33,7 @@ import numpy as np
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common.regions import proportional
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
+from sagg_common.rng import choice_index
 
 from .teacher import Teacher
 from .modes import MODE_GLOBAL, MODE_REGION
@@ -138,7 +139,7 @@ class DiscretizedProgress(Teacher):
         if rng.random() < self.p["random_share"] or not self.progress.any():
             cell, mode = int(rng.integers(self.n_cells)), MODE_GLOBAL
         else:
-            cell, mode = int(rng.choice(self.n_cells, p=cell_probabilities(self.progress))), MODE_REGION
+            cell, mode = choice_index(rng, cell_probabilities(self.progress)), MODE_REGION
         lo = self.gen.lower + np.array(np.unravel_index(cell, self.shape)) * self.width
         return np.minimum(self.gen.uniform(lo, lo + self.width), self.gen.upper), mode
 
