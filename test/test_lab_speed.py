@@ -30,11 +30,11 @@ def test_eval_cost_against_a_commit_gives_the_same_errors(capsys):
 
 def test_time_parts_prints_learning_and_evaluation_parts(capsys):
     from sagg_low_level import learner, memory_search, reach_batch
-    before = (memory_search.KnnSearch._knn_approx, learner.local_jacobian, reach_batch.neighbours_many)
+    before = (memory_search.KnnSearch._knn_approx, learner.jacobian, reach_batch.neighbours_many)
     assert time_parts.main(["--config", "config/arm7_ratio15.yaml", "--start", "0", "--stop", "600"]) == 0
     out = capsys.readouterr().out
     assert "neighbour search (approximate)" in out and "micro-actions per CPU-s" in out
     assert time_parts.main(["--config", "config/arm7_ratio15.yaml", "--start", "0", "--stop", "300", "--eval"]) == 0
     assert "least squares (one per distinct set)" in capsys.readouterr().out
     # the counters are gone afterwards
-    assert (memory_search.KnnSearch._knn_approx, learner.local_jacobian, reach_batch.neighbours_many) == before
+    assert (memory_search.KnnSearch._knn_approx, learner.jacobian, reach_batch.neighbours_many) == before

@@ -127,9 +127,35 @@ def split_quality(values_left: np.ndarray, values_right: np.ndarray, zeta: int) 
     )
 
 
+def split_qualities(values: np.ndarray, left: np.ndarray, zeta: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`split_quality` of many candidate splits of one region at once: ``left`` (N, C) says,
+    per candidate, which of the region's N points (in time order, ``values`` theirs) go left.
+    Returns (qualities, left counts, right counts), each (C,). Each side's interest is
+    :func:`interest` of its own values in time order: its newest h = min(ζ, n) // 2 values against
+    the h before them, found by the members' rank from the newest. The same quantities as the
+    per-candidate calls, summed in another order (the floats may differ in the last bits)."""
+    values = np.asarray(values, dtype=float)
+    n = len(values)
+    nl = left.sum(axis=0)
+    nr = n - nl
+    rank_l = np.cumsum(left[::-1], axis=0)[::-1]              # left points at index >= t
+    rank_r = np.arange(n, 0, -1)[:, None] - rank_l            # right points at index >= t
+    hl, hr = np.minimum(zeta, nl) // 2, np.minimum(zeta, nr) // 2
+    # each point's rank from its side's newest (1 = newest) and its side's h
+    rank = np.where(left, rank_l, rank_r)
+    h = np.where(left, hl, hr)
+    # +1: in the older half (h < rank <= 2h), -1: in the recent half (rank <= h), 0: outside
+    w = (rank <= 2 * h).astype(float) - 2.0 * (rank <= h)
+    il = np.abs(values @ (w * left)) / np.maximum(2 * hl, 1)
+    ir = np.abs(values @ (w * ~left)) / np.maximum(2 * hr, 1)
+    quality = nl * nr * np.abs(np.where(hl > 0, il, 0.0) - np.where(hr > 0, ir, 0.0))
+    return quality, nl, nr
+
+
 def choose_split(points: np.ndarray, values: np.ndarray, n_candidates: int, zeta: int,
                  rng: np.random.Generator) -> SplitChoice | None:
-    """Pick the best of ``n_candidates`` random (dimension, value) splits (paper Sec. 2.4.4).
+    """Pick the best of ``n_candidates`` random (dimension, value) splits (paper Sec. 2.4.4), by
+    :func:`split_quality` (evaluated for all candidates at once by :func:`split_qualities`).
 
     Vague in the paper: how candidates are drawn and what happens when every candidate has quality 0
     (e.g. all competences equal). Choices: the dimension is uniform among dimensions whose points are
@@ -137,28 +163,28 @@ def choose_split(points: np.ndarray, values: np.ndarray, n_candidates: int, zeta
     in that dimension (so both sides are non-empty); ties in quality (in particular all zero) are
     broken by the larger ``card(R1)·card(R2)`` (the most balanced split), then by candidate order.
     Points with coordinate ``< value`` go left, the others right. Returns None when no dimension can
-    be split (all points identical).
+    be split (all points identical). The candidates are drawn one after the other (dimension, then
+    value), as before their evaluation was batched (2026-12-02): the same stream gives the same
+    candidates.
     """
     lo = points.min(axis=0)
     hi = points.max(axis=0)
-    dims = np.flatnonzero(hi > lo)
-    if dims.size == 0:
+    dims = np.flatnonzero(hi > lo).tolist()
+    if not dims:
         return None
-    best: SplitChoice | None = None
-    best_key = None
+    lo_l, hi_l = lo.tolist(), hi.tolist()
+    js, vs = [], []
     for _ in range(n_candidates):
-        j = int(dims[rng.integers(dims.size)])
-        v = float(rng.uniform(lo[j], hi[j]))
-        if v <= lo[j]:  # uniform may return the lower end: keep both sides non-empty
-            v = float(np.nextafter(lo[j], hi[j]))
-        mask = points[:, j] < v
-        left, right = values[mask], values[~mask]
-        q = split_quality(left, right, zeta)
-        key = (q, len(left) * len(right))
-        if best_key is None or key > best_key:
-            best_key = key
-            best = SplitChoice(j, v, q, len(left), len(right))
-    return best
+        j = dims[int(rng.integers(len(dims)))]
+        v = float(rng.uniform(lo_l[j], hi_l[j]))
+        if v <= lo_l[j]:  # uniform may return the lower end: keep both sides non-empty
+            v = float(np.nextafter(lo_l[j], hi_l[j]))
+        js.append(j)
+        vs.append(v)
+    quality, nl, nr = split_qualities(values, points[:, js] < np.array(vs), zeta)
+    # the largest (quality, card(R1)·card(R2)), the first candidate among equals
+    c = int(np.lexsort((-np.arange(n_candidates), nl * nr, quality))[-1])
+    return SplitChoice(js[c], vs[c], float(quality[c]), int(nl[c]), int(nr[c]))
 
 
 class RegionTree:

@@ -70,8 +70,12 @@ class Counters:
 
 def learning_parts(c: Counters, run: InProcessRun) -> None:
     c.wrap(memory_search.KnnSearch, "_knn_approx", "neighbour search (approximate)")
-    c.wrap(learner_mod, "local_jacobian", "least squares (local Jacobian)")
-    c.wrap(learner_mod, "clamped_step", "clamped reaching step")
+    c.wrap(learner_mod, "jacobian", "least squares (local Jacobian, compiled)")
+    c.wrap(learner_mod, "reach_step", "reaching step (pinv / damped / clamped, compiled)")
+    c.wrap(learner_mod, "desired_displacement", "desired displacement")
+    c.wrap(learner_mod, "safe_target", "safe target (step bound, limits)")
+    c.wrap(learner_mod.EvolvingContextLearner, "competence_of", "competence")
+    c.wrap(learner_mod.EvolvingContextLearner, "_report", "report to the goal generator (incl. its tree add)")
     c.wrap(memory.SampleMemory, "add", "memory add (incl. index builds)")
     c.wrap(regions.RegionTree, "add", "region tree add (goal tree and RIAC tree)")
     c.wrap(regions.RegionTree, "_split", "region tree splits (inside region tree add)")
@@ -84,8 +88,8 @@ def learning_parts(c: Counters, run: InProcessRun) -> None:
 
 def eval_parts(c: Counters) -> None:
     c.wrap(reach_batch, "neighbours_many", "neighbour search (batched)")
-    c.wrap(reach_batch, "local_jacobian", "least squares (one per distinct set)")
-    c.wrap(reach_batch, "clamped_steps", "clamping rounds")
+    c.wrap(reach_batch, "jacobians", "least squares (one per distinct set)")
+    c.wrap(reach_batch, "compiled_steps", "reaching steps (compiled)")
     c.wrap(ArmSim, "command", "robot commands")
 
 
