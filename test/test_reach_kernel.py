@@ -163,3 +163,29 @@ def test_stacked_steps_give_each_rows_floats():
     many = compiled.reach_steps(jacs, dys, alphas, lo, up, 1e-2, 0.3, True)
     for b in range(30):
         assert many[b].tobytes() == compiled.reach_step(jacs[b], dys[b], alphas[b], lo, up, 1e-2, 0.3, True).tobytes()
+
+
+@pytest.mark.parametrize("rcond", [0.0, 1e-300, 1e-10])
+def test_fewer_rows_than_unknowns_with_any_rcond(rcond):
+    """k < n (the fixed context's predictor early on, a small `neighbours`) and m > free joints: only
+    min(rows, cols) singular values exist; none of the surplus directions may be inverted, whatever
+    rcond (found by review: rcond 0 once gave 1e160)."""
+    rng = np.random.default_rng(6)
+    da, dy = memory_rows(rng, 40, 15, 2)
+    for k in (1, 3, 8, 14):
+        idx = rng.choice(40, k, replace=False)
+        close(compiled.jacobian(da, dy, idx, rcond), local_jacobian(da[idx], dy[idx], rcond))
+    jac = rng.normal(size=(3, 2))                    # more task dimensions than joints
+    dy3 = rng.normal(size=3)
+    for damping in (0.0, 0.4):
+        close(compiled.pinv_step(jac, dy3, rcond, damping), pseudo_inverse_step(jac, dy3, rcond, damping))
+
+
+def test_non_finite_input_is_refused_not_answered():
+    da, dy = memory_rows(np.random.default_rng(7), 20, 3, 2)
+    da[5, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        compiled.jacobian(da, dy, np.arange(10), 1e-10)
+    jac = np.array([[1.0, np.inf, 0.0], [0.0, 1.0, 0.0]])
+    with pytest.raises(ValueError, match="NaN"):
+        compiled.pinv_step(jac, np.ones(2), 1e-2)

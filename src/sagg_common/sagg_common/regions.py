@@ -146,8 +146,10 @@ def split_qualities(values: np.ndarray, left: np.ndarray, zeta: int) -> tuple[np
     h = np.where(left, hl, hr)
     # +1: in the older half (h < rank <= 2h), -1: in the recent half (rank <= h), 0: outside
     w = (rank <= 2 * h).astype(float) - 2.0 * (rank <= h)
-    il = np.abs(values @ (w * left)) / np.maximum(2 * hl, 1)
-    ir = np.abs(values @ (w * ~left)) / np.maximum(2 * hr, 1)
+    # the windows' values only (a value outside them never enters a sum, as in interest())
+    wv = np.where(w != 0.0, values[:, None] * w, 0.0)
+    il = np.abs((wv * left).sum(axis=0)) / np.maximum(2 * hl, 1)
+    ir = np.abs((wv * ~left).sum(axis=0)) / np.maximum(2 * hr, 1)
     quality = nl * nr * np.abs(np.where(hl > 0, il, 0.0) - np.where(hr > 0, ir, 0.0))
     return quality, nl, nr
 

@@ -7,6 +7,7 @@ the in-process loop draw identical numbers.
 from __future__ import annotations
 
 import hashlib
+import math
 
 import numpy as np
 
@@ -30,6 +31,9 @@ def choice_index(rng: np.random.Generator, p: np.ndarray) -> int:
     cost ~25 µs: numpy draws one ``rng.random()`` and takes the first index whose normalised
     cumulative sum exceeds it (``Generator.choice``, numpy 2.x; test/test_rng.py checks the two
     agree draw for draw)."""
-    cdf = np.cumsum(p)
-    cdf /= cdf[-1]
+    cdf = np.cumsum(p, dtype=float)
+    total = float(cdf[-1])
+    if not 0.0 < total < math.inf or cdf.min() < 0.0:
+        raise ValueError(f"probabilities: got {np.asarray(p)!r}; allowed: non-negative, finite, not all 0")
+    cdf /= total
     return int(cdf.searchsorted(rng.random(), side="right"))

@@ -24,6 +24,7 @@ initialisation of the same EM, not a different model.
 """
 from __future__ import annotations
 
+import inspect
 import math
 import warnings
 from dataclasses import dataclass
@@ -69,9 +70,11 @@ def kmeans_responsibilities(data: np.ndarray, k: int, rng: np.random.Generator, 
     # lazy (heavy): scipy (the goal generator node starts without it unless alp-gmm fits)
     from scipy.cluster.vq import kmeans2
 
+    # SciPy >= 1.15 names the generator `rng`, older ones (Ubuntu 24.04's 1.11) `seed`: the same draws
+    key = "rng" if "rng" in inspect.signature(kmeans2).parameters else "seed"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "One of the clusters is empty": handled as said above
-        _, labels = kmeans2(np.asarray(data, float), k, iter=iterations, minit="++", rng=rng)
+        _, labels = kmeans2(np.asarray(data, float), k, iter=iterations, minit="++", **{key: rng})
     resp = np.zeros((len(data), k))
     resp[np.arange(len(data)), labels] = 1.0
     return resp

@@ -22,10 +22,12 @@ __all__ = ["knn_kernel", "reach_kernel", "jacobian", "jacobians", "pinv_step", "
 
 def jacobians(delta_alpha: np.ndarray, delta_y: np.ndarray, idx: np.ndarray, rcond: float) -> np.ndarray:
     """``local_model.local_jacobian(delta_alpha[row], delta_y[row], rcond)`` for every row of ``idx``
-    (B, k): (B, m, n). ``delta_alpha`` (N, n) and ``delta_y`` (N, m): the memory's arrays."""
-    idx = np.ascontiguousarray(idx, dtype=np.int64)
-    out = np.empty((idx.shape[0], delta_y.shape[1], delta_alpha.shape[1]))
-    reach_kernel.jacobians(np.ascontiguousarray(delta_alpha), np.ascontiguousarray(delta_y), idx, rcond, out)
+    (B, k; one row may be given as (k,)): (B, m, n). ``delta_alpha`` (N, n) and ``delta_y`` (N, m): the
+    memory's arrays. ValueError when a set holds a non-finite value."""
+    idx = np.ascontiguousarray(np.atleast_2d(idx), dtype=np.int64)
+    out = np.empty((idx.shape[0], np.shape(delta_y)[1], np.shape(delta_alpha)[1]))
+    reach_kernel.jacobians(np.ascontiguousarray(delta_alpha, dtype=float), np.ascontiguousarray(delta_y, dtype=float),
+                           idx, rcond, out)
     return out
 
 
