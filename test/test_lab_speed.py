@@ -38,3 +38,38 @@ def test_time_parts_prints_learning_and_evaluation_parts(capsys):
     assert "least squares (one per distinct set)" in capsys.readouterr().out
     # the counters are gone afterwards
     assert (memory_search.KnnSearch._knn_approx, learner.jacobian, reach_batch.neighbours_many) == before
+
+
+def test_floors_times_every_part_alone(capsys):
+    from sagg_lab import floors
+    assert floors.main(["--config", "config/arm7_ratio15.yaml", "--micro-actions", "300", "--repeat", "20"]) == 0
+    out = capsys.readouterr().out
+    for part in ("forward kinematics", "neighbour search", "least-squares Jacobian", "reaching step",
+                 "coroutine request/answer", "region tree point", "memory add"):
+        assert part in out
+    assert "| 0.00 |" not in out.split("coroutine")[0]   # every numeric part took measurable time
+
+
+def test_equivalence_tells_equal_runs_from_shifted_ones(tmp_path):
+    import json
+    from sagg_lab import equivalence
+
+    def write(root, shift):
+        for cell in ("evolving/config/sagg-riac", "fixed/wide/sagg-random"):
+            for seed in range(6):
+                d = tmp_path / root / cell / f"seed-{seed}"
+                d.mkdir(parents=True)
+                errs = [1.0, 0.1 + 0.01 * seed, 0.05 + 0.01 * seed + shift]
+                (d / "result.json").write_text(json.dumps({"curve": [
+                    {"micro_actions": x, "mean_error": e} for x, e in zip((0, 5000, 20000), errs)]}))
+
+    write("a", 0.0)
+    write("b", 0.0)
+    write("c", 1.0)
+    same = equivalence.compare_dirs(tmp_path / "a", tmp_path / "b")
+    assert len(same) == 4 and all(r["identical"] and r["within"] for r in same)
+    shifted = {(r["cell"], r["point"]): r for r in equivalence.compare_dirs(tmp_path / "a", tmp_path / "c")}
+    assert shifted[("fixed/wide/sagg-random", 20000)]["mannwhitney_p"] < 0.01
+    assert not shifted[("fixed/wide/sagg-random", 20000)]["within"]
+    assert shifted[("fixed/wide/sagg-random", 5000)]["identical"]
+    assert "with a two-sided Mann-Whitney p <= 0.2" in equivalence.table(list(shifted.values()), 0.2)
