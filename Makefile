@@ -35,7 +35,7 @@ LAB_PKGS := sagg_lab
 LAB_PKG_META := $(foreach p,$(LAB_PKGS),src/$(p)/setup.py src/$(p)/setup.cfg src/$(p)/package.xml src/$(p)/resource/$(p))
 PY_PKG_META := $(foreach p,$(PY_PKGS),src/$(p)/setup.py src/$(p)/setup.cfg src/$(p)/package.xml src/$(p)/resource/$(p))
 # compiled sources (setup.py ext_modules): a changed one is rebuilt by the editable reinstall
-PY_PKG_C := $(wildcard $(foreach p,$(PY_PKGS),src/$(p)/$(p)/*.c src/$(p)/$(p)/*.h))
+PY_PKG_C := $(wildcard $(foreach p,$(PY_PKGS),src/$(p)/$(p)/*.c src/$(p)/$(p)/*.h) src/sagg_common/include/*.h)
 MSGS_SRCS := $(shell find src/sagg_msgs -type f -not -name '*.pyc' 2>/dev/null | sort)
 
 STAMP_VENV := $(VENV)/.stamp-venv

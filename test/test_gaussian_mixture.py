@@ -50,6 +50,35 @@ def test_em_equals_scikit_learns_from_the_same_start(covariance, seed, n, d, k):
     assert gm.n_parameters(k, d, covariance) == ref._n_parameters()
 
 
+@pytest.mark.parametrize("covariance", gm.COVARIANCES)
+@pytest.mark.parametrize("seed, n, d, k", [(0, 250, 3, 2), (2, 250, 3, 10), (3, 120, 4, 5), (4, 40, 2, 3),
+                                           (10, 250, 3, 7)])
+def test_the_compiled_em_equals_the_numpy_em_and_scikit_learn(covariance, seed, n, d, k):
+    data = dataset(seed, n, d)
+    resp = gm.kmeans_responsibilities(data, k, np.random.default_rng(seed))
+    ours, ref = gm.em_compiled(data, resp, covariance), gm.em(data, resp, covariance)
+    sk = sklearn_from_our_start(data, resp, covariance)
+    assert ours.iterations == ref.iterations == sk.n_iter_ and ours.converged == ref.converged
+    for got, want in ((ours.weights, ref.weights), (ours.means, ref.means), (ours.covariances, ref.covariances),
+                      (ours.precisions_cholesky, ref.precisions_cholesky), (ours.means, sk.means_),
+                      (ours.covariances, sk.covariances_)):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
+    assert ours.lower_bound == pytest.approx(ref.lower_bound, rel=1e-9)
+    assert gm.information_criterion(data, ours, "aic") == pytest.approx(sk.aic(data), rel=1e-9)
+
+
+def test_the_compiled_em_names_a_collapsed_component_and_bad_shapes():
+    data = dataset(11, 30, 3)
+    data[:, 2] = 0.0                        # a flat dimension: with reg_covar 0 the covariance is singular
+    resp = gm.kmeans_responsibilities(data, 2, np.random.default_rng(0))
+    with pytest.raises(gm.MixtureFitError, match="positive definite"):
+        gm.em_compiled(data, resp, "full", reg_covar=0.0)
+    with pytest.raises(ValueError, match="shapes"):
+        from sagg_goal_generator.compiled import em_kernel
+        em_kernel.em(data, resp, True, 1e-6, 1e-3, 100, np.empty(3), np.empty((2, 3)), np.empty((2, 3, 3)),
+                     np.empty((2, 3, 3)))
+
+
 def test_em_started_from_parameters_equals_scikit_learns_start():
     data = dataset(5, 200, 3)
     resp = gm.kmeans_responsibilities(data, 4, np.random.default_rng(5))

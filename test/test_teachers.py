@@ -359,3 +359,14 @@ def test_in_process_run_of_each_teacher(tmp_path, strategy):
         assert len(t["fits"]) >= 1 and all(abs(sum(f["weights"]) - 1) < 1e-9 for f in t["fits"])
     else:
         assert t["shape"] == [20, 20] and any(t["progress"])
+
+
+def test_a_mixture_goal_is_numpys_multivariate_normal_draw_for_draw():
+    from sagg_goal_generator.alp_gmm import gaussian_draw, sampling_factor
+    r = np.random.default_rng(9)
+    for i in range(300):
+        d = int(r.integers(2, 6))
+        a = r.normal(size=(d, d))
+        cov, mean = a @ a.T + 1e-3 * np.eye(d), r.normal(size=d)
+        assert np.array_equal(gaussian_draw(np.random.default_rng(i), mean, sampling_factor(cov)),
+                              np.random.default_rng(i).multivariate_normal(mean, cov))

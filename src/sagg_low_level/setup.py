@@ -1,6 +1,11 @@
+import os
+
 from setuptools import Extension, find_packages, setup
 
 PACKAGE = 'sagg_low_level'
+# the kernels' shared buffer helpers (a build-time header of sagg_common; realpath: the source tree,
+# also when a build folder links to this file)
+COMMON_INCLUDE = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', 'sagg_common', 'include')
 
 # ament_python layout: the resource marker makes the package visible in the ament index, and
 # package.xml goes to share/<pkg>, so that `ros2 run`/`ros2 launch` work on a full ROS 2 install.
@@ -15,7 +20,8 @@ DATA_FILES = [
 KNN_KERNEL = Extension(
     PACKAGE + '.knn_kernel',
     sources=[PACKAGE + '/knn_kernel.c'],
-    depends=[PACKAGE + '/kernel_buffers.h'],
+    include_dirs=[COMMON_INCLUDE],
+    depends=[os.path.join(COMMON_INCLUDE, 'sagg_kernel_buffers.h')],
     extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
 )
 # The local model's small linear algebra (sagg_low_level/reach_kernel.c: least-squares Jacobians,
@@ -23,7 +29,8 @@ KNN_KERNEL = Extension(
 REACH_KERNEL = Extension(
     PACKAGE + '.reach_kernel',
     sources=[PACKAGE + '/reach_kernel.c'],
-    depends=[PACKAGE + '/kernel_buffers.h'],
+    include_dirs=[COMMON_INCLUDE],
+    depends=[os.path.join(COMMON_INCLUDE, 'sagg_kernel_buffers.h')],
     extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
 )
 

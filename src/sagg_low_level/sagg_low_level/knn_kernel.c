@@ -41,7 +41,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "kernel_buffers.h"
+#include "sagg_kernel_buffers.h"
 
 /* canonical squared distances to q of the columns c0 .. c0 + count - 1 of the dimension-major x
    (n rows of `stride` doubles) into out[0..count): coordinate-major (numpy's order, and the rows of

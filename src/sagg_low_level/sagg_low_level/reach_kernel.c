@@ -33,7 +33,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "kernel_buffers.h"
+#include "sagg_kernel_buffers.h"
 
 #define JACOBI_SWEEPS 60
 

@@ -1,6 +1,8 @@
-/* Buffer handling shared by the compiled kernels of sagg_low_level (knn_kernel.c, reach_kernel.c):
- * a C-contiguous float64 or int64 array taken through the buffer protocol (no numpy headers), and
- * released. Static functions: each extension that includes this file has its own copy. */
+/* Buffer handling shared by sagg's compiled kernels (sagg_low_level: knn_kernel.c, reach_kernel.c;
+ * sagg_goal_generator: em_kernel.c): a C-contiguous float64 or int64 array taken through the buffer
+ * protocol (no numpy headers), and released. Static functions: each extension that includes this
+ * file has its own copy. A build-time header only (each setup.py puts this folder on its include
+ * path), not installed. */
 #ifndef SAGG_KERNEL_BUFFERS_H
 #define SAGG_KERNEL_BUFFERS_H
 #define PY_SSIZE_T_CLEAN
