@@ -48,6 +48,11 @@ def test_floors_times_every_part_alone(capsys):
                  "coroutine request/answer", "region tree point", "memory add"):
         assert part in out
     assert "| 0.00 |" not in out.split("coroutine")[0]   # every numeric part took measurable time
+    assert floors.main(["--config", "config/arm7_ratio15.yaml", "--set", "context=fixed", "--micro-actions", "300",
+                        "--repeat", "10"]) == 0
+    out = capsys.readouterr().out
+    for part in ("experiment", "outcome search", "θ searches", "least-spread set", "local inverse", "goal choice"):
+        assert part in out
 
 
 def test_equivalence_tells_equal_runs_from_shifted_ones(tmp_path):

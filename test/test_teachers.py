@@ -370,3 +370,16 @@ def test_a_mixture_goal_is_numpys_multivariate_normal_draw_for_draw():
         cov, mean = a @ a.T + 1e-3 * np.eye(d), r.normal(size=d)
         assert np.array_equal(gaussian_draw(np.random.default_rng(i), mean, sampling_factor(cov)),
                               np.random.default_rng(i).multivariate_normal(mean, cov))
+
+
+def test_the_compiled_nearest_goal_is_numpys_argmin():
+    from sagg_goal_generator.compiled import em_kernel
+    r = np.random.default_rng(10)
+    for i in range(500):
+        n, d = int(r.integers(1, 300)), int(r.integers(1, 5))
+        pts = np.round(r.uniform(-1, 1, (n, d)), 1)          # coarse grid: many ties
+        q = np.round(r.uniform(-1, 1, d), 1)
+        diff = pts - q
+        assert em_kernel.nearest(pts, q) == int(np.argmin(np.einsum("ij,ij->i", diff, diff)))
+    with pytest.raises(ValueError):
+        em_kernel.nearest(np.zeros((0, 2)), np.zeros(2))

@@ -38,6 +38,7 @@ from sagg_common.report_kinds import KIND_GOAL
 from sagg_common.rng import choice_index, stream
 
 from . import gaussian_mixture
+from .compiled import em_kernel
 from .teacher import Teacher
 from .modes import MODE_GLOBAL, MODE_INITIAL, MODE_REGION
 
@@ -111,11 +112,12 @@ def absolute_learning_progress(goal, competence: float, past_goals: np.ndarray, 
     ``r_old`` is the competence of the earlier goal nearest (Euclidean) to ``goal`` among
     ``past_goals`` (rows; ``past_competences`` theirs). 0 while fewer than ``min_history`` earlier
     goals are known (reference: ALP is computed once its dataset holds more than 5 tasks). Ties of
-    distance: the first such row."""
+    distance: the first such row. The search is the compiled ``em_kernel.nearest`` (the row sums of
+    squared differences in the same order as numpy's, the first minimum: the same row; a history of
+    10,000 goals cost ~100 µs a goal in numpy)."""
     if len(past_goals) < min_history:
         return 0.0
-    d = past_goals - np.asarray(goal, float)
-    nearest = int(np.argmin(np.einsum("ij,ij->i", d, d)))
+    nearest = em_kernel.nearest(np.ascontiguousarray(past_goals, dtype=float), np.ascontiguousarray(goal, dtype=float))
     return abs(float(competence) - float(past_competences[nearest]))
 
 

@@ -1,4 +1,4 @@
-"""The goal generator's compiled kernel (em_kernel.c: the alp-gmm teacher's EM), built with the
+"""The goal generator's compiled kernel (em_kernel.c: the alp-gmm teacher's EM and nearest-goal search), built with the
 package by its setup.py, imported in one place so that a source checkout without its build step says
 what to do."""
 from __future__ import annotations

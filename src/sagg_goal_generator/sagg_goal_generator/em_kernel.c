@@ -12,6 +12,10 @@
  *   Returns (iterations, converged, lower bound); ValueError when a covariance is not positive
  *   definite.
  *
+ * nearest(points, q): the index of the row of points (N x D) nearest to q (D) in squared Euclidean
+ *   distance, the first of equals: alp_gmm.absolute_learning_progress's search of the goal history
+ *   (numpy's argmin of the row sums of (p - q)^2, the same sums in the same order, so the same index).
+ *
  * Plain C99 against the CPython API and the buffer protocol (no numpy headers).
  */
 #define PY_SSIZE_T_CLEAN
@@ -257,14 +261,48 @@ done:
     return result;
 }
 
+static PyObject *nearest(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *op, *oq;
+    if (!PyArg_ParseTuple(args, "OO", &op, &oq)) return NULL;
+    Buf bp = {0}, bq = {0};
+    PyObject *result = NULL;
+    if (get_buf(op, &bp, "points", "d", 8, 0) || get_buf(oq, &bq, "q", "d", 8, 0)) goto done;
+    const Py_ssize_t d = bq.view.len / 8, n = d ? bp.view.len / 8 / d : 0;
+    if (d < 1 || n < 1 || n * d * 8 != bp.view.len) {
+        PyErr_SetString(PyExc_ValueError, "em_kernel.nearest: points (N x D, N >= 1) and q (D) do not match");
+        goto done;
+    }
+    const double *p = bp.view.buf, *q = bq.view.buf;
+    Py_ssize_t best = 0;
+    double best_d = INFINITY;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double s = 0.0;
+        for (Py_ssize_t j = 0; j < d; j++) {
+            const double t = p[i * d + j] - q[j];
+            s += t * t;
+        }
+        if (s < best_d || (i == 0)) {
+            best_d = s;
+            best = i;
+        }
+    }
+    result = PyLong_FromSsize_t(best);
+done:
+    release(&bp);
+    release(&bq);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"em", em, METH_VARARGS, "The EM of a Gaussian mixture (see em_kernel.c)."},
+    {"nearest", nearest, METH_VARARGS, "The index of the nearest row (see em_kernel.c)."},
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "sagg_goal_generator.em_kernel",
-    "The EM of a Gaussian mixture, compiled (see em_kernel.c).", -1, methods, NULL, NULL, NULL, NULL,
+    "The alp-gmm teacher's EM and nearest-goal search, compiled (see em_kernel.c).", -1, methods, NULL, NULL, NULL, NULL,
 };
 
 PyMODINIT_FUNC PyInit_em_kernel(void) { return PyModule_Create(&module); }
