@@ -383,3 +383,11 @@ def test_the_compiled_nearest_goal_is_numpys_argmin():
         assert em_kernel.nearest(pts, q) == int(np.argmin(np.einsum("ij,ij->i", diff, diff)))
     with pytest.raises(ValueError):
         em_kernel.nearest(np.zeros((0, 2)), np.zeros(2))
+    with pytest.raises(ValueError):
+        em_kernel.nearest(np.zeros((3, 2)), np.zeros(3))          # shapes that do not match are refused
+    with pytest.raises(ValueError):
+        em_kernel.nearest(np.zeros((3, 5)), np.zeros(5))          # (more than 4 dimensions: numpy's own search)
+    # the teacher takes numpy's search there
+    from sagg_goal_generator.alp_gmm import absolute_learning_progress
+    past = r.uniform(size=(50, 6))
+    assert absolute_learning_progress(past[3] + 1e-9, 0.5, past, np.arange(50.0), 6) == abs(0.5 - 3.0)

@@ -21,7 +21,7 @@ EM_KERNEL = Extension(
     sources=[PACKAGE + '/em_kernel.c'],
     include_dirs=[COMMON_INCLUDE],
     depends=[os.path.join(COMMON_INCLUDE, 'sagg_kernel_buffers.h')],
-    extra_compile_args=['-O2', '-std=c99', '-fno-fast-math'],
+    extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
 )
 
 setup(

@@ -113,11 +113,16 @@ def absolute_learning_progress(goal, competence: float, past_goals: np.ndarray, 
     ``past_goals`` (rows; ``past_competences`` theirs). 0 while fewer than ``min_history`` earlier
     goals are known (reference: ALP is computed once its dataset holds more than 5 tasks). Ties of
     distance: the first such row. The search is the compiled ``em_kernel.nearest`` (the row sums of
-    squared differences in the same order as numpy's, the first minimum: the same row; a history of
-    10,000 goals cost ~100 µs a goal in numpy)."""
+    squared differences in the same order as numpy's for goals of up to 4 dimensions, the first
+    minimum: the same row; a history of 10,000 goals cost ~100 µs a goal in numpy)."""
     if len(past_goals) < min_history:
         return 0.0
-    nearest = em_kernel.nearest(np.ascontiguousarray(past_goals, dtype=float), np.ascontiguousarray(goal, dtype=float))
+    past, g = np.ascontiguousarray(past_goals, dtype=float), np.ascontiguousarray(goal, dtype=float)
+    if past.shape[1] <= 4:
+        nearest = em_kernel.nearest(past, g)
+    else:  # einsum sums more terms in its own order: numpy's search, so that the row stays numpy's
+        d = past - g
+        nearest = int(np.argmin(np.einsum("ij,ij->i", d, d)))
     return abs(float(competence) - float(past_competences[nearest]))
 
 

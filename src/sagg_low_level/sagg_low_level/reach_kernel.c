@@ -227,7 +227,7 @@ static int lstsq(Lsq *w, Py_ssize_t k, Py_ssize_t n, Py_ssize_t m, double rcond)
             }
             for (Py_ssize_t i = 0; i <= j; i++) inf += ri[j * n + i] * ri[j * n + i];
         }
-        if (isfinite(inf) && 1.0 / sqrt(rf * inf) > rcond) {
+        if (isfinite(inf) && 1.0 / sqrt(rf * inf) > fmax(rcond, DBL_EPSILON * (double)k)) {
             for (Py_ssize_t c = 0; c < m; c++) { /* back substitution R x = c */
                 const double *bc = b + c * n;
                 double *xc = x + c * n;
@@ -240,8 +240,8 @@ static int lstsq(Lsq *w, Py_ssize_t k, Py_ssize_t n, Py_ssize_t m, double rcond)
             return 0;
         }
     }
-    /* the truncated SVD of R (its singular values are A's) */
-    return svd_solve(a, n, n, b, n, m, rcond, 0.0, w->work, x);
+    /* the truncated SVD of R (its singular values are A's; the floor of the cut is A's: eps * k) */
+    return svd_solve(a, n, n, b, n, m, fmax(rcond, DBL_EPSILON * (double)k), 0.0, w->work, x);
 }
 
 static const char jacobians_doc[] =
