@@ -62,6 +62,9 @@ def test_the_compiled_em_names_a_collapsed_component_and_bad_shapes():
     resp = gm.kmeans_responsibilities(data, 2, np.random.default_rng(0))
     with pytest.raises(gm.MixtureFitError, match="positive definite"):
         gm.em_compiled(data, resp, "full", reg_covar=0.0)
+    for em in (gm.em, gm.em_compiled):  # a zero variance: both EMs name it alike
+        with pytest.raises(gm.MixtureFitError, match="variance is not positive"):
+            em(data, resp, "diag", reg_covar=0.0)
     with pytest.raises(ValueError, match="shapes"):
         from sagg_goal_generator.compiled import em_kernel
         em_kernel.em(data, resp, True, 1e-6, 1e-3, 100, np.empty(3), np.empty((2, 3)), np.empty((2, 3, 3)),

@@ -9,8 +9,8 @@
  * em(data, resp, full, reg_covar, tol, max_iter, weights, means, covariances, precisions_cholesky)
  *   data (N x D), resp (N x K: the initial responsibilities), all float64 C-contiguous; the four
  *   outputs (K), (K x D), (K x D x D) or, diagonal, (K x D), same for the precision factors.
- *   Returns (iterations, converged, lower bound); ValueError when a covariance is not positive
- *   definite.
+ *   Returns (iterations, converged, lower bound), or None when a covariance is not positive
+ *   definite (gaussian_mixture.em_compiled raises the reference's MixtureFitError then).
  *
  * nearest(points, q): the index of the row of points (N x D) nearest to q (D) in squared Euclidean
  *   distance, the first of equals: alp_gmm.absolute_learning_progress's search of the goal history
@@ -253,8 +253,7 @@ static PyObject *em(PyObject *self, PyObject *args) {
     result = Py_BuildValue("nOd", it, converged ? Py_True : Py_False, bound);
     goto done;
 not_pd:
-    PyErr_SetString(PyExc_ValueError, "em_kernel.em: a mixture component's covariance is not positive definite "
-                                      "(collapsed component); increase reg_covar");
+    result = Py_NewRef(Py_None);
 done:
     free(e.chol);
     release(&bx);

@@ -111,13 +111,21 @@ def precision_cholesky(cov: np.ndarray, covariance: str) -> np.ndarray:
         try:
             chol = np.linalg.cholesky(cov)
         except np.linalg.LinAlgError:
-            raise MixtureFitError("a mixture component's covariance is not positive definite "
-                                  "(collapsed component); increase reg_covar") from None
+            raise not_positive_definite(covariance) from None
         eye = np.broadcast_to(np.eye(cov.shape[-1]), cov.shape)
         return np.swapaxes(np.linalg.solve(chol, eye), -1, -2)
     if np.any(cov <= 0.0):
-        raise MixtureFitError("a mixture component's variance is not positive; increase reg_covar")
+        raise not_positive_definite(covariance)
     return 1.0 / np.sqrt(cov)
+
+
+def not_positive_definite(covariance: str) -> MixtureFitError:
+    """The error of a fit whose covariance (``full``) or variance (``diag``) is not positive: a
+    component collapsed onto fewer dimensions than the data has."""
+    if covariance == "full":
+        return MixtureFitError("a mixture component's covariance is not positive definite "
+                               "(collapsed component); increase reg_covar")
+    return MixtureFitError("a mixture component's variance is not positive; increase reg_covar")
 
 
 def weighted_log_prob(data: np.ndarray, weights: np.ndarray, means: np.ndarray, prec_chol: np.ndarray,
@@ -186,13 +194,10 @@ def em_compiled(data: np.ndarray, resp: np.ndarray, covariance: str = "full", re
     k, d = resp.shape[1], data.shape[1]
     shape = (k, d, d) if covariance == "full" else (k, d)
     weights, means, cov, prec = np.empty(k), np.empty((k, d)), np.empty(shape), np.empty(shape)
-    try:
-        it, converged, bound = em_kernel.em(data, resp, covariance == "full", reg_covar, tol, max_iter,
-                                            weights, means, cov, prec)
-    except ValueError as exc:
-        if "positive definite" in str(exc):
-            raise MixtureFitError(str(exc).replace("em_kernel.em: ", "")) from None
-        raise
+    out = em_kernel.em(data, resp, covariance == "full", reg_covar, tol, max_iter, weights, means, cov, prec)
+    if out is None:  # a covariance not positive definite
+        raise not_positive_definite(covariance)
+    it, converged, bound = out
     return Mixture(weights, means, cov, prec, covariance, bound, it, converged)
 
 
