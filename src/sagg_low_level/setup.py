@@ -14,25 +14,23 @@ DATA_FILES = [
     ('share/' + PACKAGE, ['package.xml']),
 ]
 
-# The neighbour searches' inner loops, compiled (sagg_low_level/knn_kernel.c; plain C99 against
-# the CPython API, no numpy headers). -ffp-contract=off: no fused multiply-add, so its
-# distances are the canonical ones numpy computes (memory_distance), bit for bit.
-KNN_KERNEL = Extension(
-    PACKAGE + '.knn_kernel',
-    sources=[PACKAGE + '/knn_kernel.c'],
-    include_dirs=[COMMON_INCLUDE],
-    depends=[os.path.join(COMMON_INCLUDE, 'sagg_kernel_buffers.h')],
-    extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
-)
-# The local model's small linear algebra (sagg_low_level/reach_kernel.c: least-squares Jacobians,
-# pseudo-inverse / damped / clamped reaching steps), same flags.
-REACH_KERNEL = Extension(
-    PACKAGE + '.reach_kernel',
-    sources=[PACKAGE + '/reach_kernel.c'],
-    include_dirs=[COMMON_INCLUDE],
-    depends=[os.path.join(COMMON_INCLUDE, 'sagg_kernel_buffers.h')],
-    extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
-)
+
+def kernel(name: str) -> Extension:
+    """One of the package's compiled kernels (sagg_low_level/<name>.c; plain C99 against the CPython
+    API, no numpy headers). -ffp-contract=off: no fused multiply-add, so that their floats are the
+    canonical ones numpy computes (the searches' distances are memory_distance's, bit for bit)."""
+    return Extension(
+        PACKAGE + '.' + name,
+        sources=[PACKAGE + '/' + name + '.c'],
+        include_dirs=[COMMON_INCLUDE],
+        depends=[os.path.join(COMMON_INCLUDE, 'sagg_kernel_buffers.h')],
+        extra_compile_args=['-O2', '-std=c99', '-ffp-contract=off', '-fno-fast-math'],
+    )
+
+
+# knn_kernel: the neighbour searches' inner loops; reach_kernel: the local model's small linear
+# algebra (least-squares Jacobians, pseudo-inverse / damped / clamped reaching steps)
+KERNELS = [kernel('knn_kernel'), kernel('reach_kernel')]
 
 setup(
     name=PACKAGE,
@@ -40,7 +38,7 @@ setup(
     packages=find_packages(exclude=['test', 'test.*']),
     data_files=DATA_FILES,
     install_requires=['setuptools'],
-    ext_modules=[KNN_KERNEL, REACH_KERNEL],
+    ext_modules=KERNELS,
     zip_safe=False,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',
