@@ -182,6 +182,7 @@ static int lstsq(Lsq *w, Py_ssize_t k, Py_ssize_t n, Py_ssize_t m, double rcond)
     double *a = w->a, *b = w->b, *x = w->x;
     if (k < n) /* fewer rows than unknowns: the truncated SVD of A itself */
         return svd_solve(a, k, n, b, k, m, rcond, 0.0, w->work, x);
+    const double cut = fmax(rcond, DBL_EPSILON * (double)k); /* A's cut, whatever rcond: eps * k */
     /* Householder QR: A = Q R, B <- Q^T B; R in the upper triangle of a */
     for (Py_ssize_t j = 0; j < n; j++) {
         double *aj = a + j * k;
@@ -227,7 +228,7 @@ static int lstsq(Lsq *w, Py_ssize_t k, Py_ssize_t n, Py_ssize_t m, double rcond)
             }
             for (Py_ssize_t i = 0; i <= j; i++) inf += ri[j * n + i] * ri[j * n + i];
         }
-        if (isfinite(inf) && 1.0 / sqrt(rf * inf) > fmax(rcond, DBL_EPSILON * (double)k)) {
+        if (isfinite(inf) && 1.0 / sqrt(rf * inf) > cut) {
             for (Py_ssize_t c = 0; c < m; c++) { /* back substitution R x = c */
                 const double *bc = b + c * n;
                 double *xc = x + c * n;
@@ -240,8 +241,8 @@ static int lstsq(Lsq *w, Py_ssize_t k, Py_ssize_t n, Py_ssize_t m, double rcond)
             return 0;
         }
     }
-    /* the truncated SVD of R (its singular values are A's; the floor of the cut is A's: eps * k) */
-    return svd_solve(a, n, n, b, n, m, fmax(rcond, DBL_EPSILON * (double)k), 0.0, w->work, x);
+    /* the truncated SVD of R (its singular values are A's, so is the cut) */
+    return svd_solve(a, n, n, b, n, m, cut, 0.0, w->work, x);
 }
 
 static const char jacobians_doc[] =
