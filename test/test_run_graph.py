@@ -150,7 +150,14 @@ def test_ctrl_c_stops_everything_and_closes_the_bag(tmp_path):
                 break
             assert proc.poll() is None, proc.communicate()[1]
             time.sleep(0.2)
-        time.sleep(2.0)  # learning for a while
+        # learning for a while: from the first sample the learner journals (it journals each before
+        # publishing it). A fixed 2 s from "graph ready" was a guess about the machine: CI once
+        # interrupted a run that had no sample yet (its logs were not kept; they now are, below).
+        journals = out / "checkpoint"
+        while time.monotonic() - t0 < 120 and not any(j.stat().st_size for j in journals.glob("learner_journal_*.bin")):
+            assert proc.poll() is None, proc.communicate()[1]
+            time.sleep(0.2)
+        time.sleep(1.0)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:
@@ -159,7 +166,8 @@ def test_ctrl_c_stops_everything_and_closes_the_bag(tmp_path):
     assert proc.returncode == 130, err
     assert "interrupted" in err
     s = json.loads((out / "summary.json").read_text())
-    assert s["interrupted"] is True and 0 < s["memory"]["samples"] < 1_000_000
+    assert s["interrupted"] is True and 0 < s["memory"]["samples"] < 1_000_000, (
+        s.get("learner_status"), (out / "logs" / "learner.log").read_text()[-3000:])
     for info in s["nodes"].values():
         assert info["exit_code"] is not None and not _alive(info["pid"])
     types, msgs = read_bag(out / "bag")  # closed properly: readable, metadata written

@@ -93,7 +93,7 @@ class Outcome:
     shares: list = field(default_factory=list)  # micro-actions/s while active / quiet rate, per run
 
 
-REPLAY_STARTUP = 60.0  # s: the longest wait for `sagg replay`'s publishers
+REPLAY_STARTUP = 60.0  # s: the longest wait for `sagg replay`'s first joint state
 
 
 class Fuzzer:
@@ -129,6 +129,7 @@ class Fuzzer:
         self.status_t = 0.0
         self.status_stamp = 0
         self.bridge_stamp = 0
+        self.older_joint_states = 0  # /joint_states stamped before the bridge's newest: a replayed bag's
         self.sent: dict[str, int] = {}                # topic -> messages the fuzzer published
         self.pubs: dict[str, object] = {}
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 100)
@@ -152,6 +153,8 @@ class Fuzzer:
     def _on_js(self, raw) -> None:
         st = self._dec.decode(raw)[0]
         if st < 10**15:  # (the fuzzer's own stamps are ~1e18 ns of wall time, or +1,000 s)
+            # (the bridge's own stamps only increase: an older one is another run's, replayed)
+            self.older_joint_states += st < self.bridge_stamp
             self.bridge_stamp = max(self.bridge_stamp, st)
 
     def count(self, node: str, kind: str) -> int:
@@ -254,11 +257,12 @@ class Fuzzer:
                "--domain-id", str(self.domain)]
         self.replaying = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                           start_new_session=True)
-        # the case's time runs from the replay's first publisher on /joint_states: the process's
-        # start-up (seconds on a loaded machine) is not part of it
+        # the case's time runs from the first replayed joint state this node receives: neither the
+        # process's start-up nor the bag's lead-in before its first joint state (the recorded run's
+        # own start-up) is part of it, each seconds on a loaded machine
         t_end = time.monotonic() + REPLAY_STARTUP
-        while time.monotonic() < t_end and self.replaying.poll() is None and not any(
-                i.node_name == "sagg_replay" for i in self.node.get_publishers_info_by_topic("/joint_states")):
+        seen = self.older_joint_states
+        while time.monotonic() < t_end and self.replaying.poll() is None and self.older_joint_states == seen:
             self.spin(0.1)
 
     def stop_replay(self) -> None:
