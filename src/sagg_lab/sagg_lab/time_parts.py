@@ -54,6 +54,26 @@ class Counters:
 
         setattr(owner, name, timed)
 
+    def wrap_factory(self, owner, name: str, label: str) -> None:
+        """Like :meth:`wrap` for a function that returns a function (e.g. a competence toward one
+        goal): the calls of what it returns are timed under ``label``."""
+        make = getattr(owner, name)
+        self._wrapped.append((owner, name, make, name in vars(owner)))
+
+        def timed_factory(*args, **kwargs):
+            f = make(*args, **kwargs)
+
+            def timed(*a, **kw):
+                t = time.process_time()
+                try:
+                    return f(*a, **kw)
+                finally:
+                    self.seconds[label] += time.process_time() - t
+                    self.calls[label] += 1
+            return timed
+
+        setattr(owner, name, timed_factory)
+
     def clear(self) -> None:
         self.seconds.clear()
         self.calls.clear()
@@ -74,7 +94,7 @@ def learning_parts(c: Counters, run: InProcessRun) -> None:
     c.wrap(learner_mod, "reach_step", "reaching step (pinv / damped / clamped, compiled)")
     c.wrap(learner_mod, "desired_displacement", "desired displacement")
     c.wrap(learner_mod, "safe_target", "safe target (step bound, limits)")
-    c.wrap(learner_mod.EvolvingContextLearner, "competence_of", "competence")
+    c.wrap_factory(learner_mod.EvolvingContextLearner, "competence_toward", "competence")
     c.wrap(learner_mod.EvolvingContextLearner, "_report", "report to the goal generator (incl. its tree add)")
     c.wrap(memory.SampleMemory, "add", "memory add (incl. index builds)")
     c.wrap(regions.RegionTree, "add", "region tree add (goal tree and RIAC tree)")

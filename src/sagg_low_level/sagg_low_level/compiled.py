@@ -33,9 +33,13 @@ def jacobians(delta_alpha: np.ndarray, delta_y: np.ndarray, idx: np.ndarray, rco
 
 def jacobian(delta_alpha: np.ndarray, delta_y: np.ndarray, idx: np.ndarray | None, rcond: float) -> np.ndarray:
     """``local_model.local_jacobian(delta_alpha[idx], delta_y[idx], rcond)`` (every row when ``idx`` is
-    None): (m, n)."""
-    rows = np.arange(len(delta_alpha)) if idx is None else np.asarray(idx)
-    return jacobians(delta_alpha, delta_y, rows[None], rcond)[0]
+    None): (m, n). One row of :func:`jacobians` (the kernel takes a 1-D ``idx`` as one row: the same
+    routine, the same floats), without the stacking (a call per micro-action)."""
+    c = np.ascontiguousarray
+    rows = np.arange(len(delta_alpha), dtype=np.int64) if idx is None else c(idx, dtype=np.int64)
+    out = np.empty((np.shape(delta_y)[1], np.shape(delta_alpha)[1]))
+    reach_kernel.jacobians(c(delta_alpha, dtype=float), c(delta_y, dtype=float), rows, rcond, out)
+    return out
 
 
 def reach_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -52,8 +56,9 @@ def reach_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: np
 
 def reach_step(jac: np.ndarray, dy: np.ndarray, alpha: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                rcond: float, damping: float, clamp: bool) -> np.ndarray:
-    """One row of :func:`reach_steps`: (n,)."""
-    return reach_steps(jac[None], dy[None], alpha[None], lower, upper, rcond, damping, clamp)[0]
+    """One row of :func:`reach_steps`: (n,) (the kernel reads flat buffers: a (m, n) ``jac`` is a
+    stack of one)."""
+    return reach_steps(jac, dy, alpha, lower, upper, rcond, damping, clamp)
 
 
 def pinv_step(jac: np.ndarray, dy: np.ndarray, rcond: float, damping: float = 0.0) -> np.ndarray:

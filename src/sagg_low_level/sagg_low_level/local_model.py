@@ -1,6 +1,7 @@
 """Local linear models from the sample memory (paper Sec. 3.2-3.3, 3.6.1). ROS-free."""
 from __future__ import annotations
 
+import math
 from typing import Generator
 
 import numpy as np
@@ -185,7 +186,7 @@ def desired_displacement(y_current: np.ndarray, goal: np.ndarray, v: float) -> n
     does not overshoot the goal: the step length is ``min(v, ||y_g − y_c||)``.
     """
     d = goal - y_current
-    dist = float(np.sqrt(d @ d))
+    dist = math.sqrt(d.dot(d))
     if dist == 0.0:
         return np.zeros_like(d)
     return d * (min(v, dist) / dist)
