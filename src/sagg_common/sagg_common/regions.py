@@ -228,13 +228,16 @@ class RegionTree:
 
     def inside(self, y) -> bool:
         y = np.asarray(y, dtype=float)
-        if y.shape != (self.dim,):
-            return False
-        return all(lo <= v <= hi for lo, v, hi in zip(self._lower_list, y.tolist(), self._upper_list))
+        return y.shape == (self.dim,) and self._inside_list(y.tolist())
+
+    def _inside_list(self, yl: list[float]) -> bool:
+        return all(lo <= v <= hi for lo, v, hi in zip(self._lower_list, yl, self._upper_list))
 
     def find(self, y) -> Region:
         """The leaf containing ``y`` (``y`` must be inside the root box)."""
-        yl = y.tolist() if isinstance(y, np.ndarray) else list(y)
+        return self._find_list(y.tolist() if isinstance(y, np.ndarray) else list(y))
+
+    def _find_list(self, yl: list[float]) -> Region:
         r = self.root
         while r.children is not None:
             r = r.children[0] if yl[r.split_dim] < r.split_value else r.children[1]
@@ -250,9 +253,12 @@ class RegionTree:
         goals so far) is recorded with any split it causes, for the split-history figures.
         """
         y = np.asarray(y, dtype=float)
-        if not self.inside(y):
+        if y.shape != (self.dim,):
             return None
-        leaf = self.find(y)
+        yl = y.tolist()  # (inside and find on one list: a call per report)
+        if not self._inside_list(yl):
+            return None
+        leaf = self._find_list(yl)
         leaf.add(y, float(value))
         self._interests.touched(leaf)
         self.n_added += 1
