@@ -43,7 +43,10 @@ class Counters:
     def wrap(self, owner, name: str, label: str) -> None:
         f = getattr(owner, name)
         self._wrapped.append((owner, name, f, name in vars(owner)))
+        setattr(owner, name, self._timed(f, label))
 
+    def _timed(self, f, label: str):
+        """``f``, its calls timed (process time) and counted under ``label``."""
         def timed(*args, **kwargs):
             t = time.process_time()
             try:
@@ -51,8 +54,7 @@ class Counters:
             finally:
                 self.seconds[label] += time.process_time() - t
                 self.calls[label] += 1
-
-        setattr(owner, name, timed)
+        return timed
 
     def wrap_factory(self, owner, name: str, label: str) -> None:
         """Like :meth:`wrap` for a function that returns a function (e.g. a competence toward one
@@ -61,16 +63,7 @@ class Counters:
         self._wrapped.append((owner, name, make, name in vars(owner)))
 
         def timed_factory(*args, **kwargs):
-            f = make(*args, **kwargs)
-
-            def timed(*a, **kw):
-                t = time.process_time()
-                try:
-                    return f(*a, **kw)
-                finally:
-                    self.seconds[label] += time.process_time() - t
-                    self.calls[label] += 1
-            return timed
+            return self._timed(make(*args, **kwargs), label)
 
         setattr(owner, name, timed_factory)
 

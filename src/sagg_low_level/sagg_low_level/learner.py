@@ -15,14 +15,14 @@ from typing import Callable, Generator
 
 import numpy as np
 
-from sagg_common.competence import competence, competence_toward, gamma, is_reached
+from sagg_common.competence import competence_toward, gamma, is_reached
 from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
 from sagg_common.rng import choice_index, stream
 
 from .compiled import jacobian, reach_step
-from .local_model import desired_displacement
+from .local_model import desired_displacement, norm
 from .memory import SampleMemory
 from .riac_leaves import RiacLeaves
 
@@ -258,12 +258,6 @@ def subgoal_points(y_start: np.ndarray, goal: np.ndarray, l: int) -> list[np.nda
     return [y_start + (i / l) * (goal - y_start) for i in range(1, l + 1)]
 
 
-def norm(x: np.ndarray) -> float:
-    """``float(np.linalg.norm(x))`` of a 1-D float vector, the same float (numpy computes
-    sqrt(x·x) there too) without its ~1.5 µs of argument handling (a call per micro-action)."""
-    return math.sqrt(x.dot(x))
-
-
 def timeout_budget(distance: float, v: float, factor: float) -> int:
     """Distance timeout of paper Sec. 3.6.2: up to ``factor`` (1.5) × the micro-actions needed to
     travel ``distance`` at speed ``v`` (at least one)."""
@@ -429,12 +423,9 @@ class EvolvingContextLearner:
         a = self.p["explore_amplitude"]
         return self.rng.uniform(-a, a, self.robot.n)
 
-    def competence_of(self, target, reached, start) -> float:
-        return competence(target, reached, start, self.p["eps_c"], self.scale)
-
     def competence_toward(self, target, start) -> Callable[[np.ndarray], float]:
-        """``reached -> competence_of(target, reached, start)`` (the same floats), the target's part
-        computed once: for the micro-actions of one (sub)goal."""
+        """``reached -> competence(target, reached, start)`` (Sec. 3.5, with this learner's eps_c and
+        rescaling), the target's part computed once: for the micro-actions of one (sub)goal."""
         return competence_toward(target, start, self.p["eps_c"], self.scale)
 
     # ------------------------------------------------------------- main loop
