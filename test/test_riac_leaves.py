@@ -95,3 +95,16 @@ def test_actuator_riac_run_is_bit_identical_with_the_walk():
     assert res["identical"] == {"memory_digest": True, "riac_splits": True, "goal_tree_splits": True}
     assert res["rows"][-1]["leaves"] > 150
     assert "bit-identical: memory digest same" in lines[-1]
+
+
+def test_the_compiled_box_test_refuses_mismatched_arrays():
+    import pytest
+    from sagg_low_level.compiled import knn_kernel
+
+    lo, up = np.zeros((2, 3)), np.ones((2, 3))
+    out = np.empty(3, dtype=np.int64)
+    assert knn_kernel.boxes_holding(np.array([0.5, 0.5]), lo, up, out) == 3 and out.tolist() == [2, 1, 0]
+    assert knn_kernel.boxes_holding(np.array([0.5, 1.0]), lo, up, out) == 0  # upper bounds are open
+    for x, o in ((np.zeros(3), out), (np.zeros(2), np.empty(2, dtype=np.int64))):
+        with pytest.raises(ValueError):
+            knn_kernel.boxes_holding(x, lo, up, o)

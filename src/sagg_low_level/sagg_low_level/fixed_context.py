@@ -36,6 +36,7 @@ from .compiled import jacobian, pinv_step
 from .memory import SampleTable
 from .memory_distance import squared_distances
 from .riac_leaves import RiacLeaves
+from .stored_knn import StoredKnn
 from .tree_knn import TreeKnn
 
 SCHEMA: Schema = SHARED_SCHEMA + (
@@ -332,6 +333,9 @@ class FixedContextLearner:
         self.by_y = SampleTable(self.mdim, n, self.mdim)
         self.theta_index = TreeKnn(self.by_theta)
         self.y_index = TreeKnn(self.by_y)
+        # the θ-neighbour sets of stored samples (the seeds of Sec. 4.4.1), the same answers as
+        # theta_index, kept from one reach to the next (a seed is mostly an earlier seed)
+        self.theta_sets = StoredKnn(self.theta_index)
         self._span = theta_space.upper - theta_space.lower
         self.last_norm_theta: np.ndarray | None = None  # normalised θ of the newest sample
         self.rng = stream(params["seed"], "fixed_context_learner")
@@ -372,7 +376,8 @@ class FixedContextLearner:
     @property
     def memory_bytes(self) -> int:
         """Bytes held by the two sample memories and their search indexes."""
-        return int(self.by_theta.nbytes + self.by_y.nbytes + self.theta_index.nbytes + self.y_index.nbytes)
+        return int(self.by_theta.nbytes + self.by_y.nbytes + self.theta_index.nbytes + self.y_index.nbytes
+                   + self.theta_sets.nbytes)
 
     @property
     def thetas(self) -> np.ndarray:
@@ -410,7 +415,7 @@ class FixedContextLearner:
     def _inverse_from(self, g: np.ndarray, seeds: np.ndarray) -> np.ndarray:
         """:meth:`inverse` for the rescaled goal ``g`` given L, its l nearest outcomes ``seeds``."""
         tn = self.by_theta.alpha                                        # normalised θ of every sample
-        sets = self.theta_index.query(tn[seeds], self.m_nb)             # M_i: m neighbours in θ, by row
+        sets = self.theta_sets.query(seeds, self.m_nb)                  # M_i: m neighbours in θ, by row
         best = sets[least_spread_set(sets, tn)]
         ys = self.by_y.alpha[best]
         return self.denorm_theta(local_inverse(tn[best], ys, g, self.p["jacobian_rcond"],

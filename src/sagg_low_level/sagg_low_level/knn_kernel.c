@@ -29,6 +29,14 @@
  * (distance, index) order, the check against the tree's farthest proposal and the full scans
  * (tested against the exact search by test/test_tree_knn.py).
  *
+ * stored_refresh(), stored_keep(): the exact k nearest of a stored sample kept from one search to
+ * the next (sagg_low_level.stored_knn.StoredKnn): the samples stored since merged into a kept
+ * answer in (distance, index) order (tested against TreeKnn by test/test_stored_knn.py).
+ *
+ * boxes_holding(): ACTUATOR-RIAC's leaves whose context box holds the current context
+ * (sagg_low_level.riac_leaves.RiacLeaves.compatible; its numpy test is the reference in
+ * test/test_riac_leaves.py).
+ *
  * Loops run coordinate-major where they sweep runs of points (run_dists: numpy's order, and the
  * rows of these arrays are often a multiple of 4 KiB apart: a point-major loop would thrash a set
  * of the L1 cache). Plain C99 against the CPython API and the buffer protocol (no numpy headers).
@@ -505,9 +513,238 @@ done:
     return result;
 }
 
+/* canonical squared distance of the rows a and q of a row-major array (n coordinates each): the
+   same operations, in the same order, as col_dist and run_dists */
+static inline double row_dist(const double *a, const double *q, Py_ssize_t n) {
+    double t = a[0] - q[0];
+    double s = t * t;
+    for (Py_ssize_t d = 1; d < n; d++) {
+        t = a[d] - q[d];
+        s += t * t;
+    }
+    return s;
+}
+
+PyDoc_STRVAR(stored_refresh_doc,
+"stored_refresh(alpha, rows, k, limit, slot_of, n0, cnt, cidx, cd, out, miss) -> int\n\n"
+"StoredKnn.query's cached answers (see stored_knn.py): for every row j of `rows` (indices of stored\n"
+"samples, alpha's rows 0 .. len - 1 all stored) whose slot s = slot_of[rows[j]] holds the first\n"
+"cnt[s] by (canonical distance, index) of samples 0 .. n0[s] - 1, and len - n0[s] <= limit: the\n"
+"samples n0[s] .. len - 1 are merged in, the slot brought up to len, and its first k written to\n"
+"out[j]. The other rows' positions j are written to miss[0 .. m); returns m.");
+
+static PyObject *stored_refresh(PyObject *self, PyObject *args) {
+    PyObject *oalpha, *orows, *oslot, *on0, *ocnt, *ocidx, *ocd, *oout, *omiss;
+    Py_ssize_t k, limit;
+    if (!PyArg_ParseTuple(args, "OOnnOOOOOOO", &oalpha, &orows, &k, &limit, &oslot, &on0, &ocnt, &ocidx, &ocd,
+                          &oout, &omiss))
+        return NULL;
+    Buf ba = {0}, br = {0}, bs = {0}, bn0 = {0}, bcnt = {0}, bci = {0}, bcd = {0}, bout = {0}, bmiss = {0};
+    PyObject *result = NULL;
+    if (get_buf(oalpha, &ba, "alpha", "d", 8, 0) || get_buf(orows, &br, "rows", "q", 8, 0) ||
+        get_buf(oslot, &bs, "slot_of", "q", 8, 0) || get_buf(on0, &bn0, "n0", "q", 8, 1) ||
+        get_buf(ocnt, &bcnt, "cnt", "q", 8, 1) || get_buf(ocidx, &bci, "cidx", "q", 8, 1) ||
+        get_buf(ocd, &bcd, "cd", "d", 8, 1) || get_buf(oout, &bout, "out", "q", 8, 1) ||
+        get_buf(omiss, &bmiss, "miss", "q", 8, 1))
+        goto done;
+    if (ba.view.ndim != 2 || bci.view.ndim != 2 || bcd.view.ndim != 2) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.stored_refresh: alpha, cidx and cd must be 2-D");
+        goto done;
+    }
+    const Py_ssize_t len = ba.view.shape[0], n = ba.view.shape[1], b = br.view.len / 8;
+    const Py_ssize_t slots = bn0.view.len / 8, width = bci.view.shape[1];
+    if (k < 1 || k > width || k > len || bcd.view.shape[1] != width || bci.view.shape[0] != slots ||
+        bcd.view.shape[0] != slots || bcnt.view.len / 8 != slots || bs.view.len / 8 < len ||
+        bout.view.len / 8 != b * k || bmiss.view.len / 8 < b) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.stored_refresh: array shapes do not match");
+        goto done;
+    }
+    const double *alpha = ba.view.buf;
+    const int64_t *rows = br.view.buf, *slot_of = bs.view.buf;
+    int64_t *n0 = bn0.view.buf, *cnt = bcnt.view.buf, *cidx = bci.view.buf, *out = bout.view.buf;
+    int64_t *miss = bmiss.view.buf;
+    double *cd = bcd.view.buf;
+    Py_ssize_t m = 0;
+    for (Py_ssize_t j = 0; j < b; j++) {
+        const int64_t r = rows[j];
+        if (r < 0 || r >= len) {
+            PyErr_SetString(PyExc_IndexError, "knn_kernel.stored_refresh: row out of range");
+            goto done;
+        }
+        const int64_t s = slot_of[r];
+        if (s < 0 || s >= slots || n0[s] > len || len - n0[s] > limit || cnt[s] < (n0[s] < k ? n0[s] : k)) {
+            miss[m++] = j;
+            continue;
+        }
+        const double *q = alpha + r * n;
+        int64_t *ci = cidx + s * width;
+        double *dd = cd + s * width;
+        Py_ssize_t c = cnt[s];
+        /* a newer sample has a larger index than every cached one: it goes after the cached entries
+           of equal distance, so in (distance, index) order its place is after every d' <= d */
+        for (int64_t i = n0[s]; i < len; i++) {
+            /* the canonical distance, given up once its partial sum reaches the k-th: adding a
+               square never lowers a sum, so the whole distance could not be below the k-th */
+            const double *a = alpha + i * n;
+            const double worst = c == k ? dd[k - 1] : INFINITY;
+            double t = a[0] - q[0];
+            double d = t * t;
+            for (Py_ssize_t e = 1; e < n && d < worst; e++) {
+                t = a[e] - q[e];
+                d += t * t;
+            }
+            if (!(d < worst)) continue;
+            Py_ssize_t p = c < k ? c : k - 1; /* the slot the last entry moves out of */
+            while (p > 0 && dd[p - 1] > d) {
+                dd[p] = dd[p - 1];
+                ci[p] = ci[p - 1];
+                p--;
+            }
+            dd[p] = d;
+            ci[p] = i;
+            if (c < k) c++;
+        }
+        cnt[s] = c;
+        n0[s] = len;
+        memcpy(out + j * k, ci, sizeof(int64_t) * k);
+    }
+    result = PyLong_FromSsize_t(m);
+done:
+    release(&ba);
+    release(&br);
+    release(&bs);
+    release(&bn0);
+    release(&bcnt);
+    release(&bci);
+    release(&bcd);
+    release(&bout);
+    release(&bmiss);
+    return result;
+}
+
+PyDoc_STRVAR(stored_keep_doc,
+"stored_keep(alpha, rows, ans, slots, n0, cnt, cidx, cd) -> None\n\n"
+"Caches the exact answers ans (m, k) of the stored samples rows (m,) (see stored_knn.py): slot\n"
+"slots[j] gets ans[j], their canonical distances to row rows[j], cnt = k and n0 = len(alpha).");
+
+static PyObject *stored_keep(PyObject *self, PyObject *args) {
+    PyObject *oalpha, *orows, *oans, *oslots, *on0, *ocnt, *ocidx, *ocd;
+    if (!PyArg_ParseTuple(args, "OOOOOOOO", &oalpha, &orows, &oans, &oslots, &on0, &ocnt, &ocidx, &ocd))
+        return NULL;
+    Buf ba = {0}, br = {0}, bans = {0}, bsl = {0}, bn0 = {0}, bcnt = {0}, bci = {0}, bcd = {0};
+    PyObject *result = NULL;
+    if (get_buf(oalpha, &ba, "alpha", "d", 8, 0) || get_buf(orows, &br, "rows", "q", 8, 0) ||
+        get_buf(oans, &bans, "ans", "q", 8, 0) || get_buf(oslots, &bsl, "slots", "q", 8, 0) ||
+        get_buf(on0, &bn0, "n0", "q", 8, 1) || get_buf(ocnt, &bcnt, "cnt", "q", 8, 1) ||
+        get_buf(ocidx, &bci, "cidx", "q", 8, 1) || get_buf(ocd, &bcd, "cd", "d", 8, 1))
+        goto done;
+    if (ba.view.ndim != 2 || bans.view.ndim != 2 || bci.view.ndim != 2 || bcd.view.ndim != 2) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.stored_keep: alpha, ans, cidx and cd must be 2-D");
+        goto done;
+    }
+    const Py_ssize_t len = ba.view.shape[0], n = ba.view.shape[1], m = br.view.len / 8;
+    const Py_ssize_t k = bans.view.shape[1], slots = bn0.view.len / 8, width = bci.view.shape[1];
+    if (bans.view.shape[0] != m || bsl.view.len / 8 != m || k > width || bcd.view.shape[1] != width ||
+        bci.view.shape[0] != slots || bcd.view.shape[0] != slots || bcnt.view.len / 8 != slots) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.stored_keep: array shapes do not match");
+        goto done;
+    }
+    const double *alpha = ba.view.buf;
+    const int64_t *rows = br.view.buf, *ans = bans.view.buf, *sl = bsl.view.buf;
+    int64_t *n0 = bn0.view.buf, *cnt = bcnt.view.buf, *cidx = bci.view.buf;
+    double *cd = bcd.view.buf;
+    for (Py_ssize_t j = 0; j < m; j++) {
+        const int64_t r = rows[j], s = sl[j];
+        if (r < 0 || r >= len || s < 0 || s >= slots) {
+            PyErr_SetString(PyExc_IndexError, "knn_kernel.stored_keep: row or slot out of range");
+            goto done;
+        }
+        for (Py_ssize_t e = 0; e < k; e++) {
+            const int64_t i = ans[j * k + e];
+            if (i < 0 || i >= len) {
+                PyErr_SetString(PyExc_IndexError, "knn_kernel.stored_keep: answer out of range");
+                goto done;
+            }
+            cidx[s * width + e] = i;
+            cd[s * width + e] = row_dist(alpha + i * n, alpha + r * n, n);
+        }
+        cnt[s] = k;
+        n0[s] = len;
+    }
+    Py_INCREF(Py_None);
+    result = Py_None;
+done:
+    release(&ba);
+    release(&br);
+    release(&bans);
+    release(&bsl);
+    release(&bn0);
+    release(&bcnt);
+    release(&bci);
+    release(&bcd);
+    return result;
+}
+
+PyDoc_STRVAR(boxes_holding_doc,
+"boxes_holding(x, lower_t, upper_t, out) -> int\n\n"
+"The boxes that hold x (see riac_leaves.RiacLeaves.compatible): box j holds x when\n"
+"lower_t[d, j] <= x[d] < upper_t[d, j] for every coordinate d (lower_t, upper_t: (n, boxes)).\n"
+"Their indices, in decreasing order, are written to out[0 .. m); returns m.");
+
+/* RiacLeaves.compatible's test: numpy's (lower <= x).all(0) & (x < upper).all(0) and
+   flatnonzero(...)[::-1], the same comparisons, coordinate after coordinate over the boxes that
+   still hold x (a fifth of them hold all 15 coordinates of the 15-DOF arm's context) */
+static PyObject *boxes_holding(PyObject *self, PyObject *args) {
+    PyObject *ox, *olo, *oup, *oout;
+    if (!PyArg_ParseTuple(args, "OOOO", &ox, &olo, &oup, &oout)) return NULL;
+    Buf bx = {0}, blo = {0}, bup = {0}, bout = {0};
+    PyObject *result = NULL;
+    if (get_buf(ox, &bx, "x", "d", 8, 0) || get_buf(olo, &blo, "lower_t", "d", 8, 0) ||
+        get_buf(oup, &bup, "upper_t", "d", 8, 0) || get_buf(oout, &bout, "out", "q", 8, 1))
+        goto done;
+    const Py_ssize_t n = bx.view.len / 8;
+    if (blo.view.ndim != 2 || bup.view.ndim != 2 || blo.view.shape[0] != n || bup.view.shape[0] != n ||
+        blo.view.shape[1] != bup.view.shape[1] || bout.view.len / 8 < blo.view.shape[1]) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.boxes_holding: array shapes do not match");
+        goto done;
+    }
+    const Py_ssize_t nb = blo.view.shape[1];
+    const double *x = bx.view.buf, *lo = blo.view.buf, *up = bup.view.buf;
+    int64_t *out = bout.view.buf;
+    /* coordinate 0 over every box, then each coordinate over the boxes still in (in increasing
+       order), written from the back so that the survivors end in decreasing order at out[0..m) */
+    Py_ssize_t m = 0;
+    if (n == 0) {
+        for (Py_ssize_t j = nb - 1; j >= 0; j--) out[m++] = j;
+    } else {
+        const double x0 = x[0];
+        for (Py_ssize_t j = nb - 1; j >= 0; j--)
+            if (lo[j] <= x0 && x0 < up[j]) out[m++] = j;
+        for (Py_ssize_t d = 1; d < n && m; d++) {
+            const double xd = x[d], *lod = lo + d * nb, *upd = up + d * nb;
+            Py_ssize_t w = 0;
+            for (Py_ssize_t r = 0; r < m; r++) {
+                const int64_t j = out[r];
+                if (lod[j] <= xd && xd < upd[j]) out[w++] = j;
+            }
+            m = w;
+        }
+    }
+    result = PyLong_FromSsize_t(m);
+done:
+    release(&bx);
+    release(&blo);
+    release(&bup);
+    release(&bout);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"approx", approx, METH_VARARGS, approx_doc},
     {"tree_answers", tree_answers, METH_VARARGS, tree_answers_doc},
+    {"stored_refresh", stored_refresh, METH_VARARGS, stored_refresh_doc},
+    {"stored_keep", stored_keep, METH_VARARGS, stored_keep_doc},
+    {"boxes_holding", boxes_holding, METH_VARARGS, boxes_holding_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -19,6 +19,8 @@ import numpy as np
 
 from sagg_common.regions import Region, RegionTree
 
+from .compiled import knn_kernel
+
 
 class RiacLeaves:
     """Leaf bounds (first ``context_dims`` coordinates) and interests of ``tree`` as arrays.
@@ -91,7 +93,10 @@ class RiacLeaves:
         """Rows (into ``tree.leaves()``) of the leaves whose context box holds ``x`` (which must lie in
         the root box's context part), in the tree walk's order (see the module docstring), and
         their interests."""
-        x = np.asarray(x, dtype=float)[:, None]
-        ok = np.logical_and((self._lower <= x).all(axis=0), (x < self._upper).all(axis=0))
-        rows = np.flatnonzero(ok)[::-1]
+        # lower <= x < upper in every context coordinate, the rows in decreasing order: one compiled
+        # call (knn_kernel.boxes_holding; numpy's test over every leaf cost ~50 µs at the 15-DOF
+        # arm's 1,700 leaves); test/test_riac_leaves.py checks it against the tree walk
+        out = np.empty(len(self._interest), dtype=np.int64)
+        m = knn_kernel.boxes_holding(np.ascontiguousarray(x, dtype=float), self._lower, self._upper, out)
+        rows = out[:m]
         return rows, self._interest[rows]
