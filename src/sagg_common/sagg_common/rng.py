@@ -37,3 +37,12 @@ def choice_index(rng: np.random.Generator, p: np.ndarray) -> int:
         raise ValueError(f"probabilities: got {np.asarray(p)!r}; allowed: non-negative, finite, not all 0")
     cdf /= total
     return int(cdf.searchsorted(rng.random(), side="right"))
+
+
+def uniform_in(rng: np.random.Generator, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``rng.uniform(lower, upper)`` for two equal-length 1-D float bound arrays this code built itself
+    (finite, ``lower <= upper``), the same floats from the same draws, without the broadcasting and
+    argument checks that made the call cost ~12 µs against ~2 µs: numpy computes each element as
+    ``low + (high - low) * next_double`` in C order (``Generator.uniform``, numpy 2.x), which is what
+    ``rng.random(n)`` draws; test/test_rng.py checks the two agree draw for draw."""
+    return lower + (upper - lower) * rng.random(len(lower))

@@ -13,7 +13,7 @@ import numpy as np
 from sagg_common.params import SHARED_SCHEMA, Param, Schema
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
-from sagg_common.rng import choice_index, stream
+from sagg_common.rng import choice_index, stream, uniform_in
 
 from . import alp_gmm, discretized_progress
 from .teacher import Teacher
@@ -156,7 +156,7 @@ class GoalGenerator:
         return rec
 
     def uniform(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-        return self.rng.uniform(lower, upper)
+        return uniform_in(self.rng, lower, upper)
 
     def region_probabilities(self) -> np.ndarray:
         """Selection probabilities of the leaves (mode 1, Sec. 2.4.4): :func:`interest_probabilities`."""

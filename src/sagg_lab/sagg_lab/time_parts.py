@@ -3,11 +3,13 @@
     python -m sagg_lab.time_parts --config config/arm15.yaml --strategy actuator-riac \\
         --start 180000 --stop 200000 [--eval] [--set NAME=VALUE]
 
-One in-process run (evolving-context arm) is learned to ``--start``. Then, without ``--eval``, the
+One in-process run is learned to ``--start``. Then, without ``--eval``, the
 learning from ``--start`` to ``--stop`` is timed twice: the first half as is (the rate), the second
 half with the main parts wrapped in CPU-time counters (``time.process_time``; the wrappers add a
 little); with ``--eval``, the run is learned to ``--stop`` and its batched evaluation on the config's
-test goals is timed with the counters (best of 3). Parts nest (a region tree's split is inside its
+test goals is timed with the counters (best of 3; evolving-context arms only). A fixed-context run
+(``--set context=fixed``, or a synergy set-up) counts experiments instead of micro-actions, with its
+own parts (Alg. 4's searches, the least-spread set, the local inverse, the exploration noise, ...). Parts nest (a region tree's split is inside its
 ``add``, the RIAC compatible leaves inside the RIAC action choice): the shares do not sum to 100 %.
 """
 from __future__ import annotations
@@ -22,7 +24,9 @@ import numpy as np
 
 from sagg_common import regions
 from sagg_common.params import parse_set
-from sagg_low_level import learner as learner_mod, memory, memory_search, reach_batch, riac_leaves
+from sagg_low_level import fixed_context, learner as learner_mod, memory, memory_search, reach_batch, riac_leaves
+from sagg_low_level.stored_knn import StoredKnn
+from sagg_low_level.tree_knn import TreeKnn
 from sagg_low_level.evaluate import evaluate_batch
 from sagg_sim_bridge.arm import ArmSim, test_goals
 
@@ -99,6 +103,26 @@ def learning_parts(c: Counters, run: InProcessRun) -> None:
     c.wrap(run.sim, "command", "simulator")
 
 
+def fixed_parts(c: Counters, run) -> None:
+    """The parts of a fixed-context run (Alg. 1 + Alg. 4, fixed_context.FixedContextLearner)."""
+    learner = run.learner
+    c.wrap(learner.y_index, "query", "outcome searches (l nearest of a goal, closest y)")
+    c.wrap(StoredKnn, "query", "θ searches (the l seeds' m nearest θ, Alg. 4)")
+    c.wrap(TreeKnn, "_update", "search index upkeep (tree rebuilds, recent samples)")
+    c.wrap(fixed_context, "least_spread_set", "least-spread set (Sec. 4.4.1)")
+    c.wrap(fixed_context, "local_inverse", "local inverse (least squares + pinv, compiled)")
+    c.wrap(fixed_context, "exploration_theta", "exploration noise (Sec. 4.4.2)")
+    c.wrap_factory(fixed_context.FixedContextLearner, "competence_toward", "competence")
+    c.wrap(fixed_context.FixedContextLearner, "distance", "distances to the goal")
+    c.wrap(fixed_context.FixedContextLearner, "_report", "report to the goal generator (incl. its tree add)")
+    c.wrap(fixed_context.FixedContextLearner, "add_sample", "memory add (both tables)")
+    c.wrap(regions.RegionTree, "add", "region tree add")
+    c.wrap(regions.RegionTree, "_split", "region tree splits (inside region tree add)")
+    c.wrap(regions.RegionTree, "interests", "goal tree interests (goal choice)")
+    c.wrap(run.generator, "next_goal", "goal generator next_goal")
+    c.wrap(run.setup, "execute", "the experiment (synergy command, simulator)")
+
+
 def eval_parts(c: Counters) -> None:
     c.wrap(reach_batch, "neighbours_many", "neighbour search (batched)")
     c.wrap(reach_batch, "jacobians", "least squares (one per distinct set)")
@@ -119,8 +143,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     ov = parse_set(a.set)
     run = in_process_run(a.config, dict(ov, strategy=a.strategy, seed=a.seed))
-    if not isinstance(run, InProcessRun):
-        ap.error("time_parts measures the evolving-context arm (InProcessRun)")
+    if a.eval and not isinstance(run, InProcessRun):
+        ap.error("--eval times the evolving-context arm's evaluation (InProcessRun)")
     c = Counters()
     run.step_until(a.start)
     try:
@@ -164,15 +188,17 @@ def _measure(a, run: InProcessRun, c: Counters):
         t = time.process_time()
         run.step_until(half)
         plain = time.process_time() - t
-        learning_parts(c, run)
+        evolving = isinstance(run, InProcessRun)
+        (learning_parts if evolving else fixed_parts)(c, run)
         t = time.process_time()
         run.step_until(a.stop)
         total = time.process_time() - t
         seconds, calls = c.seconds, c.calls
         n = a.stop - half
-        print(f"{a.config} {a.strategy} seed {a.seed}: {a.start}-{half} {(half - a.start) / plain:,.0f} micro-actions "
+        what = "micro-action" if evolving else "experiment"
+        print(f"{a.config} {a.strategy} seed {a.seed}: {a.start}-{half} {(half - a.start) / plain:,.0f} {what}s "
               f"per CPU-s; {half}-{a.stop} with counters {total:.2f} CPU-s")
-        unit, per = n / 1e6, "us per micro-action"
+        unit, per = n / 1e6, f"us per {what}"
     return seconds, calls, total, unit, per
 
 

@@ -28,7 +28,7 @@ from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
-from sagg_common.rng import choice_index, stream
+from sagg_common.rng import choice_index, stream, uniform_in
 from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 
 from .learner import CONTEXT, EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
@@ -470,7 +470,7 @@ class FixedContextLearner:
         return y
 
     def _uniform_theta(self) -> np.ndarray:
-        return self.rng.uniform(self.space.lower, self.space.upper)
+        return uniform_in(self.rng, self.space.lower, self.space.upper)
 
     def competence_of(self, goal, y) -> float:
         return competence(goal, y, self.y_rest, self.p["eps_c"], self.scale if self.p["competence_rescale"] else None)
@@ -635,7 +635,7 @@ class FixedContextLearner:
         it = self.riac_leaves.interests()  # = [r.interest for r in leaves], kept up to date
         probs = interest_probabilities(it)
         region = leaves[choice_index(self.rng, probs)]
-        return self.denorm_theta(self.rng.uniform(region.lower, region.upper))
+        return self.denorm_theta(uniform_in(self.rng, region.lower, region.upper))
 
 
 class Driver:

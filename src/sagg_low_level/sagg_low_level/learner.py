@@ -19,7 +19,7 @@ from sagg_common.competence import competence_toward, gamma, is_reached
 from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
-from sagg_common.rng import choice_index, stream
+from sagg_common.rng import choice_index, stream, uniform_in
 
 from .compiled import jacobian, reach_step
 from .local_model import desired_displacement, norm
@@ -571,4 +571,4 @@ class EvolvingContextLearner:
         rows, it = self._riac_leaves().compatible(alpha)
         probs = interest_probabilities(it)
         region = self.riac_tree.leaves()[int(rows[choice_index(self.rng, probs)])]
-        return self.rng.uniform(region.lower[n:], region.upper[n:])
+        return uniform_in(self.rng, region.lower[n:], region.upper[n:])
