@@ -514,11 +514,13 @@ done:
 }
 
 /* canonical squared distance of the rows a and q of a row-major array (n coordinates each): the
-   same operations, in the same order, as col_dist and run_dists */
-static inline double row_dist(const double *a, const double *q, Py_ssize_t n) {
+   same operations, in the same order, as col_dist and run_dists; given up once the partial sum is
+   not below `worst` (adding a square never lowers a sum, so the whole distance could not be below
+   it either: the partial sum is returned, >= worst); worst = INFINITY for the whole distance */
+static inline double row_dist_below(const double *a, const double *q, Py_ssize_t n, double worst) {
     double t = a[0] - q[0];
     double s = t * t;
-    for (Py_ssize_t d = 1; d < n; d++) {
+    for (Py_ssize_t d = 1; d < n && s < worst; d++) {
         t = a[d] - q[d];
         s += t * t;
     }
@@ -583,16 +585,8 @@ static PyObject *stored_refresh(PyObject *self, PyObject *args) {
         /* a newer sample has a larger index than every cached one: it goes after the cached entries
            of equal distance, so in (distance, index) order its place is after every d' <= d */
         for (int64_t i = n0[s]; i < len; i++) {
-            /* the canonical distance, given up once its partial sum reaches the k-th: adding a
-               square never lowers a sum, so the whole distance could not be below the k-th */
-            const double *a = alpha + i * n;
             const double worst = c == k ? dd[k - 1] : INFINITY;
-            double t = a[0] - q[0];
-            double d = t * t;
-            for (Py_ssize_t e = 1; e < n && d < worst; e++) {
-                t = a[e] - q[e];
-                d += t * t;
-            }
+            const double d = row_dist_below(alpha + i * n, q, n, worst);
             if (!(d < worst)) continue;
             Py_ssize_t p = c < k ? c : k - 1; /* the slot the last entry moves out of */
             while (p > 0 && dd[p - 1] > d) {
@@ -666,7 +660,7 @@ static PyObject *stored_keep(PyObject *self, PyObject *args) {
                 goto done;
             }
             cidx[s * width + e] = i;
-            cd[s * width + e] = row_dist(alpha + i * n, alpha + r * n, n);
+            cd[s * width + e] = row_dist_below(alpha + i * n, alpha + r * n, n, INFINITY);
         }
         cnt[s] = k;
         n0[s] = len;
