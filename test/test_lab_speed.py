@@ -2,6 +2,8 @@
 the bit-identity check sees equal runs as equal, and the parts table is printed."""
 from pathlib import Path
 
+import pytest
+
 from sagg_lab import eval_cost, time_parts, window_speed
 from sagg_lab.base_tree import repo_root
 
@@ -38,6 +40,21 @@ def test_time_parts_prints_learning_and_evaluation_parts(capsys):
     assert "least squares (one per distinct set)" in capsys.readouterr().out
     # the counters are gone afterwards
     assert (memory_search.KnnSearch._knn_approx, learner.jacobian, reach_batch.neighbours_many) == before
+
+
+def test_time_parts_prints_the_fixed_context_parts(capsys):
+    from sagg_low_level import fixed_context, stored_knn, tree_knn
+    before = (stored_knn.StoredKnn.query, tree_knn.TreeKnn._update, fixed_context.least_spread_set)
+    assert time_parts.main(["--config", "config/arm7_ratio15.yaml", "--set", "context=fixed",
+                            "--start", "300", "--stop", "900"]) == 0
+    out = capsys.readouterr().out
+    assert "experiments per CPU-s" in out and "us per experiment" in out
+    for part in ("θ searches", "outcome searches", "least-spread set", "local inverse", "the experiment"):
+        row = next(line for line in out.splitlines() if line.startswith(f"| {part}"))
+        assert int(row.rsplit("|", 2)[1]) > 0   # called and counted
+    assert (stored_knn.StoredKnn.query, tree_knn.TreeKnn._update, fixed_context.least_spread_set) == before
+    with pytest.raises(SystemExit):  # the evaluation's parts are the evolving arm's only
+        time_parts.main(["--config", "config/arm7_ratio15.yaml", "--set", "context=fixed", "--eval"])
 
 
 def test_floors_times_every_part_alone(capsys):

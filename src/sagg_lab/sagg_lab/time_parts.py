@@ -3,14 +3,15 @@
     python -m sagg_lab.time_parts --config config/arm15.yaml --strategy actuator-riac \\
         --start 180000 --stop 200000 [--eval] [--set NAME=VALUE]
 
-One in-process run is learned to ``--start``. Then, without ``--eval``, the
-learning from ``--start`` to ``--stop`` is timed twice: the first half as is (the rate), the second
-half with the main parts wrapped in CPU-time counters (``time.process_time``; the wrappers add a
-little); with ``--eval``, the run is learned to ``--stop`` and its batched evaluation on the config's
-test goals is timed with the counters (best of 3; evolving-context arms only). A fixed-context run
-(``--set context=fixed``, or a synergy set-up) counts experiments instead of micro-actions, with its
-own parts (Alg. 4's searches, the least-spread set, the local inverse, the exploration noise, ...). Parts nest (a region tree's split is inside its
-``add``, the RIAC compatible leaves inside the RIAC action choice): the shares do not sum to 100 %.
+One in-process run is learned to ``--start``. Then, without ``--eval``, the learning from
+``--start`` to ``--stop`` is timed twice: the first half as is (the rate), the second half with the
+main parts wrapped in CPU-time counters (``time.process_time``; the wrappers add a little); with
+``--eval``, the run is learned to ``--stop`` and its batched evaluation on the config's test goals is
+timed with the counters (best of 3; evolving-context arms only). A fixed-context run (``--set
+context=fixed``, or a synergy set-up) counts experiments instead of micro-actions, with its own
+parts (Alg. 4's searches, the least-spread set, the local inverse, the exploration noise, ...).
+Parts nest (a region tree's split is inside its ``add``, the RIAC compatible leaves inside the RIAC
+action choice): the shares do not sum to 100 %.
 """
 from __future__ import annotations
 
@@ -159,7 +160,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def _measure(a, run: InProcessRun, c: Counters):
+def _measure(a, run, c: Counters):
     """Time the learning window or the evaluation of ``a`` (see the module docstring)."""
     if a.eval:
         t = time.process_time()
