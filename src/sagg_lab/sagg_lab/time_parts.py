@@ -86,6 +86,15 @@ class Counters:
         self._wrapped.clear()
 
 
+def goal_side_parts(c: Counters, run) -> None:
+    """The goal generator's parts, the same in both contexts: its region trees (the goal tree, and
+    ACTUATOR-RIAC's tree, which also goes through ``RegionTree.add``) and its goal choice."""
+    c.wrap(regions.RegionTree, "add", "region tree add (goal tree and RIAC tree)")
+    c.wrap(regions.RegionTree, "_split", "region tree splits (inside region tree add)")
+    c.wrap(regions.RegionTree, "interests", "goal tree interests (goal choice)")
+    c.wrap(run.generator, "next_goal", "goal generator next_goal")
+
+
 def learning_parts(c: Counters, run: InProcessRun) -> None:
     c.wrap(memory_search.KnnSearch, "_knn_approx", "neighbour search (approximate)")
     c.wrap(learner_mod, "jacobian", "least squares (local Jacobian, compiled)")
@@ -95,13 +104,10 @@ def learning_parts(c: Counters, run: InProcessRun) -> None:
     c.wrap_factory(learner_mod.EvolvingContextLearner, "competence_toward", "competence")
     c.wrap(learner_mod.EvolvingContextLearner, "_report", "report to the goal generator (incl. its tree add)")
     c.wrap(memory.SampleMemory, "add", "memory add (incl. index builds)")
-    c.wrap(regions.RegionTree, "add", "region tree add (goal tree and RIAC tree)")
-    c.wrap(regions.RegionTree, "_split", "region tree splits (inside region tree add)")
-    c.wrap(regions.RegionTree, "interests", "goal tree interests (goal choice)")
     c.wrap(riac_leaves.RiacLeaves, "compatible", "RIAC compatible leaves")
     c.wrap(run.learner, "_riac_choice", "RIAC action choice (incl. compatible)")
-    c.wrap(run.generator, "next_goal", "goal generator next_goal")
     c.wrap(run.sim, "command", "simulator")
+    goal_side_parts(c, run)
 
 
 def fixed_parts(c: Counters, run) -> None:
@@ -117,11 +123,8 @@ def fixed_parts(c: Counters, run) -> None:
     c.wrap(fixed_context.FixedContextLearner, "distance", "distances to the goal")
     c.wrap(fixed_context.FixedContextLearner, "_report", "report to the goal generator (incl. its tree add)")
     c.wrap(fixed_context.FixedContextLearner, "add_sample", "memory add (both tables)")
-    c.wrap(regions.RegionTree, "add", "region tree add")
-    c.wrap(regions.RegionTree, "_split", "region tree splits (inside region tree add)")
-    c.wrap(regions.RegionTree, "interests", "goal tree interests (goal choice)")
-    c.wrap(run.generator, "next_goal", "goal generator next_goal")
     c.wrap(run.setup, "execute", "the experiment (synergy command, simulator)")
+    goal_side_parts(c, run)
 
 
 def eval_parts(c: Counters) -> None:

@@ -34,8 +34,8 @@
  * answer in (distance, index) order (tested against TreeKnn by test/test_stored_knn.py).
  *
  * boxes_holding(): ACTUATOR-RIAC's leaves whose context box holds the current context
- * (sagg_low_level.riac_leaves.RiacLeaves.compatible; its numpy test is the reference in
- * test/test_riac_leaves.py).
+ * (sagg_low_level.riac_leaves.RiacLeaves.compatible; test/test_riac_leaves.py checks it against the
+ * tree walk it stands for).
  *
  * Loops run coordinate-major where they sweep runs of points (run_dists: numpy's order, and the
  * rows of these arrays are often a multiple of 4 KiB apart: a point-major loop would thrash a set
