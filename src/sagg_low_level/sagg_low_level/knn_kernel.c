@@ -51,11 +51,26 @@
 
 #include "sagg_kernel_buffers.h"
 
+/* The loops over runs of points and boxes (run_dists, box_bounds) are compiled twice where GCC can
+   choose at load time (x86-64, glibc: an ifunc): for AVX2 (4 doubles a vector) and for the baseline
+   (SSE2, 2 doubles), the faster one picked for the processor at hand. Element-wise subtract,
+   multiply, add and max give the same floats at any width (no fused multiply-add:
+   -ffp-contract=off; each sum is still taken coordinate after coordinate), so the answers do not
+   depend on the processor. Kept out of line elsewhere: inlined into its caller, GCC 12 leaves
+   box_bounds' loops scalar. */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__ELF__) && defined(__GLIBC__)
+#define POINT_LOOPS __attribute__((target_clones("avx2", "default")))
+#elif defined(__GNUC__)
+#define POINT_LOOPS __attribute__((noinline))
+#else
+#define POINT_LOOPS
+#endif
+
 /* canonical squared distances to q of the columns c0 .. c0 + count - 1 of the dimension-major x
    (n rows of `stride` doubles) into out[0..count): coordinate-major (numpy's order, and the rows of
    these arrays are often a multiple of 4 KiB apart, so a point-major loop would thrash a set of the
    L1 cache); per column the squares are summed in coordinate order, as memory_distance defines */
-static void run_dists(const double *x, Py_ssize_t stride, Py_ssize_t c0, Py_ssize_t count, const double *q,
+POINT_LOOPS static void run_dists(const double *x, Py_ssize_t stride, Py_ssize_t c0, Py_ssize_t count, const double *q,
                       Py_ssize_t n, double *out) {
     const double *row = x + c0;
     for (Py_ssize_t j = 0; j < count; j++) {
@@ -111,6 +126,45 @@ static double select_kth(double *a, Py_ssize_t n, Py_ssize_t k) {
     return a[k - 1];
 }
 
+/* the larger of a, b, then of that and c, as the max instruction takes it (see box_bounds) */
+static inline double max_sq_operand(double a, double b, double c) {
+    const double x = a > b ? a : b;
+    return x > c ? x : c;
+}
+
+/* the squared distances from q to the boxes of node groups[0..ng) (fan slots each; the stored
+   rows lo, -hi, 0 of `slots` columns per coordinate) into lb[0 .. ng * fan): per slot,
+   max(lo - q, (-hi) - (-q), 0 - 0) squared and summed coordinate after coordinate, the first
+   coordinate on its own so that the inner loop over a group's fan slots has no branch (it
+   vectorises); the same operations in the same order as the numpy walk. The maximum is taken as
+   a > b ? a : b (the processor's max instruction) where numpy.maximum is a >= b ? a : b: they
+   differ only for a == b == 0 of opposite signs, where both squares are +0, and the boxes and
+   queries hold no NaN, so every square, hence every bound, is the same */
+POINT_LOOPS static void box_bounds(const double *restrict lo, const double *restrict nhi, const double *restrict zero,
+                       Py_ssize_t slots, const int64_t *groups, Py_ssize_t ng, Py_ssize_t fan, const double *q,
+                       Py_ssize_t n, double *restrict lb) {
+    for (Py_ssize_t d = 0; d < n; d++) {
+        const Py_ssize_t o = d * slots;
+        const double qd = q[d], nqd = -q[d];
+        for (Py_ssize_t gi = 0; gi < ng; gi++) {
+            const double *l = lo + o + (Py_ssize_t)groups[gi] * fan, *h = nhi + o + (Py_ssize_t)groups[gi] * fan;
+            const double *z = zero + o + (Py_ssize_t)groups[gi] * fan;
+            double *restrict out = lb + gi * fan;
+            if (d == 0) {
+                for (Py_ssize_t f = 0; f < fan; f++) {
+                    const double v = max_sq_operand(l[f] - qd, h[f] - nqd, z[f] - 0.0);
+                    out[f] = v * v;
+                }
+            } else {
+                for (Py_ssize_t f = 0; f < fan; f++) {
+                    const double v = max_sq_operand(l[f] - qd, h[f] - nqd, z[f] - 0.0);
+                    out[f] += v * v;
+                }
+            }
+        }
+    }
+}
+
 /* candidates of the answer: (distance, sample index), every one within the bound */
 typedef struct {
     double d;
@@ -144,11 +198,69 @@ static int cmp_cand(const void *a, const void *b) {
 
 #define CAND_BEFORE(x, y) ((x).d < (y).d || ((x).d == (y).d && (x).i < (y).i))
 
+/* c[0..n) sorted in (d, i) order (keys distinct, no NaN): insertion sort for the few (k, a beam's
+   width) that the searches sort, qsort beyond; distinct keys have one order, whatever the sort */
+static void sort_cands(Cand *c, Py_ssize_t n) {
+    if (n > 64) {
+        qsort(c, n, sizeof(Cand), cmp_cand);
+        return;
+    }
+    for (Py_ssize_t j = 1; j < n; j++) {
+        const Cand x = c[j];
+        Py_ssize_t p = j;
+        while (p > 0 && CAND_BEFORE(x, c[p - 1])) {
+            c[p] = c[p - 1];
+            p--;
+        }
+        c[p] = x;
+    }
+}
+
 /* c[0..m) = the m first of c[0..n) in (d, i) order (m <= n; keys distinct, no NaN), sorted: a
    quickselect moves them to the front, then only they are sorted */
 static void first_sorted(Cand *c, Py_ssize_t n, Py_ssize_t m) {
     if (m < n) QUICKSELECT(Cand, c, n, m, CAND_BEFORE);
-    qsort(c, m, sizeof(Cand), cmp_cand);
+    sort_cands(c, m);
+}
+
+/* the first k in (d, i) order of the candidates offered (keys distinct, no NaN), kept as a heap of
+   at most k whose root is the last of them: an offer after the root is dropped at once, so a scan
+   keeps k entries instead of every candidate within its bound (the same k, whatever the order of
+   the offers: they are the first k of one total order) */
+typedef struct {
+    Cand *c;
+    Py_ssize_t n, k;
+} TopK;
+
+/* the largest distance a candidate may have to enter (a tie enters when its index is smaller) */
+static inline double topk_worst(const TopK *h) { return h->n < h->k ? INFINITY : h->c[0].d; }
+
+static void topk_offer(TopK *h, double d, int64_t i) {
+    const Cand x = {d, i};
+    Cand *c = h->c;
+    Py_ssize_t p;
+    if (h->n < h->k) { /* room: sift up */
+        p = h->n++;
+        while (p > 0) {
+            const Py_ssize_t u = (p - 1) / 2;
+            if (!CAND_BEFORE(c[u], x)) break;
+            c[p] = c[u];
+            p = u;
+        }
+        c[p] = x;
+        return;
+    }
+    if (!CAND_BEFORE(x, c[0])) return;
+    p = 0; /* x replaces the root: sift down */
+    for (;;) {
+        const Py_ssize_t l = 2 * p + 1, r = l + 1;
+        if (l >= h->n) break;
+        const Py_ssize_t g = (r < h->n && CAND_BEFORE(c[l], c[r])) ? r : l;
+        if (!CAND_BEFORE(x, c[g])) break;
+        c[p] = c[g];
+        p = g;
+    }
+    c[p] = x;
 }
 
 static int cmp_i64(const void *a, const void *b) {
@@ -182,6 +294,7 @@ static PyObject *approx(PyObject *self, PyObject *args) {
     double *bd = NULL, *lb = NULL, *scratch = NULL;
     int64_t *sel = NULL, *groups = NULL, *keep = NULL;
     Cands cands = {NULL, 0, 0};
+    TopK top = {NULL, 0, 0};
     PyObject *result = NULL;
     if (get_buf(oq, &bq, "q", "d", 8, 0) || get_buf(obuf, &bbuf, "buf_t", "d", 8, 0) ||
         get_buf(owidths, &bw, "widths", "q", 8, 0) || get_buf(opts, &bpts, "pts", "d", 8, 0) ||
@@ -251,22 +364,7 @@ static PyObject *approx(PyObject *self, PyObject *args) {
                 PyErr_SetString(PyExc_IndexError, "knn_kernel.approx: node group out of range");
                 goto done;
             }
-        for (Py_ssize_t d = 0; d < n; d++) {
-            const Py_ssize_t o = d * slots;
-            const double qd = q[d], nqd = -q[d];
-            for (Py_ssize_t gi = 0; gi < ng; gi++) {
-                const Py_ssize_t s0 = o + (Py_ssize_t)groups[gi] * fan;
-                double *out_lb = lb + gi * fan;
-                for (Py_ssize_t f = 0; f < fan; f++) {
-                    const double a = lo[s0 + f] - qd;
-                    const double b = nhi[s0 + f] - nqd;
-                    const double c = zero[s0 + f] - 0.0;
-                    double v = dmax(dmax(a, b), c);
-                    v = v * v;
-                    out_lb[f] = d ? out_lb[f] + v : v;
-                }
-            }
-        }
+        box_bounds(lo, nhi, zero, slots, groups, ng, fan, q, n, lb);
         Py_ssize_t nk = 0;
         for (Py_ssize_t p = 0; p < ng * fan; p++)
             if (lb[p] <= bound) keep[nk++] = p;
@@ -318,11 +416,16 @@ static PyObject *approx(PyObject *self, PyObject *args) {
     const int64_t *pidx = bpidx.view.buf;
     Py_ssize_t scanned = nb; /* samples scanned: empty leaf slots (NaN) do not count */
     /* the answer is the first k in (distance, index) order; the buffer's k-th distance is at least
-       its k-th distance (k buffer samples are within it), so only candidates within it are kept
-       (every scanned one, NaN excepted, when the buffer holds fewer than k) */
+       its k-th distance (k buffer samples are within it), so only candidates within it are
+       offered (every scanned one, NaN excepted, when the buffer holds fewer than k), and of those
+       the heap keeps the first k */
     const double within = nb >= k ? bound : INFINITY;
+    top.c = malloc(sizeof(Cand) * k);
+    top.k = k;
+    if (!top.c) goto nomem;
     for (Py_ssize_t j = 0; j < nb; j++)
-        if (bd[j] <= within && cands_push(&cands, bd[j], ns + j)) goto nomem;
+        if (bd[j] <= within) topk_offer(&top, bd[j], ns + j);
+    double worst = topk_worst(&top);
     const int64_t *dup = bdup.view.buf, *dup_off = bdoff.view.buf;
     const Py_ssize_t ngroups = bdoff.view.len / 8 - 1;
     const Py_ssize_t ndup = bdup.view.len / 8;
@@ -336,14 +439,18 @@ static PyObject *approx(PyObject *self, PyObject *args) {
             goto done;
         }
         run_dists(pts, npts, s0, leaf, q, n, ld);
+        Py_ssize_t filled = 0; /* empty slots (NaN) are not samples */
+        for (Py_ssize_t e = 0; e < leaf; e++) filled += ld[e] == ld[e];
+        scanned += filled;
+        /* a candidate beyond the bound, or an empty slot (NaN), or after the k kept so far is
+           dropped: s <= within and s <= worst, i.e. s <= the smaller of them */
+        double lim = worst < within ? worst : within;
         for (Py_ssize_t e = 0; e < leaf; e++) {
             const double s = ld[e];
+            if (!(s <= lim)) continue;
             const int64_t id = pidx[s0 + e];
-            scanned += s == s;
-            if (!(s <= within)) continue; /* beyond the bound, or an empty slot (NaN) */
-            int fail = 0;
             if (id >= 0) {
-                fail = cands_push(&cands, s, id);
+                topk_offer(&top, s, id);
             } else if (id < -1) { /* a duplicate group: its (first k) members */
                 const int64_t g = -id - 2;
                 int64_t a = g < ngroups ? dup_off[g] : 0, b = g < ngroups ? dup_off[g + 1] : -1;
@@ -353,12 +460,10 @@ static PyObject *approx(PyObject *self, PyObject *args) {
                     goto done;
                 }
                 if (b > a + k) b = a + k;
-                for (int64_t x = a; x < b && !fail; x++) fail = cands_push(&cands, s, dup[x]);
+                for (int64_t x = a; x < b; x++) topk_offer(&top, s, dup[x]);
             }
-            if (fail) {
-                free(ld);
-                goto nomem;
-            }
+            worst = topk_worst(&top);
+            lim = worst < within ? worst : within;
         }
     }
     free(ld);
@@ -366,13 +471,13 @@ static PyObject *approx(PyObject *self, PyObject *args) {
         result = PyLong_FromSsize_t(-1 - nsel);
         goto done;
     }
-    if (cands.n < k) { /* cannot happen: k scanned samples lie within the bound */
+    if (top.n < k) { /* cannot happen: k scanned samples lie within the bound */
         PyErr_SetString(PyExc_RuntimeError, "knn_kernel.approx: fewer than k candidates");
         goto done;
     }
-    first_sorted(cands.c, cands.n, k);
+    sort_cands(top.c, k);
     int64_t *out = bout.view.buf;
-    for (Py_ssize_t j = 0; j < k; j++) out[j] = cands.c[j].i;
+    for (Py_ssize_t j = 0; j < k; j++) out[j] = top.c[j].i;
     result = PyLong_FromSsize_t(nsel);
     goto done;
 nomem:
@@ -382,6 +487,7 @@ done:
     free(lb);
     free(scratch);
     free(cands.c);
+    free(top.c);
     free(sel);
     free(groups);
     free(keep);
@@ -429,7 +535,7 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "OnOOOnOndO", &oqs, &k, &ofar, &oti, &otree, &nt, &orecent, &nr, &margin, &oout))
         return NULL;
     Buf bq = {0}, bfar = {0}, bti = {0}, btree = {0}, brec = {0}, bout = {0};
-    Cands cands = {NULL, 0, 0};
+    TopK top = {NULL, 0, k};
     double *dist = NULL;
     PyObject *result = NULL;
     if (get_buf(oqs, &bq, "qs", "d", 8, 0) || get_buf(ofar, &bfar, "far", "d", 8, 0) ||
@@ -453,13 +559,14 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
     const int64_t *ti = bti.view.buf;
     int64_t *out = bout.view.buf;
     dist = malloc(sizeof(double) * (nt > nr ? nt : nr > 0 ? nr : 1));
-    if (!dist) goto nomem;
+    top.c = malloc(sizeof(Cand) * k);
+    if (!dist || !top.c) goto nomem;
     Py_ssize_t scans = 0;
     for (Py_ssize_t j = 0; j < b; j++) {
         const double *q = qs + j * n;
-        cands.n = 0;
+        top.n = 0;
         double bound = INFINITY; /* no bound while the tree proposes fewer than k */
-        double top = -INFINITY;
+        double far_k = -INFINITY; /* the farthest of the first k proposals */
         for (Py_ssize_t c = 0; c < kq; c++) {
             const int64_t i = ti[j * kq + c];
             if (i < 0 || i >= nt) {
@@ -467,42 +574,40 @@ static PyObject *tree_answers(PyObject *self, PyObject *args) {
                 goto done;
             }
             const double d = col_dist(tree, tcols, i, q, n);
-            if (c < k && d > top) top = d;
-            if (cands_push(&cands, d, i)) goto nomem;
+            if (c < k && d > far_k) far_k = d;
+            topk_offer(&top, d, i);
         }
-        if (kq >= k) bound = top;
+        if (kq >= k) bound = far_k;
         run_dists(rec, rcols, 0, nr, q, n, dist);
         for (Py_ssize_t r = 0; r < nr; r++)
-            if (dist[r] <= bound && cands_push(&cands, dist[r], nt + r)) goto nomem;
-        if (cands.n < k) {
+            if (dist[r] <= bound) topk_offer(&top, dist[r], nt + r);
+        if (top.n < k) {
             PyErr_SetString(PyExc_RuntimeError, "knn_kernel.tree_answers: fewer than k candidates");
             goto done;
         }
-        first_sorted(cands.c, cands.n, k);
+        sort_cands(top.c, k);
         if (nt > kq) {
             /* a tree sample not proposed is at least the farthest proposal away (tree arithmetic): it
                can neither beat nor tie a k-th distance clearly smaller; else scan every sample */
             const double f = far[j * kq + kq - 1];
-            if (!(f * f * margin > cands.c[k - 1].d)) {
+            if (!(f * f * margin > top.c[k - 1].d)) {
                 scans++;
-                cands.n = 0;
+                top.n = 0;
                 run_dists(tree, tcols, 0, nt, q, n, dist);
-                for (Py_ssize_t i = 0; i < nt; i++)
-                    if (cands_push(&cands, dist[i], i)) goto nomem;
+                for (Py_ssize_t i = 0; i < nt; i++) topk_offer(&top, dist[i], i);
                 run_dists(rec, rcols, 0, nr, q, n, dist);
-                for (Py_ssize_t r = 0; r < nr; r++)
-                    if (cands_push(&cands, dist[r], nt + r)) goto nomem;
-                first_sorted(cands.c, cands.n, k);
+                for (Py_ssize_t r = 0; r < nr; r++) topk_offer(&top, dist[r], nt + r);
+                sort_cands(top.c, k);
             }
         }
-        for (Py_ssize_t e = 0; e < k; e++) out[j * k + e] = cands.c[e].i;
+        for (Py_ssize_t e = 0; e < k; e++) out[j * k + e] = top.c[e].i;
     }
     result = PyLong_FromSsize_t(scans);
     goto done;
 nomem:
     PyErr_NoMemory();
 done:
-    free(cands.c);
+    free(top.c);
     free(dist);
     release(&bq);
     release(&bfar);
