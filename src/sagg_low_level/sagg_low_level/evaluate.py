@@ -11,7 +11,7 @@ from typing import Generator, Protocol, Sequence
 import numpy as np
 
 from .learner import EvolvingContextLearner, safe_target, timeout_budget
-from .local_model import desired_displacement
+from .local_model import desired_displacement, norm
 from .reach_batch import batch_supported, reach_steps
 
 
@@ -60,11 +60,11 @@ def frozen_reach(learner: EvolvingContextLearner, alpha: np.ndarray, y: np.ndarr
     action (from the current posture) both run it."""
     p = learner.p
     tol = p["eval.tolerance"] if tolerance <= 0 else tolerance
-    budget = max_steps or timeout_budget(float(np.linalg.norm(goal - y)), learner.v, p["eval.timeout_factor"])
+    budget = max_steps or timeout_budget(norm(goal - y), learner.v, p["eval.timeout_factor"])
     outcome = "budget"
     steps = 0
     for _ in range(budget):
-        if float(np.linalg.norm(goal - y)) <= tol:
+        if norm(goal - y) <= tol:
             outcome = "reached"
             break
         dalpha = learner.reach_step(alpha, desired_displacement(y, goal, learner.v))
@@ -74,9 +74,9 @@ def frozen_reach(learner: EvolvingContextLearner, alpha: np.ndarray, y: np.ndarr
         alpha, y = yield safe_target(alpha, alpha + dalpha, p["max_joint_step"], learner.robot)
         steps += 1
     else:
-        if float(np.linalg.norm(goal - y)) <= tol:
+        if norm(goal - y) <= tol:
             outcome = "reached"
-    return y, float(np.linalg.norm(goal - y)), steps, outcome
+    return y, norm(goal - y), steps, outcome
 
 
 def evaluate(learner: EvolvingContextLearner, robot: ReachingRobot, goals: np.ndarray) -> np.ndarray:
@@ -119,7 +119,7 @@ def evaluate_batch(learner: EvolvingContextLearner, robots: Sequence[ReachingRob
     starts = [r.reset() for r in robots]
     alpha = np.array([a for a, _ in starts], dtype=float)
     y = np.array([yy for _, yy in starts], dtype=float)
-    budget = np.array([timeout_budget(float(np.linalg.norm(g - yy)), v, p["eval.timeout_factor"])
+    budget = np.array([timeout_budget(norm(g - yy), v, p["eval.timeout_factor"])
                        for g, yy in zip(goals, y)])
     used = np.zeros(len(goals), dtype=int)
     active = list(range(len(goals)))
@@ -127,7 +127,7 @@ def evaluate_batch(learner: EvolvingContextLearner, robots: Sequence[ReachingRob
     while active:
         # reach_frozen's loop head: budget spent, or within tolerance
         active = [i for i in active
-                  if used[i] < budget[i] and not float(np.linalg.norm(goals[i] - y[i])) <= tol]
+                  if used[i] < budget[i] and not norm(goals[i] - y[i]) <= tol]
         if not active:
             break
         rows = np.array(active)
@@ -145,4 +145,4 @@ def evaluate_batch(learner: EvolvingContextLearner, robots: Sequence[ReachingRob
         for j, i in enumerate(active):
             alpha[i], y[i] = robots[i].command(target[j])
             used[i] += 1
-    return np.array([float(np.linalg.norm(g - yy)) for g, yy in zip(goals, y)])
+    return np.array([norm(g - yy) for g, yy in zip(goals, y)])
