@@ -26,7 +26,7 @@ def _sample(rng, mem, dim):
 def test_equals_the_exact_search_as_samples_arrive(dim, limit):
     rng = np.random.default_rng(dim + limit)
     mem = SampleMemory(dim, 1, 1)
-    knn = TreeKnn(mem, extra=2, min_recent=8, rebuild_share=0.25, leafsize=4)
+    knn = TreeKnn(mem, min_recent=8, rebuild_share=0.25, leafsize=4)
     stored = StoredKnn(knn, refresh_limit=limit)
     for step in range(80):
         for _ in range(int(rng.integers(0, 25))):

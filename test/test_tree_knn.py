@@ -17,7 +17,7 @@ def _want(mem, qs, k):
 def test_equals_the_memory_search_as_samples_arrive(dim):
     rng = np.random.default_rng(dim)
     mem = SampleMemory(dim, 1, 1)
-    knn = TreeKnn(mem, extra=2, min_recent=8, rebuild_share=0.25, leafsize=4)
+    knn = TreeKnn(mem, min_recent=8, rebuild_share=0.25, leafsize=4)
     assert knn.query(rng.uniform(0, 1, (3, dim)), 5).shape == (3, 0)  # empty memory
     for step in range(60):
         for _ in range(int(rng.integers(0, 30))):
@@ -37,14 +37,14 @@ def test_equals_the_memory_search_as_samples_arrive(dim):
             np.testing.assert_array_equal(knn.query(qs, k), _want(mem, qs, k))
             for q in qs[:: len(qs) // 3]:  # one query per call
                 np.testing.assert_array_equal(knn.query(q[None], k), _want(mem, q[None], k))
-    assert knn._nt > 0 and knn.scans > 0  # the tree was used, and ties sent some queries to the scan
+    assert knn._nt > 0 and knn.leaves_scanned > 0  # the tree was built and searched
 
 
 def test_duplicates_beyond_the_candidates_are_ranked_by_index():
     mem = SampleMemory(2, 1, 1)
     for i in range(300):
         mem.add([0.5, 0.5] if i % 3 else [i / 300, 0.0], [0.0], [0.0])
-    knn = TreeKnn(mem, extra=1, min_recent=4)
+    knn = TreeKnn(mem, min_recent=4)
     q = np.array([[0.5, 0.5], [0.5, 0.49], [0.1, 0.0]])
     np.testing.assert_array_equal(knn.query(q, 30), _want(mem, q, 30))
 
@@ -72,3 +72,51 @@ def test_bad_queries_are_refused():
     for q in ([[np.nan, 0.0]], [[0.0, np.inf]], [[0.0, 0.0, 0.0]]):
         with pytest.raises(ValueError):
             knn.query(np.array(q), 1)
+
+
+@pytest.mark.parametrize("n, leafsize", [(1, 1), (2, 1), (17, 2), (300, 16), (1000, 3)])
+def test_the_kd_tree_partitions_the_samples_into_exact_boxes(n, leafsize):
+    """kd_build: every sample once in tree order, each node the two halves of its parent, each
+    box the exact bounds of its members, leaves of at most leafsize samples."""
+    from sagg_low_level.compiled import knn_kernel
+    rng = np.random.default_rng(n)
+    x = np.round(rng.uniform(0, 1, (n, 3)) * 5) / 5  # a coarse grid: equal coordinates at splits
+    knn = TreeKnn(SampleMemory(3, 1, 1), leafsize=leafsize)
+    depth = 0
+    while -(-n // (1 << depth)) > leafsize:
+        depth += 1
+    perm, pts_t, lo, hi, ns, ne = knn._arrays(n, 3, depth)
+    knn_kernel.kd_build(x, depth, perm, pts_t, lo, hi, ns, ne)
+    np.testing.assert_array_equal(np.sort(perm), np.arange(n))
+    np.testing.assert_array_equal(pts_t, x[perm].T)
+    nodes = len(ns)
+    for i in range(nodes):
+        members = x[perm[ns[i]:ne[i]]]
+        if len(members):
+            np.testing.assert_array_equal(lo[i], members.min(axis=0))
+            np.testing.assert_array_equal(hi[i], members.max(axis=0))
+        if i < nodes // 2:
+            assert (ns[2 * i + 1], ne[2 * i + 1], ns[2 * i + 2], ne[2 * i + 2]) == (
+                ns[i], ns[i] + (ne[i] - ns[i]) // 2, ns[i] + (ne[i] - ns[i]) // 2, ne[i])
+        else:
+            assert ne[i] - ns[i] <= leafsize
+
+
+def test_kd_query_refuses_mismatched_arrays():
+    from sagg_low_level.compiled import knn_kernel
+    mem = SampleMemory(2, 1, 1)
+    for i in range(200):
+        mem.add([i / 200, (i % 7) / 7], [0.0], [0.0])
+    knn = TreeKnn(mem, min_recent=8)
+    knn.query(np.zeros((1, 2)), 3)  # builds the tree
+    out = np.empty((1, 3), dtype=np.int64)
+    perm, pts_t, lo, hi, ns, ne = knn._tree
+    with pytest.raises(ValueError):  # a query of another dimension
+        knn_kernel.kd_query(np.zeros((1, 3)), 3, perm, pts_t, lo, hi, ns, ne, knn._depth, knn._recent_t, 0, out)
+    with pytest.raises(ValueError):  # more neighbours than samples
+        knn_kernel.kd_query(np.zeros((1, 2)), 500, perm, pts_t, lo, hi, ns, ne, knn._depth, knn._recent_t, 0,
+                            np.empty((1, 500), dtype=np.int64))
+    bad = ne.copy()
+    bad[-1] = len(perm) + 5
+    with pytest.raises(IndexError):  # a leaf beyond the samples
+        knn_kernel.kd_query(np.zeros((1, 2)), 3, perm, pts_t, lo, hi, ns, bad, knn._depth, knn._recent_t, 0, out)

@@ -24,10 +24,12 @@
  *   test/test_knn_kernel.py checks it against the numpy walk (kept there as the reference) on
  *   random memories with duplicates, ties and every index height.
  *
- * tree_answers(): the exact search of the fixed-context learner (sagg_low_level.tree_knn.TreeKnn)
- * after its scipy cKDTree call: the proposals' and the recent samples' canonical distances, the
- * (distance, index) order, the check against the tree's farthest proposal and the full scans
- * (tested against the exact search by test/test_tree_knn.py).
+ * kd_build(), kd_query(): the exact search of the fixed-context learner
+ * (sagg_low_level.tree_knn.TreeKnn): a kd tree with exact boxes over the samples stored at its
+ * build, the samples stored since scanned; canonical distances, the first k by (distance, index)
+ * (tested against the memory's exact search by test/test_tree_knn.py). It replaced a scipy
+ * cKDTree, whose query costs ~16 us even for one 2-D row and whose own distances needed a check
+ * and full scans to give the canonical answer.
  *
  * stored_refresh(), stored_keep(): the exact k nearest of a stored sample kept from one search to
  * the next (sagg_low_level.stored_knn.StoredKnn): the samples stored since merged into a kept
@@ -505,121 +507,231 @@ done:
     return result;
 }
 
-/* canonical squared distance of one column c of the dimension-major x (rows of `stride` doubles)
-   to q (the tree's proposals: scattered columns) */
-static inline double col_dist(const double *x, Py_ssize_t stride, Py_ssize_t c, const double *q, Py_ssize_t n) {
-    double t = x[c] - q[0];
-    double s = t * t;
-    for (Py_ssize_t d = 1; d < n; d++) {
-        t = x[d * stride + c] - q[d];
-        s += t * t;
+/* ---------------------------------------------------------------- the exact kd tree (TreeKnn)
+
+   A balanced kd tree over samples 0 .. nt - 1 of a store, stored implicitly: node i has children
+   2i + 1 and 2i + 2, the root covers [0, nt), a node [s, e) splits at m = s + (e - s) / 2 along the
+   coordinate of widest extent of its box (the lowest such coordinate), its members ordered so that
+   the first half holds the smallest by (coordinate, sample index); `depth` levels of splits, the
+   leaves (the nodes of the last level) hold at most `leafsize` samples. Every node keeps the exact
+   bounding box of its members. The samples are kept in tree order, dimension-major, so that a leaf
+   is a run of columns. */
+
+typedef struct {
+    double v;
+    int64_t i;
+} KeyIdx;
+
+#define KEY_BEFORE(x, y) ((x).v < (y).v || ((x).v == (y).v && (x).i < (y).i))
+
+PyDoc_STRVAR(kd_build_doc,
+"kd_build(x, depth, perm, pts_t, lo, hi, nstart, nend) -> None\n\n"
+"Builds the exact kd tree of TreeKnn (see knn_kernel.c) over the rows of x (nt, n): perm (nt,) gets\n"
+"the samples in tree order, pts_t (n, nt) their coordinates, lo and hi (2**(depth+1) - 1, n) the\n"
+"nodes' boxes, nstart and nend (nodes,) their ranges of tree positions.");
+
+static PyObject *kd_build(PyObject *self, PyObject *args) {
+    PyObject *ox, *operm, *opts, *olo, *ohi, *ons, *one;
+    Py_ssize_t depth;
+    if (!PyArg_ParseTuple(args, "OnOOOOOO", &ox, &depth, &operm, &opts, &olo, &ohi, &ons, &one)) return NULL;
+    Buf bx = {0}, bp = {0}, bt = {0}, blo = {0}, bhi = {0}, bns = {0}, bne = {0};
+    KeyIdx *keys = NULL;
+    PyObject *result = NULL;
+    if (get_buf(ox, &bx, "x", "d", 8, 0) || get_buf(operm, &bp, "perm", "q", 8, 1) ||
+        get_buf(opts, &bt, "pts_t", "d", 8, 1) || get_buf(olo, &blo, "lo", "d", 8, 1) ||
+        get_buf(ohi, &bhi, "hi", "d", 8, 1) || get_buf(ons, &bns, "nstart", "q", 8, 1) ||
+        get_buf(one, &bne, "nend", "q", 8, 1))
+        goto done;
+    if (bx.view.ndim != 2 || depth < 0 || depth > 40) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.kd_build: x must be 2-D and depth in [0, 40]");
+        goto done;
+    }
+    const Py_ssize_t nt = bx.view.shape[0], n = bx.view.shape[1];
+    const Py_ssize_t nodes = ((Py_ssize_t)2 << depth) - 1;
+    if (bp.view.len / 8 != nt || bt.view.len / 8 != n * nt || blo.view.len / 8 != nodes * n ||
+        bhi.view.len / 8 != nodes * n || bns.view.len / 8 != nodes || bne.view.len / 8 != nodes) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.kd_build: array shapes do not match");
+        goto done;
+    }
+    const double *x = bx.view.buf;
+    int64_t *perm = bp.view.buf, *ns = bns.view.buf, *ne = bne.view.buf;
+    double *pts = bt.view.buf, *lo = blo.view.buf, *hi = bhi.view.buf;
+    keys = malloc(sizeof(KeyIdx) * (nt ? nt : 1));
+    if (!keys) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    for (Py_ssize_t j = 0; j < nt; j++) perm[j] = j;
+    ns[0] = 0;
+    ne[0] = nt;
+    const Py_ssize_t first_leaf = nodes / 2; /* nodes below are split, the rest are leaves */
+    for (Py_ssize_t i = 0; i < nodes; i++) {
+        const Py_ssize_t s0 = ns[i], e0 = ne[i];
+        double *l = lo + i * n, *h = hi + i * n;
+        for (Py_ssize_t d = 0; d < n; d++) {
+            l[d] = INFINITY; /* an empty node: a box no query is near */
+            h[d] = -INFINITY;
+        }
+        for (Py_ssize_t j = s0; j < e0; j++) {
+            const double *row = x + perm[j] * n;
+            for (Py_ssize_t d = 0; d < n; d++) {
+                if (row[d] < l[d]) l[d] = row[d];
+                if (row[d] > h[d]) h[d] = row[d];
+            }
+        }
+        if (i >= first_leaf) continue;
+        const Py_ssize_t m = s0 + (e0 - s0) / 2;
+        ns[2 * i + 1] = s0;
+        ne[2 * i + 1] = m;
+        ns[2 * i + 2] = m;
+        ne[2 * i + 2] = e0;
+        if (e0 - s0 < 2) continue;
+        Py_ssize_t dim = 0;
+        for (Py_ssize_t d = 1; d < n; d++)
+            if (h[d] - l[d] > h[dim] - l[dim]) dim = d;
+        for (Py_ssize_t j = s0; j < e0; j++) {
+            keys[j - s0].v = x[perm[j] * n + dim];
+            keys[j - s0].i = perm[j];
+        }
+        /* the first m - s0 by (coordinate, index) to the front: the lower child */
+        QUICKSELECT(KeyIdx, keys, e0 - s0, m - s0, KEY_BEFORE);
+        for (Py_ssize_t j = s0; j < e0; j++) perm[j] = keys[j - s0].i;
+    }
+    for (Py_ssize_t d = 0; d < n; d++)
+        for (Py_ssize_t j = 0; j < nt; j++) pts[d * nt + j] = x[perm[j] * n + d];
+    Py_INCREF(Py_None);
+    result = Py_None;
+done:
+    free(keys);
+    release(&bx);
+    release(&bp);
+    release(&bt);
+    release(&blo);
+    release(&bhi);
+    release(&bns);
+    release(&bne);
+    return result;
+}
+
+/* a lower bound of the canonical squared distance from q to every point of the box [l, h]: per
+   coordinate the gap max(l - q, q - h, 0) squared, summed in coordinate order. For a point p of
+   the box, l - q <= p - q and q - h <= q - p (rounding is monotone), so each square is at most
+   (p - q)^2 as run_dists forms it, and sums taken in the same order keep the inequality: no
+   float slack is needed, and a node is skipped only when this bound exceeds the k-th distance */
+static inline double box_gap(const double *l, const double *h, const double *q, Py_ssize_t n) {
+    double s = 0.0;
+    for (Py_ssize_t d = 0; d < n; d++) {
+        const double a = l[d] - q[d], b = q[d] - h[d];
+        const double g = a > b ? (a > 0.0 ? a : 0.0) : (b > 0.0 ? b : 0.0);
+        s = d ? s + g * g : g * g;
     }
     return s;
 }
 
-PyDoc_STRVAR(tree_answers_doc,
-"tree_answers(qs, k, far, ti, tree_t, nt, recent_t, nr, margin, out) -> int\n\n"
-"TreeKnn.query after its cKDTree call (see tree_knn.py): out[j] = the first k by (canonical\n"
-"distance, index) of row j's candidates (the tree's proposals ti, then the recent samples within\n"
-"the bound of the first k proposals); a row whose farthest proposal `far` is not clearly beyond\n"
-"that k-th distance is answered by a scan of every sample. Returns the number of such scans.");
+PyDoc_STRVAR(kd_query_doc,
+"kd_query(qs, k, perm, pts_t, lo, hi, nstart, nend, depth, recent_t, nr, out) -> int\n\n"
+"TreeKnn.query (see tree_knn.py): out[j] = the first k by (canonical distance, index) of the tree's\n"
+"samples (kd_build's arrays) and the recent samples nt .. nt + nr - 1 (recent_t (n, >= nr)), for\n"
+"every query row qs[j]. Returns the number of leaves scanned.");
 
-/* TreeKnn.query's answer from the tree's proposals: the numpy steps of tree_knn.py (canonical
-   distances of the proposals and of the recent samples, the bound, the (distance, index) order,
-   the check against the tree's farthest proposal, the full scan) in one call, the same floats and
-   the same answers (test/test_tree_knn.py checks the answers against the exact search). */
-static PyObject *tree_answers(PyObject *self, PyObject *args) {
-    PyObject *oqs, *ofar, *oti, *otree, *orecent, *oout;
-    Py_ssize_t k, nt, nr;
-    double margin;
-    if (!PyArg_ParseTuple(args, "OnOOOnOndO", &oqs, &k, &ofar, &oti, &otree, &nt, &orecent, &nr, &margin, &oout))
+static PyObject *kd_query(PyObject *self, PyObject *args) {
+    PyObject *oqs, *opts, *operm, *olo, *ohi, *ons, *one, *orec, *oout;
+    Py_ssize_t k, depth, nr;
+    if (!PyArg_ParseTuple(args, "OnOOOOOOnOnO", &oqs, &k, &operm, &opts, &olo, &ohi, &ons, &one, &depth, &orec,
+                          &nr, &oout))
         return NULL;
-    Buf bq = {0}, bfar = {0}, bti = {0}, btree = {0}, brec = {0}, bout = {0};
+    Buf bq = {0}, bt = {0}, bp = {0}, blo = {0}, bhi = {0}, bns = {0}, bne = {0}, brec = {0}, bout = {0};
     TopK top = {NULL, 0, k};
     double *dist = NULL;
+    Py_ssize_t *stack = NULL;
     PyObject *result = NULL;
-    if (get_buf(oqs, &bq, "qs", "d", 8, 0) || get_buf(ofar, &bfar, "far", "d", 8, 0) ||
-        get_buf(oti, &bti, "ti", "q", 8, 0) || get_buf(otree, &btree, "tree_t", "d", 8, 0) ||
-        get_buf(orecent, &brec, "recent_t", "d", 8, 0) || get_buf(oout, &bout, "out", "q", 8, 1))
+    if (get_buf(oqs, &bq, "qs", "d", 8, 0) || get_buf(opts, &bt, "pts_t", "d", 8, 0) ||
+        get_buf(operm, &bp, "perm", "q", 8, 0) || get_buf(olo, &blo, "lo", "d", 8, 0) ||
+        get_buf(ohi, &bhi, "hi", "d", 8, 0) || get_buf(ons, &bns, "nstart", "q", 8, 0) ||
+        get_buf(one, &bne, "nend", "q", 8, 0) || get_buf(orec, &brec, "recent_t", "d", 8, 0) ||
+        get_buf(oout, &bout, "out", "q", 8, 1))
         goto done;
-    if (bq.view.ndim != 2 || btree.view.ndim != 2 || brec.view.ndim != 2) {
-        PyErr_SetString(PyExc_ValueError, "knn_kernel.tree_answers: qs, tree_t and recent_t must be 2-D");
-        goto done;
-    }
-    const Py_ssize_t b = bq.view.shape[0], n = bq.view.shape[1];
-    const Py_ssize_t tcols = btree.view.shape[1], rcols = brec.view.shape[1];
-    const Py_ssize_t kq = b ? bti.view.len / 8 / b : 0;
-    if (k < 1 || btree.view.shape[0] != n || brec.view.shape[0] != n || nt > tcols || nr > rcols ||
-        nr < 0 || nt < 0 || bout.view.len / 8 != b * k || bfar.view.len / 8 != b * kq ||
-        (nt && kq < 1) || (kq && b * kq * 8 != bti.view.len) || nt + nr < k) {
-        PyErr_SetString(PyExc_ValueError, "knn_kernel.tree_answers: array shapes do not match");
+    if (bq.view.ndim != 2 || brec.view.ndim != 2 || depth < 0 || depth > 40) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.kd_query: qs and recent_t must be 2-D, depth in [0, 40]");
         goto done;
     }
-    const double *qs = bq.view.buf, *far = bfar.view.buf, *tree = btree.view.buf, *rec = brec.view.buf;
-    const int64_t *ti = bti.view.buf;
+    const Py_ssize_t b = bq.view.shape[0], n = bq.view.shape[1], nt = bp.view.len / 8;
+    const Py_ssize_t rcols = brec.view.shape[1], nodes = ((Py_ssize_t)2 << depth) - 1;
+    if (k < 1 || nr < 0 || nr > rcols || brec.view.shape[0] != n || bt.view.len / 8 != n * nt ||
+        blo.view.len / 8 != nodes * n || bhi.view.len / 8 != nodes * n || bns.view.len / 8 != nodes ||
+        bne.view.len / 8 != nodes || bout.view.len / 8 != b * k || nt + nr < k) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.kd_query: array shapes do not match");
+        goto done;
+    }
+    const double *qs = bq.view.buf, *pts = bt.view.buf, *lo = blo.view.buf, *hi = bhi.view.buf;
+    const double *rec = brec.view.buf;
+    const int64_t *perm = bp.view.buf, *ns = bns.view.buf, *ne = bne.view.buf;
     int64_t *out = bout.view.buf;
-    dist = malloc(sizeof(double) * (nt > nr ? nt : nr > 0 ? nr : 1));
+    Py_ssize_t widest = nr; /* the distance scratch: the recent samples, or the largest leaf */
+    for (Py_ssize_t i = nodes / 2; i < nodes; i++) {
+        if (ns[i] < 0 || ne[i] < ns[i] || ne[i] > nt) {
+            PyErr_SetString(PyExc_IndexError, "knn_kernel.kd_query: node range out of range");
+            goto done;
+        }
+        if (ne[i] - ns[i] > widest) widest = ne[i] - ns[i];
+    }
+    dist = malloc(sizeof(double) * (widest ? widest : 1));
     top.c = malloc(sizeof(Cand) * k);
-    if (!dist || !top.c) goto nomem;
-    Py_ssize_t scans = 0;
+    stack = malloc(sizeof(Py_ssize_t) * (2 * depth + 2));
+    if (!dist || !top.c || !stack) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_ssize_t leaves = 0;
     for (Py_ssize_t j = 0; j < b; j++) {
         const double *q = qs + j * n;
         top.n = 0;
-        double bound = INFINITY; /* no bound while the tree proposes fewer than k */
-        double far_k = -INFINITY; /* the farthest of the first k proposals */
-        for (Py_ssize_t c = 0; c < kq; c++) {
-            const int64_t i = ti[j * kq + c];
-            if (i < 0 || i >= nt) {
-                PyErr_SetString(PyExc_IndexError, "knn_kernel.tree_answers: tree index out of range");
-                goto done;
-            }
-            const double d = col_dist(tree, tcols, i, q, n);
-            if (c < k && d > far_k) far_k = d;
-            topk_offer(&top, d, i);
-        }
-        if (kq >= k) bound = far_k;
         run_dists(rec, rcols, 0, nr, q, n, dist);
-        for (Py_ssize_t r = 0; r < nr; r++)
-            if (dist[r] <= bound) topk_offer(&top, dist[r], nt + r);
-        if (top.n < k) {
-            PyErr_SetString(PyExc_RuntimeError, "knn_kernel.tree_answers: fewer than k candidates");
+        for (Py_ssize_t r = 0; r < nr; r++) topk_offer(&top, dist[r], nt + r);
+        Py_ssize_t sp = 0;
+        if (nt) stack[sp++] = 0;
+        while (sp) { /* depth first, the nearer child first */
+            const Py_ssize_t i = stack[--sp];
+            if (box_gap(lo + i * n, hi + i * n, q, n) > topk_worst(&top)) continue;
+            if (i >= nodes / 2) {
+                const Py_ssize_t s0 = ns[i], cnt = ne[i] - ns[i];
+                leaves++;
+                run_dists(pts, nt, s0, cnt, q, n, dist);
+                for (Py_ssize_t e = 0; e < cnt; e++)
+                    if (dist[e] <= topk_worst(&top)) topk_offer(&top, dist[e], perm[s0 + e]);
+                continue;
+            }
+            const Py_ssize_t c1 = 2 * i + 1, c2 = 2 * i + 2;
+            const double g1 = box_gap(lo + c1 * n, hi + c1 * n, q, n), g2 = box_gap(lo + c2 * n, hi + c2 * n, q, n);
+            stack[sp++] = g1 <= g2 ? c2 : c1; /* the farther, popped second */
+            stack[sp++] = g1 <= g2 ? c1 : c2;
+        }
+        if (top.n < k) { /* cannot happen: nt + nr >= k samples were offered or bounded */
+            PyErr_SetString(PyExc_RuntimeError, "knn_kernel.kd_query: fewer than k candidates");
             goto done;
         }
         sort_cands(top.c, k);
-        if (nt > kq) {
-            /* a tree sample not proposed is at least the farthest proposal away (tree arithmetic): it
-               can neither beat nor tie a k-th distance clearly smaller; else scan every sample */
-            const double f = far[j * kq + kq - 1];
-            if (!(f * f * margin > top.c[k - 1].d)) {
-                scans++;
-                top.n = 0;
-                run_dists(tree, tcols, 0, nt, q, n, dist);
-                for (Py_ssize_t i = 0; i < nt; i++) topk_offer(&top, dist[i], i);
-                run_dists(rec, rcols, 0, nr, q, n, dist);
-                for (Py_ssize_t r = 0; r < nr; r++) topk_offer(&top, dist[r], nt + r);
-                sort_cands(top.c, k);
-            }
-        }
         for (Py_ssize_t e = 0; e < k; e++) out[j * k + e] = top.c[e].i;
     }
-    result = PyLong_FromSsize_t(scans);
-    goto done;
-nomem:
-    PyErr_NoMemory();
+    result = PyLong_FromSsize_t(leaves);
 done:
     free(top.c);
     free(dist);
+    free(stack);
     release(&bq);
-    release(&bfar);
-    release(&bti);
-    release(&btree);
+    release(&bt);
+    release(&bp);
+    release(&blo);
+    release(&bhi);
+    release(&bns);
+    release(&bne);
     release(&brec);
     release(&bout);
     return result;
 }
 
 /* canonical squared distance of the rows a and q of a row-major array (n coordinates each): the
-   same operations, in the same order, as col_dist and run_dists; given up once the partial sum is
+   same operations, in the same order, as run_dists; given up once the partial sum is
    not below `worst` (adding a square never lowers a sum, so the whole distance could not be below
    it either: the partial sum is returned, >= worst); worst = INFINITY for the whole distance */
 static inline double row_dist_below(const double *a, const double *q, Py_ssize_t n, double worst) {
@@ -840,7 +952,8 @@ done:
 
 static PyMethodDef methods[] = {
     {"approx", approx, METH_VARARGS, approx_doc},
-    {"tree_answers", tree_answers, METH_VARARGS, tree_answers_doc},
+    {"kd_build", kd_build, METH_VARARGS, kd_build_doc},
+    {"kd_query", kd_query, METH_VARARGS, kd_query_doc},
     {"stored_refresh", stored_refresh, METH_VARARGS, stored_refresh_doc},
     {"stored_keep", stored_keep, METH_VARARGS, stored_keep_doc},
     {"boxes_holding", boxes_holding, METH_VARARGS, boxes_holding_doc},

@@ -7,18 +7,16 @@ stored alpha nearest to q in the canonical squared distance (:mod:`.memory_dista
 (distance, index), ties included (tested in test/test_tree_knn.py). It is found another way, for
 speed only (the memory's index is built for 15-30-D trajectories, one query per call):
 
-* a static ``scipy.spatial.cKDTree`` over the samples stored at its last build proposes the
-  k + ``extra`` nearest of every query (one call for all queries); the samples stored since (fewer
-  than ``rebuild_share`` of the memory, or ``min_recent``) are scanned;
-* the canonical distances of all these candidates are computed and the k smallest by (distance,
-  index) kept (this step, the check below and its scans are one compiled call per query batch,
-  ``knn_kernel.tree_answers`` in knn_kernel.c, since 2026-11-27: the numpy steps it replaced cost
-  ~90 µs a call beside the tree's own query);
-* the tree's own distances only choose candidates. A tree sample it did not return is at least as
-  far, in the tree's arithmetic, as its farthest candidate; when that is not beyond the answer's
-  k-th distance by a relative 1e-9 (far above the rounding of either distance: exact ties, e.g.
-  duplicated samples), such a sample could belong to the answer, and that query is answered by a
-  scan of every sample instead.
+* a kd tree over the samples stored at its last build (``knn_kernel.kd_build``: balanced median
+  splits along the widest coordinate, leaves of at most ``leafsize`` samples, every node's exact
+  box) is searched depth first, nearer child first, a node skipped only when its box is farther
+  than the k-th distance found so far; the samples stored since (fewer than ``rebuild_share`` of
+  the memory, or ``min_recent``) are scanned first. Box bounds and distances use the canonical
+  arithmetic, so the bound never exceeds a member's distance and no float slack is needed; the
+  first k by (distance, index) are kept (``knn_kernel.kd_query``, one compiled call per query
+  batch). Until 2026-12-03 a ``scipy.spatial.cKDTree`` proposed candidates: its query cost
+  ~16 µs even for one 2-D row, and its own distances needed a check against the canonical k-th
+  distance and full scans on ties.
 
 The memory is read, never written; the index notices new samples by the memory's length.
 """
@@ -29,55 +27,56 @@ import numpy as np
 from .compiled import knn_kernel
 from .memory_store import SampleStore
 
-_MARGIN = 1.0 - 1e-9
-_NO_DISTANCES = np.empty(0)
-_NO_INDICES = np.empty(0, dtype=np.int64)
-
 
 class TreeKnn:
     """``query(Q, k)[j]`` = ``SampleMemory.neighbours(Q[j], k)`` over the same samples, exact, for a
     growing store."""
 
-    def __init__(self, memory: SampleStore, extra: int = 1, min_recent: int = 64,
-                 rebuild_share: float = 1 / 32, leafsize: int = 16):
+    def __init__(self, memory: SampleStore, min_recent: int = 64, rebuild_share: float = 1 / 32,
+                 leafsize: int = 16):
+        if int(leafsize) < 1:
+            raise ValueError(f"leafsize must be >= 1, got {leafsize}")
         self.memory = memory
-        self.extra = int(extra)
         self.min_recent = int(min_recent)
         self.rebuild_share = float(rebuild_share)
         self.leafsize = int(leafsize)
-        # lazy (heavy): scipy
-        from scipy.spatial import cKDTree
-
-        self._kdtree = cKDTree  # imported when the index is made, not at its first search
         dim = memory.state_dim
-        self._tree = None  # scipy.spatial.cKDTree of samples 0 .. _nt - 1, once built
-        self._tree_t = np.empty((dim, 0))  # the tree's samples, dimension-major
         self._nt = 0  # samples in the tree: indices 0 .. _nt - 1
+        self._depth = 0
+        self._tree = self._arrays(0, dim, 0)  # kd_build's arrays (empty tree)
         self._recent_t = np.empty((dim, 0))  # the samples stored since (a prefix), dimension-major
         self._nr = 0
-        self.scans = 0  # queries answered by a scan of every sample (statistics only)
+        self.leaves_scanned = 0  # statistics only
+
+    @staticmethod
+    def _arrays(nt: int, dim: int, depth: int) -> tuple:
+        """(perm, pts_t, lo, hi, nstart, nend) of a tree of ``nt`` samples and ``depth`` split levels."""
+        nodes = (2 << depth) - 1
+        return (np.empty(nt, dtype=np.int64), np.empty((dim, nt)), np.empty((nodes, dim)),
+                np.empty((nodes, dim)), np.zeros(nodes, dtype=np.int64), np.zeros(nodes, dtype=np.int64))
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by the index: the tree's copy of the samples and its index array (its node
-        structure is not exposed by scipy, so not counted), and the two dimension-major copies."""
-        tree = 0 if self._tree is None else self._tree.data.nbytes + self._tree.indices.nbytes
-        return int(tree + self._tree_t.nbytes + self._recent_t.nbytes)
+        """Bytes held by the index: the tree's arrays and the recent samples' copy."""
+        return int(sum(a.nbytes for a in self._tree) + self._recent_t.nbytes)
 
     def _update(self, n: int) -> None:
         """Rebuild the tree when the samples stored since its build exceed the allowed share, else
         copy the newest samples into the recent part."""
         nt = self._nt
         if n - nt > max(self.min_recent, int(self.rebuild_share * n)):
-            alpha = self.memory.alpha
-            self._tree = self._kdtree(alpha, leafsize=self.leafsize, compact_nodes=False,
-                                      balanced_tree=False, copy_data=True)
-            self._tree_t = np.ascontiguousarray(alpha.T)
+            alpha = np.ascontiguousarray(self.memory.alpha)
+            depth = 0  # the fewest split levels that leave at most leafsize samples per leaf
+            while -(-n // (1 << depth)) > self.leafsize:
+                depth += 1
+            tree = self._arrays(n, alpha.shape[1], depth)
+            knn_kernel.kd_build(alpha, depth, *tree)
+            self._tree, self._depth = tree, depth
             self._nt, self._nr = n, 0
             return
         if nt + self._nr < n:
             if self._recent_t.shape[1] < n - nt:
-                grown = np.empty((self._tree_t.shape[0], 2 * (n - nt)))
+                grown = np.empty((self._recent_t.shape[0], 2 * (n - nt)))
                 grown[:, : self._nr] = self._recent_t[:, : self._nr]
                 self._recent_t = grown
             self._recent_t[:, self._nr : n - nt] = self.memory.alpha[nt + self._nr :].T
@@ -87,7 +86,7 @@ class TreeKnn:
         """(B, min(k, len)) int64: row j = the memory's exact ``neighbours(queries[j], k)``."""
         qs = np.asarray(queries, dtype=np.float64)
         b, dim = qs.shape
-        want = self._tree_t.shape[0]
+        want = self._recent_t.shape[0]
         if dim != want or not np.isfinite(qs).all():
             raise ValueError(f"queries must be finite, of shape (B, {want}), got {qs.shape}")
         n = len(self.memory)
@@ -95,15 +94,7 @@ class TreeKnn:
         if k < 1 or not b:
             return np.empty((b, max(k, 0)), dtype=np.int64)
         self._update(n)
-        nt, nr = self._nt, self._nr
-        if nt:
-            kq = min(k + self.extra, nt)
-            far, ti = self._tree.query(qs, k=kq)
-        else:
-            far, ti = _NO_DISTANCES, _NO_INDICES
         out = np.empty((b, k), dtype=np.int64)
-        # the candidates' canonical distances, the bound, the (distance, index) order, the check
-        # against the farthest proposal and the full scans: one compiled call (knn_kernel.c)
-        self.scans += knn_kernel.tree_answers(np.ascontiguousarray(qs), k, far, ti, self._tree_t, nt,
-                                              self._recent_t, nr, _MARGIN, out)
+        self.leaves_scanned += knn_kernel.kd_query(np.ascontiguousarray(qs), k, *self._tree, self._depth,
+                                                   self._recent_t, self._nr, out)
         return out
