@@ -511,7 +511,8 @@ done:
 
    A balanced kd tree over samples 0 .. nt - 1 of a store, stored implicitly: node i has children
    2i + 1 and 2i + 2, the root covers [0, nt), a node [s, e) splits at m = s + (e - s) / 2 along the
-   coordinate of widest extent of its box (the lowest such coordinate), its members ordered so that
+   coordinate of widest extent of its cell (the root's cell: its members' bounds; a child's: its
+   parent's cut at the split value; the lowest such coordinate), its members ordered so that
    the first half holds the smallest by (coordinate, sample index); `depth` levels of splits, the
    leaves (the nodes of the last level) hold at most `leafsize` samples. Every node keeps the exact
    bounding box of its members. The samples are kept in tree order, dimension-major, so that a leaf
@@ -565,26 +566,34 @@ static PyObject *kd_build(PyObject *self, PyObject *args) {
     ns[0] = 0;
     ne[0] = nt;
     const Py_ssize_t first_leaf = nodes / 2; /* nodes below are split, the rest are leaves */
-    for (Py_ssize_t i = 0; i < nodes; i++) {
-        const Py_ssize_t s0 = ns[i], e0 = ne[i];
-        double *l = lo + i * n, *h = hi + i * n;
+    /* top down: a node's cell (the root's: the members' bounds; a child's: its parent's cell cut
+       at the split value) chooses its split coordinate, the widest of the cell (the lowest such);
+       the cells are kept in lo / hi until the exact boxes replace them below */
+    {
+        double *l = lo, *h = hi;
         for (Py_ssize_t d = 0; d < n; d++) {
-            l[d] = INFINITY; /* an empty node: a box no query is near */
+            l[d] = INFINITY;
             h[d] = -INFINITY;
         }
-        for (Py_ssize_t j = s0; j < e0; j++) {
-            const double *row = x + perm[j] * n;
+        for (Py_ssize_t j = 0; j < nt; j++)
             for (Py_ssize_t d = 0; d < n; d++) {
-                if (row[d] < l[d]) l[d] = row[d];
-                if (row[d] > h[d]) h[d] = row[d];
+                const double v = x[j * n + d];
+                if (v < l[d]) l[d] = v;
+                if (v > h[d]) h[d] = v;
             }
-        }
-        if (i >= first_leaf) continue;
-        const Py_ssize_t m = s0 + (e0 - s0) / 2;
-        ns[2 * i + 1] = s0;
-        ne[2 * i + 1] = m;
-        ns[2 * i + 2] = m;
-        ne[2 * i + 2] = e0;
+    }
+    for (Py_ssize_t i = 0; i < first_leaf; i++) {
+        const Py_ssize_t s0 = ns[i], e0 = ne[i], m = s0 + (e0 - s0) / 2;
+        const Py_ssize_t c1 = 2 * i + 1, c2 = 2 * i + 2;
+        ns[c1] = s0;
+        ne[c1] = m;
+        ns[c2] = m;
+        ne[c2] = e0;
+        const double *l = lo + i * n, *h = hi + i * n;
+        memcpy(lo + c1 * n, l, sizeof(double) * n);
+        memcpy(hi + c1 * n, h, sizeof(double) * n);
+        memcpy(lo + c2 * n, l, sizeof(double) * n);
+        memcpy(hi + c2 * n, h, sizeof(double) * n);
         if (e0 - s0 < 2) continue;
         Py_ssize_t dim = 0;
         for (Py_ssize_t d = 1; d < n; d++)
@@ -596,6 +605,34 @@ static PyObject *kd_build(PyObject *self, PyObject *args) {
         /* the first m - s0 by (coordinate, index) to the front: the lower child */
         QUICKSELECT(KeyIdx, keys, e0 - s0, m - s0, KEY_BEFORE);
         for (Py_ssize_t j = s0; j < e0; j++) perm[j] = keys[j - s0].i;
+        /* the lower half's largest coordinate bounds both cells (the upper half's are >= it) */
+        hi[c1 * n + dim] = keys[m - s0 - 1].v;
+        lo[c2 * n + dim] = keys[m - s0 - 1].v;
+    }
+    /* bottom up: the exact boxes, a leaf's from its members, a split node's the union of its
+       children's (an empty node's: +inf .. -inf, a box no query is near) */
+    for (Py_ssize_t i = nodes - 1; i >= 0; i--) {
+        double *l = lo + i * n, *h = hi + i * n;
+        if (i >= first_leaf) {
+            for (Py_ssize_t d = 0; d < n; d++) {
+                l[d] = INFINITY;
+                h[d] = -INFINITY;
+            }
+            for (Py_ssize_t j = ns[i]; j < ne[i]; j++) {
+                const double *row = x + perm[j] * n;
+                for (Py_ssize_t d = 0; d < n; d++) {
+                    if (row[d] < l[d]) l[d] = row[d];
+                    if (row[d] > h[d]) h[d] = row[d];
+                }
+            }
+        } else {
+            const double *l1 = lo + (2 * i + 1) * n, *h1 = hi + (2 * i + 1) * n;
+            const double *l2 = lo + (2 * i + 2) * n, *h2 = hi + (2 * i + 2) * n;
+            for (Py_ssize_t d = 0; d < n; d++) {
+                l[d] = l1[d] < l2[d] ? l1[d] : l2[d];
+                h[d] = h1[d] > h2[d] ? h1[d] : h2[d];
+            }
+        }
     }
     for (Py_ssize_t d = 0; d < n; d++)
         for (Py_ssize_t j = 0; j < nt; j++) pts[d * nt + j] = x[perm[j] * n + d];
@@ -621,8 +658,7 @@ done:
 static inline double box_gap(const double *l, const double *h, const double *q, Py_ssize_t n) {
     double s = 0.0;
     for (Py_ssize_t d = 0; d < n; d++) {
-        const double a = l[d] - q[d], b = q[d] - h[d];
-        const double g = a > b ? (a > 0.0 ? a : 0.0) : (b > 0.0 ? b : 0.0);
+        const double g = max_sq_operand(l[d] - q[d], q[d] - h[d], 0.0);
         s = d ? s + g * g : g * g;
     }
     return s;
@@ -644,6 +680,7 @@ static PyObject *kd_query(PyObject *self, PyObject *args) {
     TopK top = {NULL, 0, k};
     double *dist = NULL;
     Py_ssize_t *stack = NULL;
+    double *gaps = NULL;
     PyObject *result = NULL;
     if (get_buf(oqs, &bq, "qs", "d", 8, 0) || get_buf(opts, &bt, "pts_t", "d", 8, 0) ||
         get_buf(operm, &bp, "perm", "q", 8, 0) || get_buf(olo, &blo, "lo", "d", 8, 0) ||
@@ -678,7 +715,8 @@ static PyObject *kd_query(PyObject *self, PyObject *args) {
     dist = malloc(sizeof(double) * (widest ? widest : 1));
     top.c = malloc(sizeof(Cand) * k);
     stack = malloc(sizeof(Py_ssize_t) * (2 * depth + 2));
-    if (!dist || !top.c || !stack) {
+    gaps = malloc(sizeof(double) * (2 * depth + 2));
+    if (!dist || !top.c || !stack || !gaps) {
         PyErr_NoMemory();
         goto done;
     }
@@ -689,10 +727,14 @@ static PyObject *kd_query(PyObject *self, PyObject *args) {
         run_dists(rec, rcols, 0, nr, q, n, dist);
         for (Py_ssize_t r = 0; r < nr; r++) topk_offer(&top, dist[r], nt + r);
         Py_ssize_t sp = 0;
-        if (nt) stack[sp++] = 0;
-        while (sp) { /* depth first, the nearer child first */
-            const Py_ssize_t i = stack[--sp];
-            if (box_gap(lo + i * n, hi + i * n, q, n) > topk_worst(&top)) continue;
+        if (nt) {
+            stack[sp] = 0;
+            gaps[sp++] = box_gap(lo, hi, q, n);
+        }
+        while (sp) { /* depth first, the nearer child first; a node's bound is kept with it */
+            --sp;
+            const Py_ssize_t i = stack[sp];
+            if (gaps[sp] > topk_worst(&top)) continue;
             if (i >= nodes / 2) {
                 const Py_ssize_t s0 = ns[i], cnt = ne[i] - ns[i];
                 leaves++;
@@ -703,8 +745,16 @@ static PyObject *kd_query(PyObject *self, PyObject *args) {
             }
             const Py_ssize_t c1 = 2 * i + 1, c2 = 2 * i + 2;
             const double g1 = box_gap(lo + c1 * n, hi + c1 * n, q, n), g2 = box_gap(lo + c2 * n, hi + c2 * n, q, n);
-            stack[sp++] = g1 <= g2 ? c2 : c1; /* the farther, popped second */
-            stack[sp++] = g1 <= g2 ? c1 : c2;
+            const double worst = topk_worst(&top);
+            const int first1 = g1 <= g2; /* the farther is pushed first, popped second */
+            if ((first1 ? g2 : g1) <= worst) {
+                stack[sp] = first1 ? c2 : c1;
+                gaps[sp++] = first1 ? g2 : g1;
+            }
+            if ((first1 ? g1 : g2) <= worst) {
+                stack[sp] = first1 ? c1 : c2;
+                gaps[sp++] = first1 ? g1 : g2;
+            }
         }
         if (top.n < k) { /* cannot happen: nt + nr >= k samples were offered or bounded */
             PyErr_SetString(PyExc_RuntimeError, "knn_kernel.kd_query: fewer than k candidates");
@@ -718,6 +768,7 @@ done:
     free(top.c);
     free(dist);
     free(stack);
+    free(gaps);
     release(&bq);
     release(&bt);
     release(&bp);
