@@ -111,12 +111,13 @@ def test_kd_query_refuses_mismatched_arrays():
     knn.query(np.zeros((1, 2)), 3)  # builds the tree
     out = np.empty((1, 3), dtype=np.int64)
     perm, pts_t, lo, hi, ns, ne = knn._tree
+    levels, recent = knn._split_levels, knn._recent_t
     with pytest.raises(ValueError):  # a query of another dimension
-        knn_kernel.kd_query(np.zeros((1, 3)), 3, perm, pts_t, lo, hi, ns, ne, knn._depth, knn._recent_t, 0, out)
+        knn_kernel.kd_query(np.zeros((1, 3)), 3, perm, pts_t, lo, hi, ns, ne, levels, recent, 0, out)
     with pytest.raises(ValueError):  # more neighbours than samples
-        knn_kernel.kd_query(np.zeros((1, 2)), 500, perm, pts_t, lo, hi, ns, ne, knn._depth, knn._recent_t, 0,
+        knn_kernel.kd_query(np.zeros((1, 2)), 500, perm, pts_t, lo, hi, ns, ne, levels, recent, 0,
                             np.empty((1, 500), dtype=np.int64))
     bad = ne.copy()
     bad[-1] = len(perm) + 5
     with pytest.raises(IndexError):  # a leaf beyond the samples
-        knn_kernel.kd_query(np.zeros((1, 2)), 3, perm, pts_t, lo, hi, ns, bad, knn._depth, knn._recent_t, 0, out)
+        knn_kernel.kd_query(np.zeros((1, 2)), 3, perm, pts_t, lo, hi, ns, bad, levels, recent, 0, out)

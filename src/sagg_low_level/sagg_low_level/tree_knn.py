@@ -44,7 +44,7 @@ class TreeKnn:
         self.leafsize = int(leafsize)
         dim = memory.state_dim
         self._nt = 0  # samples in the tree: indices 0 .. _nt - 1
-        self._depth = 0
+        self._split_levels = 0
         self._tree = self._arrays(0, dim, 0)  # kd_build's arrays (empty tree)
         self._recent_t = np.empty((dim, 0))  # the samples stored since (a prefix), dimension-major
         self._nr = 0
@@ -73,7 +73,7 @@ class TreeKnn:
                 depth += 1
             tree = self._arrays(n, alpha.shape[1], depth)
             knn_kernel.kd_build(alpha, depth, *tree)
-            self._tree, self._depth = tree, depth
+            self._tree, self._split_levels = tree, depth
             self._nt, self._nr = n, 0
             return
         if nt + self._nr < n:
@@ -97,6 +97,6 @@ class TreeKnn:
             return np.empty((b, max(k, 0)), dtype=np.int64)
         self._update(n)
         out = np.empty((b, k), dtype=np.int64)
-        self.leaves_scanned += knn_kernel.kd_query(np.ascontiguousarray(qs), k, *self._tree, self._depth,
+        self.leaves_scanned += knn_kernel.kd_query(np.ascontiguousarray(qs), k, *self._tree, self._split_levels,
                                                    self._recent_t, self._nr, out)
         return out
