@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sagg_low_level.memory import SampleMemory, SampleTable
-from sagg_low_level.tree_knn import TreeKnn
+from sagg_low_level.tree_knn import TreeKnn, split_levels
 
 
 def _want(mem, qs, k):
@@ -74,18 +74,16 @@ def test_bad_queries_are_refused():
             knn.query(np.array(q), 1)
 
 
-@pytest.mark.parametrize("n, leafsize", [(1, 1), (2, 1), (17, 2), (300, 16), (1000, 3)])
+@pytest.mark.parametrize("n, leafsize", [(1, 1), (2, 1), (3, 1), (5, 1), (17, 2), (300, 16), (1000, 3)])
 def test_the_kd_tree_partitions_the_samples_into_exact_boxes(n, leafsize):
     """kd_build: every sample once in tree order, each node the two halves of its parent, each
-    box the exact bounds of its members, leaves of at most leafsize samples."""
+    box the exact bounds of its members (an empty leaf, as with 3 or 5 samples in leaves of 1: no
+    box), leaves of at most leafsize samples; the search over it is the exact one."""
     from sagg_low_level.compiled import knn_kernel
     rng = np.random.default_rng(n)
     x = np.round(rng.uniform(0, 1, (n, 3)) * 5) / 5  # a coarse grid: equal coordinates at splits
-    knn = TreeKnn(SampleMemory(3, 1, 1), leafsize=leafsize)
-    depth = 0
-    while -(-n // (1 << depth)) > leafsize:
-        depth += 1
-    perm, pts_t, lo, hi, ns, ne = knn._arrays(n, 3, depth)
+    depth = split_levels(n, leafsize)
+    perm, pts_t, lo, hi, ns, ne = TreeKnn._arrays(n, 3, depth)
     knn_kernel.kd_build(x, depth, perm, pts_t, lo, hi, ns, ne)
     np.testing.assert_array_equal(np.sort(perm), np.arange(n))
     np.testing.assert_array_equal(pts_t, x[perm].T)
@@ -100,6 +98,17 @@ def test_the_kd_tree_partitions_the_samples_into_exact_boxes(n, leafsize):
                 ns[i], ns[i] + (ne[i] - ns[i]) // 2, ns[i] + (ne[i] - ns[i]) // 2, ne[i])
         else:
             assert ne[i] - ns[i] <= leafsize
+        if not len(members):  # an empty node: a box no query is near
+            assert np.all(lo[i] == np.inf) and np.all(hi[i] == -np.inf)
+    empty_leaves = sum(ne[i] == ns[i] for i in range(nodes // 2, nodes))
+    assert empty_leaves == (n in (3, 5)) * ((1 << depth) - n)
+    mem = SampleMemory(3, 1, 1)
+    for a in x:
+        mem.add(a, [0.0], [0.0])
+    knn = TreeKnn(mem, min_recent=0, rebuild_share=0.0, leafsize=leafsize)
+    qs = np.concatenate((x[: min(n, 4)], rng.uniform(0, 1, (4, 3))))
+    for k in sorted({1, min(3, n), n}):
+        np.testing.assert_array_equal(knn.query(qs, k), _want(mem, qs, k))
 
 
 def test_kd_query_refuses_mismatched_arrays():

@@ -89,9 +89,6 @@ POINT_LOOPS static void run_dists(const double *x, Py_ssize_t stride, Py_ssize_t
     }
 }
 
-/* numpy.maximum of two non-NaN doubles (the walk's boxes and queries hold no NaN) */
-static inline double dmax(double a, double b) { return a >= b ? a : b; }
-
 /* Hoare quickselect: moves the m first of a[0..n) in BEFORE's order to a[0..m), a[m - 1] the m-th
    (1 <= m <= n; keys distinct or plain values, no NaN). The m-th is an order statistic: the same
    whatever the algorithm. One body for doubles and candidates. */
@@ -167,7 +164,8 @@ POINT_LOOPS static void box_bounds(const double *restrict lo, const double *rest
     }
 }
 
-/* candidates of the answer: (distance, sample index), every one within the bound */
+/* candidates in (d, i) order: a distance or bound and a sample index (the answers) or a slot (the
+   beam's nodes) */
 typedef struct {
     double d;
     int64_t i;
@@ -513,8 +511,8 @@ done:
    2i + 1 and 2i + 2, the root covers [0, nt), a node [s, e) splits at m = s + (e - s) / 2 along the
    coordinate of widest extent of its cell (the root's cell: its members' bounds; a child's: its
    parent's cut at the split value; the lowest such coordinate), its members ordered so that
-   the first half holds the smallest by (coordinate, sample index); `depth` levels of splits, the
-   leaves (the nodes of the last level) hold at most `leafsize` samples. Every node keeps the exact
+   the first half holds the smallest by (coordinate, sample index); `depth` levels of splits (the
+   fewest that leave at most TreeKnn's leafsize samples in a leaf, the nodes of the last level). Every node keeps the exact
    bounding box of its members. The samples are kept in tree order, dimension-major, so that a leaf
    is a run of columns. */
 
@@ -543,8 +541,8 @@ static PyObject *kd_build(PyObject *self, PyObject *args) {
         get_buf(ohi, &bhi, "hi", "d", 8, 1) || get_buf(ons, &bns, "nstart", "q", 8, 1) ||
         get_buf(one, &bne, "nend", "q", 8, 1))
         goto done;
-    if (bx.view.ndim != 2 || depth < 0 || depth > 40) {
-        PyErr_SetString(PyExc_ValueError, "knn_kernel.kd_build: x must be 2-D and depth in [0, 40]");
+    if (bx.view.ndim != 2 || bx.view.shape[1] < 1 || depth < 0 || depth > 40) {
+        PyErr_SetString(PyExc_ValueError, "knn_kernel.kd_build: x must be 2-D, >= 1 column; depth in [0, 40]");
         goto done;
     }
     const Py_ssize_t nt = bx.view.shape[0], n = bx.view.shape[1];
@@ -694,7 +692,7 @@ static PyObject *kd_query(PyObject *self, PyObject *args) {
     }
     const Py_ssize_t b = bq.view.shape[0], n = bq.view.shape[1], nt = bp.view.len / 8;
     const Py_ssize_t rcols = brec.view.shape[1], nodes = ((Py_ssize_t)2 << depth) - 1;
-    if (k < 1 || nr < 0 || nr > rcols || brec.view.shape[0] != n || bt.view.len / 8 != n * nt ||
+    if (k < 1 || n < 1 || nr < 0 || nr > rcols || brec.view.shape[0] != n || bt.view.len / 8 != n * nt ||
         blo.view.len / 8 != nodes * n || bhi.view.len / 8 != nodes * n || bns.view.len / 8 != nodes ||
         bne.view.len / 8 != nodes || bout.view.len / 8 != b * k || nt + nr < k) {
         PyErr_SetString(PyExc_ValueError, "knn_kernel.kd_query: array shapes do not match");

@@ -10,7 +10,7 @@ speed only (the memory's index is built for 15-30-D trajectories, one query per 
 * a kd tree over the samples stored at its last build (``knn_kernel.kd_build``: balanced median
   splits along the widest coordinate, leaves of at most ``leafsize`` samples (64: on the
   fixed-context arm at 20k samples a 7-D θ query took 24.6 / 18.9 / 14.9 / 12.7 µs with leaves of
-  8 / 16 / 32 / 64, a 2-D outcome query 9.2 / 7.4 / 6.4 / 6.2 µs, the build 5.8 to 3.5 ms), every
+  8 / 16 / 32 / 64, a 2-D outcome query 9.2 / 7.4 / 6.4 / 6.2 µs, the 7-D build 5.8 to 3.5 ms), every
   node's exact box) is searched depth first, nearer child first, a node skipped only when its box is farther
   than the k-th distance found so far; the samples stored since (fewer than ``rebuild_share`` of
   the memory, or ``min_recent``) are scanned first. Box bounds and distances use the canonical
@@ -28,6 +28,14 @@ import numpy as np
 
 from .compiled import knn_kernel
 from .memory_store import SampleStore
+
+
+def split_levels(n: int, leafsize: int) -> int:
+    """The fewest levels of halving splits that leave at most ``leafsize`` of ``n`` samples in a leaf."""
+    depth = 0
+    while -(-n // (1 << depth)) > leafsize:
+        depth += 1
+    return depth
 
 
 class TreeKnn:
@@ -68,9 +76,7 @@ class TreeKnn:
         nt = self._nt
         if n - nt > max(self.min_recent, int(self.rebuild_share * n)):
             alpha = np.ascontiguousarray(self.memory.alpha)
-            depth = 0  # the fewest split levels that leave at most leafsize samples per leaf
-            while -(-n // (1 << depth)) > self.leafsize:
-                depth += 1
+            depth = split_levels(n, self.leafsize)
             tree = self._arrays(n, alpha.shape[1], depth)
             knn_kernel.kd_build(alpha, depth, *tree)
             self._tree, self._split_levels = tree, depth
