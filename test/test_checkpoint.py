@@ -295,8 +295,15 @@ def test_generator_sigkill_then_resume_leaves_the_run_unchanged(ros_env, tmp_pat
     for g in col.goals:  # a goal asked again after the restart is published again: same values
         key = (g.mode, g.after_report, np.array(g.position).tobytes())
         assert goals.setdefault(int(g.seq), key) == key
-    assert [(s, *goals[s]) for s in sorted(goals)] == \
-           [(g.seq, g.mode, g.after_report, g.position.tobytes()) for g in run.generator.goals]
+    want = {g.seq: (g.mode, g.after_report, g.position.tobytes()) for g in run.generator.goals}
+    assert {s: want.get(s) for s in goals} == goals  # every goal published is the in-process one
+    # The restarted generator may answer the learner's waiting request before this test's
+    # subscription has discovered its new /sagg/goal publisher (volatile): those goals reach the
+    # learner (the samples above are the in-process ones) but not this test. Only such a run, right
+    # after the restart, may be missing here; the generator's own count is checked below.
+    missed = sorted(set(want) - set(goals))
+    assert not missed or (missed == list(range(missed[0], missed[0] + len(missed)))
+                          and missed[0] - 1 in goals and len(missed) <= 20), missed
     tree, snap = col.regions, run.generator.region_snapshot()
     assert (tree.reports, tree.goals, tree.splits) == (len(reports), len(run.generator.goals),
                                                          len(run.generator.tree.splits))
