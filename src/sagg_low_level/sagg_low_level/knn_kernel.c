@@ -512,9 +512,9 @@ done:
    coordinate of widest extent of its cell (the root's cell: its members' bounds; a child's: its
    parent's cut at the split value; the lowest such coordinate), its members ordered so that
    the first half holds the smallest by (coordinate, sample index); `depth` levels of splits (the
-   fewest that leave at most TreeKnn's leafsize samples in a leaf, the nodes of the last level). Every node keeps the exact
-   bounding box of its members. The samples are kept in tree order, dimension-major, so that a leaf
-   is a run of columns. */
+   fewest that leave at most TreeKnn's leafsize samples in a leaf, the nodes of the last level).
+   Every node keeps the exact bounding box of its members. The samples are kept in tree order,
+   dimension-major, so that a leaf is a run of columns. */
 
 typedef struct {
     double v;
@@ -522,6 +522,23 @@ typedef struct {
 } KeyIdx;
 
 #define KEY_BEFORE(x, y) ((x).v < (y).v || ((x).v == (y).v && (x).i < (y).i))
+
+/* l, h = the coordinate-wise bounds of the rows perm[s0 .. e0) of x (n columns); +inf, -inf for
+   no row: a box no query is near */
+static void member_bounds(const double *x, const int64_t *perm, Py_ssize_t s0, Py_ssize_t e0, Py_ssize_t n,
+                          double *l, double *h) {
+    for (Py_ssize_t d = 0; d < n; d++) {
+        l[d] = INFINITY;
+        h[d] = -INFINITY;
+    }
+    for (Py_ssize_t j = s0; j < e0; j++) {
+        const double *row = x + perm[j] * n;
+        for (Py_ssize_t d = 0; d < n; d++) {
+            if (row[d] < l[d]) l[d] = row[d];
+            if (row[d] > h[d]) h[d] = row[d];
+        }
+    }
+}
 
 PyDoc_STRVAR(kd_build_doc,
 "kd_build(x, depth, perm, pts_t, lo, hi, nstart, nend) -> None\n\n"
@@ -564,22 +581,10 @@ static PyObject *kd_build(PyObject *self, PyObject *args) {
     ns[0] = 0;
     ne[0] = nt;
     const Py_ssize_t first_leaf = nodes / 2; /* nodes below are split, the rest are leaves */
-    /* top down: a node's cell (the root's: the members' bounds; a child's: its parent's cell cut
+    /* top down: a node's cell (the root's: the bounds of all samples, perm being the identity here; a child's: its parent's cell cut
        at the split value) chooses its split coordinate, the widest of the cell (the lowest such);
        the cells are kept in lo / hi until the exact boxes replace them below */
-    {
-        double *l = lo, *h = hi;
-        for (Py_ssize_t d = 0; d < n; d++) {
-            l[d] = INFINITY;
-            h[d] = -INFINITY;
-        }
-        for (Py_ssize_t j = 0; j < nt; j++)
-            for (Py_ssize_t d = 0; d < n; d++) {
-                const double v = x[j * n + d];
-                if (v < l[d]) l[d] = v;
-                if (v > h[d]) h[d] = v;
-            }
-    }
+    member_bounds(x, perm, 0, nt, n, lo, hi);
     for (Py_ssize_t i = 0; i < first_leaf; i++) {
         const Py_ssize_t s0 = ns[i], e0 = ne[i], m = s0 + (e0 - s0) / 2;
         const Py_ssize_t c1 = 2 * i + 1, c2 = 2 * i + 2;
@@ -612,17 +617,7 @@ static PyObject *kd_build(PyObject *self, PyObject *args) {
     for (Py_ssize_t i = nodes - 1; i >= 0; i--) {
         double *l = lo + i * n, *h = hi + i * n;
         if (i >= first_leaf) {
-            for (Py_ssize_t d = 0; d < n; d++) {
-                l[d] = INFINITY;
-                h[d] = -INFINITY;
-            }
-            for (Py_ssize_t j = ns[i]; j < ne[i]; j++) {
-                const double *row = x + perm[j] * n;
-                for (Py_ssize_t d = 0; d < n; d++) {
-                    if (row[d] < l[d]) l[d] = row[d];
-                    if (row[d] > h[d]) h[d] = row[d];
-                }
-            }
+            member_bounds(x, perm, ns[i], ne[i], n, l, h);
         } else {
             const double *l1 = lo + (2 * i + 1) * n, *h1 = hi + (2 * i + 1) * n;
             const double *l2 = lo + (2 * i + 2) * n, *h2 = hi + (2 * i + 2) * n;
@@ -744,14 +739,15 @@ static PyObject *kd_query(PyObject *self, PyObject *args) {
             const Py_ssize_t c1 = 2 * i + 1, c2 = 2 * i + 2;
             const double g1 = box_gap(lo + c1 * n, hi + c1 * n, q, n), g2 = box_gap(lo + c2 * n, hi + c2 * n, q, n);
             const double worst = topk_worst(&top);
-            const int first1 = g1 <= g2; /* the farther is pushed first, popped second */
-            if ((first1 ? g2 : g1) <= worst) {
-                stack[sp] = first1 ? c2 : c1;
-                gaps[sp++] = first1 ? g2 : g1;
+            const Py_ssize_t near = g1 <= g2 ? c1 : c2, far = g1 <= g2 ? c2 : c1;
+            const double gn = g1 <= g2 ? g1 : g2, gf = g1 <= g2 ? g2 : g1;
+            if (gf <= worst) { /* the farther is pushed first, popped second */
+                stack[sp] = far;
+                gaps[sp++] = gf;
             }
-            if ((first1 ? g1 : g2) <= worst) {
-                stack[sp] = first1 ? c1 : c2;
-                gaps[sp++] = first1 ? g1 : g2;
+            if (gn <= worst) {
+                stack[sp] = near;
+                gaps[sp++] = gn;
             }
         }
         if (top.n < k) { /* cannot happen: nt + nr >= k samples were offered or bounded */
