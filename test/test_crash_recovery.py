@@ -20,6 +20,7 @@ from sagg_bringup.bags.bag_reader import bag_messages
 from sagg_bringup.bags.bag_recover import REPORT_FILE, recover_bag
 from sagg_bringup.bags.bags import relearn
 from sagg_bringup.graph.processes import pick_domain_id
+from sagg_bringup.graph.run_file import read_run_file
 from sagg_bringup.bags.recorder import BagWriter, TopicSpec, make_typestore
 from sagg_low_level.checkpoint import published
 from installed import SAGG
@@ -227,6 +228,8 @@ def test_sigkill_of_a_whole_run_then_resume_and_relearn(tmp_path):
     assert not (run / "bag" / "metadata.yaml").exists() and not (run / "summary.json").exists()
     original = _sha(mcap)
     before = published(run / "checkpoint")  # what the learner had published when killed
+    settings = read_run_file(run)  # the run's own settings, written before its nodes started
+    assert (settings["driver"], settings["micro_actions"], settings["domain_private"]) == ("sim", steps, False)
 
     r = subprocess.run([SAGG, "run", "--resume", str(run), "--eval-every", "1000", "--quiet",
                         "--no-report", "--domain-id", str(pick_domain_id())],
@@ -242,6 +245,8 @@ def test_sigkill_of_a_whole_run_then_resume_and_relearn(tmp_path):
     assert _sha(run / "bag" / "bag.mcap.unfinished") == original  # the user's bytes are kept
     s = json.loads((run / "summary.json").read_text())
     assert s["micro_actions"] == s["memory"]["samples"] == steps
+    after = read_run_file(run)  # the resumed segment keeps what the run was started from
+    assert (after["config"], after["overrides"]) == (str(ROOT / "config/arm8.yaml"), settings["overrides"])
     assert s["bag"]["paths"] == [str(run / "bag"), str(run / "bag2")]
     assert s["bag"]["recovered"] == [rec]
     assert s["bag"]["resume_check"]["republish_from"] == n and not s["bag"]["resume_check"]["unresolved"]

@@ -7,6 +7,7 @@ import numpy as np
 
 from sagg_bringup.graph.setups import load_experiment_config, run_experiment, run_graph
 from sagg_bringup.bags.recorder import make_typestore
+from sagg_bringup.graph.run_file import read_run_file
 from sagg_low_level.fixed_context import synergy_from_params
 
 OVERRIDES = {"eval.pool": 20, "eval.goals": 5, "synergy.duration": 1.0}
@@ -23,6 +24,11 @@ def test_quadruped_graph_equals_in_process_and_records_trajectories(tmp_path):
     assert graph["memory"]["digest"] == inproc["memory"]["digest"]
     assert graph["curve"] == inproc["curve"]
     assert [g["position"] for g in graph["goals"]] == [g["position"] for g in inproc["goals"]]
+    # the run's own settings, written before its nodes started (what a resume would read)
+    settings = read_run_file(tmp_path / "graph")
+    assert (settings["setup"], settings["driver"], settings["micro_actions"], settings["eval_every"]) == \
+        ("quadruped", "sim", n, 8)
+    assert settings["domain_id"] == graph["domain_id"] and settings["overrides"] == OVERRIDES
 
     topics = graph["bag"]["topics"]
     traj_topic = "/joint_trajectory_controller/joint_trajectory"

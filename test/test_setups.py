@@ -60,7 +60,7 @@ def test_what_a_setup_cannot_do_is_refused_by_name(tmp_path):
     (tmp_path / "run" / "params.yaml").write_text(
         "sagg_learner:\n  ros__parameters:\n    context: fixed\n")
     with pytest.raises(ConfigError, match="set-up 'arm-fixed', which keeps no checkpoints"):
-        setups.run_graph(tmp_path / "run" / "params.yaml", 10, tmp_path / "run", resume=True)
+        setups.resume_graph(tmp_path / "run", 10)
     with pytest.raises(ConfigError, match="relearn: the run is of set-up 'arm-fixed'"):
         setups.relearn([tmp_path / "run" / "bag"], tmp_path / "re")
     assert not (tmp_path / "x").exists() and not (tmp_path / "re").exists()  # refused before anything

@@ -2,17 +2,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
-import yaml
-
 from sagg_common.params import PAPER_STRATEGIES, STRATEGIES, ConfigError, parse_set, schema_markdown
 
 from ..graph.check_driver import main_check_driver
-from ..graph.params_files import read_run_file
 from ..graph.processes import GraphError
 from ..graph.reach import main_reach
 from ..graph.record import LOST_EXIT_CODE, default_out, record
@@ -81,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run the ROS 2 graph (three node processes), record a bag, "
                                    "evaluate, report")
     r.add_argument("config", nargs="?", help="experiment YAML (ROS 2 parameter-file form)")
-    r.add_argument("--resume", metavar="DIR", help="continue the stopped run in DIR (its params.yaml and "
+    r.add_argument("--resume", metavar="DIR", help="continue the stopped run in DIR (its params.yaml, run.json and "
                    "checkpoints; recorded into DIR/bag2, bag3, ...); no CONFIG then")
     r.add_argument("--micro-actions", type=positive_int, default=None,
                    help="learning budget (the learner stops there; default 10000, with --resume the run's own)")
@@ -299,36 +295,16 @@ def _run(args) -> int:
 
 
 def _resume(args) -> int:
-    """``sagg run --resume DIR``: the same run, continued (timing and budget from DIR unless given)."""
+    """``sagg run --resume DIR``: the same run, continued with its own settings (DIR/run.json;
+    budget and domain unless given); a run that learned on a robot is refused."""
 
     # lazy (heavy): ROS, mujoco
-    from ..graph.setups import run_graph
+    from ..graph.setups import resume_graph
     out = Path(args.resume)
-    params_file = out / "params.yaml"
     if args.config is not None or args.seed is not None or args.strategy is not None or args.set:
         raise ConfigError("--resume DIR: no CONFIG, --seed, --strategy or --set (the run's own params.yaml is used)")
-    if not params_file.is_file():
-        raise ConfigError(f"--resume: '{params_file}' not found; allowed: the directory of a `sagg run`")
-    doc = yaml.safe_load(params_file.read_text()) or {}
-    learner = doc.get("sagg_learner", {}).get("ros__parameters", {})
-    bridge = doc.get("sagg_sim_bridge", {}).get("ros__parameters", {})
-    old = {}
-    if (out / "summary.json").is_file():
-        old = json.loads((out / "summary.json").read_text())
-    if old.get("driver") == "external":
-        raise ConfigError(f"--resume: '{out}' is a --driver external run; allowed: the directory of a run "
-                          "with the simulated bridge (start a new external-driver run)")
-    # the run's own settings: DIR/run.json (written before its nodes started: there even when the
-    # run was killed), else its summary, else an older sagg run's params.yaml (params.yaml is a
-    # configuration now and holds no budget)
-    own = read_run_file(out)
-    micro = args.micro_actions or int(own.get("micro_actions") or old.get("micro_actions_requested")
-                                      or learner.get("max_micro_actions") or 10_000)
-    eval_every = own.get("eval_every") or old.get("eval_every", args.eval_every)
-    timing = own.get("timing") or bridge.get("timing", args.timing)
     try:
-        s = run_graph(params_file, micro, out, timing=timing, eval_every=eval_every,
-                      progress=not args.quiet, domain_id=args.domain_id, resume=True, **_run_options(args))
+        s = resume_graph(out, args.micro_actions, args.domain_id, progress=not args.quiet, **_run_options(args))
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code

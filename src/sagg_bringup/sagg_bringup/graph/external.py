@@ -48,6 +48,7 @@ from sagg_low_level.memory import SampleMemory
 from ..inprocess.arm_params import NODES, core_config, graph_params, resolve_arm
 from ..inprocess.evaluator import Evaluator
 from .params_files import run_only_params, set_checkpoint_dirs, write_params_file
+from .run_file import write_run_file
 from .processes import GraphError, check_domain_id, node_processes
 from .session import REPORT_PATIENCE, STALL_TIMEOUT, GraphSession
 from .split_tracker import SplitTracker
@@ -554,6 +555,11 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     # the driver runs in the environment's domain and discovery range (not a private one)
     if domain_id is None:
         domain_id = int(os.environ.get("ROS_DOMAIN_ID") or 0)
+    # before anything starts: a killed run is known to have learned on this robot (never resumed otherwise)
+    write_run_file(out, setup="arm", driver="external", timing="external driver", domain_id=domain_id,
+                   domain_private=False, micro_actions=micro_actions, eval_every=eval_every, config=config_path,
+                   overrides=ov, robot_eval_goals=robot_eval_goals, robot_eval_every=robot_eval_every,
+                   driver_timeout=driver_timeout)
     # (the driver's state streams go on after the nodes stop: the final drain does not wait for them)
     session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False)
     st = session.st

@@ -30,6 +30,7 @@ from sagg_common.params import ConfigError, node_params, read_config
 from sagg_common.progress import Progress
 from sagg_low_level.eval_metrics import error_metrics, metric_frame
 
+from .run_file import write_run_file
 from .params_files import run_only_params, set_checkpoint_dirs, write_params_file
 from .processes import check_domain_id, node_processes
 from ..inprocess.results import run_overrides
@@ -97,6 +98,9 @@ def run_fixed_graph(setup, config_path: str | Path, micro_actions: int, out_dir:
                            drain=500, status_rate=False)
     st = session.st
     try:  # set-up: a failure or Ctrl-C before session.run still closes the bag and rclpy
+        write_run_file(out, setup=setup_name, driver="sim", timing=timing, domain_id=session.domain,
+                       domain_private=domain_id is None, micro_actions=micro_actions, eval_every=eval_every,
+                       config=config_path, overrides=ov)
         samples: list[tuple[np.ndarray, np.ndarray]] = []
 
         def on_sample(m) -> bool | None:

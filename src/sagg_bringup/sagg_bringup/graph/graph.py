@@ -45,7 +45,8 @@ from ..inprocess.arm_params import NODES, TIMINGS, core_config, graph_params, re
 from ..bags.bag_reader import bag_messages
 from ..bags.bag_recover import recover_run_bags
 from ..inprocess.evaluator import Evaluator
-from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file, write_run_file
+from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file
+from .run_file import write_run_file
 from .processes import GraphError, check_domain_id, node_processes
 from ..bags.recorder import msg_class
 from ..report.report import arm_rows, write_report
@@ -60,11 +61,11 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
               seed: int | None = None, strategy: str | None = None, timing: str = "lockstep",
               eval_every: int = 1000, overrides: dict[str, Any] | None = None, progress: bool = True,
               domain_id: int | None = None, stall_timeout: float = STALL_TIMEOUT, report: bool = True,
-              resume: bool = False) -> dict:
+              resume: dict | None = None) -> dict:
     """Run the graph for ``micro_actions`` micro-actions; returns the summary (also in DIR).
 
-    ``resume``: continue the stopped run in ``out_dir`` (``sagg run --resume DIR``; config_path is
-    then DIR/params.yaml): the nodes resume from DIR/checkpoint, this segment is recorded into a new
+    ``resume``: the settings of the stopped run in ``out_dir`` to continue (``sagg run --resume
+    DIR``: :func:`~sagg_bringup.graph.setups.resume_graph`; config_path is then DIR/params.yaml): the nodes resume from DIR/checkpoint, this segment is recorded into a new
     bag (``bag2``, ``bag3``, ...; logs ``logs/<node>.<k>.log``), and the earlier bags are read first,
     so the evaluation, the summary and the report cover the whole run (samples, reports and goals
     republished by the resumed nodes are dropped by index / sequence number). An unfinished bag (no
@@ -96,7 +97,6 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         print(f"sagg run: {note}", file=sys.stderr)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)
-    write_run_file(out, micro_actions=int(micro_actions), eval_every=int(eval_every), timing=timing)
     config = core_config(full)
     lp, bp = config["sagg_learner"], config["sagg_sim_bridge"]
     t_lower, t_upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
@@ -106,6 +106,9 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                            drain=2000)
     st = session.st
     try:  # set-up: a failure or Ctrl-C before session.run still closes the bag and rclpy
+        write_run_file(out, setup="arm", driver="sim", timing=timing, domain_id=session.domain,
+                       domain_private=domain_id is None, micro_actions=micro_actions, eval_every=eval_every,
+                       config=(resume or {}).get("config", config_path), overrides=(resume or {}).get("overrides", ov))
 
         # a resumed run: the earlier segments' messages, and their evaluations (not repeated)
         prior = []

@@ -9,14 +9,11 @@ Reused with ``ros2 run``, ``ros2 launch config:=`` or another ``sagg run``, it s
 lines (:func:`run_values`)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from sagg_common.journal import write_json_atomic
-from sagg_common.params import ConfigError
 
 # run-specific node parameters: never written into a parameter file (write_params_file)
 RUN_KEYS = ("checkpoint_dir", "resume", "max_micro_actions", "max_experiments")
@@ -116,24 +113,3 @@ _BOOL_LIKE = {w for b in ("y", "n", "yes", "no", "on", "off", "true", "false") f
 _RosDumper.add_representer(str, lambda d, s: d.represent_scalar("tag:yaml.org,2002:str", s,
                                                                  style="'" if s in _BOOL_LIKE else None))
 
-
-RUN_FILE = "run.json"  # a run directory's own settings (what params.yaml, a configuration, leaves out)
-
-
-def write_run_file(out: Path, **values) -> None:
-    """``DIR/run.json``: the settings of this run that its params.yaml does not hold (budget,
-    evaluation period, timing), written before the nodes start, so that ``sagg run --resume`` of a
-    run killed before its summary.json existed continues with them."""
-    write_json_atomic(out / RUN_FILE, {"format": "sagg.run/1", **values})
-
-
-def read_run_file(out: Path) -> dict:
-    """``DIR/run.json`` ({} when the run has none: written by an older sagg run)."""
-    path = out / RUN_FILE
-    if not path.is_file():
-        return {}
-    try:
-        doc = json.loads(path.read_text())
-    except ValueError as exc:
-        raise ConfigError(f"--resume: '{path}' is not valid JSON ({exc})") from exc
-    return doc if isinstance(doc, dict) else {}

@@ -37,6 +37,7 @@ from ..bags import bags, topics
 from ..inprocess import arm_params, experiment, fixed_experiment
 from ..report import report
 from . import external, graph, fixed_graph
+from .run_file import resume_settings
 from ..bags.recorder import TopicSpec
 
 GOAL_GENERATOR = ("sagg_goal_generator", "goal_generator")  # (package, console script)
@@ -300,21 +301,39 @@ def run_experiment(config_path: str | Path, strategy: str | None, seed: int | No
 
 
 def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *, driver: str = "sim",
-              timing: str = "lockstep", resume: bool = False, **options) -> dict:
-    """``sagg run`` for any set-up; ``driver`` 'external' and ``resume`` where the set-up has them."""
+              timing: str = "lockstep", **options) -> dict:
+    """``sagg run`` for any set-up; ``driver`` 'external' where the set-up has it (continuing a
+    stopped run: :func:`resume_graph`)."""
     setup = setup_of(config_path, options.get("overrides"))
     if driver == "external":
         if not setup.external_driver:
             raise ConfigError(f"--driver external: set-up {setup.name!r} is not supported; allowed: "
                               + ", ".join(s.name for s in SETUPS.values() if s.external_driver))
         return setup.run_graph(config_path, micro_actions, out_dir, driver=driver, **options)
-    if resume:
-        if not setup.resumable:
-            raise ConfigError(f"--resume: '{out_dir}' is a run of set-up {setup.name!r}, which keeps no "
-                              "checkpoints (start a new run); allowed: "
-                              + ", ".join(s.name for s in SETUPS.values() if s.resumable))
-        return setup.run_graph(config_path, micro_actions, out_dir, timing=timing, resume=True, **options)
     return setup.run_graph(config_path, micro_actions, out_dir, timing=timing, **options)
+
+
+def resume_graph(out_dir: str | Path, micro_actions: int | None = None, domain_id: int | None = None,
+                 **options) -> dict:
+    """``sagg run --resume DIR`` for any set-up: the stopped run in ``out_dir`` continued with its
+    own parameters (DIR/params.yaml) and settings (DIR/run.json, :func:`.run_file.resume_settings`:
+    refused when unreadable, and for a run that learned through an external driver). Budget:
+    ``micro_actions``, else the run's own; domain: ``domain_id``, else the run's own when it was
+    given one, else a new private one."""
+    out = Path(out_dir)
+    params_file = out / "params.yaml"
+    if not params_file.is_file():
+        raise ConfigError(f"--resume: '{params_file}' not found; allowed: the directory of a `sagg run`")
+    setup = setup_of(params_file)
+    if not setup.resumable:
+        raise ConfigError(f"--resume: '{out}' is a run of set-up {setup.name!r}, which keeps no "
+                          "checkpoints (start a new run); allowed: "
+                          + ", ".join(s.name for s in SETUPS.values() if s.resumable))
+    settings = resume_settings(out)
+    if domain_id is None and not settings.get("domain_private", True):
+        domain_id = settings["domain_id"]
+    return setup.run_graph(params_file, micro_actions or settings["micro_actions"], out, timing=settings["timing"],
+                           eval_every=settings["eval_every"], domain_id=domain_id, resume=settings, **options)
 
 
 def relearn(bag_dirs: list[str | Path], out_dir: str | Path, params_file: str | Path | None = None, **options) -> dict:
