@@ -49,7 +49,7 @@ from .bag_recover import is_unfinished, recover_bag
 from ..inprocess.arm_params import node_schemas
 from ..inprocess.evaluator import evaluate_frozen, evaluation_setup
 from .recorder import BagWriter, msg_class
-from .topics import command_topics
+from .topics import SIM_BRIDGE_NODE, command_topics
 from ..report.report import arm_rows, write_report
 from ..inprocess.results import goal_share_stats
 
@@ -69,10 +69,6 @@ def _rclpy_qos(conn):
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
-
-
-# sagg's own simulator: the only node a replayed command may reach (anything else may be a real driver)
-SIM_BRIDGE_NODE = "sagg_sim_bridge"
 
 
 def foreign_subscribers(node, topic: str) -> list[str]:

@@ -10,11 +10,32 @@ COMMAND_TYPES = frozenset({"std_msgs/msg/Float64MultiArray", "trajectory_msgs/ms
 # the learner's and the goal generator's streams: they stop when the nodes stop (what a stopping
 # recorder waits for), unlike the periodic topics (status, regions, joint states at rest, ...)
 STREAM_TOPICS = ("/sagg/sample", "/sagg/competence", "/sagg/goal")
+# sagg's simulator node (every set-up's bridge): the only node that sagg's commands may reach
+# without moving a robot
+SIM_BRIDGE_NODE = "sagg_sim_bridge"
 
 
 def command_topics(types: dict[str, str]) -> list[str]:
     """The topics of ``types`` (topic -> ROS type) that carry commands (:data:`COMMAND_TYPES`)."""
     return sorted(t for t, ty in types.items() if ty in COMMAND_TYPES)
+
+
+def robot_endpoints(node, topics: list[TopicSpec], ours: set[str]) -> dict[str, tuple[str, list]]:
+    """Topic -> (how, endpoints) on the hardware topics of ``topics``: the endpoints
+    (``TopicEndpointInfo``) that show a node not in ``ours`` to be a robot's driver or sensor, a
+    subscriber of a command topic (:data:`COMMAND_TYPES`: it would move its robot; how =
+    'subscribed') or a publisher of the others (joint states, a tracker's task point; how =
+    'published'). An endpoint whose node discovery has not named yet counts too."""
+    out = {}
+    for t in topics:
+        if t.name.startswith("/sagg/") or t.name == "/clock":
+            continue
+        command = t.msgtype in COMMAND_TYPES
+        infos = node.get_subscriptions_info_by_topic(t.name) if command else node.get_publishers_info_by_topic(t.name)
+        found = [i for i in infos if i.node_name not in ours]
+        if found:
+            out[t.name] = ("subscribed" if command else "published", found)
+    return out
 
 
 def sagg_topics() -> list[TopicSpec]:

@@ -16,11 +16,14 @@ from sagg_common.progress import Progress
 from sagg_goal_generator.checkpoint import teacher_snapshot
 
 from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
-from .processes import GraphError, NodeGroup, NodeProcess
+from sagg_common.params import ConfigError
+from sagg_common.publishers import UNKNOWN_NODE, describe
+
+from .processes import GraphError, NodeGroup, NodeProcess, domain_in_use
 from ..bags.recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
 from ..inprocess.results import goal_share_stats
 from .run_state import RunState
-from ..bags.topics import awaited_topics
+from ..bags.topics import SIM_BRIDGE_NODE, awaited_topics, robot_endpoints
 
 # s without a new competence report after which a finished run stops waiting for the missing ones
 # (they are counted as dropped; RunState.all_recorded)
@@ -28,6 +31,13 @@ REPORT_PATIENCE = 60.0
 # default of `sagg run --stall-timeout`: s without a new sample before a run gives up (a hold the
 # learner names lasts as long as its cause: a second source, a stopped driver, a pause)
 STALL_TIMEOUT = 600.0
+
+# s to wait for discovery to show the nodes already on a domain that has other participants, before
+# a simulated bridge is started there (GraphSession.refuse_robot_on_domain): longer than Fast DDS's
+# period of participant announcements (3 s), so a participant that missed the first one is still seen
+DISCOVERY_WAIT = 5.0
+# s more to wait for discovery to name the node of an endpoint it has shown
+NAME_WAIT = 1.0
 
 # the goal generator's second node, which serves /sagg/next_goal (sagg_goal_generator.node.GoalServer)
 GOAL_SERVER_NODE = "sagg_goal_generator_goals"
@@ -50,13 +60,16 @@ class GraphSession:
     and its recorder (feeding :attr:`st`, a :class:`RunState`); Ctrl-C / SIGTERM as a flag; the wait
     for the learner to finish (a node exiting or a stall is a :class:`GraphError`); the cleanup in
     every case; the summary's common keys. ``drain``: at most this many queued callbacks are taken
-    per loop before the bookkeeping."""
+    per loop before the bookkeeping. A graph with sagg's simulated bridge is refused on a domain
+    where a robot's driver may be (:meth:`refuse_robot_on_domain`), before its bag is created."""
 
     def __init__(self, procs: list[NodeProcess], domain_id: int | None, topics: list[TopicSpec],
                  bag_path: Path, out: Path, drain: int, status_rate: bool = True, localhost: bool = True):
         self.procs, self.topics, self.out, self.drain = procs, topics, out, drain
         self.nodes = NodeGroup(procs, domain_id, localhost)
         self.domain, self.env = self.nodes.domain, self.nodes.env
+        # (a private domain is picked free; a given one is probed before this process joins it)
+        occupied = domain_id is not None and domain_in_use(self.domain)
         # lazy (heavy): ROS
         import rclpy
         from rclpy.context import Context
@@ -70,6 +83,13 @@ class GraphSession:
         self.node = rclpy.create_node("sagg_run", context=self.ctx)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
+        if occupied and any(p.name == SIM_BRIDGE_NODE for p in procs):
+            try:
+                self.refuse_robot_on_domain()
+            except BaseException:
+                self.node.destroy_node()
+                rclpy.shutdown(context=self.ctx)
+                raise
         self.bag = BagWriter(bag_path, topics)
         self.st = RunState(status_rate=status_rate)
         self.eval_pub = self.node.create_publisher(Evaluation, "/sagg/evaluation", 100)
@@ -82,6 +102,37 @@ class GraphSession:
         self.t_nodes: float | None = None  # when the nodes were started
         self.t_end: float | None = None    # when everything was stopped
         self._closed = False
+
+    def refuse_robot_on_domain(self, wait: float = DISCOVERY_WAIT) -> None:
+        """ConfigError when another node on this domain publishes the arm's state or task point or
+        subscribes to its commands (:func:`~sagg_bringup.bags.topics.robot_endpoints`): a robot's
+        driver may be there, and a simulated bridge beside it would publish joint states as well
+        while the learner's commands reach the robot. Waits up to ``wait`` s for discovery to show
+        the domain's endpoints (and :data:`NAME_WAIT` s more for it to name their nodes)."""
+        print(f"sagg run: domain {self.domain} has other participants: checking that no robot's driver is "
+              f"there before starting the simulated bridge (up to {wait:.0f} s)", file=sys.stderr, flush=True)
+        ours = {self.node.get_name()}
+        t0 = time.perf_counter()
+        seen_at = None
+        while True:
+            found = robot_endpoints(self.node, self.topics, ours)
+            now = time.perf_counter()
+            if found:
+                seen_at = now if seen_at is None else seen_at
+                named = all(i.node_name != UNKNOWN_NODE for _, infos in found.values() for i in infos)
+                if named or now - seen_at > NAME_WAIT:
+                    break
+            elif now - t0 > wait:
+                return
+            time.sleep(0.05)
+        where = "; ".join(f"{topic}: {how} by {', '.join(describe(i) for i in infos)}"
+                          for topic, (how, infos) in found.items())
+        raise ConfigError(
+            f"--domain-id {self.domain}: a robot's driver may be on this domain ({where}); sagg run "
+            "with the simulated bridge would publish joint states beside it and send the learner's "
+            "commands to it, so nothing was started; allowed: a domain where no other node publishes "
+            "the arm's state or subscribes to its commands (another --domain-id, or none for a "
+            "private one), or --driver external to learn on that robot")
 
     def record(self, handlers: dict[str, Callable]) -> None:
         """Record every topic (``handlers``: topic -> callback of the deserialized message).
