@@ -82,7 +82,7 @@ def fresh_stamps(n: LearnerNode) -> None:
     """Forget the newest stamps (each test's messages are stamped anew) and the rejection runs."""
     from sagg_common.envelope import RejectRun, StampTracker
     p = n.params
-    n.js_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
+    n.js_intake.track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
     n.tip_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
     n.js_run, n.tip_run = RejectRun(p["plausibility.hold_after"]), RejectRun(p["plausibility.hold_after"])
     n.js_stamp = n.tip_stamp = 0
@@ -124,7 +124,7 @@ def test_random_bytes_never_crash_any_callback(nodes, data):
 def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos, vel):
     n = nodes["learner"]
     fresh_stamps(n)  # this test's messages are all stamped 1 s: never "out of order"
-    before, total, ignored = learner_state(n), n.guard.total, sum(n.other_joints.values())
+    before, total, ignored = learner_state(n), n.guard.total, sum(n.js_intake.other_joints.values())
     n.on_joint_state(js_bytes(names, pos, vel))
     where = {nm: i for i, nm in enumerate(names)}
     lengths_ok = len(pos) == len(names) and len(vel) in (0, len(names))
@@ -137,7 +137,7 @@ def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos
     elif lengths_ok and not any(j in where for j in JOINTS):
         # another driver's joints only (a gripper's), however it names them: ignored, counted apart,
         # not an error (issue 24)
-        assert n.guard.total == total and sum(n.other_joints.values()) == ignored + 1
+        assert n.guard.total == total and sum(n.js_intake.other_joints.values()) == ignored + 1
         assert learner_state(n)[0] == before[0]
     else:
         assert n.guard.total == total + 1 and learner_state(n)[0] == before[0]

@@ -67,7 +67,7 @@ def fresh_streams(n: LearnerNode) -> None:
     """Forget the stamps and rejection runs of earlier tests (the node is shared), release holds."""
     from sagg_common.envelope import RejectRun, StampTracker
     p = n.params
-    n.js_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
+    n.js_intake.track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
     n.tip_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
     n.js_run, n.tip_run = RejectRun(HOLD_AFTER), RejectRun(HOLD_AFTER)
     n.holds.clear()
@@ -95,7 +95,7 @@ def test_joint_states_outside_the_limits_are_rejected_and_hold_after_a_run(nodes
     assert "allowed: [-1.1, 1.1]" in n.guard.last_message["joint_states.out_of_limits"]
     assert "joint_states" in n.holds and "out_of_limits" in n.holds["joint_states"]
     # the stamps of the rejected states did not move the newest stamp
-    assert n.js_track.newest == 1 * SEC
+    assert n.js_intake.track.newest == 1 * SEC
     # a command now is bounded by the last VALID posture
     n.learner.p["max_joint_step"] = 0.05
     target = n._safe_command(Command(np.array([1.0, 1.0, 1.0]), "micro"))
@@ -164,7 +164,7 @@ def test_a_future_stamp_is_rejected_and_never_wedges_the_stream(nodes):
     fresh_streams(n)
     n.on_joint_state(js_bytes([0.1, 0.2, 0.3], ns=100 * SEC))
     n.on_joint_state(js_bytes([0.2, 0.2, 0.3], ns=1100 * SEC))  # +1,000 s
-    assert n.js_alpha[0] == 0.1 and n.js_track.newest == 100 * SEC
+    assert n.js_alpha[0] == 0.1 and n.js_intake.track.newest == 100 * SEC
     assert "future" in n.guard.last_message["joint_states.future_stamp"]
     # the real states after it are accepted at once
     n.on_joint_state(js_bytes([0.3, 0.2, 0.3], ns=100 * SEC + 10_000_000))

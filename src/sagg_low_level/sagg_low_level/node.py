@@ -33,12 +33,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, UInt64
 from std_srvs.srv import SetBool
 
-from sagg_common.cdr import JointStateDecoder, decode_point_stamped, encode_f64_array
+from sagg_common.cdr import decode_point_stamped, encode_f64_array
 from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
 from sagg_common.envelope import ACCEPT, FUTURE, OUT_OF_ORDER, RejectRun, StampTracker
 from sagg_common.msg_codecs import encode_report, encode_sample
 from sagg_common.params import ConfigError, Param, Schema
 from sagg_common import sources
+from sagg_common.joint_intake import (AMBIGUOUS, FUTURE_STAMP, OTHER, OUT_OF_ORDER_STAMP, REJECTED, TAKEN)
 from sagg_common.publishers import UNKNOWN_NODE, describe
 from sagg_common.ros_params import HW_DEPTH, params_dir, reliable, run_node
 from sagg_common.report_kinds import KIND_EXPLORATION
@@ -52,7 +53,7 @@ from .memory import SampleMemory
 from .reach_server import ACTION, ReachJob, ReachServer
 from .recorder_acks import RecorderAcks
 from .node_base import NODE_NAME, LearnerNodeBase
-from .schema import LEARNER_CORE_SCHEMA as CORE_SCHEMA, LEARNER_SCHEMA as SCHEMA
+from .schema import LEARNER_CORE_SCHEMA as CORE_SCHEMA, LEARNER_SCHEMA as SCHEMA, joint_intake
 
 class ReachDone:
     """The last request of a reach (:meth:`LearnerNode._reach_requests`): the learner's own
@@ -108,14 +109,11 @@ class LearnerNode(LearnerNodeBase):
         self.js_rx = self.tip_rx = time.monotonic()  # last valid joint state / task point received
         # the plausibility envelope (DESIGN §8): limits ± tolerance, Y ± margin, a velocity bound,
         # stamps neither in the future of their stream nor wedged by a clock jump back
-        tol, margin = p["plausibility.joint_tolerance"], p["plausibility.task_margin"]
-        self.js_lo, self.js_hi = self.robot.lower - tol, self.robot.upper + tol
-        self.max_velocity = p["plausibility.max_joint_velocity"]
+        margin = p["plausibility.task_margin"]
         t_lo = np.asarray(p["task_space.lower"], dtype=float)
         t_hi = np.asarray(p["task_space.upper"], dtype=float)
         ext = margin * (t_hi - t_lo)
         self.tip_box = tuple(zip((t_lo - ext).tolist(), (t_hi + ext).tolist()))
-        self.js_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
         self.tip_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
         self.js_run = RejectRun(p["plausibility.hold_after"])
         self.tip_run = RejectRun(p["plausibility.hold_after"])
@@ -146,12 +144,10 @@ class LearnerNode(LearnerNodeBase):
         # never by who merely publishes; the messages of /joint_states without any of our joints
         # (a gripper's) are not part of the stream
         self.check_sources = p["plausibility.check_sources"]
-        self.js_sources = sources.SourceChains(p["plausibility.source_grace"])
         self.tip_sources = sources.SourceChains(p["plausibility.source_grace"])
-        self.other_joints: dict[tuple, int] = {}  # name lists without any of our joints -> messages ignored
         self.source_text: dict[str, str] = {}     # topic -> its current source hold, in words
-        self._maps: dict[tuple, tuple] = {}      # name list -> how its messages are mapped (_name_map)
-        self.js_decoder = JointStateDecoder()
+        # /joint_states: decoded, mapped by name, checked, attributed to a source, stamped (one rule set)
+        self.js_intake = joint_intake(p, self.robot.joint_names, self.robot.lower, self.robot.upper)
         # the return to rest (rest_return): stepped unless the simulator is the only listener
         self.rest_return = p["rest_return"]
         self.rest_steps = 0         # rest-return commands sent (not micro-actions)
@@ -173,8 +169,6 @@ class LearnerNode(LearnerNodeBase):
                                                 reliable(10))
 
         # --- observation state
-        self._names: tuple | None = None     # joint-name order of the last JointState seen (cached)
-        self._idx: np.ndarray | None = None  # positions in that message of our joints
         self.js_alpha: np.ndarray | None = None   # newest joint state (mapped), its stamp, settled
         self.js_stamp = -1
         self.js_settled = False
@@ -220,55 +214,38 @@ class LearnerNode(LearnerNodeBase):
 
     # ------------------------------------------------------------------ observations
     def on_joint_state(self, data: bytes, info: dict = sources.NO_INFO) -> None:
-        """A JointState: decoded, mapped to our joints by name (a message without any of them is
-        another driver's: ignored), checked (limits, finite, velocity), then its source (one
-        publisher for our joints) and its stamp; only then it is the newest measured posture. A
-        message not taken before the source check is skipped in its publisher's chain (no gap)."""
-        if not self._take_joint_state(data, info):
-            self.js_sources.skip(info["publication_sequence_number"])
-
-    def _take_joint_state(self, data: bytes, info: dict) -> bool:
-        """False: not taken for its content (before the source check)."""
-        try:
-            st, names, pos, vel = self.js_decoder.decode(data)
-        except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
-            self._reject_js("joint_states.undecodable", f"/joint_states: undecodable message ({exc})")
-            return False
-        if len(pos) != len(names) or (len(vel) and len(vel) != len(names)):
-            self._reject_js("joint_states.length",
-                            f"/joint_states: {len(names)} names but {len(pos)} positions and {len(vel)} "
-                            "velocities; allowed: one position per name, and no or one velocity per name")
-            return False
-        if names is not self._names and not self._map_names(names):
-            return False
-        idx = self._idx
-        alpha = pos[idx]
-        v = vel[idx] if len(vel) else None
-        # one vector test each (NaN fails a comparison, so non-finite values are caught too)
-        if not ((alpha >= self.js_lo).all() and (alpha <= self.js_hi).all()):
-            self._reject_js_values(alpha, v)
-            return False
-        if v is not None:  # (min/max serve the settle test below too; NaN fails both comparisons)
-            vlo, vhi = v.min(), v.max()
-            if not (-self.max_velocity <= vlo and vhi <= self.max_velocity):
-                self._reject_js_values(alpha, v)
-                return False
-        if self.check_sources:
-            verdict = self.js_sources.classify(info["publication_sequence_number"], time.monotonic())
-            if verdict != sources.ACCEPT:
-                if verdict == sources.AMBIGUOUS:
-                    self._second_source("/joint_states", "joint_states", self.js_sources,
-                                        "joints " + ", ".join(self.robot.joint_names))
-                return True  # (a gap: the chain's next message is taken)
-        verdict = self.js_track.check(st, time.monotonic_ns())
-        if verdict != ACCEPT:
-            if not self._stamp_verdict(verdict, "joint_states", "/joint_states", self.js_track, st):
-                return True
+        """A JointState, read by the one intake (:class:`~sagg_common.joint_intake.JointStateIntake`:
+        decoded, mapped to our joints by name, checked, its source and its stamp); what is taken is
+        the newest measured posture. A rejection is counted and logged, and after
+        ``plausibility.hold_after`` in a row the learner holds; another driver's joints are ignored."""
+        intake = self.js_intake
+        verdict = intake.take(data, info["publication_sequence_number"])
+        code = verdict.code
+        if code is not TAKEN:
+            if code is REJECTED:
+                self._reject_js(verdict.kind, verdict.message)
+            elif code is OTHER:
+                names = intake.names
+                if intake.other_joints[names] == 1:  # (once per name list: not an error)
+                    self.get_logger().info(
+                        f"/joint_states: messages naming {', '.join(names) or 'no joint'} carry none of the "
+                        "learner's joints: ignored (another driver's joints, e.g. a gripper)")
+            elif code is AMBIGUOUS:
+                self._second_source("/joint_states", "joint_states", intake.sources,
+                                    "joints " + ", ".join(self.robot.joint_names))
+            elif code is OUT_OF_ORDER_STAMP:
+                self.guard.reject(verdict.kind, verdict.message)
+            elif code is FUTURE_STAMP:
+                self.guard.reject(verdict.kind, verdict.message)
+                self.js_run.reject()
+            return  # (GAP: the chain's next message is taken)
+        st = intake.stamp
+        if verdict.kind:  # a clock jump back: logged, the stream re-synchronised
+            self.guard.reject(verdict.kind, verdict.message)
             if self.state is self.RUNNING_COMMAND:  # the command's freshness bound moves back too
                 self.js_min = min(self.js_min, st - 1 + self.delay_ns)
-        sv = self.settle_velocity
-        settled = v is None or bool(-sv < vlo and vhi < sv)  # every |velocity| < settle_velocity
-        self.js_alpha, self.js_settled, self.js_stamp = alpha, settled, st
+        alpha = intake.position
+        self.js_alpha, self.js_settled, self.js_stamp = alpha, intake.settled, st
         self.js_rx = time.monotonic()
         if self.task_fk is not None:  # task_source 'model': the task point of this posture
             y = self.task_fk.point(alpha)
@@ -285,7 +262,6 @@ class LearnerNode(LearnerNodeBase):
         if self.state is self.RUNNING_COMMAND and st > self.js_min:
             self.js_fresh = True
             self._try_answer_command(False)
-        return True
 
     def _reject_js(self, kind: str, message: str) -> None:
         """A rejected joint state: counted, logged, and after ``plausibility.hold_after`` in a row a hold."""
@@ -294,91 +270,28 @@ class LearnerNode(LearnerNodeBase):
             self._set_hold("joint_states", f"{self.js_run.run} rejected joint states in a row, the last: "
                                            f"[{kind}] {message}")
 
-    def _reject_js_values(self, alpha: np.ndarray, v: np.ndarray | None) -> None:
-        """Name the first implausible field of a joint state (the slow path of the checks)."""
-        robot = self.robot
-        for i, name in enumerate(robot.joint_names):
-            a = float(alpha[i])
-            if not math.isfinite(a) or (v is not None and not math.isfinite(v[i])):
-                bad = [robot.joint_names[k] for k in range(robot.n) if not math.isfinite(alpha[k])
-                       or (v is not None and not math.isfinite(v[k]))]
-                self._reject_js("joint_states.non_finite", f"/joint_states: NaN/inf position or velocity of "
-                                                           f"{', '.join(bad)}; allowed: finite values")
-                return
-        for i, name in enumerate(robot.joint_names):
-            a = float(alpha[i])
-            if not self.js_lo[i] <= a <= self.js_hi[i]:
-                self._reject_js("joint_states.out_of_limits",
-                                f"/joint_states: position of {name} = {a!r} rad; allowed: "
-                                f"[{self.js_lo[i]:.6g}, {self.js_hi[i]:.6g}] (joint limits ± "
-                                f"plausibility.joint_tolerance)")
-                return
-        i = int(np.argmax(np.abs(v)))
-        self._reject_js("joint_states.velocity",
-                        f"/joint_states: velocity of {robot.joint_names[i]} = {float(v[i])!r} rad/s; allowed: "
-                        f"|v| <= {self.max_velocity:g} (plausibility.max_joint_velocity)")
-
-    def _stamp_verdict(self, verdict: int, key: str, topic: str, track: StampTracker, st: int) -> bool:
-        """A stamp that was not simply accepted: False (rejected: logged, counted) for one out of
-        order or in the future; True for a clock jump back (logged; the stream is re-synchronised)."""
+    def _stamp_verdict(self, verdict: int, topic: str, st: int) -> bool:
+        """A task point's stamp that was not simply accepted: False (rejected: logged, counted) for
+        one out of order or in the future; True for a clock jump back (logged; the stream is
+        re-synchronised)."""
+        track = self.tip_track
         if verdict == OUT_OF_ORDER:
-            self.guard.reject(f"{key}.out_of_order",
+            self.guard.reject("task_point.out_of_order",
                               f"{topic}: header.stamp {st} ns is older than the newest one ({track.newest} "
                               f"ns); kept the newest (after {track.resync_after} in a row: a clock jump back)")
             return False
         if verdict == FUTURE:
-            self.guard.reject(f"{key}.future_stamp",
+            self.guard.reject("task_point.future_stamp",
                               f"{topic}: header.stamp {st} ns is in the future of the stream; allowed: <= "
                               f"{track.allowed_until(time.monotonic_ns())} ns (newest stamp + time since it "
                               f"arrived + plausibility.future_tolerance); the newest stamp stays")
-            if key == "joint_states":
-                self.js_run.reject()
-            else:
-                self.tip_run.reject()
+            self.tip_run.reject()
             return False
-        self.guard.reject(f"{key}.clock_jump_back",
+        self.guard.reject("task_point.clock_jump_back",
                           f"{topic}: clock jumped back from {track.previous} ns to {st} ns ({track.resync_after} "
                           "messages in a row older than the newest; driver or sim-time restart?): "
                           "re-synchronised on the new stamps")
         return True
-
-    def _map_names(self, names: tuple) -> bool:
-        """Map a name list to our joints (cached per list: several drivers may publish their own
-        joints on /joint_states). False: the message is not used (ignored or rejected here)."""
-        how = self._maps.get(names)
-        if how is None:
-            if len(self._maps) >= 32:  # (a fuzzer's random names must not grow the cache)
-                self._maps.clear()
-            how = self._maps[names] = self._name_map(names)
-        if how[0] == "ok":
-            self._names, self._idx = names, how[1]
-            return True
-        if how[0] == "other":
-            n = self.other_joints[names] = self.other_joints.get(names, 0) + 1
-            if n == 1:  # (once per name list: not an error)
-                self.get_logger().info(
-                    f"/joint_states: messages naming {', '.join(names) or 'no joint'} carry none of the "
-                    "learner's joints: ignored (another driver's joints, e.g. a gripper)")
-            return False
-        self._reject_js(how[1], how[2])
-        return False
-
-    def _name_map(self, names: tuple) -> tuple:
-        """("ok", index array) for a list naming each of our joints once; ("other",) for one that
-        names none of them; else ("bad", kind, message)."""
-        where = {n: i for i, n in enumerate(names)}
-        ours = self.robot.joint_names
-        missing = [j for j in ours if j not in where]
-        if len(missing) == len(ours):  # (another driver's message, however formed: not ours to judge)
-            return ("other",)
-        if len(where) != len(names):
-            return ("bad", "joint_states.names", f"/joint_states names a joint twice ({', '.join(names)}); "
-                    f"allowed: every joint of the 'joints' parameter ({', '.join(ours)}) once")
-        if missing:
-            return ("bad", "joint_states.names",
-                    f"/joint_states lacks joint(s) {', '.join(missing)}; allowed: every joint of the 'joints' "
-                    f"parameter ({', '.join(ours)}) in one message, other joints are ignored")
-        return ("ok", np.array([where[j] for j in ours], dtype=np.intp))
 
     def on_task_point(self, data: bytes, info: dict = sources.NO_INFO) -> None:
         """A task point: decoded, checked (finite, within Y enlarged by ``plausibility.task_margin``),
@@ -406,7 +319,7 @@ class LearnerNode(LearnerNodeBase):
                 return True
         verdict = self.tip_track.check(st, time.monotonic_ns())
         if verdict != ACCEPT:
-            if not self._stamp_verdict(verdict, "task_point", topic, self.tip_track, st):
+            if not self._stamp_verdict(verdict, topic, st):
                 return True
             if self.state is self.RUNNING_COMMAND:
                 self.tip_min = min(self.tip_min, st - 1 + self.delay_ns)
@@ -581,12 +494,12 @@ class LearnerNode(LearnerNodeBase):
                       "recorder acknowledged samples": str(self.rec_acks.largest()),
                       "recorders seen": str(self.rec_acks.recorders_seen)})
         state["rest-return commands"] = str(self.rest_steps)
-        ignored = sum(self.other_joints.values())
+        ignored = sum(self.js_intake.other_joints.values())
         if ignored:
             state["ignored /joint_states without the learner's joints"] = str(ignored)
-            state["other joint lists on /joint_states"] = "; ".join(", ".join(n) for n in list(self.other_joints)[:4])
-        state["sequence gaps (messages not taken)"] = str(self.js_sources.gaps + self.tip_sources.gaps)
-        state["second-source episodes"] = str(self.js_sources.episodes + self.tip_sources.episodes)
+            state["other joint lists on /joint_states"] = "; ".join(", ".join(n) for n in list(self.js_intake.other_joints)[:4])
+        state["sequence gaps (messages not taken)"] = str(self.js_intake.sources.gaps + self.tip_sources.gaps)
+        state["second-source episodes"] = str(self.js_intake.sources.episodes + self.tip_sources.episodes)
         for topic in ("/joint_states",) + ((self.task_topic,) if self.task_fk is None else ()):
             state[f"publishers {topic}"] = "; ".join(
                 describe(i) for i in self.get_publishers_info_by_topic(topic)) or "none"

@@ -29,9 +29,12 @@ from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from sagg_common.cdr import JointStateDecoder, decode_point_stamped, encode_f64_array
-from sagg_common.diagnostics import all_finite
+from sagg_common import sources
+from sagg_common.cdr import decode_point_stamped, encode_f64_array
+from sagg_common.joint_intake import AMBIGUOUS, TAKEN
 from sagg_common.ros_params import HW_DEPTH, reliable
+
+from .schema import joint_intake
 
 
 class PositionLink:
@@ -45,15 +48,12 @@ class PositionLink:
         self.topic = f"/{p['controller'].strip('/')}/commands"
         self.task_topic = p["task_topic"]
         self.pub = node.create_publisher(Float64MultiArray, self.topic, reliable(HW_DEPTH))
-        node.create_subscription(JointState, "/joint_states", self.on_joint_state, reliable(10), raw=True)
+        node.create_subscription(JointState, "/joint_states", sources.with_message_info(self.on_joint_state),
+                                 reliable(10), raw=True)
         node.create_subscription(PointStamped, self.task_topic, self.on_task_point, reliable(10), raw=True)
-        self.decoder = JointStateDecoder()
-        self.settle_velocity = p["settle_velocity"]
+        self.intake = joint_intake(p, synergy.joint_names, synergy.lower, synergy.upper)
         self.settle_timeout = p["settle_timeout"]
         self.response_timeout = p["response_timeout"]
-        self._names = None
-        self._idx = None
-        self.other_joints = 0  # /joint_states messages naming none of our joints (ignored)
         self.alpha = None
         self.js_stamp = self.tip_stamp = -1
         self.js_settled = False
@@ -107,41 +107,23 @@ class PositionLink:
                       f"command on {self.topic}: is the driver running?")
 
     # ------------------------------------------------------------------ observations
-    def on_joint_state(self, data: bytes) -> None:
-        guard = self.node.guard
-        try:
-            st, names, pos, vel = self.decoder.decode(data)
-        except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
-            guard.reject("joint_states.undecodable", f"/joint_states: undecodable message ({exc})")
+    def on_joint_state(self, data: bytes, info: dict = sources.NO_INFO) -> None:
+        """A JointState, read by the learners' one intake (:class:`~sagg_common.joint_intake.JointStateIntake`):
+        what it does not take is counted and logged through the node's guard (another driver's
+        joints are ignored); what it takes is the newest posture."""
+        intake = self.intake
+        verdict = intake.take(data, info["publication_sequence_number"])
+        code = verdict.code
+        if code is AMBIGUOUS:
+            self.node.guard.reject("joint_states.second_source",
+                                   f"/joint_states: the joints {', '.join(intake.joints)} from two sources; "
+                                   f"message dropped until one has been quiet for {intake.sources.grace:g} s")
+        elif verdict.kind:  # a rejection, or a clock jump back (taken: logged)
+            self.node.guard.reject(verdict.kind, verdict.message)
+        if code is not TAKEN:
             return
-        if len(pos) != len(names) or (len(vel) and len(vel) != len(names)):
-            guard.reject("joint_states.length", f"/joint_states: {len(names)} names but {len(pos)} positions and "
-                                                f"{len(vel)} velocities; allowed: one position (and none or one "
-                                                "velocity) per name")
-            return
-        if names is not self._names:
-            where = {n: i for i, n in enumerate(names)}
-            missing = [j for j in self.synergy.joint_names if j not in where]
-            if len(missing) == len(self.synergy.joint_names):
-                self.other_joints += 1  # another driver's joints (e.g. a gripper's): not ours, ignored
-                return
-            if missing or len(where) != len(names):
-                guard.reject("joint_states.names", f"/joint_states lacks or repeats joints ({', '.join(missing)}); "
-                                                   f"allowed: every joint of 'joints' once")
-                return
-            self._names, self._idx = names, np.array([where[j] for j in self.synergy.joint_names], dtype=np.intp)
-        if st < self.js_stamp:
-            guard.reject("joint_states.out_of_order", f"/joint_states: stamp {st} ns is older than the newest "
-                                                      f"({self.js_stamp} ns); kept the newest")
-            return
-        alpha = pos[self._idx]
-        v = vel[self._idx] if len(vel) else None
-        if not (all_finite(alpha) and (v is None or all_finite(v))):
-            guard.reject("joint_states.non_finite", "/joint_states: NaN/inf position or velocity; allowed: finite")
-            return
-        sv = self.settle_velocity
-        self.alpha, self.js_stamp = alpha, st
-        self.js_settled = v is None or bool(-sv < v.min() and v.max() < sv)
+        st = intake.stamp
+        self.alpha, self.js_stamp, self.js_settled = intake.position, st, intake.settled
         if self.waiting and st > self.js_min:
             self.js_fresh = True
             self._try_answer()

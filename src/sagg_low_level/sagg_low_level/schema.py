@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+from sagg_common.joint_intake import JointStateIntake
 from sagg_common.params import Param, Schema
 
 from .fixed_context import SCHEMA as FIXED_CORE_SCHEMA, SYNERGY_SCHEMA
@@ -177,6 +178,23 @@ LEARNER_NODE_SCHEMA: Schema = (
 )
 # the node `learner` (evolving context)
 LEARNER_SCHEMA: Schema = LEARNER_CORE_SCHEMA + LEARNER_NODE_SCHEMA
+# what the joint-state intake reads (joint_intake), with the learner's defaults for a reader whose
+# parameters lack them (the fixed-context learner's position link)
+_INTAKE_DEFAULTS = {q.name: q.default for q in LEARNER_NODE_SCHEMA if q.name.startswith("plausibility.")}
+
+
+def joint_intake(p: dict, joints, lower, upper) -> JointStateIntake:
+    """The one /joint_states reader for the joints ``joints`` with limits ``lower`` / ``upper``,
+    its rules from the learner parameters ``p`` (``settle_velocity`` and the joint-state part of
+    the plausibility envelope above; a key ``p`` lacks: the learner's default)."""
+    def get(key):
+        return p[key] if key in p else _INTAKE_DEFAULTS[key]
+    return JointStateIntake(joints, lower, upper, tolerance=get("plausibility.joint_tolerance"),
+                            max_velocity=get("plausibility.max_joint_velocity"),
+                            settle_velocity=p["settle_velocity"], source_grace=get("plausibility.source_grace"),
+                            check_sources=get("plausibility.check_sources"),
+                            future_tolerance=get("plausibility.future_tolerance"),
+                            resync_after=get("plausibility.resync_after"))
 
 
 FIXED_NODE_SCHEMA: Schema = (

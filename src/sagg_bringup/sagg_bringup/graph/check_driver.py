@@ -45,22 +45,22 @@ class _Probe:
 
     def __init__(self, lp: dict):
         task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
-        self.mon = DriverMonitor(lp["joints"], task, f"/{lp['controller'].strip('/')}/commands", lp["settle_velocity"],
-                                 lp["plausibility.source_grace"], model_task(lp))
+        self.mon = DriverMonitor(lp, task, f"/{lp['controller'].strip('/')}/commands", model_task(lp))
         self.js: list[tuple[float, int, np.ndarray | None]] = []
         self.tips: list[tuple[float, int, np.ndarray]] = []
         self.index: list[int] | None = None
         self.m = len(lp["task_space.lower"])  # task dimensions: x, y (and z)
 
-    def on_js(self, msg, info: dict) -> None:
-        self.mon.on_joint_state(msg, info)
-        names = list(msg.name)
-        if not any(j in names for j in self.mon.joints):
-            return  # another driver's joints (e.g. a gripper's): the learner ignores them
-        if all(j in names for j in self.mon.joints):
-            self.index = [names.index(j) for j in self.mon.joints]
-        self.js.append((time.time(), DriverMonitor._stamp(msg),
-                        self.mon.alpha.copy() if self.mon.alpha is not None else None))
+    def on_js(self, data: bytes, info: dict) -> None:
+        mon = self.mon
+        mon.on_joint_state(data, info)
+        names = mon.intake.names
+        if names is None or not any(j in names for j in mon.joints):
+            return  # undecodable, or another driver's joints (e.g. a gripper's): the learner ignores them
+        if all(j in names for j in mon.joints):
+            self.index = [names.index(j) for j in mon.joints]
+        self.js.append((time.time(), mon.intake.message_stamp,
+                        mon.alpha.copy() if mon.alpha is not None else None))
 
     def on_tip(self, msg, info: dict) -> None:
         self.mon.on_task_point(msg, info)
@@ -74,7 +74,7 @@ def publishers_report(node, mon: DriverMonitor, say) -> dict:
     number of sources sending what the learner uses (one: accepted; more: the learner holds)."""
     out: dict = {}
     now = time.monotonic()
-    streams = [("/joint_states", mon.js_sources, "the learner's joints")]
+    streams = [("/joint_states", mon.intake.sources, "the learner's joints")]
     if mon.task_fk is None:
         streams.append((mon.task_topic, mon.tip_sources, "task points"))
     for topic, chains, what in streams:
@@ -90,6 +90,9 @@ def publishers_report(node, mon: DriverMonitor, say) -> dict:
     out["joint_lists"] = lists
     for names, how in lists.items():
         say(f"  /joint_states naming [{names}]: {how}")
+    out["rejected"] = dict(mon.rejected)  # (the learner's rules: it would reject these too)
+    for kind, n in mon.rejected.items():
+        say(f"  /joint_states: {n} message(s) rejected [{kind}] (the learner rejects them too)")
     return out
 
 
@@ -123,7 +126,7 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     ex.add_node(node)
     probe = _Probe(lp)
     mon = probe.mon
-    node.create_subscription(JointState, "/joint_states", with_message_info(probe.on_js), reliable(100))
+    node.create_subscription(JointState, "/joint_states", with_message_info(probe.on_js), reliable(100), raw=True)
     if mon.task_fk is None:
         node.create_subscription(PointStamped, mon.task_topic, with_message_info(probe.on_tip), reliable(100))
     else:  # task_source 'model': the task point of each measured posture, through the robot's model

@@ -39,11 +39,13 @@ from sagg_common.journal import write_json_atomic
 from sagg_common.params import ConfigError, read_config
 from sagg_common.progress import Progress
 from sagg_common.ros_params import HW_DEPTH, reliable
-from sagg_common.sources import ACCEPT, AMBIGUOUS, NO_INFO, SourceChains, with_message_info
+from sagg_common.joint_intake import AMBIGUOUS, OTHER, TAKEN
+from sagg_common.sources import ACCEPT, AMBIGUOUS as SOURCES_AMBIGUOUS, NO_INFO, SourceChains, with_message_info
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import EvolvingContextLearner, SCHEMA, step_toward, stepped_move_limit
 from sagg_low_level.memory import SampleMemory
+from sagg_low_level.schema import joint_intake
 
 from ..inprocess.arm_params import NODES, core_config, graph_params, resolve_arm
 from ..inprocess.evaluator import Evaluator
@@ -110,21 +112,20 @@ def sim_model_matches(learner_params: dict, spec) -> bool:
 # ------------------------------------------------------------------------------ the driver
 class DriverMonitor:
     """What the driver publishes, from this process's own subscriptions (:meth:`subscribe`): joint
-    states mapped by name (positions, velocities, stamp), the newest task point and its stamp,
-    receive times; and :meth:`missing`, the contract items not yet met, each naming topic, type
-    or joints. The learner's rules for its inputs hold here too (DESIGN §8): a JointState naming
-    none of the joints is another driver's and ignored (its name list is kept for the report),
-    and while the joints (or the task points) come from two sources
-    (:class:`~sagg_common.sources.SourceChains`) nothing of that stream is taken: the evaluation on
-    the robot commands from these readings."""
+    states read by the learners' one intake (:class:`~sagg_common.joint_intake.JointStateIntake`,
+    with the learner parameters ``lp``: mapped by name, checked, one source, stamps), the newest
+    task point and its stamp, receive times; and :meth:`missing`, the contract items not yet met,
+    each naming topic, type or joints. A JointState naming none of the joints is another driver's
+    and ignored (its name list is kept for the report), and while the joints (or the task points)
+    come from two sources (:class:`~sagg_common.sources.SourceChains`) nothing of that stream is
+    taken: the evaluation on the robot commands from these readings."""
 
-    def __init__(self, joints: list[str], task_topic: str, cmd_topic: str, settle_velocity: float,
-                 source_grace: float = 2.0, task_fk=None):
-        self.joints = list(joints)
+    def __init__(self, lp: dict, task_topic: str, cmd_topic: str, task_fk=None):
+        self.joints = list(lp["joints"])
         self.task_topic, self.cmd_topic = task_topic, cmd_topic
-        self.settle_velocity = settle_velocity
+        self.intake = joint_intake(lp, self.joints, lp["joint_limits.lower"], lp["joint_limits.upper"])
         self.js_names: list[str] | None = None   # names of the last joint state carrying our joints
-        self.other_names: dict[tuple, int] = {}  # name lists without any of our joints -> messages
+        self.rejected: dict[str, int] = {}       # joint states not taken for their content, per kind
         self.alpha: np.ndarray | None = None
         self.js_stamp = -1
         self.settled = False
@@ -134,13 +135,17 @@ class DriverMonitor:
         self.cmd_rx = 0.0  # receive time (monotonic) of the last message on the commands topic
         self.js_rx: list[float] = []  # receive times (monotonic) of the last joint states
         self.tip_rx: list[float] = []
-        self.js_sources = SourceChains(source_grace)
-        self.tip_sources = SourceChains(source_grace)
+        self.tip_sources = SourceChains(lp["plausibility.source_grace"])
         self.rejected_sources = {"/joint_states": 0, task_topic: 0}  # messages refused: two sources
         self.on_tip = None  # called with each accepted task point (xyz array)
         # task_source 'model' (a TaskFromJoints): the task point is computed from each accepted
         # joint state, as the learner does; no task topic
         self.task_fk = task_fk
+
+    @property
+    def other_names(self) -> dict[tuple, int]:
+        """Name lists without any of our joints -> messages (another driver's: ignored)."""
+        return self.intake.other_joints
 
     def subscribe(self, node) -> None:
         """This monitor's subscriptions on ``node`` (with the message info: the sources)."""
@@ -148,7 +153,8 @@ class DriverMonitor:
         from geometry_msgs.msg import PointStamped
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray
-        node.create_subscription(JointState, "/joint_states", with_message_info(self.on_joint_state), reliable(100))
+        node.create_subscription(JointState, "/joint_states", with_message_info(self.on_joint_state), reliable(100),
+                                 raw=True)
         if self.task_fk is None:
             node.create_subscription(PointStamped, self.task_topic, with_message_info(self.on_task_point), reliable(100))
         node.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(100))
@@ -157,31 +163,26 @@ class DriverMonitor:
     def _stamp(msg) -> int:
         return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
-    def on_joint_state(self, msg, info: dict = NO_INFO) -> None:
-        names = list(msg.name)
-        if not any(j in names for j in self.joints):
-            key = tuple(names)
-            self.other_names[key] = self.other_names.get(key, 0) + 1
-            self.js_sources.skip(info["publication_sequence_number"])  # (no gap in its publisher's chain)
+    def on_joint_state(self, data: bytes, info: dict = NO_INFO) -> None:
+        """One raw JointState (the intake's verdict; counted when not taken)."""
+        intake = self.intake
+        verdict = intake.take(data, info["publication_sequence_number"])
+        if verdict.code is OTHER:
             return
-        self.js_names = names
+        if intake.names is not None:
+            self.js_names = list(intake.names)
         self.js_count += 1
         self.js_rx = (self.js_rx + [time.monotonic()])[-200:]
-        if self._refused(self.js_sources, "/joint_states", info):
+        if verdict.code is AMBIGUOUS:
+            self.rejected_sources["/joint_states"] += 1
+        elif verdict.code is not TAKEN and verdict.kind:
+            self.rejected[verdict.kind] = self.rejected.get(verdict.kind, 0) + 1
+        if verdict.code is not TAKEN:
             return
-        where = {n: i for i, n in enumerate(names)}
-        if any(j not in where for j in self.joints) or len(msg.position) != len(names):
-            return
-        idx = [where[j] for j in self.joints]
-        pos = np.asarray(msg.position, float)[idx]
-        vel = np.asarray(msg.velocity, float)[idx] if len(msg.velocity) == len(names) else None
-        st = self._stamp(msg)
-        if not np.all(np.isfinite(pos)) or st < self.js_stamp:
-            return
-        self.alpha, self.js_stamp = pos, st
-        self.settled = vel is None or bool(np.all(np.abs(vel) < self.settle_velocity))
+        self.alpha, self.js_stamp, self.settled = intake.position, intake.stamp, intake.settled
         if self.task_fk is not None:
-            self._take_tip(np.append(self.task_fk.point(pos), [0.0] * (3 - self.task_fk.task_dim)), st)
+            self._take_tip(np.append(self.task_fk.point(self.alpha), [0.0] * (3 - self.task_fk.task_dim)),
+                           self.js_stamp)
 
     def on_command(self, msg) -> None:  # noqa: ARG002 - only its time matters
         self.cmd_rx = time.monotonic()
@@ -207,7 +208,7 @@ class DriverMonitor:
     def _refused(self, chains: SourceChains, topic: str, info: dict) -> bool:
         """Whether a message is not taken for its source (two sources: counted; a gap: not)."""
         verdict = chains.classify(info["publication_sequence_number"], time.monotonic())
-        if verdict == AMBIGUOUS:
+        if verdict == SOURCES_AMBIGUOUS:
             self.rejected_sources[topic] += 1
         return verdict != ACCEPT
 
@@ -215,7 +216,7 @@ class DriverMonitor:
         """The streams that have two live sources now, in words (empty: none)."""
         now = time.monotonic()
         return [f"{t}: {what} from two sources" for t, what, c in (
-            ("/joint_states", "the joints " + ", ".join(self.joints), self.js_sources),
+            ("/joint_states", "the joints " + ", ".join(self.joints), self.intake.sources),
             (self.task_topic, "task points", self.tip_sources)) if c.ambiguous(now)]
 
     def missing(self, node, own_node: str = "sagg_run") -> list[str]:
@@ -564,8 +565,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False)
     st = session.st
     try:
-        monitor = DriverMonitor(lp["joints"], task_topic, cmd_topic, lp["settle_velocity"],
-                                lp["plausibility.source_grace"], model_task(lp))
+        monitor = DriverMonitor(lp, task_topic, cmd_topic, model_task(lp))
         monitor.subscribe(session.node)
         evaluator = None
         checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
