@@ -40,7 +40,8 @@ def test_model_arm_graph_equals_in_process_run_in_3d(run):
     assert len(s["goals"]) >= 3 and all(len(g["position"]) == 3 for g in s["goals"])
     # the tree splits Y in all three dimensions' terms: 3-D leaves
     assert len(s["regions"]) >= 2 and all(len(g["lower"]) == len(g["upper"]) == 3 for g in s["regions"])
-    assert [x["dim"] for x in s["splits"]] == [x["dim"] for x in r["splits"]]
+    # (the generator's own history, from its last checkpoint: equal whatever the load)
+    assert s["splits"] == json.loads(json.dumps(r["splits"])) and len(s["splits"]) >= 1
     # the model arm learns: the test error falls from the empty model's
     assert s["curve"][-1]["mean_error"] < 0.7 * s["curve"][0]["mean_error"], s["curve"]
 

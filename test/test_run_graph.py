@@ -115,13 +115,17 @@ def test_graph_run_equals_in_process_run(run):
     def leaves(regions):  # (an empty region's mean competence is NaN in the message, 0 in-process)
         return [{k: v for k, v in g.items() if g["count"] or k != "mean_competence"} for g in regions]
     assert leaves(s["regions"]) == leaves(r["regions"])
-    keys = ("stamp", "region", "dim", "value", "left", "right")
-    assert [{k: x[k] for k in keys} for x in s["splits"]] == [{k: x[k] for k in keys} for x in r["splits"]]
+    # the split history is the generator's own (its last checkpoint), whatever the load
+    assert s["splits"] == json.loads(json.dumps(r["splits"]))
+    assert s["eval_metrics"] == r["eval_metrics"]
 
 
 def test_report_exists_and_references_its_figures(run):
     out, s, _ = run
     text = (out / "report.md").read_text()
+    within = re.search(r"final share of test goals within ([^ |]+)", text)
+    assert within and within.group(1) != "nan" and float(within.group(1)) == pytest.approx(s["eval_metrics"]["within"],
+                                                                                         rel=1e-2)
     images = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
     assert len(images) == 4
     for name in images:

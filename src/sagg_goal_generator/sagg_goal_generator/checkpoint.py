@@ -148,6 +148,17 @@ def teacher_snapshot(directory: str | Path, params: dict) -> dict | None:
     return gen.teacher.snapshot()
 
 
+def checkpoint_splits(directory: str | Path) -> list[dict] | None:
+    """The split history (the dicts of ``RegionTree.splits``) in the generator checkpoint in
+    ``directory`` (the node's last one: it writes one at shutdown), read only; None without one."""
+    directory = Path(directory)
+    if not (directory / "generator.json").is_file():
+        return None
+    meta = json.loads((directory / "generator.json").read_text())
+    with np.load(directory / meta["state_file"], allow_pickle=False) as z:
+        return splits_from_arrays(z)
+
+
 def published(directory: str | Path) -> dict | None:
     """What the generator checkpoint in ``directory`` holds, read only (None without a
     checkpoint): ``goals`` (every goal it chose: the state's and the journaled ones) and

@@ -229,6 +229,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         memory={"samples": len(memory), "digest": memory.digest(), "bytes": int(memory.nbytes)},
         test_goals=evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,
         splits=tracker.splits,
+        eval_metrics=evaluator.metrics(),
         bag={**session.bag_summary(list(prior_bags) + [bag_path], st.gaps),
              **({"recovered": recovered, "resume_check": check} if resume else {})},
         rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0})

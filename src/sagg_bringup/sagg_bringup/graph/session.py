@@ -13,7 +13,7 @@ import numpy as np
 
 from sagg_common.journal import write_json_atomic
 from sagg_common.progress import Progress
-from sagg_goal_generator.checkpoint import teacher_snapshot
+from sagg_goal_generator.checkpoint import checkpoint_splits, teacher_snapshot
 
 from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
 from sagg_common.params import ConfigError
@@ -48,7 +48,7 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
                 "resumed_segments", "learn_seconds", "startup_seconds", "eval_seconds", "wall_seconds", "curve",
                 "final_mean_error", "final_median_error", "memory", "learner_status", "reports", "goals",
                 "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
-                "interrupted", "error", "driver", "curve_source", "simulated_evaluation", "robot_evaluation",
+                "interrupted", "error", "eval_metrics", "driver", "curve_source", "simulated_evaluation", "robot_evaluation",
                 "teacher")
 
 
@@ -338,6 +338,21 @@ class GraphSession:
         self.node.destroy_node()
         self._rclpy.shutdown(context=self.ctx)
 
+    def _exact_splits(self, directory: str | None, rebuilt: list[dict]) -> list[dict]:
+        """The generator's own split history, from its last checkpoint (written at its shutdown:
+        the same as the in-process run's, whatever the load), when that checkpoint holds at least
+        the splits of the last recorded /sagg/regions snapshot; else ``rebuilt`` (the history
+        :class:`~sagg_bringup.graph.split_tracker.SplitTracker` rebuilt from the snapshots, where a
+        loaded machine may coalesce snapshots and so change the order of splits made between two)."""
+        try:
+            exact = checkpoint_splits(directory) if directory else None
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"sagg: the split history is rebuilt from /sagg/regions: checkpoint {directory} unreadable "
+                  f"({exc})", file=sys.stderr)
+            return rebuilt
+        seen = int(self.st.last_regions.splits) if self.st.last_regions is not None else 0
+        return exact if exact is not None and len(exact) >= seen else rebuilt
+
     def dropped(self) -> dict[str, int]:
         """Messages published but never recorded: the gaps the recorder counted in the publishers'
         sequence numbers, and what the learner's last status counts beyond what came (a tail has
@@ -377,6 +392,8 @@ class GraphSession:
                 teacher = None
             if teacher is not None:
                 out["teacher"] = teacher
+        if "splits" in out:
+            out["splits"] = self._exact_splits(gp.get("checkpoint_dir"), out["splits"])
         out.update({
             "format": "sagg.summary/1",
             "strategy": lp["strategy"],

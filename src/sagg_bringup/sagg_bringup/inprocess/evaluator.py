@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from sagg_common.rng import substream_seed
-from sagg_low_level.eval_metrics import error_metrics, metric_frame
+from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.learner import EvolvingContextLearner, Robot
 from sagg_low_level.memory import SampleMemory
 
@@ -195,6 +195,11 @@ class Evaluator:
         if self.error is None and not self.proc.is_alive() and self.proc.exitcode not in (None, 0):
             self.error = f"evaluation process exited with code {self.proc.exitcode}"
         return done
+
+    def metrics(self) -> dict | None:
+        """The metric frame of the test goals without the per-goal bands (result.json's
+        ``eval_metrics``: R, the tolerance, the band edges), None before the test goals exist."""
+        return None if self._frame is None else frame_summary(self._frame)
 
     def finished(self, upto: int) -> bool:
         """Every checkpoint up to ``upto`` micro-actions is evaluated."""
