@@ -52,7 +52,7 @@ from ..inprocess.evaluator import Evaluator
 from .params_files import run_only_params, set_checkpoint_dirs, write_params_file
 from .run_file import write_run_file
 from .processes import GraphError, check_domain_id, node_processes
-from .session import REPORT_PATIENCE, STALL_TIMEOUT, GraphSession
+from .session import STALL_TIMEOUT, FollowedEvaluation, GraphSession
 from .split_tracker import SplitTracker
 from ..report.report import arm_rows, write_report
 from ..inprocess.results import run_overrides
@@ -626,46 +626,30 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                 pauser.set(False)
             st.last_error = float(errors.mean())
 
+        evaluation = FollowedEvaluation(session, evaluator, progress) if evaluator is not None else None
+
+        def tick(now: float) -> bool:
+            """The simulated evaluation followed; an evaluation on the robot when one is due (learning
+            paused meanwhile: True, the stall clock starts again)."""
+            if evaluation is not None:
+                evaluation.tick(now)
+            done = st.status is not None and st.status["micro_actions"] >= micro_actions
+            if (robot_eval.next_at is not None and robot_eval.next_at < micro_actions
+                    and st.samples >= robot_eval.next_at and not done):  # (the end has its own)
+                evaluate_on_robot(min(st.samples, micro_actions), final=False)
+                robot_eval.next_at += robot_eval.every
+                return True
+            return False
+
         def body() -> None:
             if evaluator is not None:
                 evaluator.start()
             timing["driver_wait"] = wait_for_driver(session, monitor, driver_timeout, progress)
             session.start_nodes(params_file, run_only_params(params))
-            last = (0, time.perf_counter())
-            while True:
-                session.spin()
-                now = time.perf_counter()
-                if st.samples and "first_sample" not in timing:
-                    timing["first_sample"] = now
-                bar.update(min(st.samples, micro_actions - 1), **st.progress())
-                if evaluator is not None:
-                    evaluator.flush()
-                    for at, errors in evaluator.poll():
-                        session.publish_evaluation(at, errors)
-                    if evaluator.error:
-                        raise GraphError(f"evaluation failed: {evaluator.error}")
-                done = st.status is not None and st.status["micro_actions"] >= micro_actions
-                for p in session.procs:
-                    code = p.poll()
-                    if code is not None:
-                        raise GraphError(f"node {p.name} exited with code {code} (log {p.log_path}):\n"
-                                         f"{p.log_tail()}", code=2 if code == 2 else 1)
-                if (robot_eval.next_at is not None and robot_eval.next_at < micro_actions
-                        and st.samples >= robot_eval.next_at and not done):  # (the end has its own)
-                    evaluate_on_robot(min(st.samples, micro_actions), final=False)
-                    robot_eval.next_at += robot_eval.every
-                    last = (st.samples, time.perf_counter())
-                    continue
-                if st.samples != last[0]:
-                    last = (st.samples, now)
-                elif not done and now - last[1] > stall_timeout:
-                    raise GraphError(f"{st.stall_text(stall_timeout, 'micro-actions')}; node logs in "
-                                     f"{out / 'logs'}; driver: "
-                                     + ("; ".join(monitor.missing(session.node)) or "meets the contract"))
-                if done and st.all_recorded(now, min(stall_timeout, REPORT_PATIENCE)):
-                    if evaluator is None or evaluator.finished(st.samples):
-                        break
-            bar.update(st.samples, force=True, **st.progress())
+            session.wait_for_learner(
+                micro_actions, stall_timeout, "micro-actions", bar, tick=tick,
+                may_end=None if evaluation is None else evaluation.may_end,
+                stall_detail=lambda: "driver: " + ("; ".join(monitor.missing(session.node)) or "meets the contract"))
             evaluate_on_robot(st.samples, final=True)
             session.final_drain()
     except BaseException:
@@ -694,7 +678,7 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         lp, config, params, params_file, "external driver", micro_actions,
         sim_curve if simulated else robot_curve, area, t_start,
         eval_every=eval_every,
-        startup_seconds=(timing["first_sample"] - session.t_nodes) if "first_sample" in timing else float("nan"),
+        startup_seconds=session.startup_seconds(),
         eval_seconds=(evaluator.eval_seconds if evaluator is not None else 0.0) + robot_eval.seconds,
         memory=_memory_info(samples),
         test_goals=robot_summary["goals"],

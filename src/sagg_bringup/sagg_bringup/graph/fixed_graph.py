@@ -123,9 +123,8 @@ def run_fixed_graph(setup, config_path: str | Path, micro_actions: int, out_dir:
         def body() -> None:
             nonlocal run, goals_test, area, eval_seconds
             session.start_nodes(params_file, run_only_params(params))
-            session.wait_for_learner(micro_actions, stall_timeout, "experiments",
-                                     lambda now: bar.update(st.samples, **st.progress()),
-                                     lambda waited: waited > 0.5)
+            session.wait_for_learner(micro_actions, stall_timeout, "experiments", bar,
+                                     may_end=lambda waited: waited > 0.5)  # (a short drain)
             # ---- evaluation from the recorded samples (same test goals and simulator as in-process)
             run = FixedRun({"sagg_goal_generator": full["sagg_goal_generator"], "sagg_learner": lp,
                               "sagg_sim_bridge": full["sagg_sim_bridge"]}, setup.adapter)

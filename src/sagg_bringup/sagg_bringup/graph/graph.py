@@ -52,7 +52,7 @@ from ..bags.recorder import msg_class
 from ..report.report import arm_rows, write_report
 from .resume_check import compare
 from ..inprocess.results import run_overrides
-from .session import STALL_TIMEOUT, GraphSession
+from .session import STALL_TIMEOUT, FollowedEvaluation, GraphSession
 from .split_tracker import SplitTracker
 from ..bags.topics import graph_topics
 
@@ -166,46 +166,13 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
                         "/sagg/regions": on_regions, "/sagg/status": st.on_status})
         session.acknowledge(lambda: st.samples)  # the samples recorded and accepted, from index 0
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)
-        t_first = None
-        waiting_note = False
-
-        def tick(now: float) -> None:
-            nonlocal t_first
-            if st.samples and t_first is None:
-                t_first = now
-            if st.samples < micro_actions:  # (the bar always prints a full one: once, below)
-                bar.update(st.samples, **st.progress())
-            evaluator.flush()
-            for at, errors in evaluator.poll():
-                session.publish_evaluation(at, errors)
-            if evaluator.error:
-                raise GraphError(f"evaluation failed: {evaluator.error}")
-            if evaluator.test_goals is not None and session.view.test_goals is None:
-                session.view.set_test_goals(evaluator.test_goals)
-
-        def may_end(waited: float) -> bool:
-            nonlocal waiting_note
-            # a short drain so reports/goals published just before the end are recorded too
-            if waited > 0.5 and evaluator.finished(st.samples):
-                return True
-            # evaluation is niced and may lag behind learning on a busy machine: wait for it as
-            # long as its process lives (it reports its own errors), telling the user once
-            if not evaluator.proc.is_alive():
-                raise GraphError("the evaluation process stopped before the final evaluation")
-            if not waiting_note and waited > 2.0:
-                waiting_note = True
-                pending = sum(1 for c in evaluator.checkpoints
-                              if c <= st.samples and c not in evaluator.errors)
-                if progress:
-                    print(f"\nlearning done; waiting for {pending} pending evaluation(s)",
-                          file=sys.stderr, flush=True)
-            return False
+        evaluation = FollowedEvaluation(session, evaluator, progress)
 
         def body() -> None:
             evaluator.start()
             session.start_nodes(params_file, extra)
-            session.wait_for_learner(micro_actions, stall_timeout, "micro-actions", tick, may_end)
-            bar.update(st.samples, force=True, **st.progress())
+            session.wait_for_learner(micro_actions, stall_timeout, "micro-actions", bar, tick=evaluation.tick,
+                                     may_end=evaluation.may_end)
             session.final_drain()
     except BaseException:
         session.close()
@@ -224,7 +191,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         lp, config, params, params_file, timing, micro_actions, curve, area, t_start, prior_samples,
         eval_every=eval_every,
         resumed_segments=segment - 1,
-        startup_seconds=(t_first - session.t_nodes) if t_first is not None else float("nan"),
+        startup_seconds=session.startup_seconds(),
         eval_seconds=evaluator.eval_seconds,
         memory={"samples": len(memory), "digest": memory.digest(), "bytes": int(memory.nbytes)},
         test_goals=evaluator.test_goals.tolist() if evaluator.test_goals is not None else None,

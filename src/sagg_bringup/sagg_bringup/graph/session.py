@@ -100,6 +100,7 @@ class GraphSession:
         self.interrupted = False
         self.error: GraphError | None = None
         self.t_nodes: float | None = None  # when the nodes were started
+        self.t_first_sample: float | None = None  # when the first sample was in
         self.t_end: float | None = None    # when everything was stopped
         self._closed = False
 
@@ -197,30 +198,51 @@ class GraphSession:
         if self.stop_signal:
             raise KeyboardInterrupt
 
-    def wait_for_learner(self, micro_actions: int, stall_timeout: float, unit: str,
-                         tick: Callable[[float], None], may_end: Callable[[float], bool]) -> None:
-        """Spin until the learner reports ``micro_actions`` done (/sagg/status), every sample it
-        stored is in, and ``may_end(seconds since then)`` is true. ``tick(now)`` runs after every
-        spin. GraphError when a node exits before (a node that exits 0 once the learner is done is
-        fine) or no new sample came for ``stall_timeout`` s (``unit``: what a sample counts)."""
+    def wait_for_learner(self, micro_actions: int, stall_timeout: float, unit: str, bar: Progress, *,
+                         tick: Callable[[float], bool | None] | None = None,
+                         may_end: Callable[[float], bool] | None = None,
+                         stall_detail: Callable[[], str] | None = None) -> None:
+        """The one run loop of every graph run: spin until the learner reports ``micro_actions``
+        done (/sagg/status), every sample it stored is in, and ``may_end(seconds since then)`` is
+        true (None: at once), the progress line ``bar`` following the samples.
+
+        ``tick(now)`` runs after every spin (a mode's own work: an evaluation to follow, an
+        evaluation on the robot); when it returns True it held the run for a while on purpose (learning
+        paused) and the stall clock starts again. GraphError when a node exits before the end (a
+        node that exits 0 once the learner is done is fine) or no new sample came for
+        ``stall_timeout`` s (``unit``: what a sample counts; ``stall_detail()``: what the error
+        adds, e.g. what the driver lacks)."""
         st = self.st
         last_progress = (0, time.perf_counter())
         done_at = None
         while True:
             self.spin()
             now = time.perf_counter()
-            tick(now)
+            if st.samples and self.t_first_sample is None:
+                self.t_first_sample = now
+            bar.update(min(st.samples, micro_actions - 1), **st.progress())  # (full once, at the end)
+            if tick is not None and tick(now):
+                last_progress = (st.samples, time.perf_counter())
+                continue
             learner_done = st.status is not None and st.status["micro_actions"] >= micro_actions
             self.nodes.check(may_exit=learner_done)
             if st.samples != last_progress[0]:
                 last_progress = (st.samples, now)
             elif not learner_done and now - last_progress[1] > stall_timeout:
-                raise GraphError(f"{st.stall_text(stall_timeout, unit)}; node logs in {self.out / 'logs'}")
+                detail = f"; {stall_detail()}" if stall_detail is not None else ""
+                raise GraphError(f"{st.stall_text(stall_timeout, unit)}; node logs in {self.out / 'logs'}{detail}")
             if learner_done and st.all_recorded(now, min(stall_timeout, REPORT_PATIENCE)):
                 if done_at is None:
                     done_at = now
-                if may_end(now - done_at):
-                    return
+                if may_end is None or may_end(now - done_at):
+                    break
+        bar.update(st.samples, force=True, **st.progress())
+
+    def startup_seconds(self) -> float:
+        """From starting the nodes to the first sample (NaN when none came)."""
+        if self.t_first_sample is None or self.t_nodes is None:
+            return float("nan")
+        return self.t_first_sample - self.t_nodes
 
     def catch_up(self, limit: float = 60.0) -> None:
         """After Ctrl-C / SIGTERM: pause the learner (/sagg/pause; the micro-action in flight
@@ -438,3 +460,42 @@ class GraphSession:
         if self.interrupted:
             raise KeyboardInterrupt
         return summary
+
+
+class FollowedEvaluation:
+    """The offline evaluation of a graph run, followed from the run loop: an
+    :class:`~sagg_bringup.inprocess.evaluator.Evaluator` process fed the recorded samples, whose
+    results are published on /sagg/evaluation (recorded like the rest) as they come. Its
+    :meth:`tick` and :meth:`may_end` are the run loop's parts (:meth:`GraphSession.wait_for_learner`)."""
+
+    def __init__(self, session: GraphSession, evaluator, progress: bool):
+        self.session, self.evaluator, self.progress = session, evaluator, progress
+        self._noted = False
+
+    def tick(self, now: float) -> None:  # noqa: ARG002 - the run loop's signature
+        """Feed the samples recorded since, publish the evaluations done, fail on its error."""
+        ev, session = self.evaluator, self.session
+        ev.flush()
+        for at, errors in ev.poll():
+            session.publish_evaluation(at, errors)
+        if ev.error:
+            raise GraphError(f"evaluation failed: {ev.error}")
+        if ev.test_goals is not None and session.view is not None and session.view.test_goals is None:
+            session.view.set_test_goals(ev.test_goals)
+
+    def may_end(self, waited: float) -> bool:
+        """Whether the run may end ``waited`` s after learning did: once every evaluation point is
+        evaluated (after a short drain, so that reports and goals published just before the end are
+        recorded too). The evaluation is niced and may lag behind learning on a busy machine: it is
+        waited for as long as its process lives (it reports its own errors), the user told once."""
+        ev, st = self.evaluator, self.session.st
+        if waited > 0.5 and ev.finished(st.samples):
+            return True
+        if not ev.proc.is_alive():
+            raise GraphError("the evaluation process stopped before the final evaluation")
+        if not self._noted and waited > 2.0:
+            self._noted = True
+            pending = sum(1 for c in ev.checkpoints if c <= st.samples and c not in ev.errors)
+            if self.progress:
+                print(f"\nlearning done; waiting for {pending} pending evaluation(s)", file=sys.stderr, flush=True)
+        return False
