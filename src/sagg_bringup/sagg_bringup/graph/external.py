@@ -44,19 +44,16 @@ from sagg_common.sources import ACCEPT, AMBIGUOUS as SOURCES_AMBIGUOUS, NO_INFO,
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.evaluate import reach_frozen
 from sagg_low_level.learner import EvolvingContextLearner, SCHEMA, step_toward, stepped_move_limit
-from sagg_low_level.memory import SampleMemory
 from sagg_low_level.schema import joint_intake
 
-from ..inprocess.arm_params import NODES, core_config, graph_params, resolve_arm
+from ..inprocess.arm_params import NODES, graph_params
 from ..inprocess.evaluator import Evaluator
-from .params_files import run_only_params, set_checkpoint_dirs, write_params_file
-from .run_file import write_run_file
-from .processes import GraphError, check_domain_id, node_processes
-from .session import STALL_TIMEOUT, FollowedEvaluation, GraphSession
-from .split_tracker import SplitTracker
 from ..report.report import arm_rows, write_report
-from ..inprocess.results import run_overrides
 from ..bags.topics import graph_topics
+from .arm_run import ArmStreams, plan_arm_run
+from .processes import GraphError
+from .run_file import write_run_file
+from .session import STALL_TIMEOUT, FollowedEvaluation, GraphSession
 
 JS_TYPE = "sensor_msgs/msg/JointState"
 TIP_TYPE = "geometry_msgs/msg/PointStamped"
@@ -525,189 +522,152 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                        robot_eval_goals: int = 10, robot_eval_every: int = 0,
                        driver_timeout: float = 120.0) -> dict:
     """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
-    # lazy (heavy): mujoco
-    from sagg_sim_bridge.arms import arm_base_point, arm_reachable_area, arm_test_goals
-
     if robot_eval_goals < 1 or robot_eval_every < 0:
         raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every}; "
                           "allowed: goals >= 1, every >= 0")
-    ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
-    check_domain_id(domain_id)
-    full, spec = resolve_arm(config_path, ov)  # (the one arm_spec_from_params of the run)
-    out = Path(out_dir)
-    if (out / "bag").exists():
-        raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
-    params = external_params(full, micro_actions, explicit_joints(config_path, ov), spec)
-    lp = params["sagg_learner"]
-    procs = node_processes(EXTERNAL_NODES, out / "logs")
-    t_start = time.perf_counter()
-    for note in set_checkpoint_dirs(params, out):
-        print(f"sagg run: {note}", file=sys.stderr)
-    params_file = out / "params.yaml"
-    write_params_file(params_file, params)
-    config = core_config(full)
+    plan = plan_arm_run(config_path, micro_actions, out_dir, nodes=EXTERNAL_NODES, eval_every=eval_every,
+                        strategy=strategy, seed=seed, overrides=overrides, domain_id=domain_id,
+                        node_params=lambda full, spec, ov: external_params(full, micro_actions,
+                                                                           explicit_joints(config_path, ov), spec))
+    out, lp, spec = plan.out, plan.lp, plan.spec
     simulated = sim_model_matches(lp, spec)
     if not simulated:
-        config.pop("sagg_sim_bridge")  # not a model of this arm: no reachable area, no simulated evaluation
-    t_lower, t_upper = np.asarray(lp["task_space.lower"]), np.asarray(lp["task_space.upper"])
-    cmd_topic = f"/{lp['controller'].strip('/')}/commands"
-    task_topic = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
-
+        plan.config.pop("sagg_sim_bridge")  # not a model of this arm: no reachable area, no simulated evaluation
     # the driver runs in the environment's domain and discovery range (not a private one)
     if domain_id is None:
         domain_id = int(os.environ.get("ROS_DOMAIN_ID") or 0)
     # before anything starts: a killed run is known to have learned on this robot (never resumed otherwise)
     write_run_file(out, setup="arm", driver="external", timing="external driver", domain_id=domain_id,
                    domain_private=False, micro_actions=micro_actions, eval_every=eval_every, config=config_path,
-                   overrides=ov, robot_eval_goals=robot_eval_goals, robot_eval_every=robot_eval_every,
+                   overrides=plan.overrides, robot_eval_goals=robot_eval_goals, robot_eval_every=robot_eval_every,
                    driver_timeout=driver_timeout)
     # (the driver's state streams go on after the nodes stop: the final drain does not wait for them)
-    session = GraphSession(procs, domain_id, graph_topics(lp), out / "bag", out, drain=2000, localhost=False)
-    st = session.st
+    session = GraphSession(plan.procs, domain_id, graph_topics(lp), plan.bag_path, out, drain=2000, localhost=False)
     try:
-        monitor = DriverMonitor(lp, task_topic, cmd_topic, model_task(lp))
-        monitor.subscribe(session.node)
-        evaluator = None
-        checkpoints = list(range(0, micro_actions, eval_every)) + [micro_actions]
-        if simulated:
-            evaluator = Evaluator(config["sagg_learner"], spec, checkpoints)
-        samples: tuple[list, list, list] = ([], [], [])
-        reached: list[np.ndarray] = []
-
-        sample_check = st.arm_sample_check(lp, len(t_lower))
-
-        def on_sample(m) -> bool | None:
-            # the checks of `sagg run`'s own recorder (RunState.accept_sample)
-            ok = st.accept_sample(m, sample_check)
-            if ok:
-                a, da, dy = np.array(m.alpha), np.array(m.delta_alpha), np.array(m.delta_y)
-                for lst, v in zip(samples, (a, da, dy)):
-                    lst.append(v)
-                if evaluator is not None:
-                    evaluator.add(int(m.index), a, da, dy)
-            return ok
-
-        def on_tip(p) -> None:
-            if st.samples and len(reached) < 200_000:
-                reached.append(p[:len(t_lower)].copy())
-
-        monitor.on_tip = on_tip
-
-        tracker = SplitTracker(t_lower, t_upper)
-
-        def on_regions(m) -> None:
-            st.last_regions = m
-            tracker.update([(int(r.id), r.lower, r.upper) for r in m.regions], int(m.goals))
-
-        session.record({"/sagg/sample": on_sample, "/sagg/goal": st.on_goal, "/sagg/competence": st.on_report,
-                        "/sagg/regions": on_regions, "/sagg/status": st.on_status})
-        robot = ContractRobot(session, monitor, lp)
-        sim_goals = None
-        if simulated:
-            area0 = arm_reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
-            sim_goals = arm_test_goals(spec, t_lower, t_upper, n=robot_eval_goals, seed=lp["eval.seed"], area=area0)
-        robot_eval = RobotEvaluation(lp, robot, robot_eval_goals, robot_eval_every, sim_goals,
-                                     arm_base_point(spec) if simulated else None)
-        pauser = Pauser(session, monitor, lp["settle_timeout"] + 0.5)
+        robot_run = RobotRun(session, plan, robot_eval_goals, robot_eval_every, simulated, progress)
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, external driver)", enabled=progress)
-        timing: dict[str, float] = {}
-
-        def evaluate_on_robot(at: int, final: bool) -> None:
-            if progress:
-                print(f"\nevaluating on the robot at {at} micro-actions ({robot_eval_goals} goals from rest"
-                      + (", learning paused)" if not final else ")"), file=sys.stderr, flush=True)
-            if not final:
-                pauser.set(True)
-                posture = monitor.alpha.copy()
-            errors = robot_eval.run(at, *samples, reached)
-            session.view.set_test_goals(robot_eval.goals)
-            if not final:  # back where learning paused (in steps), then resume
-                robot.move_to(posture)
-                pauser.set(False)
-            st.last_error = float(errors.mean())
-
-        evaluation = FollowedEvaluation(session, evaluator, progress) if evaluator is not None else None
-
-        def tick(now: float) -> bool:
-            """The simulated evaluation followed; an evaluation on the robot when one is due (learning
-            paused meanwhile: True, the stall clock starts again)."""
-            if evaluation is not None:
-                evaluation.tick(now)
-            done = st.status is not None and st.status["micro_actions"] >= micro_actions
-            if (robot_eval.next_at is not None and robot_eval.next_at < micro_actions
-                    and st.samples >= robot_eval.next_at and not done):  # (the end has its own)
-                evaluate_on_robot(min(st.samples, micro_actions), final=False)
-                robot_eval.next_at += robot_eval.every
-                return True
-            return False
 
         def body() -> None:
-            if evaluator is not None:
-                evaluator.start()
-            timing["driver_wait"] = wait_for_driver(session, monitor, driver_timeout, progress)
-            session.start_nodes(params_file, run_only_params(params))
+            if robot_run.evaluator is not None:
+                robot_run.evaluator.start()
+            robot_run.driver_wait = wait_for_driver(session, robot_run.monitor, driver_timeout, progress)
+            session.start_nodes(plan.params_file, robot_run.streams.node_extra())
             session.wait_for_learner(
-                micro_actions, stall_timeout, "micro-actions", bar, tick=tick,
-                may_end=None if evaluation is None else evaluation.may_end,
-                stall_detail=lambda: "driver: " + ("; ".join(monitor.missing(session.node)) or "meets the contract"))
-            evaluate_on_robot(st.samples, final=True)
+                micro_actions, stall_timeout, "micro-actions", bar, tick=robot_run.tick,
+                may_end=robot_run.evaluation.may_end if robot_run.evaluation is not None else None,
+                stall_detail=robot_run.driver_state)
+            robot_run.evaluate(session.st.samples, final=True)
             session.final_drain()
     except BaseException:
         session.close()
         raise
 
-    session.run(body, bar, between=evaluator.stop if evaluator is not None else None)
-
-    # ---- summary
-    sim_curve = sorted(evaluator.curve, key=lambda c: c["micro_actions"]) if evaluator is not None else []
-    robot_summary = robot_eval.summary()
-    robot_summary.update(driver_wait_seconds=timing.get("driver_wait", float("nan")),
-                         joint_state_rate=DriverMonitor.rate(monitor.js_rx),
-                         task_point_rate=DriverMonitor.rate(monitor.tip_rx))
-    robot_curve = [{k: c[k] for k in ("micro_actions", "mean_error", "median_error")} for c in robot_eval.curve]
-    if robot_eval.initial_errors is not None:
-        e = robot_eval.initial_errors
-        robot_curve.insert(0, {"micro_actions": 0, "mean_error": float(e.mean()), "median_error": float(np.median(e))})
-    area = None
-    if simulated:
-        area = evaluator.area or arm_reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"])
-    bag_topics = session.bag.topics()
-    rec = session.recorder
-    span = {t: (rec.last_ns[t] - rec.first_ns[t]) / 1e9 for t in rec.first_ns}
-    summary = session.summary(
-        lp, config, params, params_file, "external driver", micro_actions,
-        sim_curve if simulated else robot_curve, area, t_start,
-        eval_every=eval_every,
-        startup_seconds=session.startup_seconds(),
-        eval_seconds=(evaluator.eval_seconds if evaluator is not None else 0.0) + robot_eval.seconds,
-        memory=_memory_info(samples),
-        test_goals=robot_summary["goals"],
-        splits=tracker.splits,
-        bag=session.bag_summary([out / "bag"], st.gaps),
-        rates={t: (bag_topics[t]["count"] - 1) / s for t, s in span.items() if s > 0},
-        driver="external", robot_evaluation=robot_summary,
-        curve_source="simulated (offline, from the recorded samples)" if simulated else "on the robot",
-        simulated_evaluation=simulated)
-    if simulated:
-        summary["test_goals"] = evaluator.test_goals.tolist() if evaluator.test_goals is not None else None
-
-    write_json_atomic(out / "robot_evaluation.json", {"summary": robot_summary, "trace": robot.trace})
+    session.run(body, bar, between=robot_run.evaluator.stop if robot_run.evaluator is not None else None)
+    summary = robot_run.summary()
 
     def report_now() -> None:
-        path = write_report(summary, out, area=area, setup_rows=arm_rows(config.get("sagg_sim_bridge") or {}))
+        path = write_report(summary, out, area=robot_run.area,
+                            setup_rows=arm_rows(plan.config.get("sagg_sim_bridge") or {}))
         path.write_text(path.read_text() + robot_report_section(summary))
 
     return session.finish(summary, report_now if report and summary["curve"] else None)
 
 
-def _memory_info(samples) -> dict:
-    alpha, dalpha, dy = samples
-    if not alpha:
-        return {"samples": 0}
-    mem = SampleMemory(len(alpha[0]), len(dalpha[0]), len(dy[0]), capacity=len(alpha))
-    for a, da, d in zip(alpha, dalpha, dy):
-        mem.add(a, da, d)
-    return {"samples": len(mem), "digest": mem.digest(), "bytes": int(mem.nbytes)}
+class RobotRun:
+    """The parts of an external-driver run that a simulated one lacks: the driver's monitor (its
+    contract, what it measures), the evaluation on the robot (:class:`RobotEvaluation`, at the end
+    and every ``every`` micro-actions with learning paused), and, when the config's simulated arm is
+    this arm (``simulated``), the offline evaluation of the recorded samples in simulation."""
+
+    def __init__(self, session: GraphSession, plan, n_goals: int, every: int, simulated: bool, progress: bool):
+        # lazy (heavy): mujoco
+        from sagg_sim_bridge.arms import arm_base_point, arm_reachable_area, arm_test_goals
+        self.session, self.plan, self.progress, self.simulated = session, plan, progress, simulated
+        lp, spec = plan.lp, plan.spec
+        t_lower, t_upper = plan.task_box
+        cmd_topic = f"/{lp['controller'].strip('/')}/commands"
+        task_topic = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
+        self.monitor = DriverMonitor(lp, task_topic, cmd_topic, model_task(lp))
+        self.monitor.subscribe(session.node)
+        self.evaluator = Evaluator(plan.config["sagg_learner"], spec, plan.checkpoints) if simulated else None
+        self.evaluation = FollowedEvaluation(session, self.evaluator, progress) if simulated else None
+        self.streams = ArmStreams(session, plan, self.evaluator)
+        self.reached: list[np.ndarray] = []  # task points measured while learning (robot test goals)
+        self.monitor.on_tip = self._on_tip
+        self.streams.record()
+        self.robot = ContractRobot(session, self.monitor, lp)
+        self.area = arm_reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"]) if simulated else None
+        goals = (arm_test_goals(spec, t_lower, t_upper, n=n_goals, seed=lp["eval.seed"], area=self.area)
+                 if simulated else None)
+        self.robot_eval = RobotEvaluation(lp, self.robot, n_goals, every, goals,
+                                          arm_base_point(spec) if simulated else None)
+        self.pauser = Pauser(session, self.monitor, lp["settle_timeout"] + 0.5)
+        self.driver_wait = float("nan")
+
+    def _on_tip(self, p) -> None:
+        if self.session.st.samples and len(self.reached) < 200_000:
+            self.reached.append(p[:len(self.plan.lp["task_space.lower"])].copy())
+
+    def driver_state(self) -> str:
+        """What the driver lacks now (the stall error's detail)."""
+        return "driver: " + ("; ".join(self.monitor.missing(self.session.node)) or "meets the contract")
+
+    def tick(self, now: float) -> bool:
+        """The simulated evaluation followed; an evaluation on the robot when one is due (learning
+        paused meanwhile: True, the stall clock starts again)."""
+        if self.evaluation is not None:
+            self.evaluation.tick(now)
+        st, total, r = self.session.st, self.plan.micro_actions, self.robot_eval
+        done = st.status is not None and st.status["micro_actions"] >= total
+        if r.next_at is not None and r.next_at < total and st.samples >= r.next_at and not done:  # (the end has its own)
+            self.evaluate(min(st.samples, total), final=False)
+            r.next_at += r.every
+            return True
+        return False
+
+    def evaluate(self, at: int, final: bool) -> None:
+        """The evaluation on the robot at ``at`` micro-actions; during learning (not ``final``) with
+        learning paused, and the arm brought back where it paused (in steps) before learning resumes."""
+        session, monitor = self.session, self.monitor
+        if self.progress:
+            print(f"\nevaluating on the robot at {at} micro-actions ({self.robot_eval.n_goals} goals from rest"
+                  + (", learning paused)" if not final else ")"), file=sys.stderr, flush=True)
+        if not final:
+            self.pauser.set(True)
+            posture = monitor.alpha.copy()
+        errors = self.robot_eval.run(at, *self.streams.received(), self.reached)
+        session.view.set_test_goals(self.robot_eval.goals)
+        if not final:
+            self.robot.move_to(posture)
+            self.pauser.set(False)
+        session.st.last_error = float(errors.mean())
+
+    def summary(self) -> dict:
+        """summary.json: the session's keys, the arm's, the robot's evaluation and which curve is which."""
+        session, plan, monitor, r = self.session, self.plan, self.monitor, self.robot_eval
+        robot_summary = r.summary()
+        robot_summary.update(driver_wait_seconds=self.driver_wait, joint_state_rate=DriverMonitor.rate(monitor.js_rx),
+                             task_point_rate=DriverMonitor.rate(monitor.tip_rx))
+        robot_curve = [{k: c[k] for k in ("micro_actions", "mean_error", "median_error")} for c in r.curve]
+        if r.initial_errors is not None:
+            e = r.initial_errors
+            robot_curve.insert(0, {"micro_actions": 0, "mean_error": float(e.mean()),
+                                   "median_error": float(np.median(e))})
+        ev = self.evaluator
+        if ev is not None and ev.area is not None:
+            self.area = ev.area
+        sim_curve = sorted(ev.curve, key=lambda c: c["micro_actions"]) if ev is not None else []
+        summary = session.summary(
+            plan.lp, plan.config, plan.params, plan.params_file, "external driver", plan.micro_actions,
+            sim_curve if self.simulated else robot_curve, self.area, plan.t_start, self.streams.prior_samples,
+            eval_seconds=(ev.eval_seconds if ev is not None else 0.0) + r.seconds, test_goals=robot_summary["goals"],
+            driver="external", robot_evaluation=robot_summary,
+            curve_source="simulated (offline, from the recorded samples)" if self.simulated else "on the robot",
+            simulated_evaluation=self.simulated, **self.streams.summary_keys())
+        if ev is not None:
+            summary["test_goals"] = ev.test_goals.tolist() if ev.test_goals is not None else None
+        write_json_atomic(plan.out / "robot_evaluation.json", {"summary": robot_summary, "trace": self.robot.trace})
+        return summary
 
 
 def robot_report_section(summary: dict) -> str:

@@ -221,11 +221,14 @@ class Evaluator:
             q.cancel_join_thread()
             q.close()
 
-    def memory(self):
-        """A SampleMemory of the received samples (for the digest; same class as the learner's)."""
-        n = len(self.alpha[0]) if self.alpha else 1
-        m = len(self.delta_y[0]) if self.delta_y else 1
-        mem = SampleMemory(n, n, m, capacity=max(1, len(self.alpha)))
-        for a, da, dy in zip(self.alpha, self.delta_alpha, self.delta_y):
-            mem.add(a, da, dy)
-        return mem
+
+def memory_info(alpha: list, delta_alpha: list, delta_y: list) -> dict:
+    """summary.json's ``memory`` of samples received in order (lists of vectors): their count and
+    the digest and size of a SampleMemory holding them (the learner's own class, so the digest
+    equals its memory's)."""
+    if not alpha:
+        return {"samples": 0}
+    mem = SampleMemory(len(alpha[0]), len(delta_alpha[0]), len(delta_y[0]), capacity=len(alpha))
+    for a, da, dy in zip(alpha, delta_alpha, delta_y):
+        mem.add(a, da, dy)
+    return {"samples": len(mem), "digest": mem.digest(), "bytes": int(mem.nbytes)}
