@@ -259,7 +259,7 @@ def test_a_return_to_rest_goes_in_steps_of_max_joint_step_from_the_measured_post
             n.on_task_point(tip_bytes(1.0, 2.0, ns=stamp * SEC))
         assert np.array_equal(sent[-1], rest) and len(sent) == 8   # 1.0 rad of joint 0 in steps of 0.125
         assert np.array_equal(answers[0][0], rest) and n.learner.micro_actions == ma
-        assert n.rest_steps >= 8
+        assert n.rest_moves.steps >= 8
     finally:
         del n.cmd_pub.publish
         del n.advance

@@ -37,18 +37,19 @@ from sagg_common.cdr import decode_point_stamped, encode_f64_array
 from sagg_common.diagnostics import InputGuard, all_finite, diagnostic_array
 from sagg_common.envelope import ACCEPT, FUTURE, OUT_OF_ORDER, RejectRun, StampTracker
 from sagg_common.msg_codecs import encode_report, encode_sample
-from sagg_common.params import ConfigError, Param, Schema
+from sagg_common.params import ConfigError
 from sagg_common import sources
-from sagg_common.joint_intake import (AMBIGUOUS, FUTURE_STAMP, OTHER, OUT_OF_ORDER_STAMP, REJECTED, TAKEN)
+from sagg_common.joint_intake import AMBIGUOUS, FUTURE_STAMP, OTHER, OUT_OF_ORDER_STAMP, REJECTED, TAKEN
 from sagg_common.publishers import UNKNOWN_NODE, describe
 from sagg_common.ros_params import HW_DEPTH, params_dir, reliable, run_node
 from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .checkpoint import LearnerCheckpointer
+from .holds import Holds
+from .rest_return import RestReturn
 from .evaluate import frozen_reach, reach_steps_limit
-from .learner import (Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot, step_toward,
-                      stepped_move_limit)
+from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot
 from .memory import SampleMemory
 from .reach_server import ACTION, ReachJob, ReachServer
 from .recorder_acks import RecorderAcks
@@ -81,7 +82,28 @@ def robot_from_params(p: dict) -> Robot:
 
 
 class LearnerNode(LearnerNodeBase):
-    # coroutine states
+    """The learner node: the learner's coroutine driven by callbacks, as a state machine.
+
+    ===============  ==============================================  =====================================
+    state            what it waits for                               next
+    ===============  ==============================================  =====================================
+    STARTING         joint states, a task point, the driver's        the first request dispatched
+                     controller, the recorder and the generator      (:meth:`on_poll`)
+    RUNNING_COMMAND  a fresh, settled observation after the          the coroutine's next request
+                     command (:meth:`_try_answer_command`; a step    (:meth:`advance`); a return to rest
+                     of a stepped return to rest: the next step)     steps on (:mod:`.rest_return`)
+    RUNNING_GOAL     the answer of ``/sagg/next_goal``               the next request (``on_goal``)
+    PAUSED           a command is due but a hold is set              the command, once no hold blocks and
+                     (:mod:`.holds`) or the recorder is behind        the recorder caught up
+    STOPPED          nothing: ``max_micro_actions`` reached, or a    (a reach of ``/sagg/reach`` still
+                     frozen model                                     runs)
+    ===============  ==============================================  =====================================
+
+    A ``/sagg/reach`` goal takes over between two requests (:meth:`_poll_reach`): learning is held
+    (the ``reach`` hold), the learner's coroutine is kept aside and the reach's own requests
+    (:meth:`_reach_requests`) are dispatched through the same states; then the learner's
+    coroutine is put back (:meth:`_finish_reach`)."""
+
     STARTING, RUNNING_COMMAND, RUNNING_GOAL, STOPPED = "starting", "command", "goal", "stopped"
     PAUSED = "paused"  # a command is due but a hold (pause service, stale driver) is active
 
@@ -96,19 +118,27 @@ class LearnerNode(LearnerNodeBase):
         if self.frozen:
             self.uses_goals = False
         self.max_micro_actions = p["max_micro_actions"]
-        self.settle_velocity = p["settle_velocity"]
         self.settle_timeout = p["settle_timeout"]
         self.delay_ns = int(round(p["observation_delay"] * 1e9))
         self.exit_code = 0
         self.done = False
         self.sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._init_inputs(p)
+        self._init_outputs(p)
+        self._init_learning(p)
+        self.get_logger().info(
+            f"strategy {core['strategy']}, {self.robot.n} joints, commands on {self.cmd_topic}, "
+            + (f"task point on {p['task_topic']}" if self.task_fk is None else
+               f"task point from the joints through {self.task_fk.robot.path} (effector {self.task_fk.robot.effector!r})")
+            + (f", stops at {self.max_micro_actions} micro-actions" if self.max_micro_actions else ""))
 
-        # --- bad input and safety holds
+    def _init_inputs(self, p: dict) -> None:
+        """The measured inputs, their checks (docs/safety.md) and the holds they may set."""
         self.guard = InputGuard(self.get_logger().error)
-        self.holds: dict[str, str] = {}  # reason key -> text; no command goes out while any is set
+        self.holds = Holds(self.get_logger().warning, self.get_logger().info)  # no command goes out while any is set
         self.js_rx = self.tip_rx = time.monotonic()  # last valid joint state / task point received
-        # the plausibility envelope (DESIGN §8): limits ± tolerance, Y ± margin, a velocity bound,
-        # stamps neither in the future of their stream nor wedged by a clock jump back
+        # the plausibility envelope of the task point: Y ± margin, stamps neither in the future of
+        # their stream nor wedged by a clock jump back (the joint states': their intake's)
         margin = p["plausibility.task_margin"]
         t_lo = np.asarray(p["task_space.lower"], dtype=float)
         t_hi = np.asarray(p["task_space.upper"], dtype=float)
@@ -117,19 +147,13 @@ class LearnerNode(LearnerNodeBase):
         self.tip_track = StampTracker(p["plausibility.future_tolerance"], p["plausibility.resync_after"])
         self.js_run = RejectRun(p["plausibility.hold_after"])
         self.tip_run = RejectRun(p["plausibility.hold_after"])
-
-        # --- topics
-        self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
-        self.task_topic = p["task_topic"]
-        # messages published per topic (logged at shutdown and on /diagnostics: what a bag must hold)
-        self.published = {self.cmd_topic: 0, "/sagg/sample": 0, "/sagg/competence": 0}
-        self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
-        self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
-        # hot path: raw CDR in and out (sagg_common.cdr), no message objects; with the message info
-        # (the publishers' sequence numbers tell the sources apart)
+        # /joint_states: decoded, mapped by name, checked, attributed to a source, stamped (one rule set);
+        # hot path: raw CDR (sagg_common.cdr) with the message info (the publishers' sequence numbers)
+        self.js_intake = joint_intake(p, self.robot.joint_names, self.robot.lower, self.robot.upper)
         self.create_subscription(JointState, "/joint_states", sources.with_message_info(self.on_joint_state),
                                  reliable(10), raw=True)
         # the task point: from task_topic, or from the measured joints through the robot's model
+        self.task_topic = p["task_topic"]
         self.task_fk = None
         if p["task_source"] == "model":
             # lazy (heavy): mujoco, only for task_source 'model'
@@ -140,21 +164,32 @@ class LearnerNode(LearnerNodeBase):
         if self.task_fk is None:
             self.create_subscription(PointStamped, p["task_topic"], sources.with_message_info(self.on_task_point),
                                      reliable(10), raw=True)
-        # one source per input (DESIGN §8, sagg_common.sources): judged by the messages that arrive,
-        # never by who merely publishes; the messages of /joint_states without any of our joints
-        # (a gripper's) are not part of the stream
+        # one source per input (docs/safety.md, sagg_common.sources): judged by the messages that
+        # arrive, never by who merely publishes
         self.check_sources = p["plausibility.check_sources"]
         self.tip_sources = sources.SourceChains(p["plausibility.source_grace"])
         self.source_text: dict[str, str] = {}     # topic -> its current source hold, in words
-        # /joint_states: decoded, mapped by name, checked, attributed to a source, stamped (one rule set)
-        self.js_intake = joint_intake(p, self.robot.joint_names, self.robot.lower, self.robot.upper)
+        # the newest observation (mapped), its stamp, settled; the freshness of a command's answer
+        self.js_alpha: np.ndarray | None = None
+        self.js_stamp = -1
+        self.js_settled = False
+        self.tip: np.ndarray | None = None
+        self.tip_stamp = -1
+        self.js_min = self.tip_min = 0
+        self.js_fresh = self.tip_fresh = False
+        self.cmd_time = 0.0
+
+    def _init_outputs(self, p: dict) -> None:
+        """The commands, the /sagg topics, the pause service and the recorders' backpressure."""
+        self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
+        # messages published per topic (logged at shutdown and on /diagnostics: what a bag must hold)
+        self.published = {self.cmd_topic: 0, "/sagg/sample": 0, "/sagg/competence": 0}
+        self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
+        self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         # the return to rest (rest_return): stepped unless the simulator is the only listener
         self.rest_return = p["rest_return"]
-        self.rest_steps = 0         # rest-return commands sent (not micro-actions)
-        self.rest_final = True      # the command in flight answers the pending request
-        self.rest_step_count = 0    # steps of the return to rest in progress
+        self.rest_moves = RestReturn(self.robot, self.learner.p, self.get_logger().warning)
         self._cmd_subs = (-1, None)  # (subscriber count, only the simulator listens) of the commands topic
-        self.rest_step_limit = stepped_move_limit(self.robot, self.learner.p["max_joint_step"])
         self.create_service(SetBool, "/sagg/pause", self.on_pause)
         # backpressure: a recorder's acknowledgements (recorder_max_lag)
         self.rec_max_lag = p["recorder_max_lag"]
@@ -168,18 +203,8 @@ class LearnerNode(LearnerNodeBase):
         self.rec_sub = self.create_subscription(UInt64, "/sagg/recorded", sources.with_message_info(self.on_recorded),
                                                 reliable(10))
 
-        # --- observation state
-        self.js_alpha: np.ndarray | None = None   # newest joint state (mapped), its stamp, settled
-        self.js_stamp = -1
-        self.js_settled = False
-        self.tip: np.ndarray | None = None
-        self.tip_stamp = -1
-        # freshness of the answer to the pending command
-        self.js_min = self.tip_min = 0
-        self.js_fresh = self.tip_fresh = False
-        self.cmd_time = 0.0
-
-        # --- coroutine
+    def _init_learning(self, p: dict) -> None:
+        """The coroutine (STARTING), its outbox and checkpoints, the reach server, the timers."""
         self.state = self.STARTING
         self.pause_reason = "waiting for joint_states, task point, controller and goal generator"
         # Reports and samples are queued while the coroutine runs and published in bursts right
@@ -206,11 +231,6 @@ class LearnerNode(LearnerNodeBase):
         self.create_timer(0.5, self.publish_status)
         self.create_timer(1.0, self.publish_diagnostics)
         self.poll_timer = self.create_timer(0.05, self.on_poll)
-        self.get_logger().info(
-            f"strategy {core['strategy']}, {self.robot.n} joints, commands on {self.cmd_topic}, "
-            + (f"task point on {p['task_topic']}" if self.task_fk is None else
-               f"task point from the joints through {self.task_fk.robot.path} (effector {self.task_fk.robot.effector!r})")
-            + (f", stops at {self.max_micro_actions} micro-actions" if self.max_micro_actions else ""))
 
     # ------------------------------------------------------------------ observations
     def on_joint_state(self, data: bytes, info: dict = sources.NO_INFO) -> None:
@@ -390,16 +410,30 @@ class LearnerNode(LearnerNodeBase):
             return
         if not self.js_settled and not timed_out:
             return
-        if not self.rest_final:  # a step of the return to rest: the next one, from the measured posture
+        if not self.rest_moves.final:  # a step of the return to rest: the next one, from the measured posture
             self.state = None
             self.dispatch(self.pending)
             return
-        self.rest_step_count = 0
+        self.rest_moves.answered()
         self.advance((self.js_alpha, self.tip))
 
     # ------------------------------------------------------------------ coroutine driving
     def on_poll(self) -> None:
-        """Start-up checks, and the settle timeout of a pending command."""
+        """Every 50 ms: the start-up checks or the timeouts of the state, the driver's freshness,
+        the reach queue, the recorder's backpressure and the periodic burst of the outbox."""
+        self._poll_state()
+        if self.state not in (self.STARTING, self.STOPPED):
+            self._check_driver()
+        self._poll_reach_queue()
+        if self.rec_waiting and not self._recorder_behind():  # e.g. the recorder is gone
+            self._recorder_caught_up()
+        if (self.outbox and self.state is not self.STARTING
+                and time.monotonic() - self.last_flush >= self.publish_period):
+            self.flush()
+
+    def _poll_state(self) -> None:
+        """STARTING: start once ready; RUNNING_GOAL: ask again after ``goal_retry``; RUNNING_COMMAND:
+        after ``settle_timeout`` s take the latest fresh observation (or say that none came)."""
         if self.state is self.STARTING:
             if self._ready():
                 self.state = None
@@ -409,19 +443,19 @@ class LearnerNode(LearnerNodeBase):
                 self.dispatch(self.pending)
         elif self.state is self.RUNNING_GOAL:
             self._retry_goal_request()
-        elif self.state is self.RUNNING_COMMAND:
-            if time.monotonic() - self.cmd_time > self.settle_timeout:
-                if self.js_fresh and self.tip_fresh:
-                    self.get_logger().warning(
-                        f"no settled observation {self.settle_timeout} s after a command: taking the "
-                        "latest", throttle_duration_sec=5.0)
-                    self._try_answer_command(True)
-                else:
-                    self.get_logger().warning(
-                        f"no fresh joint_states/task point {time.monotonic() - self.cmd_time:.1f} s after "
-                        f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
-        if self.state not in (self.STARTING, self.STOPPED):
-            self._check_driver()
+        elif self.state is self.RUNNING_COMMAND and time.monotonic() - self.cmd_time > self.settle_timeout:
+            if self.js_fresh and self.tip_fresh:
+                self.get_logger().warning(
+                    f"no settled observation {self.settle_timeout} s after a command: taking the "
+                    "latest", throttle_duration_sec=5.0)
+                self._try_answer_command(True)
+            else:
+                self.get_logger().warning(
+                    f"no fresh joint_states/task point {time.monotonic() - self.cmd_time:.1f} s after "
+                    f"a command on {self.cmd_topic}: is the driver running?", throttle_duration_sec=5.0)
+
+    def _poll_reach_queue(self) -> None:
+        """The reach server's rejected and canceled goals answered, the next reach started."""
         while self.reach_server.rejections:  # (rejected goals, counted here: the guard is this thread's)
             self.guard.reject(*self.reach_server.rejections.popleft())
         canceled = self.reach_server.take_canceled()
@@ -438,11 +472,6 @@ class LearnerNode(LearnerNodeBase):
               and getattr(self.pending, "kind", None) in ("reset", "reach")):
             self.state = None  # canceled while a hold keeps its command waiting: nothing moved
             self.dispatch(self.coro.send(None))
-        if self.rec_waiting and not self._recorder_behind():  # e.g. the recorder is gone
-            self._recorder_caught_up()
-        if (self.outbox and self.state is not self.STARTING
-                and time.monotonic() - self.last_flush >= self.publish_period):
-            self.flush()
 
     # ------------------------------------------------------------------ safety holds
     def _check_driver(self) -> None:
@@ -463,13 +492,12 @@ class LearnerNode(LearnerNodeBase):
             self._set_hold("driver", None)
 
     def _set_hold(self, key: str, reason: str | None) -> None:
+        """Set (``reason``) or release (None) the hold ``key`` (:mod:`.holds`); once nothing holds
+        any more, the command that waited goes out."""
         if reason is not None:
-            if self.holds.get(key) != reason:
-                self.get_logger().warning(f"pausing: {reason}")
-            self.holds[key] = reason
+            self.holds.set(key, reason)
             return
-        if self.holds.pop(key, None) is not None:
-            self.get_logger().info(f"{key} hold released" + (": resuming" if not self.holds else ""))
+        self.holds.release(key)
         if not self._held() and self.state is self.PAUSED:
             self.state = None
             self.dispatch(self.pending)
@@ -493,7 +521,7 @@ class LearnerNode(LearnerNodeBase):
         state.update({"recorder waits": str(self.rec_waits), "recorder wait seconds": f"{self.rec_wait_seconds:.3f}",
                       "recorder acknowledged samples": str(self.rec_acks.largest()),
                       "recorders seen": str(self.rec_acks.recorders_seen)})
-        state["rest-return commands"] = str(self.rest_steps)
+        state["rest-return commands"] = str(self.rest_moves.steps)
         ignored = sum(self.js_intake.other_joints.values())
         if ignored:
             state["ignored /joint_states without the learner's joints"] = str(ignored)
@@ -503,8 +531,8 @@ class LearnerNode(LearnerNodeBase):
         for topic in ("/joint_states",) + ((self.task_topic,) if self.task_fk is None else ()):
             state[f"publishers {topic}"] = "; ".join(
                 describe(i) for i in self.get_publishers_info_by_topic(topic)) or "none"
-        fault = "; ".join(v for k, v in self.holds.items() if k not in ("service", "reach"))
-        self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state, fault))
+        self.diag_pub.publish(diagnostic_array(self.get_clock().now().to_msg(), NODE_NAME, self.guard, state,
+                                               self.holds.faults()))
 
     def _ready(self) -> bool:
         if self.js_alpha is None or self.tip is None:
@@ -521,71 +549,89 @@ class LearnerNode(LearnerNodeBase):
         self.dispatch(self.coro.send(answer))
 
     def dispatch(self, req) -> None:
-        learner = self.learner
+        """Act on the learner's requests until one waits for an answer (the state table of
+        :class:`LearnerNode`): a command goes out (or waits: a hold, the recorder), a goal is asked
+        for, an observation is answered at once, a reach ends; at the budget (or with a frozen
+        model) the learner stops acting."""
         while True:
             if self.reach is None and (self.frozen or (self.max_micro_actions
-                                                       and learner.micro_actions >= self.max_micro_actions)):
-                self.pending = req
-                self.state = self.STOPPED
-                if self.frozen:
-                    self.pause_reason = f"a frozen model ({self.params['frozen_memory']}): reach goals on {ACTION}"
-                    self.get_logger().info(self.pause_reason)
-                    self.publish_status()
-                    return
-                self.pause_reason = f"max_micro_actions ({self.max_micro_actions}) reached"
-                secs = time.monotonic() - self.t_started
-                done = learner.micro_actions - self.ma_start  # this segment's (since the start or resume)
-                since = f", {done} since the resume at {self.ma_start}," if self.ma_start else ""
-                self.get_logger().info(
-                    f"{self.pause_reason}: stopped acting ({learner.micro_actions} micro-actions{since} in "
-                    f"{secs:.3f} s: {done / secs if secs > 0 else 0.0:.1f}/s)")
-                self.flush()
-                self.publish_status()
+                                                       and self.learner.micro_actions >= self.max_micro_actions)):
+                self._stop(req)
                 return
-            if type(req) is Command:
-                if self._held():
-                    self.pending = req
-                    self.state = self.PAUSED
-                    if self.outbox:
-                        self.flush()
-                    return
-                if self.rec_max_lag and self._recorder_behind():
-                    self._wait_for_recorder(req)
-                    return
-                target = self._safe_command(req)
-                if target is None:
-                    self._set_hold("fault", "the learner produced an invalid command (see /diagnostics)")
-                    self.pending, self.state = req, self.PAUSED
-                    return
-                self.pending = req  # (a stepped return to rest sends it again until the rest is reached)
-                data = encode_f64_array(target)
-                self.js_min = self.js_stamp + self.delay_ns
-                self.tip_min = self.tip_stamp + self.delay_ns
-                self.js_fresh = self.tip_fresh = False
-                self.state = self.RUNNING_COMMAND
-                self.cmd_time = time.monotonic()
-                self.cmd_pub.publish(data)
-                self.published[self.cmd_topic] += 1
-                # while the driver works: publish the queued reports/samples in bursts
-                if self.outbox and (len(self.outbox) >= self.publish_batch
-                                    or self.cmd_time - self.last_flush >= self.publish_period):
-                    self.flush()
+            kind = type(req)
+            if kind is Command:
+                self._send_command(req)
                 return
-            if type(req) is GoalRequest:
-                self.state = self.RUNNING_GOAL
-                fut = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
-                self.goal_future, self.goal_time = fut, time.monotonic()
-                fut.add_done_callback(self.on_goal)
-                if self.outbox:
-                    self.flush()
+            if kind is GoalRequest:
+                self._request_goal(req)
                 return
-            if type(req) is Observe:
+            if kind is Observe:
                 req = self.coro.send((self.js_alpha.copy(), self.tip.copy()))
                 continue
-            if type(req) is ReachDone:
+            if kind is ReachDone:
                 self._finish_reach()
                 return
             raise TypeError(f"unknown learner request {req!r}")
+
+    def _stop(self, req) -> None:
+        """STOPPED: the budget is reached (said with this segment's rate), or the model is frozen."""
+        learner = self.learner
+        self.pending = req
+        self.state = self.STOPPED
+        if self.frozen:
+            self.pause_reason = f"a frozen model ({self.params['frozen_memory']}): reach goals on {ACTION}"
+            self.get_logger().info(self.pause_reason)
+            self.publish_status()
+            return
+        self.pause_reason = f"max_micro_actions ({self.max_micro_actions}) reached"
+        secs = time.monotonic() - self.t_started
+        done = learner.micro_actions - self.ma_start  # this segment's (since the start or resume)
+        since = f", {done} since the resume at {self.ma_start}," if self.ma_start else ""
+        self.get_logger().info(
+            f"{self.pause_reason}: stopped acting ({learner.micro_actions} micro-actions{since} in "
+            f"{secs:.3f} s: {done / secs if secs > 0 else 0.0:.1f}/s)")
+        self.flush()
+        self.publish_status()
+
+    def _send_command(self, req: Command) -> None:
+        """COMMAND: the checked target goes out and the answer is awaited; or PAUSED, the command
+        kept, while a hold is set or the recorder is behind."""
+        if self._held():
+            self.pending = req
+            self.state = self.PAUSED
+            if self.outbox:
+                self.flush()
+            return
+        if self.rec_max_lag and self._recorder_behind():
+            self._wait_for_recorder(req)
+            return
+        target = self._safe_command(req)
+        if target is None:
+            self._set_hold("fault", "the learner produced an invalid command (see /diagnostics)")
+            self.pending, self.state = req, self.PAUSED
+            return
+        self.pending = req  # (a stepped return to rest sends it again until the rest is reached)
+        data = encode_f64_array(target)
+        self.js_min = self.js_stamp + self.delay_ns
+        self.tip_min = self.tip_stamp + self.delay_ns
+        self.js_fresh = self.tip_fresh = False
+        self.state = self.RUNNING_COMMAND
+        self.cmd_time = time.monotonic()
+        self.cmd_pub.publish(data)
+        self.published[self.cmd_topic] += 1
+        # while the driver works: publish the queued reports/samples in bursts
+        if self.outbox and (len(self.outbox) >= self.publish_batch
+                            or self.cmd_time - self.last_flush >= self.publish_period):
+            self.flush()
+
+    def _request_goal(self, req: GoalRequest) -> None:
+        """GOAL: ``/sagg/next_goal`` is asked (answered in :meth:`on_goal`, asked again after ``goal_retry`` s)."""
+        self.state = self.RUNNING_GOAL
+        fut = self.goal_client.call_async(NextGoal.Request(after_report=req.after_report))
+        self.goal_future, self.goal_time = fut, time.monotonic()
+        fut.add_done_callback(self.on_goal)
+        if self.outbox:
+            self.flush()
 
     # ------------------------------------------------------------------ /sagg/reach
     def _frozen_memory(self, p: dict, m: int):
@@ -603,9 +649,7 @@ class LearnerNode(LearnerNodeBase):
 
     def _held(self) -> bool:
         """A hold stops the next command; during a reach its own hold does not."""
-        if self.reach is not None:
-            return any(k != "reach" for k in self.holds)
-        return bool(self.holds)
+        return self.holds.blocking(self.reach is not None)
 
     def _poll_reach(self) -> None:
         """Start the next reach job once no command is in flight: learning pauses for it (the
@@ -740,9 +784,9 @@ class LearnerNode(LearnerNodeBase):
             self.guard.reject("command.invalid", f"the learner produced the command {target.tolist()}; "
                                                  f"allowed: {robot.n} finite values")
             return None
-        if req.kind in ("reset", "return"):
-            return self._rest_command(target, direct_ok=req.kind == "reset")
-        self.rest_final = True
+        if req.kind in ("reset", "return"):  # (a 'return' goes back where a reach paused learning)
+            return self.rest_moves.command(self.js_alpha, target, req.kind == "reset" and self._direct_rest())
+        self.rest_moves.not_resting()
         # (1e-9 rad: the core's own rounding of alpha + step)
         step = self.learner.p["max_joint_step"] + 1e-9
         lo, hi = np.maximum(robot.lower, self.js_alpha - step), np.minimum(robot.upper, self.js_alpha + step)
@@ -750,29 +794,6 @@ class LearnerNode(LearnerNodeBase):
             self.guard.reject("command.clipped", f"command {target.tolist()} outside the joint limits or "
                                                  "max_joint_step from the current posture: clipped")
             return np.minimum(np.maximum(target, lo), hi)
-        return target
-
-    def _rest_command(self, rest: np.ndarray, direct_ok: bool = True) -> np.ndarray:
-        """The next command of the return to rest: the rest posture itself with ``rest_return``
-        'direct' while only the simulator listens (:meth:`_direct_rest`), else one step toward it
-        from the newest measured posture (:func:`~sagg_low_level.learner.step_toward`); the request
-        is answered by the observation after the step that reaches the rest (``rest_final``), or
-        after ``rest_step_limit`` steps (a joint that does not follow: logged)."""
-        robot = self.robot
-        if direct_ok and self._direct_rest():
-            self.rest_final = True
-            return np.minimum(np.maximum(rest, robot.lower), robot.upper)
-        target = step_toward(self.js_alpha, rest, self.learner.p["max_joint_step"], robot)
-        self.rest_steps += 1
-        self.rest_step_count += 1
-        self.rest_final = bool((target == rest).all())
-        if not self.rest_final and self.rest_step_count >= self.rest_step_limit:
-            self.rest_final = True
-            worst = int(np.argmax(np.abs(rest - self.js_alpha)))
-            self.get_logger().warning(
-                f"return to rest incomplete after {self.rest_step_count} steps of at most max_joint_step: "
-                f"{robot.joint_names[worst]} at {float(self.js_alpha[worst]):.4f} rad, rest "
-                f"{float(rest[worst]):.4f}; going on from there", throttle_duration_sec=10.0)
         return target
 
     def _direct_rest(self) -> bool:
