@@ -14,10 +14,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-from rclpy.serialization import deserialize_message
 
 from sagg_common.params import ConfigError
-from sagg_msgs.msg import Evaluation
 
 from ..bags.bag_reader import bag_messages
 from ..bags.bag_recover import recover_run_bags
@@ -149,6 +147,9 @@ class ArmStreams:
     def read_prior(self) -> dict[int, np.ndarray]:
         """A resumed run: read the earlier segments' bags (for :meth:`replay_prior`); returns their
         evaluations (micro-actions -> errors: not repeated)."""
+        # lazy (heavy): ROS
+        from rclpy.serialization import deserialize_message
+        from sagg_msgs.msg import Evaluation
         self._prior = list(bag_messages(self.plan.prior_bags, PRIOR_TOPICS)) if self.plan.prior_bags else []
         return {int(em.micro_actions): np.array(em.errors) for em in
                 (deserialize_message(bytes(raw), Evaluation) for topic, _, _, raw in self._prior
@@ -158,6 +159,8 @@ class ArmStreams:
         """The earlier segments' messages through the handlers (to the evaluation set by then)."""
         if not self._prior:
             return
+        # lazy (heavy): ROS
+        from rclpy.serialization import deserialize_message
         handlers = self.handlers()
         for topic, msgtype, _, raw in self._prior:
             if topic in handlers:
@@ -172,7 +175,8 @@ class ArmStreams:
         extra = run_only_params(self.plan.params)
         if self.plan.prior_bags:
             st, params = self.st, self.plan.params
-            self.resume = compare(st.samples, st.reports, len(st.goals), params["sagg_learner"].get("checkpoint_dir", ""),
+            self.resume = compare(st.samples, st.reports, len(st.goals),
+                                  params["sagg_learner"].get("checkpoint_dir", ""),
                                   params["sagg_goal_generator"].get("checkpoint_dir", ""))
             extra.setdefault("sagg_learner", {})["republish_from"] = self.resume["republish_from"]
             for line in self.resume["lines"] + [f"warning: {u}" for u in self.resume["unresolved"]]:
