@@ -1,7 +1,9 @@
 # sagg: set-up, build and entry points.
 #
 #   make run     set up (if needed), then run the main experiment: sagg run config/arm8.yaml
-#   make test    set up (if needed) + the lab tools + the optional Ray extra, then run the test suite
+#   make test    set up (if needed) + the lab tools + the optional Ray extra + the linter, then lint
+#                src/ and test/ (ruff, config ruff.toml) and run the test suite
+#   make lint    install the linter (requirements-lint.txt) and lint src/ and test/
 #   make ray     install the optional Ray extra (requirements-ray.txt) for sagg bench compare --ray
 #   make lab     install the lab tools (sagg_lab: sagg bench speed/graph/riac/soak/hostile/quality,
 #                python -m sagg_lab.NAME); make test installs them, make run does not
@@ -45,11 +47,12 @@ STAMP_PKGS := $(VENV)/.stamp-pkgs
 DATA_LIST := $(VENV)/.stamp-datafiles
 STAMP_RAY := $(VENV)/.stamp-ray
 STAMP_LAB := $(VENV)/.stamp-lab
+STAMP_LINT := $(VENV)/.stamp-lint
 
 # Keep ROS 2 discovery on this machine (the default multicasts on every interface).
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup msgs run test lock clean ray lab FORCE
+.PHONY: setup msgs run test lock clean ray lab lint FORCE
 
 setup: $(STAMP_MSGS) $(STAMP_PKGS)
 
@@ -58,8 +61,16 @@ msgs: $(STAMP_MSGS)
 run: setup
 	$(VENV)/bin/sagg run config/arm8.yaml
 
-test: setup $(STAMP_LAB) $(STAMP_RAY)
+test: setup $(STAMP_LAB) $(STAMP_RAY) $(STAMP_LINT)
+	$(VENV)/bin/ruff check src test
 	$(PY) -m pytest -q test/
+
+lint: $(STAMP_LINT)
+	$(VENV)/bin/ruff check src test
+
+$(STAMP_LINT): requirements-lint.txt $(STAMP_WHEELS)
+	$(PIP) install --no-input -q -r requirements-lint.txt
+	@touch $@
 
 lab: $(STAMP_LAB)
 

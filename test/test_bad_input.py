@@ -42,7 +42,8 @@ def nodes(tmp_path_factory):
     params = {
         "/**": {"ros__parameters": {"seed": 0, "strategy": "sagg-riac",
                                     "task_space": {"lower": [-10.0, -10.0], "upper": [10.0, 10.0]}}},
-        "sagg_learner": {"ros__parameters": {"joints": JOINTS, "joint_limits": {"lower": [-1.0] * 3, "upper": [1.0] * 3},
+        "sagg_learner": {"ros__parameters": {"joints": JOINTS,
+                                             "joint_limits": {"lower": [-1.0] * 3, "upper": [1.0] * 3},
                                              "rest_posture": [0.1, 0.2, 0.3]}},
         "sagg_sim_bridge": {"ros__parameters": {"arm": {"dof": 3, "mode": "kinematic"}}},
     }

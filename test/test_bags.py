@@ -133,7 +133,8 @@ def _subscriber(domain: int, topics: dict[str, str]):
     got: dict[str, list[bytes]] = {t: [] for t in topics}
     for t, ty in topics.items():
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100000, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL if t == "/sagg/regions" else DurabilityPolicy.VOLATILE)
+                         durability=(DurabilityPolicy.TRANSIENT_LOCAL if t == "/sagg/regions" else
+                                     DurabilityPolicy.VOLATILE))
         node.create_subscription(msg_class(ty), t, lambda data, t=t: got[t].append(bytes(data)), qos, raw=True)
     ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
@@ -226,8 +227,8 @@ def test_run_resume_continues_the_run(run_dir, tmp_path):
     assert s["learner_status"]["reports"] == s["reports"] and not s["bag"]["dropped"], s["bag"]
     assert r["goals_match"] and r["regions_match"] and r["reports"] == s["reports"], {
         k: r.get(k) for k in ("goals_match", "goal_mismatches", "regions_match", "regions_snapshots_checked",
-                              "regions_snapshots_differing", "last_regions_snapshot_reports", "reports", "goals", "rejected",
-                              "duplicates_dropped")}
+                              "regions_snapshots_differing", "last_regions_snapshot_reports", "reports", "goals",
+                              "rejected", "duplicates_dropped")}
     old = checkpoint_memory(run_dir / "checkpoint")
     new = SampleMemory.load(tmp_path / "re" / "memory.npz")
     assert new.alpha[:STEPS].tobytes() == old.alpha.tobytes() and new.delta_y[:STEPS].tobytes() == old.delta_y.tobytes()

@@ -324,7 +324,8 @@ def test_a_request_answered_meanwhile_gets_the_same_goal(ros_env, tmp_path):
     params = graph_params(ROOT / "config" / "arm15_y50.yaml", tmp_path / "params.yaml", {"dof": 7, "mode": "kinematic"},
                           generator={"min_goal_subscribers": 1, "regions_period": 3600.0})
     gen = start(ros_env, "goal_generator", params, tmp_path)
-    node = rclpy.create_node("sagg_learner", context=ros_env["ctx"])  # (the generator takes reports from the learner only)
+    # (the generator takes reports from the learner only)
+    node = rclpy.create_node("sagg_learner", context=ros_env["ctx"])
     ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
     ex.add_node(node)
     pub = node.create_publisher(CompetenceReport, "/sagg/competence", QoSProfile(
@@ -349,7 +350,8 @@ def test_a_request_answered_meanwhile_gets_the_same_goal(ros_env, tmp_path):
     ex.spin_once(timeout_sec=0.5)
     assert not first.done()  # still deferred: nobody subscribes to /sagg/goal yet
     goals = []
-    node.create_subscription(Goal, "/sagg/goal", goals.append, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    node.create_subscription(Goal, "/sagg/goal", goals.append,
+                             QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
     time.sleep(2.0)  # let the generator match the subscriber (its release timer is off: regions_period)
     again = client.call_async(NextGoal.Request(after_report=3))  # the repeated request: answered now
     assert spin_until(again.done, 30.0), logs(tmp_path)

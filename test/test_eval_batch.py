@@ -63,6 +63,7 @@ def test_neighbours_many_matches_single_queries():
     rng = np.random.default_rng(3)
     mem = SampleMemory(6, 6, 2, buffer_size=64, checks=4)
     rest = np.full(6, 0.3)
+    a = rest.copy()
     for t in range(3000):  # trajectories from a rest posture, as the learner stores them
         a = rest.copy() if t % 40 == 0 else a + rng.normal(0, 0.05, 6)
         mem.add(a, rng.normal(0, 0.05, 6), rng.normal(0, 1, 2))

@@ -264,7 +264,8 @@ def test_explore_length_measures_the_exploration_distance_whatever_the_box():
     goal, y = np.array([0.3, -0.4]), np.array([0.0, 0.0])
     for box in (3.0, 6.0):
         over = {"task_space.lower": [-box, -box], "task_space.upper": [box, box]}
-        fixed = FixedContextLearner(resolve(SCHEMA, {**over, "explore_length": 2.0}), ThetaSpace(np.zeros(6), np.ones(6)))
+        fixed = FixedContextLearner(resolve(SCHEMA, {**over, "explore_length": 2.0}),
+                                    ThetaSpace(np.zeros(6), np.ones(6)))
         assert fixed.explore_distance(goal, y) == pytest.approx(0.25)
         rescaled = FixedContextLearner(resolve(SCHEMA, over), ThetaSpace(np.zeros(6), np.ones(6)))
         assert rescaled.explore_distance(goal, y) == pytest.approx(0.5 / (2 * box))

@@ -73,8 +73,10 @@ def test_split_chosen_on_constructed_set_separates_interest():
     # right half x in [1.2, 2]: competence rising from -1 to 0 (progress); interleaved in time.
     pts, vals = [], []
     for t in range(40):
-        pts.append([rng.uniform(0, 1), rng.uniform(0, 1)]); vals.append(-0.5)
-        pts.append([rng.uniform(1.2, 2), rng.uniform(0, 1)]); vals.append(-1.0 if t < 20 else 0.0)
+        pts.append([rng.uniform(0, 1), rng.uniform(0, 1)])
+        vals.append(-0.5)
+        pts.append([rng.uniform(1.2, 2), rng.uniform(0, 1)])
+        vals.append(-1.0 if t < 20 else 0.0)
     pts, vals = np.array(pts), np.array(vals)
     choice = choose_split(pts, vals, n_candidates=300, zeta=80,
                           rng=np.random.default_rng(2))

@@ -9,18 +9,13 @@
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
-import time
 from pathlib import Path
 
-import numpy as np
-import pytest
 
 from sagg_bringup.bags.bags import bag_messages
 from sagg_lab.hostile import published_counts
-from sagg_bringup.graph.processes import pick_domain_id
 from installed import SAGG
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,7 +70,8 @@ def test_lockstep_bag_holds_exactly_what_the_nodes_published(tmp_path):
     assert yaml.safe_load(records["rosbag2"]["serialized_metadata"])["ros_distro"] == "jazzy"
     topics = {t["topic_metadata"]["name"]: t["topic_metadata"] for t in meta["topics_with_message_count"]}
     competence_qos = yaml.safe_load(topics["/sagg/competence"]["offered_qos_profiles"]) \
-        if isinstance(topics["/sagg/competence"]["offered_qos_profiles"], str) else topics["/sagg/competence"]["offered_qos_profiles"]
+        if isinstance(topics["/sagg/competence"]["offered_qos_profiles"], str) \
+        else topics["/sagg/competence"]["offered_qos_profiles"]
     assert competence_qos[0]["durability"] == "transient_local"
     channels = channel_metadata(out / "bag" / meta["relative_file_paths"][0])
     assert set(channels) == set(topics)
@@ -146,4 +142,5 @@ def test_hostile_bench_short(tmp_path):
         assert inv["recorder dropped"] == {}
         # relearn rebuilds the run's memory from its bag: no forged sample took a real index there
         assert inv["relearn rebuilds the run's memory"] is True, inv["relearn rejected"]
-    assert any(k.startswith("sample from another publisher") for k in res["phases"]["publishers"]["invariants"]["relearn rejected"])
+    assert any(k.startswith("sample from another publisher")
+               for k in res["phases"]["publishers"]["invariants"]["relearn rejected"])

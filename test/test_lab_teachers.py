@@ -55,7 +55,8 @@ def test_teachers_table_marks_what_beats_the_baseline(tmp_path):
             (d / "result.json").write_text(json.dumps({"strategy": strategy, "seed": seed, "final_mean_error": e,
                                                        "curve": curve}))
     assert teachers_table.main(["--out", str(tmp_path / "t"), f"toy={tmp_path / 'cmp'},{tmp_path / 'base'}"]) == 0
-    row = [line for line in (tmp_path / "t" / "teachers.md").read_text().splitlines() if line.startswith("| toy | 5")][0]
+    row = [line for line in (tmp_path / "t" / "teachers.md").read_text().splitlines()
+           if line.startswith("| toy | 5")][0]
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1] == "5 × 100" and cells[2] == "1.2 ± 0.16"  # columns: sagg-random (baseline), alp-gmm, d-p
     assert cells[3].startswith("0.3 ± 0.16") and cells[3].endswith("**better**")  # every alp-gmm seed lower

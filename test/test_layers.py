@@ -341,7 +341,8 @@ def test_the_lazy_import_check_sees_what_it_must(tmp_path):
             "def d():\n    # lazy (heavy)\n    import json\n"
             "def e():\n    x = 1\n    if x:\n        # lazy (heavy)\n        from sagg_msgs.msg import Goal\n"),
         # already loads ROS at module level: a lazy ROS import buys nothing
-        "sagg_common/sagg_common/rosuser.py": "import rclpy\ndef f():\n    # lazy (heavy)\n    from . import heavyish\n",
+        "sagg_common/sagg_common/rosuser.py": (
+            "import rclpy\ndef f():\n    # lazy (heavy)\n    from . import heavyish\n"),
     }
     for rel, text in files.items():
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)

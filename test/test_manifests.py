@@ -4,10 +4,11 @@ key that resolves on Ubuntu 24.04 (noble) / Jazzy.
 
 The rosdep keys below were looked up in ros/rosdistro (commit 8468e88, 2026-08-22):
 rosdep/python.yaml has python3-numpy, python3-yaml, python3-scipy, python3-matplotlib,
-python3-pytest (and, looked up at commit 000730d, python3-sklearn) with an `ubuntu` entry (apt) and python3-mujoco-pip, python3-rosbags-pip with an
-`ubuntu: pip:` entry (PyPI mujoco / rosbags); jazzy/distribution.yaml releases every ROS package
-listed in ROS_PACKAGES. (`python3-mujoco` and `python3-rosbags`, used before, are not keys.)
-mcap-ros2-support (a `pip` entry for every platform) is the key whose PyPI package requires `mcap`.
+python3-pytest (and, looked up at commit 000730d, python3-sklearn) with an `ubuntu` entry (apt) and
+python3-mujoco-pip, python3-rosbags-pip with an `ubuntu: pip:` entry (PyPI mujoco / rosbags);
+jazzy/distribution.yaml releases every ROS package listed in ROS_PACKAGES. (`python3-mujoco` and
+`python3-rosbags`, used before, are not keys.) mcap-ros2-support (a `pip` entry for every platform)
+is the key whose PyPI package requires `mcap`.
 """
 from __future__ import annotations
 

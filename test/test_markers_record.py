@@ -31,7 +31,8 @@ def test_view_markers_colour_regions_by_interest_and_goals_by_competence():
     g = next(d for d in m if d["ns"] == "goals")
     assert g["type"] == SPHERE_LIST and len(g["points"]) == 3
     assert [c[:3] for c in g["colors"]] == [competence_colour(-1.0), competence_colour(0.0), competence_colour(None)]
-    assert competence_colour(-1.0)[0] > competence_colour(-1.0)[1] and competence_colour(0.0)[1] > competence_colour(0.0)[0]
+    assert (competence_colour(-1.0)[0] > competence_colour(-1.0)[1]
+            and competence_colour(0.0)[1] > competence_colour(0.0)[0])
     assert next(d for d in m if d["ns"] == "tip_path")["type"] == LINE_STRIP
     # the message: one Marker per dict, frame world, DELETEALL first
     from builtin_interfaces.msg import Time

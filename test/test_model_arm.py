@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from sagg_common.params import ConfigError, schema_defaults
-from sagg_sim_bridge.arm import ArmSim, ArmSpec, reachable_area
+from sagg_sim_bridge.arm import ArmSim, ArmSpec
 from sagg_sim_bridge.arms import (arm_base_point, arm_reach, arm_reachable_area, arm_spec_from_params,
                                   arm_test_goals, make_arm_sim)
 from sagg_sim_bridge.model_arm import ModelArmSim
@@ -44,7 +44,8 @@ def write_urdf(path: Path, j2_type: str = "revolute") -> Path:
     """The test arm: base_link -j1-> l1 -j2-> l2 -j3-> l3 -fixed-> tool0; base_link and l1 have visual
     and collision meshes under package://test_arm_pkg/ (which exist only when a test creates them)."""
     def link(name: str) -> str:
-        inner = '<inertial><mass value="1.0"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>'
+        inner = ('<inertial><mass value="1.0"/>'
+                 '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>')
         if name in MESHES:
             vis, col = MESHES[name]
             inner += (f'<visual><geometry><mesh filename="{vis}"/></geometry></visual>'
@@ -314,7 +315,8 @@ def dh_standard(q, d, a, alpha) -> np.ndarray:
     t = np.eye(4)
     for qi, di, ai, al in zip(q, d, a, alpha):
         ct, st, ca, sa = math.cos(qi), math.sin(qi), math.cos(al), math.sin(al)
-        t = t @ np.array([[ct, -st * ca, st * sa, ai * ct], [st, ct * ca, -ct * sa, ai * st], [0, sa, ca, di], [0, 0, 0, 1]])
+        t = t @ np.array([[ct, -st * ca, st * sa, ai * ct], [st, ct * ca, -ct * sa, ai * st],
+                          [0, sa, ca, di], [0, 0, 0, 1]])
     return t[:3, 3]
 
 

@@ -302,7 +302,8 @@ def test_codecs_follow_an_edited_msg(tmp_path):
     assert list(s.alpha) == [1.0] and list(s.delta_y) == [3.0]
     assert store.serialize_cdr(s, "sagg_msgs/msg/Sample") == raw
     t = store.deserialize_cdr(raw_tree, "sagg_msgs/msg/RegionTree")
-    assert [(r.id, list(r.upper), r.count, r.depth) for r in t.regions] == [(1, [1.0, 2.0], 4, 1), (2, [3.0, 4.0], 5, 2)]
+    assert [(r.id, list(r.upper), r.count, r.depth) for r in t.regions] == [(1, [1.0, 2.0], 4, 1),
+                                                                            (2, [3.0, 4.0], 5, 2)]
     assert store.serialize_cdr(t, "sagg_msgs/msg/RegionTree") == raw_tree
     back = sample.decode(raw)
     assert (back.stamp, back.index, back.weight, list(back.tags)) == (5, 1, 0.5, [3, -4])

@@ -130,7 +130,8 @@ def test_launch_plan_fills_every_derived_parameter(name, driver, tmp_path):
         assert lp["joints"] == spec.joint_names() and len(lp["joints"]) == len(spec.limits()[0])
         assert lp["rest_posture"] == spec.rest_posture().tolist()
         assert lp["joint_limits.lower"] == spec.limits()[0].tolist()
-        assert [e for _, e, _ in plan.nodes if e != "goal_generator"] == (["learner", "mujoco_bridge"] if driver == "sim"
+        assert [e for _, e, _ in plan.nodes if e != "goal_generator"] == (["learner", "mujoco_bridge"]
+                                                                         if driver == "sim"
                                                                          else ["learner"]) or driver == "sim"
     else:  # synergy set-ups: their own learner and bridge
         assert ("sagg_low_level", "fixed_learner", "sagg_learner") in plan.nodes

@@ -12,7 +12,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from sagg_bringup.graph.processes import pick_domain_id
 from installed import SAGG

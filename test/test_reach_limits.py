@@ -200,7 +200,8 @@ def test_damped_step_is_the_closed_form_and_the_same_alone_or_in_a_stack():
     assert np.allclose(pseudo_inverse_step(jac, dy, 1e-2, lam), closed, atol=1e-12)
     # minimises ||J Δα − Δy||² + λ²||Δα||²: any other step costs more
     step = pseudo_inverse_step(jac, dy, 1e-2, lam)
-    cost = lambda d: np.sum((jac @ d - dy) ** 2) + lam ** 2 * np.sum(d ** 2)
+    def cost(d):
+        return np.sum((jac @ d - dy) ** 2) + lam ** 2 * np.sum(d ** 2)
     assert all(cost(step) < cost(step + 1e-4 * rng.normal(size=7)) for _ in range(20))
     # damping 0 is the paper's J⁺ step, numpy's pinv, the same floats
     assert pseudo_inverse_step(jac, dy, 1e-2).tobytes() == (np.linalg.pinv(jac, rcond=1e-2) @ dy).tobytes()

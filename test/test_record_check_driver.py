@@ -20,7 +20,7 @@ from sagg_msgs.msg import CompetenceReport, LearnerStatus
 from std_srvs.srv import SetBool
 
 import test_nodes_graph
-from test_nodes_graph import STARTUP_TIMEOUT, logs, start, stop
+from test_nodes_graph import STARTUP_TIMEOUT, logs, start
 from test_run_graph import read_bag
 from installed import SAGG
 
@@ -54,7 +54,8 @@ def start_driver(ros_env, tmp_path: Path, noise: float = 1e-4) -> subprocess.Pop
 def test_sagg_record_alone_records_a_late_joined_graph_and_stops_cleanly(ros_env, tmp_path):
     steps = 120
     params = arm_config(tmp_path / "arm.yaml", steps=steps)
-    procs = [start_driver(ros_env, tmp_path)] + [start(ros_env, s, params, tmp_path) for s in ("goal_generator", "learner")]
+    procs = [start_driver(ros_env, tmp_path)] + [start(ros_env, s, params, tmp_path)
+                                                 for s in ("goal_generator", "learner")]
     node = Node("sagg_test_watch", context=ros_env["ctx"])
     status: list[LearnerStatus] = []
     reports: list[CompetenceReport] = []
@@ -91,7 +92,8 @@ def test_sagg_record_alone_records_a_late_joined_graph_and_stops_cleanly(ros_env
     ros_env["procs"].append(rec)
     assert spin_until(lambda: node.count_subscribers("/sagg/sample") >= 1, 60.0), "the recorder never subscribed"
     set_pause(False)
-    assert spin_until(lambda: status and status[-1].micro_actions >= steps and "max_micro_actions" in status[-1].pause_reason,
+    assert spin_until(lambda: status and status[-1].micro_actions >= steps
+                              and "max_micro_actions" in status[-1].pause_reason,
                       120), logs(tmp_path)
     spin_until(lambda: False, 2.0)  # the recorder takes the last messages
     rec.send_signal(signal.SIGINT)
@@ -110,7 +112,8 @@ def test_sagg_record_alone_records_a_late_joined_graph_and_stops_cleanly(ros_env
     assert 0 < len(msgs["/sagg/sample"]) < steps  # volatile: only what came after it joined
     assert [s.index for s in msgs["/sagg/sample"]] == list(range(msgs["/sagg/sample"][0].index, steps))
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    qos = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"] for t in meta["topics_with_message_count"]}
+    qos = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+           for t in meta["topics_with_message_count"]}
     assert qos["/sagg/regions"][0]["durability"] == "transient_local"  # the publisher's
     assert qos["/sagg/competence"][0]["durability"] == "transient_local"
     # the publishers' offered QoS as `ros2 bag record` writes them (a reader learns no history or

@@ -126,7 +126,8 @@ def test_params_file_gives_every_node_its_parameters(tmp_path):
     assert lp["min_sample_subscribers"] == 0
     assert doc["sagg_goal_generator"]["ros__parameters"]["min_goal_subscribers"] == 0
     # ... they are given on the nodes' command lines: the recorder must see every sample and goal
-    assert run_only_params(params) == {"sagg_learner": {"min_sample_subscribers": 1, **run_values(params)["sagg_learner"]},
+    assert run_only_params(params) == {"sagg_learner": {"min_sample_subscribers": 1,
+                                                        **run_values(params)["sagg_learner"]},
                                        "sagg_goal_generator": {"min_goal_subscribers": 1,
                                                                **run_values(params)["sagg_goal_generator"]}}
     bp = doc["sagg_sim_bridge"]["ros__parameters"]

@@ -16,9 +16,9 @@ import pytest
 import rclpy
 
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, UInt64
+from std_msgs.msg import UInt64
 
-from sagg_common.sources import ACCEPT, AMBIGUOUS, GAP, NO_INFO, SourceChains, with_message_info
+from sagg_common.sources import ACCEPT, AMBIGUOUS, GAP, SourceChains, with_message_info
 from sagg_low_level.learner import Command, Robot, step_toward
 from sagg_low_level.recorder_acks import RecorderAcks
 from test_bad_input import arm_nodes
@@ -315,7 +315,9 @@ def test_sagg_run_names_the_hold_it_gives_up_on(tmp_path):
         node.destroy_node()
         rclpy.shutdown(context=ctx)
     assert proc.returncode == 1, stderr[-2000:]
-    assert "no new sample for 12 s" in stderr and "the learner holds: 2 sources on /joint_states" in stderr, stderr[-2000:]
+    assert ("no new sample for 12 s" in stderr
+            and "the learner holds: 2 sources on /joint_states" in stderr), stderr[-2000:]
     assert "second_arm_driver" in stderr                       # the second publisher, named
-    assert "held 2 sources on /joint_states" in stderr         # on the progress line meanwhile (printed every 10 s to a pipe)
+    assert "held 2 sources on /joint_states" in stderr         # on the progress line meanwhile (printed
+                                                               # every 10 s to a pipe)
     assert (out / "summary.json").is_file()                    # partial results written

@@ -48,7 +48,8 @@ setup(
     zip_safe=True,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',
-    description='The sagg command (run, record, replay, evaluate, bench, report) and launch files for full ROS 2 installs.',
+    description='The sagg command (run, record, replay, evaluate, bench, report) and launch files '
+                'for full ROS 2 installs.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

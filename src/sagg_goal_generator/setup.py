@@ -34,7 +34,8 @@ setup(
     zip_safe=False,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',
-    description='SAGG-RIAC high level: competence, region tree with interest, splits and goal selection, and its ROS 2 node.',
+    description='SAGG-RIAC high level: competence, region tree with interest, splits and goal selection, '
+                'and its ROS 2 node.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

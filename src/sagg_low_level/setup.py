@@ -45,7 +45,8 @@ setup(
     zip_safe=False,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',
-    description='SAGG-RIAC low level: sample memory, local inverse models, reacher, synergy optimiser, actuator babbling, and the learner node.',
+    description='SAGG-RIAC low level: sample memory, local inverse models, reacher, synergy optimiser, '
+                'actuator babbling, and the learner node.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -18,7 +18,8 @@ setup(
     zip_safe=True,
     maintainer='sagg developers',
     maintainer_email='sagg-dev@example.com',
-    description='MuJoCo models (N-DOF arms, quadruped, fishing rod), simulators and the bridge node speaking the ros2_control-style hardware contract.',
+    description='MuJoCo models (N-DOF arms, quadruped, fishing rod), simulators and the bridge node '
+                'speaking the ros2_control-style hardware contract.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -99,7 +99,8 @@ class PublisherStream:
     An rmw without sequence numbers (``None``) leaves the content checks alone.
 
     The numbers of the rejected messages are followed too, as the other publishers' streams
-    (:attr:`others`, chains as :class:`~sagg_common.sources.SourceChains` follows them): a replay (``ros2 bag play``) numbers its messages from 1, so while the
+    (:attr:`others`, chains as :class:`~sagg_common.sources.SourceChains` follows them): a replay
+    (``ros2 bag play``) numbers its messages from 1, so while the
     expected publisher is silent (a learner holding for the replay's joint states) the replay's
     numbers climb to the expected stream's last one, and its next message would continue the
     expected stream exactly. A message whose number continues both is refused (it may be either);

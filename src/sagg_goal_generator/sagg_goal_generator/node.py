@@ -188,7 +188,8 @@ class GoalGeneratorNode(Node):
         if not self.source_hold:
             pubs = "; ".join(describe(i) for i in self.get_publishers_info_by_topic("/sagg/competence")) or "none"
             self.source_hold = (f"/sagg/competence: reports from two sources (the topic's publishers: {pubs}); "
-                                f"reports are dropped until one has been quiet for {self.params['plausibility.source_grace']:g} s "
+                                "reports are dropped until one has been quiet for "
+                                f"{self.params['plausibility.source_grace']:g} s "
                                 "(plausibility.source_grace), then taken again from the learner's history")
         kind = "report.second_source" if verdict == sources.AMBIGUOUS else "report.sequence_gap"
         self.guard.reject(kind, f"report {seq} dropped: " + (self.source_hold if verdict == sources.AMBIGUOUS else
@@ -247,7 +248,8 @@ class GoalGeneratorNode(Node):
             # learner's history after a re-subscription; skipped only after report_reorder_wait),
             # or until its goal is chosen here or the learner's request says it sent it (a
             # restarted generator; report_origin). The latest with a number is kept.
-            self.early[msg.seq] = Early(msg.kind, target, msg.competence, time.monotonic(), msg.goal_seq, msg.start, key)
+            self.early[msg.seq] = Early(msg.kind, target, msg.competence, time.monotonic(), msg.goal_seq,
+                                        msg.start, key)
             return
         self._take(msg.seq, msg.kind, target, msg.competence, key)
         if self.early:

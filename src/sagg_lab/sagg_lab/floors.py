@@ -73,7 +73,8 @@ def floors(run: InProcessRun, repeat: int) -> list[tuple[str, float]]:
     next(coro)
     rows = [
         ("forward kinematics (simulator command)", best_of(lambda: sim.command(target), repeat)),
-        (f"neighbour search (k {learner.k}, {len(mem)} samples)", best_of(lambda: mem.neighbours(alpha, learner.k), repeat)),
+        (f"neighbour search (k {learner.k}, {len(mem)} samples)",
+         best_of(lambda: mem.neighbours(alpha, learner.k), repeat)),
         (f"least-squares Jacobian ({len(idx)} x {jac.shape[1]}, m {jac.shape[0]})",
          best_of(lambda: compiled.jacobian(mem.delta_alpha, mem.delta_y, idx, learner.p["jacobian_rcond"]), repeat)),
         ("reaching step", best_of(lambda: compiled.reach_step(jac, dy, alpha, lo, up, rcond, damping, clamp), repeat)),

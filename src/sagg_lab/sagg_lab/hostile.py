@@ -220,7 +220,8 @@ class Fuzzer:
 
     def tip(self, x: float, y: float, stamp: int | None = None) -> None:
         st = self.bridge_stamp + 1_000_000 if stamp is None else stamp
-        self.publish(self.task_topic, "geometry_msgs/msg/PointStamped", PointStampedEncoder(FUZZ).encode(max(1, st), x, y))
+        self.publish(self.task_topic, "geometry_msgs/msg/PointStamped",
+                     PointStampedEncoder(FUZZ).encode(max(1, st), x, y))
 
     def report(self, seq: int, kind: int = 2, reached=(10.0, 0.0), competence: float = 0.0) -> None:
         self.publish("/sagg/competence", "sagg_msgs/msg/CompetenceReport",
@@ -643,8 +644,8 @@ def bench_hostile(config: str, minutes: float, out_dir: str | None, sets: list[s
         ok &= all(v or v is None for k, v in inv.items() if k.startswith((
             "all nodes", "final test", "no stored", "nothing", "no command", "every stored", "bag complete",
             "relearn rebuilds")))
-    table = ["| phase | case | times | survived | logged | counted | learning went on | longest wait (s) | reports lost "
-             "| rate while active / quiet (lowest) |",
+    table = ["| phase | case | times | survived | logged | counted | learning went on | longest wait (s) "
+             "| reports lost | rate while active / quiet (lowest) |",
              "|---|---|---:|---:|---|---:|---:|---:|---:|---:|"] + rows
     out("\n".join(table))
     for phase, r in result["phases"].items():

@@ -169,7 +169,8 @@ def bench_memory(dim: int, sizes, k: int | None = None, queries: int = 500, *, k
         rows.append(dict(
             dim=dim, k=k, kind=kind, size=n_rows, query_us=q_us, query_median_us=np.median(t_query) * 1e6,
             add_us=a_us, rebuild_us=r_us, total_us=q_us + a_us + r_us, wall_us=t_wall * 1e6,
-            bytes_per_sample=nbytes / n_rows, cache_hit_rate=hits / queries, blocks=len(mem._blocks), bulk_build_s=build_s,
+            bytes_per_sample=nbytes / n_rows, cache_hit_rate=hits / queries, blocks=len(mem._blocks),
+            bulk_build_s=build_s,
             checks=mem._checks, recall=float(qual[:, 0].mean()) if len(qual) else float("nan"),
             distance_ratio=float(qual[:, 1].mean()) if len(qual) else float("nan"),
         ))

@@ -181,7 +181,8 @@ def markdown(summary: dict, contexts, spaces: dict, strategies, points, config_n
         lines.append("")
     if summary["tests"]:
         lines += ["SAGG-RIAC vs SAGG-RANDOM (per-seed mean test errors; compare.pairwise_tests)", "",
-                  "| context | Y | queries | SAGG-RIAC | SAGG-RANDOM | RIAC / RANDOM | Mann-Whitney p (RIAC < RANDOM) | "
+                  "| context | Y | queries | SAGG-RIAC | SAGG-RANDOM | RIAC / RANDOM | "
+                  "Mann-Whitney p (RIAC < RANDOM) | "
                   "p (two-sided) | Welch p |", "|---|---|---|---|---|---|---|---|---|"]
         for t in summary["tests"]:
             ratio = t["mean_a"] / t["mean_b"] if t["mean_b"] else float("nan")

@@ -59,7 +59,8 @@ def table(rows: list[dict]) -> str:
         lines.append(f"| {r['strategy']} | {r['goals']} | {r['micro_actions_per_goal']:.1f} | {r['loop_seconds']:.2f} "
                      f"| {r['choose_seconds'] + r['report_seconds']:.3f} ({r['choose_seconds']:.3f} + "
                      f"{r['report_seconds']:.3f}) | {r['per_goal_us']:.0f} | {r['per_micro_action_us']:.1f} "
-                     f"| {r['loop_per_micro_action_us']:.0f} | {100 * r['share']:.1f} % | {100 * r['tree_share']:.1f} % |")
+                     f"| {r['loop_per_micro_action_us']:.0f} | {100 * r['share']:.1f} % "
+                     f"| {100 * r['tree_share']:.1f} % |")
     return "\n".join(lines)
 
 

@@ -135,7 +135,8 @@ def markdown(setups: list[dict], baseline: str) -> str:
         dp, alp = st["interest"].get("discretized-progress"), st["interest"].get("alp-gmm")
         cells = ["–" if dp is None else f"{dp['share']:.0%} (competence {dp['competence_inside']:.2f} / "
                  f"{dp['competence_outside']:.2f})",
-                 "–" if alp is None or not np.isfinite(alp["share"]) else f"{alp['share']:.0%} ({alp['fits']:.0f} fits)"]
+                 "–" if alp is None or not np.isfinite(alp["share"]) else
+                 f"{alp['share']:.0%} ({alp['fits']:.0f} fits)"]
         lines.append(f"| {st['name']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -16,7 +16,6 @@ action choice): the shares do not sum to 100 %.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from collections import defaultdict

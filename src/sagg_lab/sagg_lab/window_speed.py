@@ -115,10 +115,12 @@ def compare(base_src: Path, new_src: Path, config: str, overrides: dict, micro_a
             f"{row['new_cpu_rate'] / row['base_cpu_rate']:.2f} |")
         done = target
     whole = {k: (micro_actions / v[0], micro_actions / v[1], v[1]) for k, v in tot.items()}
-    out(f"| whole run | | {whole['base'][0]:,.0f} | {whole['new'][0]:,.0f} | {whole['new'][0] / whole['base'][0]:.2f} | "
+    out(f"| whole run | | {whole['base'][0]:,.0f} | {whole['new'][0]:,.0f} | "
+        f"{whole['new'][0] / whole['base'][0]:.2f} | "
         f"{whole['base'][1]:,.0f} | {whole['new'][1]:,.0f} | {whole['new'][1] / whole['base'][1]:.2f} |")
     cpu_ratios = sorted(r["new_cpu_rate"] / r["base_cpu_rate"] for r in rows)
-    out(f"median of the windows' new/base ratios: {float(np.median([r['new_rate'] / r['base_rate'] for r in rows])):.2f} "
+    out("median of the windows' new/base ratios: "
+        f"{float(np.median([r['new_rate'] / r['base_rate'] for r in rows])):.2f} "
         f"(wall), {float(np.median(cpu_ratios)):.2f} (CPU); windows where new is faster (CPU): "
         f"{sum(x > 1 for x in cpu_ratios)} of {len(cpu_ratios)}")
     ends = {name: kid.close() for name, kid in kids.items()}

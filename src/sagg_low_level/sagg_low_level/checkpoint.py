@@ -183,7 +183,8 @@ class LearnerCheckpointer(Checkpointer):
             raise ValueError("resume: the learner's memory must be empty")
         mem = load_segments(self.dir, meta, lr.memory)
         if meta.get("memory_digest") is not None and mem.digest() != meta["memory_digest"]:
-            raise ValueError(f"checkpoint_dir: the restored memory does not match the digest in {self.dir / self.meta_name}")
+            raise ValueError("checkpoint_dir: the restored memory does not match the digest in "
+                             f"{self.dir / self.meta_name}")
         self.segments = list(meta["segments"])
         for c in _COUNTERS:
             setattr(lr, c, int(meta[c]))

@@ -31,7 +31,7 @@ from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import choice_index, stream, uniform_in
 from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 
-from .learner import CONTEXT, EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
+from .learner import EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
 from .compiled import jacobian, pinv_step
 from .memory import SampleTable
 from .memory_distance import squared_distances

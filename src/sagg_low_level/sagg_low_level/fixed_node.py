@@ -118,7 +118,8 @@ class SynergyLearnerNode(LearnerNodeBase):
         self.create_timer(0.05, self.on_poll)
         self.get_logger().info(
             f"strategy {core['strategy']}, synergy {p['synergy.kind']} (θ in R^{self.synergy.dim}), "
-            f"{'position commands' if self.link else 'trajectories'} on {self.traj_topic}, outcomes on {p['task_topic']}"
+            f"{'position commands' if self.link else 'trajectories'} on {self.traj_topic}, "
+            f"outcomes on {p['task_topic']}"
             + (f", stops at {self.max_experiments} experiments" if self.max_experiments else ""))
 
     # ------------------------------------------------------------------ driving

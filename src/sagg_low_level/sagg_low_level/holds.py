@@ -26,7 +26,8 @@ from __future__ import annotations
 
 from typing import Callable
 
-SERVICE, DRIVER, JOINT_STATES, TASK_POINT, REACH, FAULT = "service", "driver", "joint_states", "task_point", "reach", "fault"
+SERVICE, DRIVER, JOINT_STATES, TASK_POINT, REACH, FAULT = ("service", "driver", "joint_states", "task_point",
+                                                           "reach", "fault")
 SOURCES = "sources "  # + the topic
 # holds that are no fault of the graph (a user's pause, a reach): not reported as a fault on /diagnostics
 NOT_FAULTS = (SERVICE, REACH)

@@ -15,7 +15,8 @@ state machine; nothing ever sleeps or blocks the executor):
 Every report is published on ``/sagg/competence`` and every stored sample on ``/sagg/sample``, in
 order, in bursts right after a command (or goal request) went out, so the driver works while we
 publish: every goal request, every ``publish_batch`` items and at least every ``publish_period``
-(a burst costs each receiver one wake-up, not one per message); ``/sagg/status`` at 2 Hz. Hot-path topics travel as raw CDR (``sagg_common.cdr``). At ``max_micro_actions`` the learner stops
+(a burst costs each receiver one wake-up, not one per message); ``/sagg/status`` at 2 Hz. Hot-path
+topics travel as raw CDR (``sagg_common.cdr``). At ``max_micro_actions`` the learner stops
 acting (exactly where the in-process ``InProcessRun.step_until`` stops) and says so in its status.
 """
 from __future__ import annotations
@@ -129,7 +130,8 @@ class LearnerNode(LearnerNodeBase):
         self.get_logger().info(
             f"strategy {core['strategy']}, {self.robot.n} joints, commands on {self.cmd_topic}, "
             + (f"task point on {p['task_topic']}" if self.task_fk is None else
-               f"task point from the joints through {self.task_fk.robot.path} (effector {self.task_fk.robot.effector!r})")
+               f"task point from the joints through {self.task_fk.robot.path} "
+               f"(effector {self.task_fk.robot.effector!r})")
             + (f", stops at {self.max_micro_actions} micro-actions" if self.max_micro_actions else ""))
 
     def _init_inputs(self, p: dict) -> None:
@@ -525,7 +527,8 @@ class LearnerNode(LearnerNodeBase):
         ignored = sum(self.js_intake.other_joints.values())
         if ignored:
             state["ignored /joint_states without the learner's joints"] = str(ignored)
-            state["other joint lists on /joint_states"] = "; ".join(", ".join(n) for n in list(self.js_intake.other_joints)[:4])
+            state["other joint lists on /joint_states"] = "; ".join(
+                ", ".join(n) for n in list(self.js_intake.other_joints)[:4])
         state["sequence gaps (messages not taken)"] = str(self.js_intake.sources.gaps + self.tip_sources.gaps)
         state["second-source episodes"] = str(self.js_intake.sources.episodes + self.tip_sources.episodes)
         for topic in ("/joint_states",) + ((self.task_topic,) if self.task_fk is None else ()):

@@ -21,10 +21,10 @@ NODE_NAME = "sagg_learner"
 
 
 class LearnerNodeBase(Node):
-    """A learner node (``params``: the declared ``schema``). Subclasses set ``learner`` (``task_lower`` / ``task_upper`` /
-    ``last_competence``), ``uses_goals``, ``guard``, ``goals_received``, ``exit_code`` / ``done``,
-    and define ``advance(answer)`` (answer the pending request and go on) and
-    :meth:`_goal_retry_seconds` / :meth:`_retry_goal_later`."""
+    """A learner node (``params``: the declared ``schema``). Subclasses set ``learner``
+    (``task_lower`` / ``task_upper`` / ``last_competence``), ``uses_goals``, ``guard``,
+    ``goals_received``, ``exit_code`` / ``done``, and define ``advance(answer)`` (answer the pending
+    request and go on) and :meth:`_goal_retry_seconds` / :meth:`_retry_goal_later`."""
 
     def __init__(self, schema: Schema):
         super().__init__(NODE_NAME)

@@ -10,11 +10,11 @@ strategy that samples like them.
 Method (our choice, the synergy analogue of :func:`sagg_sim_bridge.arm.reachable_area`): a first
 batch of uniformly random synergies; then ``rounds`` batches, each re-drawing earlier synergies with
 probability ∝ (number of outcomes in their outcome cell)^-2 (sparse cells, which lie at the edges,
-are drawn more often than dense ones, however many outcomes these hold) and perturbing them with Gaussian noise of a log-uniform
-scale (1 %..30 % of each θ range). This evens the sample density out and pushes it to the edges of
-the set. Every outcome is one actually produced by the simulator, so the estimate can only miss
-reachable parts, never invent them. It uses its own seeded stream and no strategy's data; all
-strategies and seeds get the same set.
+are drawn more often than dense ones, however many outcomes these hold) and perturbing them with
+Gaussian noise of a log-uniform scale (1 %..30 % of each θ range). This evens the sample density out
+and pushes it to the edges of the set. Every outcome is one actually produced by the simulator, so
+the estimate can only miss reachable parts, never invent them. It uses its own seeded stream and no
+strategy's data; all strategies and seeds get the same set.
 """
 from __future__ import annotations
 

@@ -167,9 +167,9 @@ LEARNER_NODE_SCHEMA: Schema = (
           "Apply the one-source rule above. False only to test the other checks with a second "
           "publisher (sagg bench hostile's content phase); never on a robot."),
     Param("plausibility.single_publisher", "bool", True,
-          "Deprecated (issue 24): ignored. It held learning while a second publisher merely existed "
+          "Deprecated: ignored. It held learning while a second publisher merely existed "
           "on a watched topic; the learner now judges messages (plausibility.source_grace).",
-          deprecated="ignored since issue 24: a second publisher is judged by its messages "
+          deprecated="ignored: a second publisher is judged by its messages "
                      "(plausibility.source_grace), not by its existence"),
     Param("plausibility.resync_after", "int", 5,
           "This many messages in a row older than the newest accepted stamp are a clock jump back "

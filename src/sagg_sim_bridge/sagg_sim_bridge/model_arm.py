@@ -430,8 +430,9 @@ def model_reachable_area(spec: ModelArmSpec, lower, upper, resolution: float | N
     Method (the planar arm's, :func:`.arm.occupancy_grid`): ``samples`` joint configurations
     through the model's own forward kinematics, the first round uniform within the joint limits,
     ``refine_rounds`` more re-drawing configurations of rarely hit cells and perturbing them.
-    Defaults: resolution = reach/100 per side in 2-D, reach/25 in 3-D (:meth:`ModelArmSpec.reach`); samples 400k (2-D), 2M
-    (3-D). Seeded by ``seed``; every marked cell was reached (the estimate can only miss cells)."""
+    Defaults: resolution = reach/100 per side in 2-D, reach/25 in 3-D (:meth:`ModelArmSpec.reach`);
+    samples 400k (2-D), 2M (3-D). Seeded by ``seed``; every marked cell was reached (the estimate
+    can only miss cells)."""
     spec.validate()
     arm = spec.loaded()
     d = len(arm.axes)

@@ -166,7 +166,8 @@ class BridgeNode(Node):
     def publish_state(self) -> None:
         ns = self.sim_ns()
         alpha, tip = self.sim.observe()
-        self.js_pub.publish(self.js_encoder.encode(ns, alpha, self.sim.joint_velocities() if self.dynamic else self.zeros))
+        self.js_pub.publish(self.js_encoder.encode(ns, alpha,
+                                                   self.sim.joint_velocities() if self.dynamic else self.zeros))
         # the task point's coordinates in x, y (and z), in the order of the task axes
         self.tip_pub.publish(self.tip_encoder.encode(ns, *map(float, tip)))
         if self.commands:

@@ -68,7 +68,8 @@ class QuadrupedSpec:
                         ("head_offset", "joint_damping", "head_mass", "settle_time"), 0.02)
 
 
-SCHEMA: Schema = dataclass_schema("quadruped", QuadrupedSpec, model_doc("Quadruped model", "sagg_sim_bridge/quadruped.py"))
+SCHEMA: Schema = dataclass_schema("quadruped", QuadrupedSpec,
+                                  model_doc("Quadruped model", "sagg_sim_bridge/quadruped.py"))
 
 
 def spec_from_params(params: dict) -> QuadrupedSpec:

@@ -158,7 +158,8 @@ def _read_into(src: Path, bag: BagWriter, rep: dict) -> None:
             elif isinstance(rec, Message):
                 topic = topics.get(rec.channel_id)
                 if topic is None:
-                    key = refused.get(rec.channel_id, f"channel {rec.channel_id}: no channel record before its messages")
+                    key = refused.get(rec.channel_id,
+                                      f"channel {rec.channel_id}: no channel record before its messages")
                     skipped[key] = skipped.get(key, 0) + 1
                     continue
                 bag.write(topic, rec.log_time, rec.data)

@@ -151,9 +151,10 @@ def replay(bag: str | Path, rate: float = 1.0, topics: list[str] | None = None, 
             end = time.monotonic() + wait_timeout
             while not stop and any(p.get_subscription_count() < wait_subscribers for p in pubs.values()):
                 if time.monotonic() > end:
-                    raise ConfigError(f"--wait-subscribers: fewer than {wait_subscribers} subscriber(s) on "
-                                      f"{', '.join(t for t, p in pubs.items() if p.get_subscription_count() < wait_subscribers)}"
-                                      f" after {wait_timeout:.0f} s")
+                    raise ConfigError(
+                        f"--wait-subscribers: fewer than {wait_subscribers} subscriber(s) on "
+                        f"{', '.join(t for t, p in pubs.items() if p.get_subscription_count() < wait_subscribers)}"
+                        f" after {wait_timeout:.0f} s")
                 time.sleep(0.05)
         seen: dict[str, int] = {}  # command topic -> its publisher's subscriber count when last checked
 
@@ -226,7 +227,8 @@ def params_from(bag: Path, params_file: str | Path | None) -> dict[str, dict]:
     """The nodes' parameters (:func:`params_path`), resolved against the full node schemas."""
     path = params_path(bag, params_file)
     if not path.is_file():
-        raise ConfigError(f"--params: '{path}' not found; allowed: the run's params.yaml (sagg run writes DIR/params.yaml)")
+        raise ConfigError(f"--params: '{path}' not found; allowed: the run's params.yaml "
+                          "(sagg run writes DIR/params.yaml)")
     try:
         doc = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

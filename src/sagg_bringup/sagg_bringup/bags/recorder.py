@@ -68,7 +68,8 @@ def _qos(spec: TopicSpec):
     from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                     QosTime)
     zero = QosTime(0, 0)  # rosbag2's "unspecified" (the rmw default)
-    return Qos(QosHistory.KEEP_LAST, spec.depth, QosReliability.BEST_EFFORT if spec.best_effort else QosReliability.RELIABLE,
+    return Qos(QosHistory.KEEP_LAST, spec.depth,
+               QosReliability.BEST_EFFORT if spec.best_effort else QosReliability.RELIABLE,
                QosDurability.TRANSIENT_LOCAL if spec.transient_local else QosDurability.VOLATILE,
                zero, zero, QosLiveliness.AUTOMATIC, zero, False)
 

@@ -12,7 +12,6 @@ from ..graph.check_driver import main_check_driver
 from ..graph.processes import GraphError
 from ..graph.reach import main_reach
 from ..graph.record import LOST_EXIT_CODE, default_out, record
-from ..report.report import write_report
 from ..experiments.reproduce import estimate, run_reproduce
 from ..experiments.sensitivity import run_sensitivity
 from .benches import LAB_HINT, installed_benches, positive_int
@@ -112,7 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp = sub.add_parser("replay", help="republish a bag's raw CDR with its recorded timing and QoS "
                                        "(for Foxglove, PlotJuggler, a second learner)")
     rp.add_argument("bag", help="rosbag2 directory (e.g. runs/<run>/bag)")
-    rp.add_argument("--rate", type=float, default=1.0, help="time scale of the recorded timing (0 = as fast as possible)")
+    rp.add_argument("--rate", type=float, default=1.0,
+                    help="time scale of the recorded timing (0 = as fast as possible)")
     rp.add_argument("--topics", nargs="+", help="only these topics (default: all)")
     rp.add_argument("--loop", action="store_true", help="start again at the end (until Ctrl-C)")
     rp.add_argument("--wait-subscribers", type=int, default=0, metavar="N",

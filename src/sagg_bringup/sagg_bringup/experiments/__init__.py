@@ -1,1 +1,2 @@
-"""Experiments of many runs: ``sagg bench compare`` sweeps, their statistics, ``sagg reproduce`` (claims, sensitivity, archive, mechanisms)."""
+"""Experiments of many runs: ``sagg bench compare`` sweeps, their statistics, ``sagg reproduce``
+(claims, sensitivity, archive, mechanisms)."""

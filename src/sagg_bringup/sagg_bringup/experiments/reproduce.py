@@ -20,7 +20,6 @@ went the other way significantly.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import shutil
@@ -223,7 +222,8 @@ def run_reproduce(which: list[str], scale: str = "smoke", out: str | Path | None
                                "overrides": st["overrides"], "eval_every": st["eval_every"]},
                      "strategies": list(e["strategies"]),
                      "seeds": done, "seeds_planned": st["seeds"], "complete": len(done) == st["seeds"],
-                     "micro_actions": st["micro_actions"], "paper": c["paper"], "ours": d["ours"], "p_value": d["p_value"],
+                     "micro_actions": st["micro_actions"], "paper": c["paper"], "ours": d["ours"],
+                     "p_value": d["p_value"],
                      "verdict": d["verdict"], "statistic": d["statistic"], "pairs": d["pairs"],
                      "mechanisms": mechanisms[c["experiment"]],
                      "alpha": alpha, "scale": scale,

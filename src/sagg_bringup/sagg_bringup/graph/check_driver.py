@@ -64,7 +64,8 @@ class _Probe:
 
     def on_tip(self, msg, info: dict) -> None:
         self.mon.on_task_point(msg, info)
-        self.tips.append((time.time(), DriverMonitor._stamp(msg), np.array([msg.point.x, msg.point.y, msg.point.z])[:self.m]))
+        self.tips.append((time.time(), DriverMonitor._stamp(msg),
+                          np.array([msg.point.x, msg.point.y, msg.point.z])[:self.m]))
 
 
 def publishers_report(node, mon: DriverMonitor, say) -> dict:
@@ -219,8 +220,9 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
             res["task_point_displacement"] = float(np.linalg.norm(mon.tip[:probe.m] - tip0))
             ratio = float(delta[j] / (target[j] - start[j]))
             res["step_ratio"] = ratio
-            say(f"moved {joint} by {target[j] - start[j]:+.3f} rad: measured {delta[j]:+.3f} rad ({100 * ratio:.0f} %), "
-                f"first sign after {1e3 * res['response_seconds']:.0f} ms, settled after {1e3 * res['settle_seconds']:.0f} ms; "
+            say(f"moved {joint} by {target[j] - start[j]:+.3f} rad: measured {delta[j]:+.3f} rad "
+                f"({100 * ratio:.0f} %), first sign after {1e3 * res['response_seconds']:.0f} ms, "
+                f"settled after {1e3 * res['settle_seconds']:.0f} ms; "
                 f"task point moved {res['task_point_displacement']:.3g}")
             if not 0.5 <= ratio <= 1.5:
                 problems.append(f"joint {joint} moved {100 * ratio:.0f} % of the commanded step; allowed: 50-150 %")
@@ -235,9 +237,11 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
             spin_for(0.2)
             spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled)
             period = 1.0 / res["joint_state_rate"]
-            res["suggested_observation_delay"] = max(res["joint_state_delay"], res["task_point_delay"], 0.0) + 2 * period
+            res["suggested_observation_delay"] = (max(res["joint_state_delay"], res["task_point_delay"], 0.0)
+                                                  + 2 * period)
             res["suggested_joint_state_timeout"] = max(2.0, 10 * period)
-            say(f"suggested: observation_delay {res['suggested_observation_delay']:.3f} (now {lp['observation_delay']}), "
+            say(f"suggested: observation_delay {res['suggested_observation_delay']:.3f} "
+                f"(now {lp['observation_delay']}), "
                 f"joint_state_timeout >= {res['suggested_joint_state_timeout']:.1f} (now {lp['joint_state_timeout']})")
         say("OK: the driver meets the contract" if not problems else "PROBLEMS:\n  - " + "\n  - ".join(problems))
         return res
@@ -252,5 +256,6 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
 def main_check_driver(args) -> int:
     # lazy (heavy): the set-up registry (mujoco)
     from .launch_params import resolve_config
-    res = check_driver(str(resolve_config(args.config)), args.joint, args.step, args.seconds, args.domain_id, args.timeout)
+    res = check_driver(str(resolve_config(args.config)), args.joint, args.step, args.seconds, args.domain_id,
+                       args.timeout)
     return 1 if res["problems"] else 0

@@ -153,7 +153,8 @@ class DriverMonitor:
         node.create_subscription(JointState, "/joint_states", with_message_info(self.on_joint_state), reliable(100),
                                  raw=True)
         if self.task_fk is None:
-            node.create_subscription(PointStamped, self.task_topic, with_message_info(self.on_task_point), reliable(100))
+            node.create_subscription(PointStamped, self.task_topic, with_message_info(self.on_task_point),
+                                     reliable(100))
         node.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(100))
 
     @staticmethod
@@ -293,8 +294,8 @@ class ContractRobot:
     is published on ``/<controller>/commands`` (joint order = ``joints``), and answered by a joint
     state and a task point both stamped more than ``observation_delay`` after the newest ones
     before it, once settled (every |velocity| < ``settle_velocity``) and, stricter than the learner
-    node, with a task point sampled no earlier than that joint state and once some joint has moved at least half the largest commanded displacement (when that is
-    at least :data:`MOTION_FLOOR`); or
+    node, with a task point sampled no earlier than that joint state and once some joint has moved at
+    least half the largest commanded displacement (when that is at least :data:`MOTION_FLOOR`); or
     ``settle_timeout`` s after the command (then the latest fresh state). Every target is clipped to
     the joint limits and to ``max_joint_step`` from the newest measured posture (as the learner's
     commands are); a return to rest, or to where learning paused, is a sequence of such commands
@@ -406,8 +407,8 @@ class RobotEvaluation:
     """The frozen model reaching test goals from rest on the robot, at the scheduled points
     (``every`` micro-actions, 0 = only at the end) and at the end. Results: ``curve`` (micro-actions,
     the evaluation's metrics of sagg_low_level.eval_metrics: mean, median, share within tolerance,
-    mean error per distance-from-base band; the errors of every goal) and the initial error (the empty model does not move the
-    arm: the distance from the measured rest tip to each goal)."""
+    mean error per distance-from-base band; the errors of every goal) and the initial error (the
+    empty model does not move the arm: the distance from the measured rest tip to each goal)."""
 
     def __init__(self, learner_params: dict, robot: ContractRobot, n_goals: int, every: int, goals=None,
                  base=None):
@@ -619,7 +620,8 @@ class RobotRun:
             self.evaluation.tick(now)
         st, total, r = self.session.st, self.plan.micro_actions, self.robot_eval
         done = st.status is not None and st.status["micro_actions"] >= total
-        if r.next_at is not None and r.next_at < total and st.samples >= r.next_at and not done:  # (the end has its own)
+        if r.next_at is not None and r.next_at < total and st.samples >= r.next_at \
+                and not done:  # (the end has its own)
             self.evaluate(min(st.samples, total), final=False)
             r.next_at += r.every
             return True

@@ -55,7 +55,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
     """Run the graph for ``micro_actions`` micro-actions; returns the summary (also in DIR).
 
     ``resume``: the settings of the stopped run in ``out_dir`` to continue (``sagg run --resume
-    DIR``: :func:`~sagg_bringup.graph.setups.resume_graph`; config_path is then DIR/params.yaml): the nodes resume from DIR/checkpoint, this segment is recorded into a new
+    DIR``: :func:`~sagg_bringup.graph.setups.resume_graph`; config_path is then DIR/params.yaml):
+    the nodes resume from DIR/checkpoint, this segment is recorded into a new
     bag (``bag2``, ``bag3``, ...; logs ``logs/<node>.<k>.log``), and the earlier bags are read first,
     so the evaluation, the summary and the report cover the whole run (samples, reports and goals
     republished by the resumed nodes are dropped by index / sequence number). An unfinished bag (no

@@ -124,7 +124,8 @@ def reach_goals(source: str | Path, goals: list[list[float]] | None = None, test
     errors = np.array([r["error"] for r in results])
     res = {"source": str(source), "driver": driver, "from_rest": from_rest, "goals": results,
            "mean_error": float(errors.mean()), "median_error": float(np.median(errors)),
-           "run_final_mean_error": summary.get("final_mean_error"), "run_final_median_error": summary.get("final_median_error")}
+           "run_final_mean_error": summary.get("final_mean_error"),
+           "run_final_median_error": summary.get("final_median_error")}
     if from_rest:  # the same goals, the same model, the run's own evaluation code
         offline = offline_errors(run_dir / "params.yaml", memory, goals)  # (frozen_model checked it is there)
         res["offline_errors"] = offline.tolist()

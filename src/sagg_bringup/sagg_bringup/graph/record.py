@@ -256,7 +256,8 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
         rclpy.shutdown(context=ctx)
         for s, h in old.items():
             signal.signal(s, h)
-    res = {"path": str(out), "topics": bag.topics(), "interrupted": bool(stop), "first_sample_index": account.first_index,
+    res = {"path": str(out), "topics": bag.topics(), "interrupted": bool(stop),
+           "first_sample_index": account.first_index,
            "qos": {t: {"transient_local": s.transient_local, "best_effort": s.best_effort} for t, s in rec.qos.items()},
            "published": published, "before": before, "lost": lost, "drain": drain, "rejected": rejected,
            "lost_not_estimated": sorted(rec.drops_unknown)}

@@ -97,7 +97,8 @@ class RecordAccount:
 
     # ------------------------------------------------------------------ results
     def acknowledged(self) -> int | None:
-        """The value for /sagg/recorded (None until a sample came: :class:`~sagg_bringup.bags.recorder.Acknowledger`)."""
+        """The value for /sagg/recorded (None until a sample came:
+        :class:`~sagg_bringup.bags.recorder.Acknowledger`)."""
         return None if self.start is None else self.st.samples
 
     def published(self) -> dict[str, int]:

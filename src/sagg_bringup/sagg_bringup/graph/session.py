@@ -48,8 +48,8 @@ SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_f
                 "resumed_segments", "learn_seconds", "startup_seconds", "eval_seconds", "wall_seconds", "curve",
                 "final_mean_error", "final_median_error", "memory", "learner_status", "reports", "goals",
                 "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
-                "interrupted", "error", "eval_metrics", "driver", "curve_source", "simulated_evaluation", "robot_evaluation",
-                "teacher")
+                "interrupted", "error", "eval_metrics", "driver", "curve_source", "simulated_evaluation",
+                "robot_evaluation", "teacher")
 
 
 class GraphSession:

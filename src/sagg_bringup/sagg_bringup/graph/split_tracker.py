@@ -13,7 +13,8 @@ class SplitTracker:
     never-seen intermediate regions are negative). The leaves at every observed time are exact."""
 
     def __init__(self, lower, upper):
-        self.leaves: dict[int, tuple[np.ndarray, np.ndarray]] = {0: (np.asarray(lower, float), np.asarray(upper, float))}
+        self.leaves: dict[int, tuple[np.ndarray, np.ndarray]] = {0: (np.asarray(lower, float),
+                                                                     np.asarray(upper, float))}
         self.splits: list[dict] = []
         self._synthetic = -1
         self.inconsistent = 0

@@ -12,7 +12,6 @@ import time
 
 import numpy as np
 
-from sagg_common.rng import substream_seed
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 from sagg_low_level.learner import EvolvingContextLearner, Robot
 from sagg_low_level.memory import SampleMemory

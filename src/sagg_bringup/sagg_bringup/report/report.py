@@ -445,7 +445,6 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
         "teacher": fig_teacher(result, out / "teacher.png", area),
     }
     lp = result["config"]["sagg_learner"]
-    bp = result["config"].get("sagg_sim_bridge", {})
     graph = "bag" in result
     lines = [f"# {'Graph' if graph else 'In-process'} run: {result['strategy']}, seed {result['seed']}", ""]
     rows = [
