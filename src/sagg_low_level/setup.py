@@ -30,7 +30,7 @@ def kernel(name: str, opt: str = '-O2') -> Extension:
 
 
 # knn_kernel: the neighbour searches' inner loops (-O3: the distance and box-bound loops over runs
-# of points vectorise, ~10 % per search; the answers are the same, test_knn_kernel); reach_kernel:
+# of points vectorise; the answers are the same, test_knn_kernel); reach_kernel:
 # the local model's small linear algebra (least-squares Jacobians, pseudo-inverse / damped /
 # clamped reaching steps)
 KERNELS = [kernel('knn_kernel', '-O3'), kernel('reach_kernel')]
@@ -52,7 +52,7 @@ setup(
         'console_scripts': [
             'learner = sagg_low_level.node:main',
             'fixed_learner = sagg_low_level.fixed_node:main',
-            # the old name of fixed_learner, kept as an alias for one release (issue 26)
+            # the old name of fixed_learner, kept as an alias for one release
             'synergy_learner = sagg_low_level.fixed_node:main',
         ],
     },

@@ -1,10 +1,9 @@
 """CDR primitives and the codecs of the standard ROS messages on the nodes' hot path (no rclpy import).
 
-Why: converting a message between its Python object and C (rclpy's publish and take) costs about
-as much as the transport itself (measured: a raw-bytes ping-pong has half the round-trip time of a
-message-object one). The nodes therefore publish bytes they encode here and subscribe with
-``raw=True``, decoding only what they need with numpy. Float64 values are copied byte for byte,
-so nothing changes numerically.
+Why: converting a message between its Python object and C (rclpy's publish and take) costs about as
+much as the transport itself. The nodes therefore publish bytes they encode here and subscribe with
+``raw=True``, decoding only what they need with numpy. Float64 values are copied byte for byte, so
+nothing changes numerically.
 
 Format: ROS 2's default serialization, plain CDR little endian (XCDR1): a 4-byte encapsulation
 header ``00 01 00 00``, then the fields in order, each primitive aligned to its size (at most 8)

@@ -1,4 +1,4 @@
-"""The plausibility envelope of a measurement stream (DESIGN §8), ROS-free.
+"""The plausibility envelope of a measurement stream (docs/safety.md), ROS-free.
 
 A node that receives measurements (joint states, task points) keeps, per stream, a
 :class:`StampTracker`: the newest accepted stamp, when it arrived, and how many messages in a row
@@ -7,7 +7,7 @@ went back in time. A stamp is
 - **accepted** when it is not older than the newest one, and not further ahead of it than the
   time that passed on the receiver's clock since the newest one arrived plus ``future_tolerance``
   (a stamp "in the future" of the stream: a forged or broken message; accepting it would make
-  every real message after it look older, the wedge of issue 11). The first stamp of a stream has
+  every real message after it look older: the stream would wedge). The first stamp of a stream has
   no reference and is accepted;
 - **rejected as out of order** when it is older than the newest one: kept the newest;
 - **a clock jump back** when ``resync_after`` messages in a row were older than the newest one

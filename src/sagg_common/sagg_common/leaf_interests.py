@@ -1,14 +1,13 @@
 """The interests of a region tree's leaves as one array, kept up to date instead of re-read leaf by
 leaf at every goal choice (the read path of :meth:`sagg_common.regions.RegionTree.interests`).
 
-Speed only, never results: :meth:`LeafInterests.get` returns exactly
-``np.array([r.interest for r in tree.leaves()])``. Between two reads only the leaves that received a
-point (:meth:`touched`) can have another interest, and a split replaces one leaf by its two children
-in place (:meth:`split`); so a read refreshes only those leaves, where the list comprehension read
-every leaf (2.5 ms per goal at 6,500 leaves, 15 % of a SAGG-RIAC run on the 15-DOF arm at 200k
-micro-actions). Anything else that changes interests is noticed and answered by a full read: another
-leaf list (a restored tree), or an interest set by hand (``Region.interest = v``, counted by
-``Region.interest_sets``). ROS-free.
+Speed only, never results: :meth:`LeafInterests.get` returns exactly ``np.array([r.interest for r in
+tree.leaves()])``. Between two reads only the leaves that received a point (:meth:`touched`) can
+have another interest, and a split replaces one leaf by its two children in place (:meth:`split`);
+so a read refreshes only those leaves, where the list comprehension reads every leaf (a noticeable
+share of a long SAGG-RIAC run, whose tree holds thousands of leaves). Anything else that changes
+interests is noticed and answered by a full read: another leaf list (a restored tree), or an
+interest set by hand (``Region.interest = v``, counted by ``Region.interest_sets``). ROS-free.
 """
 from __future__ import annotations
 

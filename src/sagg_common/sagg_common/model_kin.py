@@ -1,10 +1,9 @@
 """Vectorised forward kinematics of one effector point of a compiled MuJoCo model (ROS-free).
 
 Why: a model arm's reachable set and test goals need the effector position of millions of joint
-configurations; ``mj_kinematics`` row by row costs 2.4-4 µs per posture with its Python loop, this
-0.4 µs in batches of 100k (6- and 7-DOF example arms; numpy's per-call overhead makes it ~230 µs for
-a single posture, where ``mj_kinematics`` is the better choice). It reproduces ``mj_kinematics``
-for the chain from the world to the effector's body:
+configurations; ``mj_kinematics`` row by row pays a Python loop per posture, this computes a batch
+at once (for a single posture numpy's per-call overhead makes ``mj_kinematics`` the better choice).
+It reproduces ``mj_kinematics`` for the chain from the world to the effector's body:
 
 - a body's frame is its parent's frame composed with (body_pos, body_quat), then with each of its
   joints in order;

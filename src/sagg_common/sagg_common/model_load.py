@@ -1,7 +1,7 @@
 """A robot model file (MuJoCo MJCF ``.xml`` or URDF ``.urdf``) parsed and edited with
 ``mujoco.MjSpec`` for the model arm (ROS-free).
 
-What a real ``robot_description`` needs (DESIGN §10):
+What a real ``robot_description`` needs (docs/your-robot.md):
 
 - mesh files named by ``package://PKG/path`` URIs are looked up as ``<dir>/PKG/path`` for each
   directory of ``arm.package_paths``, then as ``<prefix>/share/PKG/path`` for each prefix of

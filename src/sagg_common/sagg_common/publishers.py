@@ -1,4 +1,4 @@
-"""One expected publisher per input topic (DESIGN §8), with rclpy's public graph API.
+"""One expected publisher per input topic (docs/safety.md), with rclpy's public graph API.
 
 rclpy (Jazzy) gives a subscription callback's message info without the publisher's GID, so a
 message cannot be attributed to its publisher; what can be checked is who publishes on the topic:
@@ -85,7 +85,7 @@ class PublisherWatch:
 
 
 class PublisherStream:
-    """Messages of a topic accepted only from its expected publisher's stream (DESIGN §8).
+    """Messages of a topic accepted only from its expected publisher's stream (docs/safety.md).
 
     rclpy gives no publisher GID per message, but it gives the publisher's sequence number
     (``publication_sequence_number`` of the message info; +1 per message of one writer). The

@@ -166,8 +166,8 @@ def choose_split(points: np.ndarray, values: np.ndarray, n_candidates: int, zeta
     broken by the larger ``card(R1)·card(R2)`` (the most balanced split), then by candidate order.
     Points with coordinate ``< value`` go left, the others right. Returns None when no dimension can
     be split (all points identical). The candidates are drawn one after the other (dimension, then
-    value), as before their evaluation was batched (2026-12-02): the same stream gives the same
-    candidates.
+    value) although their evaluation is batched: the same stream gives the same candidates as an
+    evaluation one candidate at a time.
     """
     lo = points.min(axis=0)
     hi = points.max(axis=0)

@@ -27,8 +27,8 @@ def substream_seed(seed: int, name: str) -> int:
 
 def choice_index(rng: np.random.Generator, p: np.ndarray) -> int:
     """``int(rng.choice(len(p), p=p))`` for probabilities ``p`` this code built itself (non-negative,
-    summing to 1), the same index from the same draw, without the argument checks that made the call
-    cost ~25 µs: numpy draws one ``rng.random()`` and takes the first index whose normalised
+    summing to 1), the same index from the same draw, without the argument checks that dominate the
+    call's cost: numpy draws one ``rng.random()`` and takes the first index whose normalised
     cumulative sum exceeds it (``Generator.choice``, numpy 2.x; test/test_rng.py checks the two
     agree draw for draw)."""
     cdf = np.cumsum(p, dtype=float)
@@ -42,7 +42,7 @@ def choice_index(rng: np.random.Generator, p: np.ndarray) -> int:
 def uniform_in(rng: np.random.Generator, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """``rng.uniform(lower, upper)`` for two equal-length 1-D float bound arrays this code built itself
     (finite, ``lower <= upper``), the same floats from the same draws, without the broadcasting and
-    argument checks that made the call cost ~12 µs against ~2 µs: numpy computes each element as
+    argument checks that dominate the call's cost: numpy computes each element as
     ``low + (high - low) * next_double`` in C order (``Generator.uniform``, numpy 2.x), which is what
     ``rng.random(n)`` draws; test/test_rng.py checks the two agree draw for draw."""
     return lower + (upper - lower) * rng.random(len(lower))

@@ -1,4 +1,4 @@
-"""A robot's kinematic model from its MJCF/URDF file (ROS-free; issue 23).
+"""A robot's kinematic model from its MJCF/URDF file (ROS-free).
 
 Every node that needs a robot's geometry uses this one class: the bridge's simulated model arm
 (``sagg_sim_bridge.model_arm`` builds its simulator on it) and the learner, which computes the task
@@ -113,8 +113,8 @@ class PostureFK:
     addresses, in the order of a posture's values), every other joint at its rest value, through
     ``mj_kinematics`` on an MjData of its own (of ``model``, default ``robot.model``: any model
     with the robot's bodies and joints, e.g. the simulator's with servos added; the MjModel is
-    shared, read-only). One call costs a few µs (measured: :class:`TaskFromJoints`), where the
-    batched :class:`.model_kin.ChainFK` pays ~200 µs of numpy overhead for a single posture.
+    shared, read-only). For a single posture this is cheaper than the batched
+    :class:`.model_kin.ChainFK`, whose numpy overhead dominates there.
 
     Public views, for a simulator that runs this MjData itself: ``data``, ``sel`` (the joints'
     qpos: a slice when contiguous, else an index array), ``eff`` (the effector's world position, a
@@ -272,15 +272,15 @@ class RobotModel:
 
     def task_point(self, alpha: np.ndarray) -> np.ndarray:
         """The effector on the task axes for one posture (n,) of the commanded joints (the others
-        at rest), through ``mj_kinematics`` on this model's own MjData (a few µs; one MjData per
-        model: not for concurrent threads)."""
+        at rest), through ``mj_kinematics`` on this model's own MjData (one MjData per model: not
+        for concurrent threads)."""
         if self._fk is None:
             self._fk = PostureFK(self, self.qadr)
         return self._fk.point(alpha)
 
     def task_points(self, alphas: np.ndarray) -> np.ndarray:
         """(N, n) postures of the commanded joints -> (N, task_dim) effector points, batched
-        through :class:`.model_kin.ChainFK` (0.4 µs per posture in batches of 100k)."""
+        through :class:`.model_kin.ChainFK`."""
         return self.kin.positions(alphas)[:, self.axes]
 
     # ------------------------------------------------------------------ building
@@ -332,10 +332,8 @@ class TaskFromJoints:
     ConfigError naming the parameter ``joints`` and the model's joints that do); every other
     joint of the model is held at its rest value (``robot.qpos_rest``).
 
-    :meth:`point` runs on every accepted joint state: 1.6-3.3 µs per call measured on the 7-DOF
-    config/robots/arm7.urdf (tool0) and the 6-DOF arm6.xml, learner order equal to the model's or
-    reversed (best of 5 x 200k calls on a shared 2-core machine; ``mj_kinematics`` itself is
-    0.9-1.3 µs of it)."""
+    :meth:`point` runs on every accepted joint state: one ``mj_kinematics`` call on an MjData of
+    its own (:class:`PostureFK`), the joints written straight into its qpos in the learner's order."""
 
     def __init__(self, robot: RobotModel, joints: Sequence[str]):
         names = list(joints)

@@ -10,7 +10,8 @@ in-process config loader does. A bad value raises :class:`ConfigError`; :func:`r
 into one log line naming the parameter and the allowed values, and exit code 2.
 
 Spinning: :func:`spin` runs a node until shutdown with a manual ``spin_once`` loop
-(``EventsExecutor.spin()`` hangs in this build and ``spin_until_future_complete`` is slow, DESIGN §5).
+(``EventsExecutor.spin()`` hangs in this build and ``spin_until_future_complete`` is slow,
+docs/architecture.md).
 """
 from __future__ import annotations
 
@@ -269,7 +270,7 @@ def run_node(name: str, factory: Callable[[], Any], args: list[str] | None = Non
                 if hasattr(node, "close"):
                     node.close()
                 flush_publishers(node)
-                if getattr(node, "published", None) is not None:  # (what a bag must hold; issue 11)
+                if getattr(node, "published", None) is not None:  # (what a bag must hold)
                     node.get_logger().info("published counts: " + json.dumps(node.published, sort_keys=True))
                 node.destroy_node()
             except Exception:  # noqa: BLE001
@@ -298,8 +299,8 @@ def flush_publishers(node, seconds: float = 1.0) -> None:
 
 # History depth of the hardware-contract topics (commands, joint states, task point) published by our
 # nodes: deep enough that a slow reader such as the bag recorder never loses a reliable message
-# (depth 10 lost ~3 % of them on a loaded machine).
-HW_DEPTH = 10000  # (1000 still lost 6-8 % of them to a recorder falling behind under load: issue 11)
+# (shallower histories lost messages to a recorder falling behind under load).
+HW_DEPTH = 10000
 
 
 def reliable(depth: int, transient_local: bool = False):

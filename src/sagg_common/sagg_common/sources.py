@@ -1,4 +1,4 @@
-"""Which publisher a message came from, told apart by the publishers' sequence numbers (DESIGN §8).
+"""Which publisher a message came from, told apart by the publishers' sequence numbers (docs/safety.md).
 
 rclpy (Jazzy) hands a subscription the message info (source timestamp, publication sequence
 number) but not the publisher's GID, so a message cannot be named by its publisher. What can be

@@ -20,7 +20,7 @@ rewards to [0, 1] first: ALP is a difference, so the shift changes nothing. Only
 the reference's; reached points and exploration samples do not.
 
 The mixtures are fitted by :mod:`.gaussian_mixture` (the EM of scikit-learn's ``GaussianMixture``,
-which the reference uses, with all components in each step at once: ~20x cheaper; why and how it is
+which the reference uses, with all components in each step at once, much cheaper; why and how it is
 checked against scikit-learn: that module's docstring). The chosen mixture is kept as plain arrays
 (weights, means, covariances), so a checkpoint is arrays + JSON (no pickle) and a resumed teacher
 draws exactly what an uninterrupted one draws. The k-means initialisations of a fit draw from a
@@ -114,7 +114,7 @@ def absolute_learning_progress(goal, competence: float, past_goals: np.ndarray, 
     goals are known (reference: ALP is computed once its dataset holds more than 5 tasks). Ties of
     distance: the first such row. The search is the compiled ``em_kernel.nearest`` (the row sums of
     squared differences in the same order as numpy's for goals of up to 4 dimensions, the first
-    minimum: the same row; a history of 10,000 goals cost ~100 µs a goal in numpy)."""
+    minimum: the same row; in numpy the search of a long history costs much more)."""
     if len(past_goals) < min_history:
         return 0.0
     past, g = np.ascontiguousarray(past_goals, dtype=float), np.ascontiguousarray(goal, dtype=float)
@@ -153,7 +153,7 @@ def fit_mixture(data: np.ndarray, k_min: int, k_max: int, criterion: str, covari
 def sampling_factor(cov: np.ndarray) -> np.ndarray:
     """The factor F with ``x = μ + z F``, z standard normal, of ``numpy.random.Generator.multivariate_normal``
     (its default ``method='svd'``: ``F = (U √S)ᵀ`` of the SVD of the covariance), computed once per
-    fit instead of once per goal (the SVD cost ~100 µs a draw)."""
+    fit instead of once per goal (the covariance changes only with a fit, so an SVD per draw is wasted)."""
     u, s, _ = np.linalg.svd(cov)
     return (u * np.sqrt(s)).T
 

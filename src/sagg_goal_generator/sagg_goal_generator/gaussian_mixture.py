@@ -9,14 +9,12 @@ covariance_type=..., random_state=...)``): responsibilities initialised from a k
 sum, iterations until the mean log-likelihood changes by less than ``tol``, at most ``max_iter``,
 the best of ``inits`` initialisations kept; AIC and BIC as scikit-learn counts parameters.
 
-Why not scikit-learn itself (it was used until 2026-12-02): its EM loops over the components in
-Python, ~3 ms per iteration for 250 points in 3-D; one fit of the reference's 2..10 components
-(~330 iterations) took 0.3-0.7 s, once every 250 goals. In the fixed context a goal takes ~2.7
-experiments of ~0.5 ms, so the fits cost about as much as the learning (54.7 % of the loop,
-docs/notes/teachers.md). The numpy functions below (:func:`em` and its steps) are the definition,
-every step handling all components at once (~6x cheaper than scikit-learn, still ~25 numpy calls
-per iteration); :func:`fit` runs the same EM compiled (``em_kernel.c``, :func:`em_compiled`), about
-100x cheaper again. ``test/test_gaussian_mixture.py`` checks both against scikit-learn's
+Why not scikit-learn itself: its EM loops over the components in Python, and in the fixed context
+its fits (the reference's 2..10 components, once every 250 goals) cost about as much as the learning
+(docs/notes/teachers.md). The numpy functions below (:func:`em` and its steps) are the definition,
+every step handling all components at once (still ~25 numpy calls per iteration); :func:`fit` runs
+the same EM compiled (``em_kernel.c``, :func:`em_compiled`), much cheaper again
+(docs/notes/compiled-loop.md). ``test/test_gaussian_mixture.py`` checks both against scikit-learn's
 ``GaussianMixture`` started from the same parameters, and against each other.
 
 The k-means partition is SciPy's ``kmeans2`` (k-means++ seeding, Arthur & Vassilvitskii 2007, then

@@ -127,7 +127,7 @@ class GoalGeneratorNode(Node):
         self.region_pub = self.create_publisher(RegionTree, "/sagg/regions", reliable(1, transient_local=True))
         # hot path: raw CDR decoded with sagg_common.cdr (no message objects)
         # transient_local: after a restart, the reports missed come again from the learner's history
-        # reports from one source (DESIGN §8; sagg_common.sources, told apart by the publishers'
+        # reports from one source (docs/safety.md; sagg_common.sources, told apart by the publishers'
         # sequence numbers): while a second source sends well-formed reports, every report is
         # dropped (which is real cannot be told) and named; once one source has been quiet for
         # source_grace the subscription is made again, and the learner's transient_local history
@@ -488,8 +488,8 @@ class GoalGeneratorNode(Node):
             self.publish_regions()
 
     def publish_regions(self) -> None:
-        """The leaves as a RegionTree, encoded straight from the tree (sagg_common.cdr: building
-        one Region message object per leaf cost ~0.1 ms each, on every split)."""
+        """The leaves as a RegionTree, encoded straight from the tree (sagg_common.cdr: cheaper than
+        building one Region message object per leaf, on every split)."""
         gen = self.gen
         leaves = gen.tree.leaves()
         counts = [r.count for r in leaves]

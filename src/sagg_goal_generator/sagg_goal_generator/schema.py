@@ -32,8 +32,8 @@ NODE_SCHEMA: Schema = (
     Param("report_reorder_wait", "float", 10.0,
           "A report ahead of the next one expected is kept this long (s) for the ones before it "
           "(reordered, or re-delivered from the learner's history after a re-subscription) before "
-          "those are counted as lost and skipped (2 s lost 36 reports in the 10-minute soak at load 16: "
-          "the history after a re-subscription came later). Our choice.", low=0.0, high=3600.0),
+          "those are counted as lost and skipped (under load the history after a re-subscription can "
+          "come seconds later: a short wait loses reports). Our choice.", low=0.0, high=3600.0),
     Param("report_window", "int", 10000,
           "A competence report whose seq lies more than this beyond the last one processed is rejected "
           "(its gap is not skipped; docs/safety.md). The learner's /sagg/competence history (10000) bounds a "

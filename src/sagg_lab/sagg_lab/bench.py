@@ -186,7 +186,7 @@ def bench_graph(config: str | Path, micro_actions: int = 3000, repeats: int = 2,
                 pingpong_count: int = 3000, overrides: dict | None = None, out=print) -> dict:
     """Graph vs in-process micro-actions/s vs a bare rclpy topic ping-pong between two processes,
     measured interleaved in this one command; the best of ``repeats`` of each (least disturbed by
-    other load). Criterion (issue): 1/graph − 1/in-process ≤ 1.5 × the bare round-trip time.
+    other load). Criterion: 1/graph − 1/in-process ≤ 1.5 × the bare round-trip time.
 
     Also the *contract floor*: the lockstep exchange of the hardware contract (a command out, a
     joint state and a task point back; raw bytes, as our nodes send them) between two processes

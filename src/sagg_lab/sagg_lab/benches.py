@@ -132,8 +132,8 @@ GRAPH = Bench("graph vs in-process micro-actions/s vs a bare rclpy ping-pong, an
               "(the lockstep exchange with no work)", _graph_arguments, _graph)
 SOAK = Bench("long run: RSS growth per stored sample, fds, /dev/shm (in-process and/or through the "
              "graph)", _soak_arguments, _soak)
-HOSTILE = Bench("a running graph under a fuzzer publishing every hostile case of issue 11 on every "
+HOSTILE = Bench("a running graph under a fuzzer publishing every hostile case (docs/safety.md) on every "
                 "topic; per-case table and invariants", _hostile_arguments, _hostile)
 QUALITY = Bench("test error against queries for both learner contexts and every strategy, over seeds, "
                 "in the config's Y and a wide one; queries/s, mean ± std, SAGG-RIAC vs SAGG-RANDOM "
-                "p-values, the analytic-Jacobian reach check (issue 10)", _quality_arguments, _quality)
+                "p-values, the analytic-Jacobian reach check", _quality_arguments, _quality)

@@ -1,5 +1,5 @@
-"""Before/after equivalence of learning, cell by cell (issue 25 item 4: a change that only changes
-floats is shown equivalent statistically, not bit for bit)::
+"""Before/after equivalence of learning, cell by cell (a change that only changes floats is shown
+equivalent statistically, not bit for bit)::
 
     python -m sagg_lab.equivalence BEFORE_DIR AFTER_DIR [--alpha 0.2] [--out FILE.md]
 
@@ -9,7 +9,7 @@ without its seed (e.g. ``evolving/config/sagg-riac`` or ``runs/sagg-riac``) and 
 point; per cell the test errors over seeds (the curve's ``mean_error`` at that point) before and
 after: mean ± std, the two-sided Mann-Whitney p and the Welch p (``compare.pairwise_tests``, as
 ``sagg bench compare`` reports them). A cell is *within the seed spread* when its Mann-Whitney p
-exceeds ``--alpha`` (the issue: 0.2). The same seeds must be on both sides (checked).
+exceeds ``--alpha`` (default 0.2). The same seeds must be on both sides (checked).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The cost of one evaluation, as a ratio to a 5k learning phase, before and after batching (issue 14).
+"""The cost of one evaluation, as a ratio to a 5k learning phase, before and after batching.
 
     .venv/bin/python -m sagg_lab.eval_cost [--setups arm8 arm15 ...] [--strategy S]
         [--micro-actions 5000] [--seed 0] [--repeat 2] [--base COMMIT]
@@ -8,7 +8,7 @@ then the evaluation of the frozen model on the config's test goals, ``--repeat``
 alternating (a burst of load on this shared machine hits both alike; the minimum is reported):
 
 * evolving-context arms (arm8, arm15, arm7_ratio15): *before* = goal after goal
-  (:func:`sagg_low_level.evaluate.evaluate_per_goal`, the procedure of before 2026-11-23 apart from
+  (:func:`sagg_low_level.evaluate.evaluate_per_goal`, the procedure the batch replaced, apart from
   arm8's per-goal noise streams, same cost), *after* = all goals together
   (:func:`~sagg_low_level.evaluate.evaluate_batch`). Both must give the same floats (checked, printed);
 * fixed-context set-ups (quadruped, fishing, arm15_fixed = config/arm15.yaml with context fixed): one

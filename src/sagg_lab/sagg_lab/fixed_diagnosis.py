@@ -1,4 +1,4 @@
-"""Where the fixed-context arm's queries go and what limits its test error (issue 10):
+"""Where the fixed-context arm's queries go and what limits its test error:
 ``python -m sagg_lab.fixed_diagnosis --strategies sagg-riac sagg-random --seeds 5
 --points 5000 20000 [--set NAME=VALUE ...]``.
 

@@ -1,4 +1,4 @@
-"""Learning speed of the fixed-context learner (issue 10), this tree against an older commit, in one
+"""Learning speed of the fixed-context learner, this tree against an older commit, in one
 command: ``python -m sagg_lab.fixed_speed --base <commit>``.
 
 The base commit's ``src/`` is exported with ``git archive`` into a temporary directory and run in a
@@ -29,7 +29,7 @@ import json, sys, time
 try:
     from sagg_bringup.graph.setups import in_process_run
 except ImportError:
-    try:  # a checkout from before the job sub-packages (issue 26)
+    try:  # a checkout from before the job sub-packages
         from sagg_bringup.setups import in_process_run
     except ImportError:  # a checkout from before the set-up registry
         from sagg_bringup.synergy_experiment import load_synergy_config, SynergyRun

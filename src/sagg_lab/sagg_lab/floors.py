@@ -1,4 +1,4 @@
-"""The floor of each part of a micro-action, measured alone (issue 25 item 3)::
+"""The floor of each part of a micro-action, measured alone::
 
     python -m sagg_lab.floors --config config/arm7_ratio15.yaml --micro-actions 20000 [--repeat 3000]
 

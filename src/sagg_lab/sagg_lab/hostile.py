@@ -1,7 +1,7 @@
-"""``sagg bench hostile``: a running graph under a fuzzer (issue 11, item 6; DESIGN §8).
+"""``sagg bench hostile``: a running graph under a fuzzer (docs/safety.md).
 
 Two phases, each a real ``sagg run`` (lockstep, its own ROS domain, recorder and evaluator) and a
-fuzzer node in this process publishing the hostile cases of issue 11's table on the graph's topics:
+fuzzer node in this process publishing the hostile cases (:func:`cases`) on the graph's topics:
 
 - ``content``: the learner's ``plausibility.check_sources`` off, so that each content check is
   what meets the fuzzer's messages (joint states outside the limits / 1e308 / NaN / unknown joint /
@@ -10,7 +10,7 @@ fuzzer node in this process publishing the hostile cases of issue 11's table on 
 - ``publishers``: the defaults, on a run with the next seed: a second source flooding
   /joint_states with 2,000 valid-looking states/s, forged valid samples at each of the next 300
   indices, a forged valid report at the next seq, a second publisher on /sagg/goal; and the
-  ordinary neighbours of a real graph (issue 24): a gripper driver publishing only its own joint,
+  ordinary neighbours of a real graph: a gripper driver publishing only its own joint,
   idle publishers on every watched topic, a burst from a publisher that then stays (idle), and the
   content phase's bag replayed into the live graph by ``sagg replay``.
 
@@ -70,7 +70,7 @@ FUZZ = "fuzz"  # frame_id of the fuzzer's stamped messages
 class Case:
     name: str
     phase: str                      # "content" or "publishers"
-    row: str                        # the issue's row
+    row: str                        # what the case is (its row of the hostile-input table)
     kinds: tuple[str, ...]          # expected rejection kinds: "<node>:<kind>" or "run:<key prefix>"
     send: Callable                  # send(fuzzer, k): the k-th burst of the case
     seconds: float = 3.0            # active time (bursts every `period` s); once: one burst
@@ -245,7 +245,7 @@ class Fuzzer:
         self.publish(self.cmd_topic, "std_msgs/msg/Float64MultiArray", encode_f64_array(np.asarray(values, float)))
 
     def idle_publishers(self) -> None:
-        """A publisher on every topic the graph watches, sending nothing (issue 24: it changes nothing)."""
+        """A publisher on every topic the graph watches, sending nothing (it must change nothing)."""
         for t in watched_topics(self.learner):
             self._pub(t.name, t.msgtype, t.transient_local)
 
@@ -313,7 +313,7 @@ def _next_sample(f: Fuzzer) -> int:
 
 
 def cases() -> list[Case]:
-    """Every row of issue 11's table (and the rows that were already fine)."""
+    """Every hostile case, one row each (and the rows that were already fine)."""
     L, G, B = "sagg_learner", "sagg_goal_generator", "sagg_sim_bridge"
     return [
         Case("joint states 3.0 rad", "content", "joint states outside the limits",
@@ -338,7 +338,7 @@ def cases() -> list[Case]:
              ("run:/sagg/sample",), lambda f, k: f.sample(_next_sample(f), [float("nan")] * f.n), once=True),
         Case("NaN goal", "content", "a goal with NaN on /sagg/goal",
              ("run:/sagg/goal",), lambda f, k: f.goal(10**6, [float("nan"), 0.0]), once=True),
-        # (names none of which is the learner's: another driver's message, ignored since issue 24)
+        # (names none of which is the learner's: another driver's message, ignored)
         Case("NaN / unknown / wrong-length joint states", "content", "already fine: keep so",
              (f"{L}:joint_states.non_finite", f"{L}:joint_states.length"),
              lambda f, k: [f.joint_state([float("nan")] * f.n), f.joint_state([0.0] * f.n, names=["nope"] * f.n),
@@ -359,16 +359,16 @@ def cases() -> list[Case]:
              lambda f, k: [f.report(_next_report(f) + d) for d in (0, 20, 50, 100, 200, 400, 800)], once=True),
         Case("second publisher on /sagg/goal", "publishers", "a forged goal",
              ("run:/sagg/goal",), lambda f, k: f.goal(10**6, [10.0, 0.0]), once=True),
-        Case("gripper publisher (other joints only)", "publishers", "issue 24: a gripper driver on /joint_states",
+        Case("gripper publisher (other joints only)", "publishers", "a gripper driver on /joint_states",
              (), lambda f, k: f.joint_state([0.01 * (k % 10)], [0.0], names=["gripper_finger"]),
              seconds=8.0, period=0.05, target=0.9, log="carry none of the learner's joints: ignored"),
-        Case("idle publishers on every watched topic", "publishers", "issue 24: publishers that send nothing",
+        Case("idle publishers on every watched topic", "publishers", "publishers that send nothing",
              (), lambda f, k: f.idle_publishers() if k == 0 else None, seconds=8.0, period=0.5, target=0.9),
-        Case("burst, then an idle publisher", "publishers", "issue 24: a burst, then the publisher stays",
+        Case("burst, then an idle publisher", "publishers", "a burst, then the publisher stays",
              (f"{L}:joint_states.second_source",),
              lambda f, k: [f.joint_state([0.1] * f.n) for _ in range(50)], once=True, keep=True,
              log="2 sources on /joint_states (publishers: "),
-        Case("a replayed bag", "publishers", "issue 24: `sagg replay` of another run into the live graph",
+        Case("a replayed bag", "publishers", "`sagg replay` of another run into the live graph",
              (f"{L}:joint_states.second_source",), lambda f, k: f.replay() if k == 0 else None,
              seconds=6.0, period=0.5, stop=lambda f: f.stop_replay(), log="/sagg_replay"),
     ]

@@ -1,4 +1,4 @@
-"""Why SAGG-RIAC's goals gather near the rest tip on arm8 (issue 27 item 3): the region tree's
+"""Why SAGG-RIAC's goals gather near the rest tip on arm8: the region tree's
 interest taken apart at every goal choice::
 
     python -m sagg_lab.interest_anatomy --config config/arm8.yaml --seeds 10 --micro-actions 10000 \\

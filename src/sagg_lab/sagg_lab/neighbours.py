@@ -1,5 +1,5 @@
 """``python -m sagg_lab.neighbours``: ``sagg run`` beside the ordinary neighbours of a real
-ROS graph (issue 24), paired with the same run without them, in one command.
+ROS graph, paired with the same run without them, in one command.
 
 A neighbour here is a gripper driver that publishes only its own joint on ``/joint_states``
 (``sensor_msgs/JointState`` named ``gripper_finger``, 20 Hz, reliable), alive for the whole run,

@@ -1,10 +1,10 @@
-"""sagg against issue 10's peer (explauto 1.4) on the same arm, the same test goals, in one command::
+"""sagg against the peer implementation (explauto 1.4) on the same arm, the same test goals, in one command::
 
     python -m sagg_lab.peer --peer-python /path/to/peer-venv/bin/python \\
         [--config config/arm7_ratio15.yaml] [--seeds 3] [--points 5000 20000] [--out DIR]
 
-The issue compares sagg with the peer's numbers from another machine; speeds measured on two
-machines do not compare. Here, per task space (the config's and [-2,2]²) and seed, the peer
+The peer's published numbers come from another machine, and speeds measured on two machines do
+not compare. Here, per task space (the config's and [-2,2]²) and seed, the peer
 (nearest-neighbour goal babbling, its 'tree' and 'random' interest models; lab/peer_explauto.py run
 under ``--peer-python``) and sagg's SAGG-RIAC in both contexts (``sagg experiment``'s in-process
 run) learn one after the other, noise-free; the table gives the mean test error at each point

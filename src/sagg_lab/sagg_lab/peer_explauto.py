@@ -1,4 +1,4 @@
-"""The peer of issue 10, explauto 1.4, learning the same 7-DOF arm: run by :mod:`.peer` under the
+"""The peer comparison's peer, explauto 1.4, learning the same 7-DOF arm: run by :mod:`.peer` under the
 peer's own interpreter (a separate venv with explauto; nothing of sagg is imported here).
 
 Reads one JSON object on stdin::

@@ -1,12 +1,12 @@
-"""``sagg bench quality`` (issue 10): test error against queries, side by side for both learner
+"""``sagg bench quality``: test error against queries, side by side for both learner
 contexts and every strategy, over seeds, noise-free, in the config's task space and a wide one;
 with learning speed (queries/s = micro-actions/s, evaluation excluded), mean ± std over seeds,
 SAGG-RIAC vs SAGG-RANDOM tests (``sagg bench compare``'s statistics), where the micro-actions
 went, and the analytic-Jacobian reach check of the reacher.
 
 One process, runs one after the other (timings are comparable within the command only).
-The fixed context is the learner parameter ``context`` (issue 10, ``--set context=fixed`` on
-every run command); it is passed through the same override path as ``--set``, so a build without
+The fixed context is the learner parameter ``context`` (``--set context=fixed`` on every run
+command); it is passed through the same override path as ``--set``, so a build without
 it fails that column with a clear message instead of silently running the evolving context.
 """
 from __future__ import annotations
@@ -28,7 +28,8 @@ from sagg_bringup.graph.setups import load_experiment_config, run_experiment
 from sagg_bringup.experiments.sweep import RunSpec, expected_config, validate_result
 
 CONTEXTS = ("evolving", "fixed")
-# Issue 10's targets for SAGG-RIAC on config/arm7_ratio15.yaml (20 % below the peer's tree):
+# The quality targets for SAGG-RIAC on config/arm7_ratio15.yaml (20 % below the peer's tree,
+# docs/notes/peer-quality.md):
 # (task space, queries) -> mean test error. Printed next to the results of that config only.
 ISSUE10_TARGETS = {("config", 5000): 0.0086, ("config", 20000): 0.0042,
                    ("wide", 5000): 0.0137, ("wide", 20000): 0.0068}
@@ -54,7 +55,7 @@ def check_context(config: str | Path, context: str, overrides: dict | None) -> N
     except ConfigError as exc:
         if context == "fixed" and "context" in str(exc):
             raise ConfigError(
-                "the fixed-context column needs the learner parameter 'context' (issue 10: "
+                "the fixed-context column needs the learner parameter 'context' ("
                 "--set context=fixed); this build does not declare it. Run with --contexts evolving, "
                 f"or on a build that has it. ({exc})") from exc
         raise
@@ -115,8 +116,8 @@ def summarise(results: dict, points: list[int]) -> dict:
             goals = [(p["reachable_goals"]["goals"], p["unreachable_goals"]["goals"]) for p in ph]
             if any(a + b for a, b in goals):
                 cell["goals_in_reachable_area"] = float(np.mean([a / max(1, a + b) for a, b in goals]))
-        # test goal to the nearest reached tip: the worst goal, and the mean over goals (the issue's
-        # peer figure, 0.005, is its mean error, which for one-shot nearest neighbours is this mean)
+        # test goal to the nearest reached tip: the worst goal, and the mean over goals (the peer's
+        # figure, 0.005, is its mean error, which for one-shot nearest neighbours is this mean)
         for key in ("max", "mean"):
             cov = [r["coverage"][key] for r in rs if r.get("coverage")]
             if cov:

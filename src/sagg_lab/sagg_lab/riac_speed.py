@@ -3,8 +3,8 @@ replaced, in one command, on the same seeded run, with a bit-identity check.
 
 Two in-process runs of the same config and seed are stepped alternately, window by window (so a
 burst of load on this shared machine hits both alike): ``table`` is the learner as it is
-(:mod:`sagg_low_level.riac_leaves`); ``walk`` is the same learner with the action choice of before
-2026-11-23 (:func:`walk_choice`, a Python walk down the region tree reading each compatible leaf's
+(:mod:`sagg_low_level.riac_leaves`); ``walk`` is the same learner with the action choice the table
+replaced (:func:`walk_choice`, a Python walk down the region tree reading each compatible leaf's
 interest). Both must produce the same samples bit for bit: the memory digests and the region trees'
 split histories are compared at the end. Rates are given per wall second and per CPU second of this
 process (``time.process_time``: less sensitive to other processes' load than the wall clock).

@@ -1,5 +1,5 @@
 """``sagg bench soak``: long runs checking that memory grows only with the stored samples and that
-no file descriptors or shared-memory segments leak (issue 6, item 6).
+no file descriptors or shared-memory segments leak.
 
 Two modes, each printing a table of (micro-actions, stored samples, RSS, bytes of the sample
 memory, open fds) every ``--every`` micro-actions and a verdict block:

@@ -1,5 +1,5 @@
-"""What each goal strategy's teacher costs per goal, against the micro-actions a goal takes (issue 27:
-"it must not slow a micro-action noticeably")::
+"""What each goal strategy's teacher costs per goal, against the micro-actions a goal takes (a
+teacher must not slow a micro-action noticeably)::
 
     python -m sagg_lab.teacher_cost --config config/arm8.yaml --micro-actions 10000 --seed 0 \\
         [--strategies sagg-riac sagg-random alp-gmm discretized-progress] [--set NAME=VALUE ...]

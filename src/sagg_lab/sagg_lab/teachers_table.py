@@ -1,5 +1,5 @@
-"""The side-by-side of the goal strategies over several set-ups (issue 27 item 3), from the output
-directories of ``sagg bench compare``::
+"""The side-by-side of the goal strategies over several set-ups, from the output directories of
+``sagg bench compare``::
 
     python -m sagg_lab.teachers_table --out DIR arm8=/tmp/cmp/arm8 quadruped=/tmp/cmp/q1,/tmp/cmp/q2 ...
 

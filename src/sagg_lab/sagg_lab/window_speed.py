@@ -33,7 +33,7 @@ import hashlib, json, sys, time
 import numpy as np
 try:
     from sagg_bringup.graph.setups import in_process_run
-except ImportError:  # a checkout from before the job sub-packages (issue 26)
+except ImportError:  # a checkout from before the job sub-packages
     from sagg_bringup.setups import in_process_run
 cfg, ov = sys.argv[1], json.loads(sys.argv[2])
 run = in_process_run(cfg, ov)

@@ -5,7 +5,7 @@ source checkout without its build step says what to do; and the thin wrappers th
 The wrapped routines compute what the Python functions of :mod:`sagg_low_level.local_model` define
 (their docstrings cite the paper), in another order of operations: the same quantities to ~1e-15
 relative on well-conditioned problems, the same rank cut on rank-deficient ones
-(test/test_reach_kernel.py). Each is one C call instead of 15-40 numpy calls (issue 25).
+(test/test_reach_kernel.py). Each is one C call instead of 15-40 numpy calls.
 """
 from __future__ import annotations
 

@@ -36,14 +36,12 @@ Procedure (every set-up, every strategy, every seed the same):
 
 Why the budget is ``5 × D/v`` (a choice: the paper gives none). Principle: the evaluation scores
 the inverse model, so its budget must not cut off a reach that is still converging, for any
-strategy; it must not depend on what a strategy learned. Measured (docs/notes/evaluation.md, 15 DOF,
-4 strategies × 3 seeds × 5k): at 2 × D/v more than half of the SAGG strategies' test reaches are
-still under way when the budget ends (median final distance 0.34-0.39 against 0.03-0.06 for the
-ACTUATOR strategies), so that budget scores reaching speed too, and that part falls on SAGG
-(SAGG-RIAC's mean error halves from 2 to 5 × D/v, ACTUATOR-RANDOM's drops by a fifth);
-at 5 × D/v the median reach of every strategy ends by the early stop (median 0.008-0.009), and 10 ×
-D/v changes no strategy's mean by more than 25 %. The learning itself is the same under every
-budget (identical memory digests).
+strategy; it must not depend on what a strategy learned. From a sweep of the factor on the 15-DOF
+arm (docs/notes/evaluation.md): at 2 × D/v more than half of the SAGG strategies' test reaches are
+still under way when the budget ends, so that budget scores reaching speed too, and that part falls
+on SAGG; at 5 × D/v the median reach of every strategy ends by the early stop, and 10 × D/v changes
+the strategies' means little. The learning itself is the same under every budget (identical memory
+digests).
 """
 from __future__ import annotations
 

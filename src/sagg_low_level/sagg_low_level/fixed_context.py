@@ -62,8 +62,8 @@ SCHEMA: Schema = SHARED_SCHEMA + (
           "0 = the competence's units (Y's extent per dimension when competence_rescale, Sec. 4.3): "
           "the synergy set-ups. The fixed-context arm fills in its total length (the radius of its "
           "reachable set), so that λ is joint noise per arm length whatever box Y the goals are drawn "
-          "from; in Y's units the same metric distance gave 2.7x less joint noise in [-2,2]² than in "
-          "[-0.5,1]x[-1,1] on the 1-length arm (docs/notes/fixed-context-speed.md, finding 5).",
+          "from; in Y's units the same metric distance would give a different joint noise for each "
+          "box Y (docs/notes/fixed-context-speed.md, finding 5).",
           low=0.0, high=1e9),
     Param("rounds", "int", 1,
           "Timeout of a goal: at most this many rounds of (one reaching experiment + an exploration "

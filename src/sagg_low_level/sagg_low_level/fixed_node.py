@@ -98,7 +98,7 @@ class SynergyLearnerNode(LearnerNodeBase):
             self.traj_pub = self.create_publisher(JointTrajectory, self.traj_topic, reliable(HW_DEPTH))
             out_type = PoseStamped if self.m == 3 else PointStamped
             self.create_subscription(out_type, p["task_topic"], self.on_outcome, reliable(HW_DEPTH))
-        # messages published per topic (logged at shutdown: what a bag must hold; issue 11)
+        # messages published per topic (logged at shutdown: what a bag must hold)
         self.published = {self.traj_topic: 0, "/sagg/sample": 0, "/sagg/competence": 0}
         self._create_sagg_endpoints()  # /sagg/competence, /sagg/sample, /sagg/status, /diagnostics, goals
         self.goal_retry_at: float | None = None

@@ -1,16 +1,16 @@
 /* The inner loops of the neighbour searches, compiled (for speed only: each replaces ~20-60 numpy
- * calls of a few microseconds by one call, with the same answers bit for bit).
+ * calls by one call, with the same answers bit for bit).
  *
  * approx(): the approximate k-nearest-neighbour search of the sample memory,
  * sagg_low_level.memory_search.KnnSearch._knn_approx (a bounded best-bin-first walk of the memory's
  * static-block index, FLANN's "checks", paper Sec. 3.3), over the arrays that
- * sagg_low_level.memory_index keeps. The numpy walk it replaced cost 100-240 us per query (7-15
- * dims, 5k-40k samples); this is one call. Its answers are that walk's:
+ * sagg_low_level.memory_index keeps, in one call instead of ~60 numpy calls for the same walk in
+ * numpy. Its answers are that walk's:
  *
  *   - every distance is the memory's canonical one (sagg_low_level.memory_distance): the
  *     coordinates' squared differences summed in index order, sequentially, with the same IEEE
  *     operations numpy performs (subtract, multiply, add; no fused multiply-add: built with
- *     -ffp-contract=off), so boxes, points and ties compare exactly as before;
+ *     -ffp-contract=off), so boxes, points and ties compare exactly as in the numpy walk;
  *   - a box's lower bound per coordinate is max(lo - q, (-hi) - (-q), 0 - 0), as the walk formed
  *     it from the stored rows (lo, -hi, 0) and the query rows (q, -q, 0);
  *   - per box height the candidates are the kept nodes of the height above (in their order) and
@@ -27,9 +27,9 @@
  * kd_build(), kd_query(): the exact search of the fixed-context learner
  * (sagg_low_level.tree_knn.TreeKnn): a kd tree with exact boxes over the samples stored at its
  * build, the samples stored since scanned; canonical distances, the first k by (distance, index)
- * (tested against the memory's exact search by test/test_tree_knn.py). It replaced a scipy
- * cKDTree, whose query costs ~16 us even for one 2-D row and whose own distances needed a check
- * and full scans to give the canonical answer.
+ * (tested against the memory's exact search by test/test_tree_knn.py). Not a scipy cKDTree: its
+ * query has a large fixed cost even for one 2-D row, and its own distances would need a check and
+ * full scans to give the canonical answer.
  *
  * stored_refresh(), stored_keep(): the exact k nearest of a stored sample kept from one search to
  * the next (sagg_low_level.stored_knn.StoredKnn): the samples stored since merged into a kept

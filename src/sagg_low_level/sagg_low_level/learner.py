@@ -83,8 +83,8 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "explorations are triggered ... we declare a goal as unreached'): the whole attempt; its "
           "remaining subgoals are reported unreached without moving, as when a per-goal distance "
           "budget is spent. 'subgoal': only the current subgoal, the next one starts with a fresh "
-          "counter (the behaviour before 2026-11-23, which let a blocked attempt spend up to "
-          "subgoals × w exploration phases).", choices=("goal", "subgoal")),
+          "counter, which lets a blocked attempt spend up to subgoals × w exploration phases.",
+          choices=("goal", "subgoal")),
     Param("exploration_respects_timeout", "bool", True,
           "If true (paper) the distance timeout also counts exploratory micro-actions one by one and "
           "cuts an exploration phase short when the budget is spent: Sec. 3.6.2 'during both phases, "
@@ -92,7 +92,7 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "fixed for each goal ... allowed to perform up to 1.5 times the distance', Sec. 3.7.6 "
           "'(including explorative movements)'. If false, a started exploration phase always runs "
           "its q micro-actions and the timeout is checked after it (Alg. 1 read literally: the "
-          "timeout is tested once per loop iteration); the default before 2026-11-22."),
+          "timeout is tested once per loop iteration)."),
     Param("neighbours", "int", 0,
           "k: nearest stored samples (in α) used for the local Jacobian (Sec. 3.3). 0 = 2 × joints. "
           "Not given in the paper.", low=0, high=100_000),
@@ -100,8 +100,8 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "Approximate nearest neighbours as in the paper (Sec. 3.3, FLANN 'Muja09'): a neighbour "
           "query scans at most this many index leaves (32 samples each) besides the newest samples, "
           "so its cost stays flat as the memory grows (FLANN's 'checks'). 0 = exact k nearest "
-          "(cost grows with the memory). Default measured with memory_bench / sagg bench speed: "
-          "recall 0.88-0.97 of the exact neighbours at 200k samples, k-th distance within 4 %.",
+          "(cost grows with the memory). Default chosen with memory_bench / sagg bench speed, "
+          "against the exact neighbours at 200k samples.",
           low=0, high=1_000_000),
     Param("min_samples", "int", 0,
           "Fewest stored samples before the learner tries the inverse model; with fewer it explores. "
@@ -122,8 +122,8 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "bypasses singularities 'by adding noise in the joint configurations' (Sec. 3.3) without a "
           "value. Without it the neighbours' Δα collapse onto J⁺'s row space (every attempt starts "
           "at rest with r = 1), the least-squares Jacobian fits curvature along unexcited "
-          "directions and reaching stalls: measured on the 15-DOF arm, seeds 0/1, 20k micro-actions, "
-          "mean test error 4.3/6.1 with 0 against 0.69/0.99 with 0.01 (see docs/notes/early-results.md).",
+          "directions and reaching stalls (0 against 0.01 on the 15-DOF arm: "
+          "docs/notes/early-results.md).",
           low=0.0, high=10.0),
     Param("reach_limits", "str", "clamp",
           "How a reaching micro-action respects the joint limits, in learning and in the evaluation's "
@@ -132,9 +132,9 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "Khatib 2012, ICRA): every joint the step Δα = J⁺Δy_next would carry past a limit stops "
           "at the limit and the other joints are re-solved for the missing displacement, so a "
           "saturated joint no longer stalls the reach (docs/notes/reaching-joint-limits.md). 'clip': the paper's plain "
-          "Δα = J⁺Δy_next (Sec. 3.3), clipped to the limits afterwards; the behaviour before "
-          "2026-11-23 (measured on config/arm7_ratio15.yaml with the analytic Jacobian: mean test "
-          "error 0.124, 35 of 100 test goals missed).", choices=("clamp", "clip")),
+          "Δα = J⁺Δy_next (Sec. 3.3), clipped to the limits afterwards (a saturated joint stalls the "
+          "reach: more test goals missed on config/arm7_ratio15.yaml, "
+          "docs/notes/reaching-joint-limits.md).", choices=("clamp", "clip")),
     Param("reach_damping", "float", 0.0,
           "Damped least-squares reaching (the 'singularity-robust inverse' of Nakamura & Hanafusa "
           "1986 and Wampler 1986; local_model.damped_steps), in learning and in the evaluation's "
@@ -282,8 +282,8 @@ def safe_target(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: R
 
 def step_toward(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: Robot) -> np.ndarray:
     """``target`` clipped per joint to at most ``max_step`` from ``alpha`` and to the joint limits:
-    the next command of a move done in steps (the return to rest on a real arm, issue 24: one
-    position command across the range is a jump at full speed on a position controller). It
+    the next command of a move done in steps (the return to rest on a real arm: one position
+    command across the range is a jump at full speed on a position controller). It
     equals ``target`` once every joint is within a step of it."""
     return np.minimum(np.maximum(target, np.maximum(robot.lower, alpha - max_step)),
                       np.minimum(robot.upper, alpha + max_step))
@@ -563,7 +563,7 @@ class EvolvingContextLearner:
         with probability ``riac.p_random`` draw Δα uniformly. (The context α is not ours to choose,
         so the choice is restricted to compatible regions: our reading of RIAC for evolving context.)
         The compatible leaves come from the leaf table (:mod:`.riac_leaves`: arrays, the same leaves
-        and order as a walk down the tree, which this did before 2026-11-23)."""
+        and order as a walk down the tree)."""
         if self.rng.random() < self.p["riac.p_random"] or len(self.riac_tree.leaves()) < 2:
             return self._random_step()
         n = self.robot.n

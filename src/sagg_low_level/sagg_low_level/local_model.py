@@ -93,7 +93,7 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     ``J⁺ Δy_next``. A joint at its limit whose solution moves it back inside stays free, so the
     arm can leave a limit again. Every solve is :func:`pseudo_inverse_step` with ``damping``.
     A step that leaves no joint beyond its limit is returned as it is, without the rounds (their
-    first round would return the same floats; most steps are such, and the rounds cost ~25 µs);
+    first round would return the same floats; most steps are such, and skipping saves the rounds' cost);
     the others start the rounds with it.
     """
     step = pseudo_inverse_step(jac, dy_next, rcond, damping)
@@ -180,7 +180,7 @@ def clamped_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: 
 
 def norm(x: np.ndarray) -> float:
     """``float(np.linalg.norm(x))`` of a 1-D float vector, the same float (numpy computes
-    sqrt(x·x) there too) without its ~1.5 µs of argument handling (calls per micro-action)."""
+    sqrt(x·x) there too) without its argument handling (it runs several times per micro-action)."""
     return math.sqrt(x.dot(x))
 
 

@@ -31,7 +31,7 @@ Design (measured with ``python -m sagg_lab.memory_bench``; numbers in the commit
 * Distances (:mod:`sagg_low_level.memory_distance`): squared Euclidean distances in float64, summed
   over coordinates in index order, bit-identical whichever path found the point; the order of
   results is by (that distance, sample index).
-* Why not scipy's cKDTree: one ``cKDTree.query`` costs ~30 us even on a 10-point tree here (Python
+* Why not scipy's cKDTree: one ``cKDTree.query`` has a large fixed cost even on a tiny tree (Python
   argument handling), a logarithmic forest needs one call per tree, and its k-th-neighbour ties are
   not broken by index (a forest of cKDTrees measured no faster: ``memory_bench --ckdtree``).
 

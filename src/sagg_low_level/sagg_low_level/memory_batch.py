@@ -5,10 +5,9 @@ same sample indices in the same order), for a frozen memory: the evaluation reac
 goals together (:mod:`sagg_low_level.reach_batch`) and asks one query per test goal and step.
 Identical query rows are searched once. In approximate mode (``checks > 0``, the paper's FLANN-like
 search) each row is the memory's own search, one compiled walk per row
-(:meth:`KnnSearch._knn_approx`; until 2026-11-27 a numpy replay of that walk for all rows at once,
-which the compiled walk made slower than one call per row). In exact mode (``checks = 0``) a small
-memory is scanned whole for all rows (the exact answer is unique: canonical distances, ties by
-index), a large one answers row by row.
+(:meth:`KnnSearch._knn_approx`; cheaper than a numpy replay of that walk for all rows at once).
+In exact mode (``checks = 0``) a small memory is scanned whole for all rows (the exact answer is
+unique: canonical distances, ties by index), a large one answers row by row.
 """
 from __future__ import annotations
 
@@ -73,9 +72,9 @@ def neighbours_many(mem, queries: np.ndarray, k: int) -> np.ndarray:
     out = np.empty((len(qs), min(k, mem._n)), dtype=np.int64)
     if not len(qs):
         return out
-    # identical rows are searched once: the first of each, by its bytes (np.unique(axis=0) costs
-    # ~100 µs a call on the evaluation's 100 rows, this a few; equal rows give equal answers, so
-    # the order of the distinct rows does not matter)
+    # identical rows are searched once: the first of each, by its bytes (cheaper than
+    # np.unique(axis=0) on the evaluation's 100 rows; equal rows give equal answers, so the order of
+    # the distinct rows does not matter)
     slot: dict[bytes, int] = {}  # a row's bytes -> its distinct row's number
     rows: list[int] = []  # the first row of each distinct one
     inverse = np.empty(len(qs), dtype=np.intp)

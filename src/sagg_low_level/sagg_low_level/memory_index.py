@@ -18,18 +18,17 @@ state: ``_ns``, the buffer ``_buf_t``, ``_blocks``, ``_boxes``, ``_used``, ``_pt
 * Exact duplicates of alpha (the rest posture after each reset) are stored once per block: median
   splits would otherwise spread them over almost every leaf and inflate every box.
 * Approximate mode (``checks > 0``): blocks use kd leaves (``leaf_order="auto"`` means "kd" there:
-  ranking leaves by their box distance works best on compact kd cells. Measured on the learner's
-  own queries after ``sagg bench speed``'s prefill to 1M samples, 32 leaves: recall 0.87 (n=7) /
-  0.81 (n=15) with kd leaves against 0.71 / 0.72 with the exact mode's per-block choice; ranking by
-  distance to the leaf's centroid (k-means-like) or box centre did no better), and exact duplicates
-  of the query (the rest posture) are always found through a hash of the duplicate groups.
+  ranking leaves by their box distance works best on compact kd cells: on the learner's own queries
+  after ``sagg bench speed``'s prefill to 1M samples, kd leaves recall more of the exact neighbours
+  than the exact mode's per-block choice, and ranking by distance to the leaf's centroid
+  (k-means-like) or box centre does no better), and exact duplicates of the query (the rest posture)
+  are always found through a hash of the duplicate groups.
 
 Pauses: a block build is done inside the ``add`` that triggers it. Builds double in size (binary
-counter): the add that creates a 512k-sample block (once per 512k adds) took 0.76 s (n = 7) /
-0.95 s (n = 15) with kd leaves (approximate mode) and 1.0 / 1.3 s with the exact mode's "auto"
-leaf order on the development machine; the 1M-sample merge about twice that. In-process runs
-just take the pause; a real-time robot loop would see that add stall (building the new block in
-a background thread while queries use the old blocks is the remedy, not done here).
+counter): the add that creates a 512k-sample block (once per 512k adds) takes on the order of a
+second, the 1M-sample merge about twice that. In-process runs just take the pause; a real-time robot
+loop would see that add stall (building the new block in a background thread while queries use the
+old blocks is the remedy, not done here).
 """
 
 from __future__ import annotations

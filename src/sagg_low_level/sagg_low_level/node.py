@@ -904,7 +904,7 @@ class LearnerNode(LearnerNodeBase):
             self.get_logger().info(f"recorder backpressure: {self.rec_waits} waits, "
                                    f"{self.rec_wait_seconds:.3f} s in all (recorder_max_lag {self.rec_max_lag})")
         try:
-            self.flush()  # (also without checkpoints: a params.yaml names none since issue 24)
+            self.flush()  # (also without checkpoints: a params.yaml names none)
         finally:
             if self.checkpointer is not None:
                 self.checkpointer.close()

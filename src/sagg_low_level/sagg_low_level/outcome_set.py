@@ -3,9 +3,9 @@
 The test goals of the quadruped and the fishing rod must cover "approximately uniformly the reachable
 part of the task space" (paper Sec. 4.6, 5.3), but that part is not known beforehand. Outcomes of
 uniformly random synergies are not enough: they pile up where random synergies land (where
-ACTUATOR-RANDOM samples) and rarely reach the set's edges (measured: the quadruped's random pool
-spans u ∈ [-4.6, 3.9], SAGG-RIAC's own outcomes [-9.6, 6.3]). Goals drawn from them favour the
-strategy that samples like them.
+ACTUATOR-RANDOM samples) and rarely reach the set's edges (on the quadruped, SAGG-RIAC's own
+outcomes span a far wider range of u than a random pool). Goals drawn from them favour the strategy
+that samples like them.
 
 Method (our choice, the synergy analogue of :func:`sagg_sim_bridge.arm.reachable_area`): a first
 batch of uniformly random synergies; then ``rounds`` batches, each re-drawing earlier synergies with

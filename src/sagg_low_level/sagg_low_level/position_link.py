@@ -88,7 +88,7 @@ class PositionLink:
         self.waiting = True
         self.sent_time = time.monotonic()
         self.pub.publish(encode_f64_array(np.asarray(target, dtype=float)))
-        published = getattr(self.node, "published", None)  # (what a bag must hold; issue 11)
+        published = getattr(self.node, "published", None)  # (what a bag must hold)
         if published is not None:
             published[self.topic] = published.get(self.topic, 0) + 1
 

@@ -1,8 +1,8 @@
-/* The local model's small linear algebra, compiled (issue 25: for speed only; each call replaces
- * ~15-40 numpy calls of a few microseconds each). The Python functions of
- * sagg_low_level/local_model.py stay the definition, with their citations; these compute the same
- * quantities in another order of operations (floats differ in the last bits, never the semantics;
- * test/test_reach_kernel.py checks every routine against its Python reference on random cases):
+/* The local model's small linear algebra, compiled (for speed only: each call replaces ~15-40
+ * numpy calls). The Python functions of sagg_low_level/local_model.py stay the definition, with
+ * their citations; these compute the same quantities in another order of operations (floats
+ * differ in the last bits, never the semantics; test/test_reach_kernel.py checks every routine
+ * against its Python reference on random cases):
  *
  *   jacobians(): local_model.local_jacobian, the least-squares Jacobian J(alpha) = dY / dA of a
  *     neighbour set (paper Sec. 3.3), for one or many index rows into the memory's arrays. The

@@ -6,9 +6,9 @@ read per compatible leaf.
 ROS-free.
 
 Speed only, never results: :meth:`RiacLeaves.compatible` returns exactly the leaves (and their
-interests, bit for bit) that the walk of ``EvolvingContextLearner._riac_choice`` before 2026-11-23
-found, in the walk's order: that walk descended by the context coordinate at context splits
-(``x < value`` left, else right) and took both children at action splits, depth first from the
+interests, bit for bit) that a walk down the region tree finds, in the walk's order
+(test/test_riac_leaves.py): the walk descends by the context coordinate at context splits
+(``x < value`` left, else right) and takes both children at action splits, depth first from the
 right child, i.e. the compatible leaves in reverse left-to-right order. ``RegionTree`` keeps its
 leaf list in left-to-right order (a split replaces a leaf by its left and right child in place), so
 the compatible leaves are those whose context box holds x (lower ≤ x < upper, the root box's upper
@@ -95,8 +95,8 @@ class RiacLeaves:
         the root box's context part), in the tree walk's order (see the module docstring), and
         their interests."""
         # lower <= x < upper in every context coordinate, the rows in decreasing order: one compiled
-        # call (knn_kernel.boxes_holding, ~22 µs at the 15-DOF arm's 1,489 leaves at 45k; the numpy
-        # test of every leaf, ~36 µs); test/test_riac_leaves.py checks it against the tree walk
+        # call (knn_kernel.boxes_holding, cheaper than a numpy test of every leaf:
+        # docs/notes/compiled-loop.md); test/test_riac_leaves.py checks it against the tree walk
         out = np.empty(len(self._interest), dtype=np.int64)
         m = knn_kernel.boxes_holding(np.ascontiguousarray(x, dtype=float), self._lower, self._upper, out)
         rows = out[:m]

@@ -3,10 +3,9 @@ fixed-context learner's θ-neighbour sets M_i of its l seeds (Sec. 4.4.1). ROS-f
 
 ``StoredKnn(index).query(rows, k)[j]`` is ``index.query(memory.alpha[rows], k)[j]`` (the memory's
 exact answer, :class:`~sagg_low_level.tree_knn.TreeKnn`), bit for bit, found another way, for speed
-only: a seed is mostly a sample that was a seed before (86 % of them on config/arm7_ratio15.yaml
-between 5k and 20k experiments, a median of ~800 samples stored in between), and the memory only
-grows, so a kept answer over samples 0 .. n0 - 1 plus the samples stored since gives the answer
-over all of them:
+only: a seed is mostly a sample that was a seed before (docs/notes/compiled-loop.md), with few
+samples stored in between, and the memory only grows, so a kept answer over samples 0 .. n0 - 1 plus
+the samples stored since gives the answer over all of them:
 
 * the kept answer is the first k of 0 .. n0 - 1 by (canonical distance, index), with its canonical
   distances (:mod:`.memory_distance`'s arithmetic);

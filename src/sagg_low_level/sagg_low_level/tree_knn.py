@@ -8,17 +8,16 @@ stored alpha nearest to q in the canonical squared distance (:mod:`.memory_dista
 speed only (the memory's index is built for 15-30-D trajectories, one query per call):
 
 * a kd tree over the samples stored at its last build (``knn_kernel.kd_build``: balanced median
-  splits along the widest coordinate, leaves of at most ``leafsize`` samples (64: on the
-  fixed-context arm at 20k samples a 7-D θ query took 24.6/18.9/14.9/12.7 µs with leaves of
-  8/16/32/64, a 2-D outcome query 9.2/7.4/6.4/6.2 µs, the 7-D build 5.8 to 3.5 ms), every node's
+  splits along the widest coordinate, leaves of at most ``leafsize`` samples (64, the fastest of
+  8-64 for queries and builds on the fixed-context arm: docs/notes/compiled-loop.md), every node's
   exact box) is searched depth first, nearer child first, a node skipped only when its box is
   farther than the k-th distance found so far; the samples stored since (fewer than
   ``rebuild_share`` of the memory, or ``min_recent``) are scanned first. Box bounds and distances
   use the canonical arithmetic, so the bound never exceeds a member's distance and no float slack is
   needed; the first k by (distance, index) are kept (``knn_kernel.kd_query``, one compiled call per
-  query batch). Until 2026-12-03 a ``scipy.spatial.cKDTree`` proposed candidates: its query cost
-  ~16 µs even for one 2-D row, and its own distances needed a check against the canonical k-th
-  distance and full scans on ties.
+  query batch). Not ``scipy.spatial.cKDTree``: its per-query overhead is large even for one 2-D
+  row, and its own distances would need a check against the canonical k-th distance and full scans
+  on ties.
 
 The memory is read, never written; the index notices new samples by the memory's length.
 """

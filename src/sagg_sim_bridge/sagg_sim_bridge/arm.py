@@ -57,7 +57,7 @@ class ArmSpec:
     link_profile: str = "equal"
     # Ratio between consecutive links, generalising link_profile: l_i = l_{i-1}/link_ratio,
     # normalised so that the links sum to total_length (1 = equal links, φ = 1.618... = golden,
-    # 1.5 = the 7-DOF arm of issue 10 / explauto's "mid_dimensional" arm; < 1 makes links grow
+    # 1.5 = the peer comparison's 7-DOF arm, explauto's "mid_dimensional" arm; < 1 makes links grow
     # from the base). 0 (default) = the ratio named by link_profile (equal: 1, golden: φ), so
     # existing configs keep bit-identical link lengths; a nonzero link_ratio requires
     # link_profile "equal" (one way of saying the geometry, never two that could disagree).
@@ -77,20 +77,19 @@ class ArmSpec:
     # rest tip at ~95% of the arm's length (47.7 units for a 50-unit equal-link arm).
     # With dof == 1 there is nothing to bend and the rest posture is [0].
     rest_bend: float = math.pi / 3
-    # Shape of the rest bend over joints 1..dof-1 (paper: "not straight and slightly bent", to
-    # avoid starting at the unfolded singularity). "arc" (default; the shape before 2026-11-23):
-    # every joint bent by rest_bend/(dof-1) the same way, a C. "zigzag": joints bent alternately
-    # by ±rest_bend/(dof-1) (+ first), an accordion: as far from straight per joint as the arc,
-    # but with no net curl. Which one (docs/notes/reaching-joint-limits.md): a C-shaped rest commits the arm to
-    # curling its way when the tip must come in toward the base, which is harmless when the base
-    # joint's range covers every direction of the task space (the paper's arm and every arm config
-    # here but one: base ±π/2, Y in x ≥ 0), and fatal when it does not: on
-    # config/arm7_ratio15.yaml (base ±π/3, Y reaching x < 0) goals beside the base beyond −π/3 need
-    # the opposite curl (every IK solution of (0.151, -0.42) has joints 1-3 at -π/3) and 17 of 100
-    # test goals are missed with the true Jacobian. "zigzag" leaves the curl to the goal's side,
-    # but lies near the unfolded singularity: use it with the learner's reach_damping (with J⁺ it
-    # misses 29 of those goals, and on the 15-DOF arm its mean error is 1.05 against 0.0023).
-    # In both shapes the base angle then puts the rest tip on the +x axis.
+    # Shape of the rest bend over joints 1..dof-1 (paper: "not straight and slightly bent", to avoid
+    # starting at the unfolded singularity). "arc" (default): every joint bent by rest_bend/(dof-1) the
+    # same way, a C. "zigzag": joints bent alternately by ±rest_bend/(dof-1) (+ first), an accordion: as
+    # far from straight per joint as the arc, but with no net curl. Which one
+    # (docs/notes/reaching-joint-limits.md): a C-shaped rest commits the arm to curling its way when the
+    # tip must come in toward the base, which is harmless when the base joint's range covers every
+    # direction of the task space (the paper's arm and every arm config here but one: base ±π/2, Y
+    # in x ≥ 0), and fatal when it does not: on config/arm7_ratio15.yaml (base ±π/3, Y reaching x < 0)
+    # goals beside the base beyond −π/3 need the opposite curl (every IK solution of (0.151, -0.42) has
+    # joints 1-3 at -π/3), and such test goals are missed even with the true Jacobian. "zigzag" leaves
+    # the curl to the goal's side, but lies near the unfolded singularity: use it with the learner's
+    # reach_damping (with J⁺ it misses more of those goals, and on the 15-DOF arm it is far worse than
+    # "arc"). In both shapes the base angle then puts the rest tip on the +x axis.
     rest_shape: str = "arc"
     # "kinematic" (qpos set + mj_kinematics) | "dynamic" (position actuators + physics).
     mode: str = "kinematic"
@@ -101,12 +100,12 @@ class ArmSpec:
     # The paper's simulated arm is noise-free -> default 0.
     motor_noise: float = 0.0
     # --- dynamic mode only ------------------------------------------------------------------
-    # Choices (not in the paper): rotor inertia (armature) dominates the light links, so each
-    # joint behaves like a decoupled, critically damped servo with natural frequency
-    # sqrt(kp/armature) = 100 rad/s and damping ratio damping/(2·sqrt(kp·armature)) = 1; with
-    # timestep 0.01 s (ω·h = 1, stable with the implicitfast integrator) a 0.05 rad micro-action
-    # settles to 1e-4 rad in ~16 steps (~0.2 ms of compute for 8 DOF), a move back to rest from
-    # anywhere in ~25-35 steps. Gravity is off (hinge axes are z anyway) and contacts disabled.
+    # Choices (not in the paper): rotor inertia (armature) dominates the light links, so each joint
+    # behaves like a decoupled, critically damped servo with natural frequency
+    # sqrt(kp/armature) = 100 rad/s and damping ratio damping/(2·sqrt(kp·armature)) = 1; with timestep
+    # 0.01 s (ω·h = 1, stable with the implicitfast integrator) a 0.05 rad micro-action settles to
+    # 1e-4 rad in ~16 steps, a move back to rest from anywhere in ~25-35 steps. Gravity is off (hinge
+    # axes are z anyway) and contacts disabled.
     timestep: float = 0.01          # s, physics step
     kp: float = 1.0e4               # position actuator gain (N·m/rad in MuJoCo units)
     damping: float = 200.0          # joint viscous damping (N·m·s/rad)
@@ -583,8 +582,8 @@ class ReachableArea:
         are not counted as unreachable: the box cuts the reachable set exactly there). Neighbours:
         in 2-D the 4 that share an edge (the planar arm's estimate, unchanged); in 3-D all 26 that
         share a face, an edge or a corner: a voxel cut by a slanted surface usually keeps its 6 face
-        neighbours reachable while lying partly outside (measured on a spherical-shell workspace at
-        25 cells per reach: volume +3.0% with 6 neighbours, -1.1% with 26; test_model_arm)."""
+        neighbours reachable while lying partly outside (on a spherical-shell workspace, 6 neighbours
+        overestimate the volume more than 26 underestimate it; test_model_arm)."""
         m = self.mask
         pad = np.pad(m, 1, mode="constant", constant_values=True)
         if m.ndim == 2:
@@ -772,10 +771,10 @@ def reachable_area(spec: ArmSpec, lower, upper, resolution: float | None = None,
     of log-uniform scale (1e-3..0.5 of each joint range), which evens out the sample density over
     the task space and pushes it out to the hard-to-reach parts of the workspace boundary
     (extreme curls).
-    Defaults (measured): resolution = total_length/100 (0.5 units for the paper's arm), 400k
-    samples in 8 rounds, flatten_power 2: the area of a 15-DOF, 50-unit arm with ±π joints is
-    within 0.5% of the disk area π·50², and with the default ±π/2 limits within ~1% of a
-    4M-sample estimate (7 DOF 0.2%, 30 DOF 1.3% low); ~0.5 s for 15 DOF.
+    Defaults: resolution = total_length/100 (0.5 units for the paper's arm), 400k samples in 8
+    rounds, flatten_power 2: the area of a 15-DOF, 50-unit arm with ±π joints is within 0.5% of the
+    disk area π·50², and with the default ±π/2 limits within ~1% of a 4M-sample estimate (7 to 30
+    DOF).
     The estimate can only miss reachable cells (every marked cell was reached), never invent
     them; missed cells sit at the hardest-to-reach edge.
     """
@@ -789,7 +788,7 @@ def reachable_area(spec: ArmSpec, lower, upper, resolution: float | None = None,
     jlo, jhi = spec.limits()
 
     def fk32(a: np.ndarray) -> np.ndarray:
-        # Occupancy from float32 trigonometry (~20x faster than float64; tip error ~1e-6 of the
+        # Occupancy from float32 trigonometry (much cheaper than float64; tip error ~1e-6 of the
         # arm length, far below any sensible resolution); the kept points are float64.
         c = np.cumsum(a, axis=1)
         c -= (2 * math.pi) * np.round(c * (0.5 / math.pi))  # wrap to [-π, π] before casting

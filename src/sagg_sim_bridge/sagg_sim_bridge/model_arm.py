@@ -1,4 +1,4 @@
-"""Any robot from its model file: the model arm (ROS-free core; issue 23).
+"""Any robot from its model file: the model arm (ROS-free core).
 
 The robot is a MuJoCo MJCF (``.xml``) or URDF (``.urdf``) file, loaded as a
 :class:`sagg_common.robot_model.RobotModel` (the file parsed with ``package://`` meshes resolved;
@@ -47,9 +47,9 @@ SHARED_FIELDS = ("mode", "motor_noise", "timestep", "kp", "damping", "armature",
                  "settle_velocity", "max_settle_steps", "settle_check_every")
 # Default grid resolution of the reachable set: reach/100 per side in 2-D (the planar arm's
 # total_length/100), reach/25 in 3-D; default samples: 400k in 2-D (as the planar arm), 2M in 3-D.
-# Measured on the example arms (a ~0.95 m UR5-like and Panda-like arm, box ±1.05 reach): reach/25
-# and 2M samples mark ~70k cells in 2.2-4 s, the volume within 0.6% of an 8M-sample estimate;
-# reach/50 (~540k cells) needs ~8M samples (~10 s) to fill, 2M leave it 20% short.
+# On the example arms (a ~0.95 m UR5-like and Panda-like arm, box ±1.05 reach), reach/25 and 2M
+# samples (~70k cells) give the volume within 0.6% of an 8M-sample estimate; reach/50 (~540k cells)
+# needs about four times the samples (and the time) to fill, and 2M leave it short.
 CELLS_PER_REACH = {2: 100.0, 3: 25.0}
 DEFAULT_SAMPLES = {2: 400_000, 3: 2_000_000}
 # Loaded models kept per process (a run's evaluation builds 100 simulators of one spec).
@@ -395,8 +395,8 @@ class ModelArmSim(ArmSim):
     def tip_positions(self, alphas: np.ndarray) -> np.ndarray:
         """Effector positions on the task axes of postures of the commanded joints (the others at
         rest): (N, n) -> (N, task_dim) through the vectorised :class:`sagg_common.model_kin.ChainFK`
-        (0.4 µs per posture), or (n,) -> (task_dim,) through ``mj_kinematics`` (:meth:`fk_mujoco`: a
-        few µs, where numpy's per-call overhead would cost ~200 µs). The two agree to ~1e-15."""
+        for batches, or (n,) -> (task_dim,) through ``mj_kinematics`` (:meth:`fk_mujoco`: for one
+        posture numpy's per-call overhead would dominate). The two agree to ~1e-15."""
         a = np.asarray(alphas, dtype=float)
         single = a.ndim == 1
         a2 = a[None, :] if single else a

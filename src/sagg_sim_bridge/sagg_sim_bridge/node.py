@@ -17,7 +17,7 @@ Timing (parameter ``timing``):
   ``arm.timestep`` per command). The current state is also re-published every
   ``idle_publish_period`` s with its unchanged stamp, so late subscribers get an initial
   observation; a listener can tell a re-publication from a new state by the stamp.
-  The run is then a deterministic function of the seeds (DESIGN §4).
+  The run is then a deterministic function of the seeds (docs/graph.md).
 - ``realtime``: physics runs at real-time rate (dynamic mode; a command sets the position targets
   with the same motor noise as ``ArmSim.command``, then the actuators move the arm over the next
   steps; kinematic mode applies a command at once), joint_states + tip are published at

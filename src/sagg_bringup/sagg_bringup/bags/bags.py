@@ -278,7 +278,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
     goals: dict[int, tuple] = {}
     snapshots: dict[int, bytes] = {}  # /sagg/regions by reports folded in (the last one of each count)
     dup = {"samples": 0, "reports": 0, "goals": 0}
-    # every recorded message is checked as the nodes check it (DESIGN §8): a bad one is dropped and
+    # every recorded message is checked as the nodes check it (docs/safety.md): a bad one is dropped and
     # counted, never stored, and never takes the index / seq of a real one
     dropped: dict[str, int] = {}
     ahead: set[int] = set()  # indices of well-formed samples received before the one expected

@@ -6,7 +6,7 @@ Two parts:
   with the sagg_msgs types registered from their ``.msg`` text, one connection per topic, and
   per-topic message counts.
 - :class:`TopicRecorder`: raw (``raw=True``) rclpy subscriptions on an existing node; the CDR bytes
-  are written exactly as received (DESIGN §5: they are valid CDR, unlike the output of
+  are written exactly as received (docs/architecture.md: they are valid CDR, unlike the output of
   ``rclpy.serialization.serialize_message``), and optional per-topic handlers get the deserialized
   message as well.
 
@@ -40,8 +40,8 @@ class TopicSpec:
 
     name: str
     msgtype: str
-    # (10000 overflowed: a lockstep learner outran the recorder by more than that on a machine at
-    # load 16, and the reader dropped the oldest messages; now counted in bag.dropped either way)
+    # (deep: a lockstep learner can outrun the recorder by more than 10000 messages on a loaded
+    # machine, and the reader would drop the oldest; counted in bag.dropped either way)
     depth: int = 100000
     transient_local: bool = False
     best_effort: bool = False  # (`sagg record` takes the publishers' reliability)
@@ -316,7 +316,7 @@ class TopicRecorder:
         self.first_ns: dict[str, int] = {}
         self.last_ns: dict[str, int] = {}
         self._subs = []
-        # handlers take messages only from the expected publisher (DESIGN §8): while a topic has
+        # handlers take messages only from the expected publisher (docs/safety.md): while a topic has
         # another, its messages are recorded (the bag is what happened) but not handled; counted
         self.watch = PublisherWatch(node)
         self.streams: dict = {}              # topic -> PublisherStream (topics with an expected publisher)

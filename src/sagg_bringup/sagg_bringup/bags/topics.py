@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .recorder import TopicSpec
 
-# the hardware contract's command types (DESIGN §3): position commands on /<controller>/commands,
+# the hardware contract's command types (docs/your-robot.md): position commands on /<controller>/commands,
 # trajectories on /<controller>/joint_trajectory; whatever subscribes to them moves the robot
 COMMAND_TYPES = frozenset({"std_msgs/msg/Float64MultiArray", "trajectory_msgs/msg/JointTrajectory"})
 # the learner's and the goal generator's streams: they stop when the nodes stop (what a stopping
@@ -89,5 +89,5 @@ def awaited_topics(topics: list[TopicSpec]) -> tuple[str, ...]:
 
 def watched_topics(learner_params: dict) -> list[TopicSpec]:
     """Every topic a graph's nodes or recorders read (the recorded ones and the recorders'
-    acknowledgements): where a stray publisher may appear (issue 24: an idle one changes nothing)."""
+    acknowledgements): where a stray publisher may appear (an idle one changes nothing)."""
     return graph_topics(learner_params) + [TopicSpec("/sagg/recorded", "std_msgs/msg/UInt64")]

@@ -1,6 +1,5 @@
 """Where each strategy's micro-actions went, over the seeds of one comparison: the evidence next to
-a verdict (issue 14 item 5: "where a claim does not reproduce, say so with the evidence: which
-mechanism, measured").
+a verdict (where a claim does not reproduce, say so with the evidence: which mechanism, measured).
 
 From every run's ``result.json``: ``goal_stats`` (self-generated goals inside the reachable area,
 overall and in the second half), ``phases`` (micro-actions by phase, on goals inside / outside the

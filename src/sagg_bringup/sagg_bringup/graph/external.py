@@ -299,7 +299,7 @@ class ContractRobot:
     ``settle_timeout`` s after the command (then the latest fresh state). Every target is clipped to
     the joint limits and to ``max_joint_step`` from the newest measured posture (as the learner's
     commands are); a return to rest, or to where learning paused, is a sequence of such commands
-    (:meth:`move_to`), never one jump (issue 24)."""
+    (:meth:`move_to`), never one jump (a jump at full speed on a position controller)."""
 
     def __init__(self, session: GraphSession, monitor: DriverMonitor, learner_params: dict,
                  answer_timeout: float = 30.0):

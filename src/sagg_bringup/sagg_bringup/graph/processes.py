@@ -18,9 +18,9 @@ import numpy as np
 
 from sagg_common.params import ConfigError
 
-# Seconds to wait for the nodes to exit after SIGINT before SIGKILL (DESIGN §5: nodes sometimes
+# Seconds to wait for the nodes to exit after SIGINT before SIGKILL (docs/architecture.md: nodes sometimes
 # ignore SIGINT under load). A node's own shutdown includes up to 1 s of flushing its publishers
-# (ros_params.flush_publishers); 5 s killed a node still flushing on a loaded CI machine.
+# (ros_params.flush_publishers), and all of it takes longer on a loaded machine: the wait leaves room.
 STOP_TIMEOUT = 10.0
 
 

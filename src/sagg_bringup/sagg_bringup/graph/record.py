@@ -72,8 +72,8 @@ class LiveRecorder(TopicRecorder):
     ``gate`` topics (/sagg/sample) are subscribed only once every ``wait_for`` topic (the hardware
     topics, /sagg/competence) is subscribed and matched for ``settle`` s: a learner waiting for its
     sample subscriber (``min_sample_subscribers``, as with record:=true) then publishes no command,
-    joint state or outcome before the recorder can receive it (seen on a loaded machine: this
-    process learnt of the bridge's /joint_states publisher 3 s after the learner had). A
+    joint state or outcome before the recorder can receive it (on a loaded machine this process
+    may learn of the bridge's /joint_states publisher seconds after the learner). A
     ``wait_for`` topic that has no publisher ``gate_timeout`` s after the gated topic's first one
     appeared no longer holds the gate (a parameter file naming another controller must not keep
     /sagg/sample unrecorded); it is logged."""
@@ -241,7 +241,7 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
         before = account.before(received, rec.first_seq)
         lost = account.losses(received, before, rec.dropped)
         published = account.published()
-        rejected = {**rec.rejected, **account.st.rejected}  # messages recorded but not used (DESIGN §8)
+        rejected = {**rec.rejected, **account.st.rejected}  # messages recorded but not used (docs/safety.md)
         for key, value in (("sagg.recorder", "sagg record"), ("sagg.published", published),
                            ("sagg.published_before_subscribed", before), ("sagg.lost", lost),
                            ("sagg.lost_not_estimated", sorted(rec.drops_unknown)), ("sagg.drain", drain),

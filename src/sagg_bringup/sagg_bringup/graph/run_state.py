@@ -1,4 +1,4 @@
-"""What a graph run's orchestrator learns from the /sagg topics, each message checked (DESIGN §8)."""
+"""What a graph run's orchestrator learns from the /sagg topics, each message checked (docs/safety.md)."""
 from __future__ import annotations
 
 import time
@@ -35,7 +35,7 @@ class RunState:
     gaps: dict[str, int] = field(default_factory=lambda: {"/sagg/sample": 0, "/sagg/competence": 0,
                                                           "/sagg/goal": 0})
     status_rate: bool = True  # keep /sagg/status's micro_actions_per_second in `status`
-    # messages from the expected publisher that were rejected, by "<topic> <problem>" (DESIGN §8)
+    # messages from the expected publisher that were rejected, by "<topic> <problem>" (docs/safety.md)
     rejected: dict[str, int] = field(default_factory=dict)
     task_lower: Any = None  # Y, for checking goals (None: not checked)
     task_upper: Any = None
@@ -210,7 +210,7 @@ class RunState:
 
 def finite_sample_problem(m, expected: int) -> str:
     """A ``problem`` for :meth:`RunState.accept_sample` that needs no parameters: the next index and
-    finite values only (DESIGN §8), for the synergy set-ups' samples and for ``sagg record``, which
+    finite values only (docs/safety.md), for the synergy set-ups' samples and for ``sagg record``, which
     may not know the learner's joint limits."""
     if int(m.index) != expected:
         return f"index {int(m.index)}; allowed: {expected} (the next sample)"

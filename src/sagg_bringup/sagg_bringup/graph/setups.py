@@ -1,4 +1,4 @@
-"""The set-up registry (DESIGN §7): one entry per learning problem, consulted by every runner.
+"""The set-up registry (docs/architecture.md): one entry per learning problem, consulted by every runner.
 
 A set-up names its simulator, its learner, the node executables of the graph and their parameter
 schemas, how a config is resolved, its in-process runner (``sagg experiment``), its graph runner

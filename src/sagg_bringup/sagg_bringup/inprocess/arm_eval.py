@@ -4,14 +4,14 @@ Used by ``sagg experiment`` / ``bench compare`` (``InProcessRun.evaluate``) and 
 evaluation process alike, so both score the same way (sagg_low_level/eval_metrics.py, docs/notes/evaluation.md).
 
 Test goal i is reached from rest on its own ``ArmSim`` whose motor noise comes from its own stream,
-``substream_seed(seed, "eval_sim/<i>")``. Before 2026-11-23 one simulator reached the goals one after
-the other, so with motor noise (config/arm8.yaml) goal i's noise depended on how many steps the
-model had used on goals 0..i-1: a goal's score depended on the others and the noise of a goal
-differed between strategies. Now a goal's noise is fixed by the run seed and its index alone, and the
-goals can be reached in a batch (:func:`sagg_low_level.evaluate.evaluate_batch`). Noise-free arms
-(motor_noise 0, every other config) score exactly as before: their evaluation has no random draw.
-The arms are kept per process and reseeded for each evaluation (building 100 MuJoCo arms costs
-0.2-0.4 s, more than a batched evaluation of a 5k-sample model).
+``substream_seed(seed, "eval_sim/<i>")``: a goal's noise is fixed by the run seed and its index alone.
+With one simulator reaching the goals one after the other, goal i's noise (config/arm8.yaml) would
+depend on how many steps the model used on goals 0..i-1, so a goal's score would depend on the
+others and its noise would differ between strategies; with one arm per goal the goals can also be
+reached in a batch (:func:`sagg_low_level.evaluate.evaluate_batch`). Noise-free arms (motor_noise 0,
+every other config) have no random draw in their evaluation. The arms are kept per process and
+reseeded for each evaluation (building 100 MuJoCo arms costs more than a batched evaluation of a
+5k-sample model).
 """
 from __future__ import annotations
 

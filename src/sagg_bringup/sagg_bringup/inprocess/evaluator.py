@@ -17,11 +17,10 @@ from sagg_low_level.learner import EvolvingContextLearner, Robot
 from sagg_low_level.memory import SampleMemory
 
 # Niceness of the evaluation process: a mild preference for the graph (the nodes, and this
-# process's DDS threads receiving the recorded topics). Evaluation first ran in a thread of this
-# process at normal priority: on 2 cores the recorder then lost bursts of ~12 /<controller>/commands
-# messages (GIL + CPU contention; the learner's writer keeps only 10). As a separate process, runs
-# of 4000 micro-actions at niceness 0 and 10 lost nothing; a high niceness starves the evaluation
-# on a busy machine (the live test error then lags far behind).
+# process's DDS threads receiving the recorded topics). The evaluation is a separate process: in a
+# thread of this process at normal priority it makes the recorder lose bursts of /<controller>/commands
+# messages on a small machine (GIL + CPU contention; the learner's writer keeps only 10). A high
+# niceness starves the evaluation on a busy machine (the live test error then lags far behind).
 EVAL_NICE = 5
 
 

@@ -121,7 +121,7 @@ _AREAS: dict[str, Any] = {}
 
 def cached_reachable_area(spec, lower, upper, seed: int):
     """:func:`reachable_area` of (arm, bounds, seed), kept for the next run in this process: the
-    runs of a comparison share it, and a worker process runs many of them (0.5-2.5 s each)."""
+    runs of a comparison share it, and a worker process runs many of them (seconds each)."""
     key = repr((spec, np.asarray(lower, float).tolist(), np.asarray(upper, float).tolist(), int(seed)))
     if key not in _AREAS:
         if len(_AREAS) >= 4:

@@ -1,4 +1,4 @@
-"""Where an in-process run's micro-actions (fixed context: experiments) went (issue 10): counts by phase (reaching,
+"""Where an in-process run's micro-actions (fixed context: experiments) went: counts by phase (reaching,
 exploration, babbling) and returns to rest, split by whether the self-generated goal they served
 lies in the arm's reachable area; and how close the run's tips came to each test goal. ROS-free;
 written into result.json by :mod:`sagg_bringup.inprocess.experiment`."""
@@ -50,8 +50,8 @@ def phase_breakdown(counter: PhaseCounter, goal_seqs, goal_positions: np.ndarray
 
 
 def coverage(tips: np.ndarray, test_goals: np.ndarray) -> dict:
-    """Distance from each test goal to the nearest tip position the run ever reached (issue 10:
-    does exploration cover the reachable set?): max, mean and median over the test goals."""
+    """Distance from each test goal to the nearest tip position the run ever reached (does
+    exploration cover the reachable set?): max, mean and median over the test goals."""
     # lazy (heavy): scipy
     from scipy.spatial import cKDTree
 

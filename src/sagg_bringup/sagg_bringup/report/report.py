@@ -313,7 +313,7 @@ def fig_competence_map(result: dict, path: Path, area) -> Path | None:
 
 
 def fig_teacher(result: dict, path: Path, area) -> Path | None:
-    """Where a teacher beyond the paper sent its goals (``result["teacher"]``, issue 27), plane y1-y2:
+    """Where a teacher beyond the paper sent its goals (``result["teacher"]``), plane y1-y2:
     alp-gmm: its mixtures at up to REGION_PANELS fits, each Gaussian's 2-sigma ellipse coloured by
     its mean ALP, over the goals chosen until the next fit; discretized-progress: its grid's final
     absolute progress per cell and the mean normalised competence of each cell's window."""
@@ -513,7 +513,7 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
                   "| topic | type | messages |", "|---|---|---:|"]
         lines += [f"| `{t}` | `{v['type']}` | {v['count']:,} |" for t, v in sorted(bag.get("topics", {}).items())]
         lines.append("")
-        # issue 11: the recorder never falls behind silently, and hostile messages are named
+        # the recorder never falls behind silently, and hostile messages are named
         dropped, rejected = bag.get("dropped") or {}, bag.get("rejected") or {}
         lines.append("Messages missed by the recorder (gaps in the publishers' sequence numbers): "
                      + (", ".join(f"`{t}` {n:,}" for t, n in sorted(dropped.items())) if dropped else "none") + "."
