@@ -305,6 +305,31 @@ def exploration_theta(theta_c: np.ndarray, distance: float, lam: float,
     return theta_c + lam * rng.uniform(-1.0, 1.0, theta_c.shape) * distance
 
 
+@dataclass
+class _Attempt:
+    """What one goal attempt of :class:`FixedContextLearner` has found so far: the goal, its scaled
+    form ``g``, the competence toward it (``comp``), the best outcome (by distance to the goal)
+    and the last, and whether the blocking test stopped it."""
+
+    goal_seq: int
+    goal: np.ndarray
+    g: np.ndarray
+    comp: Callable
+    best_y: np.ndarray | None = None
+    best_c: float | None = None
+    d_best: float = math.inf
+    last_y: np.ndarray | None = None
+    last_c: float | None = None
+    blocked: bool = False
+
+    def seen(self, y: np.ndarray, c: float, d: float) -> None:
+        """An outcome ``y`` of competence ``c`` at distance ``d`` from the goal: the last, and the
+        best when closer than every earlier one."""
+        self.last_y, self.last_c = y, c
+        if self.best_y is None or d < self.d_best:
+            self.best_y, self.best_c, self.d_best = y, c, d
+
+
 class FixedContextLearner:
     """Goal-directed optimisation of synergies with a fixed context (Alg. 1 + Alg. 4) and the
     ACTUATOR-RANDOM / ACTUATOR-RIAC baselines over θ."""
@@ -508,98 +533,106 @@ class FixedContextLearner:
         return gamma(c, self.p["eps_sim"])
 
     def _goal_attempt(self) -> Generator:
-        """One goal (Alg. 1 inner loop with Alg. 4): reach with the inverse model; when that does not
-        come closer than the closest known outcome (Inefficient, Sec. 4.4.2), explore q synergies
-        around the best θ with noise ∝ its distance to the goal, keeping the best. The phase ends
-        early when an experiment reaches the goal (``stop_when_reached``) or after ``blocking_w``
-        consecutive experiments without progress (Sec. 3.7.6; the goal is then unreached)."""
+        """One goal (Alg. 1 inner loop with Alg. 4): reach with the inverse model
+        (:meth:`_reach_round`); when that does not come closer than the closest known outcome
+        (Inefficient, Sec. 4.4.2), explore q synergies around the best θ with noise ∝ its distance
+        to the goal, keeping the best (:meth:`_explore_round`). The attempt ends early when an
+        experiment reaches the goal (``stop_when_reached``) or after ``blocking_w`` consecutive
+        experiments without progress (Sec. 3.7.6; the goal is then unreached)."""
         goal_seq, goal = yield GoalRequest(self.reports_sent)
         goal = np.asarray(goal, dtype=float)
-        comp = self.competence_toward(goal)  # C(y_g, y) of this goal's outcomes
-        best_y = best_c = None
-        last_y = last_c = None
-        g = self.scale_y(goal)
-        d_best = math.inf  # distance of best_y to the goal
-        eps_sim, w = self.p["eps_sim"], self.p["blocking_w"]
-        blocked = False
+        at = _Attempt(goal_seq, goal, self.scale_y(goal), self.competence_toward(goal))
+        eps_sim = self.p["eps_sim"]
         for _ in range(self.p["rounds"]):
-            # y_c, the closest known outcome (its index), and θ from the inverse model (Sec. 4.4.1);
-            # L's first member is y_c (same search, same order)
-            if len(self) >= self.min_samples:
-                seeds = self.y_index.query(g[None], self.l_nb)[0]
-                c_before = int(seeds[0])
-                theta = self._inverse_from(g, seeds)
-            else:
-                c_before = self.closest(goal)
-                theta = self._uniform_theta()
-            d_before = math.inf if c_before is None else self.distance(goal, self.outcomes[c_before])
-            y = yield from self._execute(theta, "reach")
-            d_y = math.inf
-            if y is not None:
-                c_y = comp(y)
-                last_y, last_c = y, c_y
-                d_y = self.distance(goal, y)
-                if best_y is None or d_y < d_best:
-                    best_y, best_c, d_best = y, c_y, d_y
-                self._report(KIND_REACHED, goal_seq, y, self.outcome_gamma(c_y), y)
-                if is_reached(c_y, eps_sim):
-                    break
+            y, d_y, c_before, d_before = yield from self._reach_round(at)
+            if y is not None and is_reached(at.last_c, eps_sim):
+                break
             # Inefficient(M⁻¹, ỹ_j, y_j): the reach did not beat the closest known outcome
             if y is not None and d_y <= d_before:
                 continue
-            self.exploration_phases += 1
-            if y is None or c_before is None:
-                k = self.closest(goal)
-            else:
-                k = self._closer(g, c_before, len(self) - 1)
-            # the best experiment k so far: its normalised θ (= norm_theta(thetas[k]), as stored), y_k,
-            # D(y_g, y_k) and the exploration distance D of Sec. 4.4.2
-            if k is None:  # nothing stored yet: bootstrap with uniform draws
-                tn_k, y_k, d_k = None, None, math.inf
-            else:
-                tn_k, y_k = self.by_theta.alpha[k].copy(), self.outcomes[k].copy()
-                d_k, e_k = self.distance(goal, y_k), self.explore_distance(goal, y_k)
-            idle = 0  # consecutive exploratory experiments without progress (blocking, Sec. 3.7.6)
-            for _ in range(self.p["q"]):
-                if tn_k is None:
-                    theta_i = self._uniform_theta()
-                else:
-                    theta_i = self.denorm_theta(exploration_theta(tn_k, e_k, self.p["lambda"], self.rng))
-                y_i = yield from self._execute(theta_i, "explore")
-                if y_i is None:
-                    continue
-                c_i = comp(y_i)
-                last_y, last_c = y_i, c_i
-                self._report(KIND_EXPLORATION, goal_seq, y_i, self.outcome_gamma(c_i), y_i)
-                d_i = self.distance(goal, y_i)
-                if y_k is None or d_i < d_k:
-                    tn_k, y_k, d_k = self.last_norm_theta, y_i, d_i
-                    e_k = self.explore_distance(goal, y_k)
-                    idle = 0
-                else:
-                    idle += 1
-                if best_y is None or d_i < d_best:
-                    best_y, best_c, d_best = y_i, c_i, d_i
-                if self.p["stop_when_reached"] and is_reached(c_i, eps_sim):
-                    break
-                if w and idle >= w:
-                    blocked = True
-                    break
-            if blocked:
+            yield from self._explore_round(at, None if y is None else c_before)
+            if at.blocked or (at.best_y is not None and is_reached(at.best_c, eps_sim)):
                 break
-            if best_y is not None and is_reached(best_c, eps_sim):
-                break
-        final, c = (best_y, best_c) if self.p["goal_competence"] == "best" else (last_y, last_c)
+        self._end_attempt(at)
+
+    def _reach_round(self, at: "_Attempt") -> Generator:
+        """One reach toward the goal with the inverse model (Sec. 4.4.1): θ from the l nearest
+        outcomes' local inverse (uniform while the memory is small), executed and reported.
+        Returns (y or None, D(y_g, y), index of the closest known outcome before it or None, its
+        distance to the goal)."""
+        # y_c, the closest known outcome (its index), and θ from the inverse model; L's first
+        # member is y_c (same search, same order)
+        if len(self) >= self.min_samples:
+            seeds = self.y_index.query(at.g[None], self.l_nb)[0]
+            c_before = int(seeds[0])
+            theta = self._inverse_from(at.g, seeds)
+        else:
+            c_before = self.closest(at.goal)
+            theta = self._uniform_theta()
+        d_before = math.inf if c_before is None else self.distance(at.goal, self.outcomes[c_before])
+        y = yield from self._execute(theta, "reach")
+        d_y = math.inf
+        if y is not None:
+            c_y = at.comp(y)
+            d_y = self.distance(at.goal, y)
+            at.seen(y, c_y, d_y)
+            self._report(KIND_REACHED, at.goal_seq, y, self.outcome_gamma(c_y), y)
+        return y, d_y, c_before, d_before
+
+    def _explore_round(self, at: "_Attempt", c_before: int | None) -> Generator:
+        """One exploration phase (Sec. 4.4.2): q synergies around the best experiment k so far
+        (``c_before``: the closest known outcome before the reach, None when the reach gave no
+        outcome or nothing was stored), each with noise ∝ the best outcome's distance to the goal,
+        the best kept; stops early when reached (``stop_when_reached``) or blocked (``at.blocked``)."""
+        goal, eps_sim, w = at.goal, self.p["eps_sim"], self.p["blocking_w"]
+        self.exploration_phases += 1
+        k = self.closest(goal) if c_before is None else self._closer(at.g, c_before, len(self) - 1)
+        # the best experiment k so far: its normalised θ (= norm_theta(thetas[k]), as stored), y_k,
+        # D(y_g, y_k) and the exploration distance D of Sec. 4.4.2
+        if k is None:  # nothing stored yet: bootstrap with uniform draws
+            tn_k, y_k, d_k = None, None, math.inf
+        else:
+            tn_k, y_k = self.by_theta.alpha[k].copy(), self.outcomes[k].copy()
+            d_k, e_k = self.distance(goal, y_k), self.explore_distance(goal, y_k)
+        idle = 0  # consecutive exploratory experiments without progress (blocking, Sec. 3.7.6)
+        for _ in range(self.p["q"]):
+            if tn_k is None:
+                theta_i = self._uniform_theta()
+            else:
+                theta_i = self.denorm_theta(exploration_theta(tn_k, e_k, self.p["lambda"], self.rng))
+            y_i = yield from self._execute(theta_i, "explore")
+            if y_i is None:
+                continue
+            c_i = at.comp(y_i)
+            self._report(KIND_EXPLORATION, at.goal_seq, y_i, self.outcome_gamma(c_i), y_i)
+            d_i = self.distance(goal, y_i)
+            if y_k is None or d_i < d_k:
+                tn_k, y_k, d_k = self.last_norm_theta, y_i, d_i
+                e_k = self.explore_distance(goal, y_k)
+                idle = 0
+            else:
+                idle += 1
+            at.seen(y_i, c_i, d_i)
+            if self.p["stop_when_reached"] and is_reached(c_i, eps_sim):
+                return
+            if w and idle >= w:
+                at.blocked = True
+                return
+
+    def _end_attempt(self, at: "_Attempt") -> None:
+        """The goal's own report (Alg. 1: competence of the best or the last outcome, the rest
+        outcome when the attempt had none) and the attempt's statistics: reached, else blocked,
+        else its budget (q, rounds) ran out."""
+        eps_sim = self.p["eps_sim"]
+        final, c = (at.best_y, at.best_c) if self.p["goal_competence"] == "best" else (at.last_y, at.last_c)
         if final is None:  # no outcome at all in this attempt: the rest outcome stands in
             final = self.y_rest
-            c = comp(final)
-        self._report(KIND_GOAL, goal_seq, goal, gamma(c, eps_sim), final)
+            c = at.comp(final)
+        self._report(KIND_GOAL, at.goal_seq, at.goal, gamma(c, eps_sim), final)
         self.goals_done += 1
-        # how the attempt ended (statistics): its best outcome reached the goal, else the blocking
-        # test stopped it, else its budget (q, rounds) ran out
-        reached = best_y is not None and is_reached(best_c, eps_sim)
+        reached = at.best_y is not None and is_reached(at.best_c, eps_sim)
         self.goals_reached += reached
-        self.goals_blocked += blocked and not reached
+        self.goals_blocked += at.blocked and not reached
 
     def _actuator_babbling(self, riac: bool) -> Generator:
         """ACTUATOR-RANDOM (θ uniform in its bounds) and ACTUATOR-RIAC (θ regions of the normalised
