@@ -114,33 +114,14 @@ def run_fixed_graph(setup, config_path: str | Path, micro_actions: int, out_dir:
                         "/sagg/status": st.on_status, "/sagg/regions": st.on_regions})
         bar = Progress(micro_actions, f"{setup_name} {lp['strategy']} seed {lp['seed']} (graph)",
                        enabled=progress)
-        curve: list[dict] = []
-        eval_seconds = 0.0
-        run = None
-        goals_test = None
-        area = None
+        evaluation = SampleEvaluation(setup, full)
+        points = list(range(0, micro_actions, eval_every)) + [micro_actions]
 
         def body() -> None:
-            nonlocal run, goals_test, area, eval_seconds
             session.start_nodes(params_file, run_only_params(params))
             session.wait_for_learner(micro_actions, stall_timeout, "experiments", bar,
                                      may_end=lambda waited: waited > 0.5)  # (a short drain)
-            # ---- evaluation from the recorded samples (same test goals and simulator as in-process)
-            run = FixedRun({"sagg_goal_generator": full["sagg_goal_generator"], "sagg_learner": lp,
-                              "sagg_sim_bridge": full["sagg_sim_bridge"]}, setup.adapter)
-            goals_test, area, _ = run.test_goals()
-            checkpoints = [c for c in list(range(0, micro_actions, eval_every)) + [micro_actions] if c <= len(samples)]
-            frame = metric_frame(goals_test, run.setup.metric_base)  # as in-process (eval_metrics)
-            fed = 0
-            for at in checkpoints:
-                while fed < at:
-                    run.learner.add_sample(*samples[fed])
-                    fed += 1
-                t1 = time.perf_counter()
-                errors = run.evaluate(goals_test)
-                eval_seconds += time.perf_counter() - t1
-                curve.append({"micro_actions": int(at), **error_metrics(errors, frame)})
-                session.publish_evaluation(at, errors)
+            evaluation.run(session, samples, [c for c in points if c <= len(samples)])
             bar.update(st.samples, force=True, **st.progress())  # (error: the last evaluation's)
             session.final_drain()
     except BaseException:
@@ -150,20 +131,58 @@ def run_fixed_graph(setup, config_path: str | Path, micro_actions: int, out_dir:
     session.run(body, bar)
 
     outcomes = np.array([y for _, y in samples]).reshape(-1, len(lp["task_space.lower"]))
-    memory = {"samples": len(samples)}
-    if run is not None and len(run.learner) == len(samples):
-        memory.update(digest=run.learner.by_theta.digest(),
-                      bytes=run.learner.memory_bytes)
     summary = session.summary(
         lp, {name: {k: v for k, v in values.items()} for name, values in full.items()}, params, params_file,
-        timing, micro_actions, curve, area, t_start,
-        eval_seconds=eval_seconds,
-        memory=memory,
-        test_goals=goals_test.tolist() if goals_test is not None else None,
+        timing, micro_actions, evaluation.curve, evaluation.area, t_start,
+        eval_seconds=evaluation.seconds,
+        memory=evaluation.memory(len(samples)),
+        test_goals=evaluation.goals.tolist() if evaluation.goals is not None else None,
         splits=[],
         bag=session.bag_summary([out / "bag"], {"/sagg/sample": st.gaps["/sagg/sample"]}),
         synergy={"setup": setup_name, "outcome_extents": outcome_extents(outcomes)})
     return session.finish(summary, (lambda: write_synergy_report(summary, out)) if report else None)
+
+
+class SampleEvaluation:
+    """The fixed-context graph's evaluation, after learning: the recorded samples fed in order to an
+    in-process learner of the same parameters (:class:`~sagg_bringup.inprocess.fixed_experiment.FixedRun`)
+    and its frozen model evaluated at every evaluation point on the in-process run's test goals, with
+    the same simulator, each result published on /sagg/evaluation (so the curve equals the in-process
+    one)."""
+
+    def __init__(self, setup, full: dict[str, dict]):
+        self.setup, self.full = setup, full
+        self.curve: list[dict] = []
+        self.seconds = 0.0
+        self.learning = None   # the FixedRun the samples were fed to
+        self.goals = None      # the test goals
+        self.area = None
+
+    def run(self, session: GraphSession, samples: list[tuple[np.ndarray, np.ndarray]], points: list[int]) -> None:
+        full = self.full
+        self.learning = run = FixedRun({"sagg_goal_generator": full["sagg_goal_generator"],
+                                        "sagg_learner": full["sagg_learner"],
+                                        "sagg_sim_bridge": full["sagg_sim_bridge"]}, self.setup.adapter)
+        self.goals, self.area, _ = run.test_goals()
+        frame = metric_frame(self.goals, run.setup.metric_base)  # as in-process (eval_metrics)
+        fed = 0
+        for at in points:
+            while fed < at:
+                run.learner.add_sample(*samples[fed])
+                fed += 1
+            t1 = time.perf_counter()
+            errors = run.evaluate(self.goals)
+            self.seconds += time.perf_counter() - t1
+            self.curve.append({"micro_actions": int(at), **error_metrics(errors, frame)})
+            session.publish_evaluation(at, errors)
+
+    def memory(self, samples: int) -> dict:
+        """summary.json's ``memory``: the samples recorded, and the digest of the learner fed them all."""
+        out = {"samples": samples}
+        run = self.learning
+        if run is not None and len(run.learner) == samples:
+            out.update(digest=run.learner.by_theta.digest(), bytes=run.learner.memory_bytes)
+        return out
 
 
 def write_synergy_report(summary: dict, out: Path) -> Path:
