@@ -18,13 +18,50 @@ def competence(goal, reached, start, eps_c: float, scale=None) -> float:
     ``scale`` (optional, one positive number per task dimension) divides each dimension before
     distances are taken: the "rescaled in [0;1]" variant of Sec. 4.3, where ``scale`` is the
     extent of the task space in each dimension so every dimension weighs the same.
+
+    Parameters
+    ----------
+    goal : array_like, shape (m,)
+        The goal y_g; m = task-space dimensions.
+    reached : array_like, shape (m,)
+        The effector's final position y_f.
+    start : array_like, shape (m,)
+        The effector's position y_start when the attempt began.
+    eps_c : float
+        ε_C: distance D(y_start, y_g) under which the competence is 0 (in rescaled units when
+        ``scale`` is given).
+    scale : array_like, shape (m,), optional
+        Positive divisor of each task dimension (None: distances in task units).
+
+    Returns
+    -------
+    float
+        The competence C, in [-1, 0].
     """
     return competence_toward(goal, start, eps_c, scale)(reached)
 
 
 def competence_toward(goal, start, eps_c: float, scale=None) -> Callable[[np.ndarray], float]:
     """``reached -> competence(goal, reached, start, eps_c, scale)``, the goal's part (its distance
-    to the start) computed once: for the many outcomes of one goal."""
+    to the start) computed once: for the many outcomes of one goal.
+
+    Parameters
+    ----------
+    goal : array_like, shape (m,)
+        The goal y_g; m = task-space dimensions.
+    start : array_like, shape (m,)
+        The effector's position y_start when the attempt began.
+    eps_c : float
+        ε_C of :func:`competence`.
+    scale : array_like, shape (m,), optional
+        Positive divisor of each task dimension (None: distances in task units).
+
+    Returns
+    -------
+    callable
+        ``of(reached) -> float``: ``reached`` array_like of shape (m,), the effector's position
+        y_f; returns the competence C in [-1, 0].
+    """
     g = np.asarray(goal, dtype=float)
     s = np.asarray(start, dtype=float)
     sc = None
@@ -52,10 +89,35 @@ def gamma(c: float, eps_sim: float) -> float:
 
     ``Γ = C`` if ``C <= eps_sim`` (not reached), else ``0`` (reached: maximal competence).
     ``eps_sim < 0`` is the tolerance: ``C > eps_sim`` means the goal counts as reached.
+
+    Parameters
+    ----------
+    c : float
+        Competence C of the attempt (:func:`competence`), in [-1, 0].
+    eps_sim : float
+        ε_sim < 0, the reaching tolerance.
+
+    Returns
+    -------
+    float
+        Γ: ``c`` when the goal was not reached, else 0.0.
     """
     return float(c) if c <= eps_sim else 0.0
 
 
 def is_reached(c: float, eps_sim: float) -> bool:
-    """The reaching test of Sec. 2.4.1: ``C > eps_sim``."""
+    """The reaching test of Sec. 2.4.1: ``C > eps_sim``.
+
+    Parameters
+    ----------
+    c : float
+        Competence C (:func:`competence`), in [-1, 0].
+    eps_sim : float
+        ε_sim < 0, the reaching tolerance.
+
+    Returns
+    -------
+    bool
+        True when the goal counts as reached.
+    """
     return c > eps_sim

@@ -23,6 +23,19 @@ def interest(values: np.ndarray, zeta: int) -> float:
     may hold fewer than ζ values. Choice: the window is ``w = min(ζ, n)`` values split into two halves
     of ``h = w // 2`` (the oldest value is dropped when w is odd), divided by ``2h`` (= ζ for a full
     window with even ζ); fewer than two values give interest 0.
+
+    Parameters
+    ----------
+    values : ndarray, shape (n,)
+        The region's n values (competences Γ, or minus prediction errors for ACTUATOR-RIAC) in
+        the order they were added, oldest first.
+    zeta : int
+        Interest window ζ.
+
+    Returns
+    -------
+    float
+        The region's interest, >= 0 (0 for fewer than two values).
     """
     n = len(values)
     h = min(zeta, n) // 2
@@ -36,7 +49,19 @@ def interest(values: np.ndarray, zeta: int) -> float:
 def proportional(weights: np.ndarray) -> np.ndarray:
     """Choice probabilities proportional to non-negative ``weights``; uniform when they sum to 0.
     The last step of every interest-driven choice here (regions, mixture components, grid cells),
-    each of whose sources leaves the all-zero case open or uniform."""
+    each of whose sources leaves the all-zero case open or uniform.
+
+    Parameters
+    ----------
+    weights : ndarray, shape (K,)
+        Non-negative weights of the K choices, K >= 1.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Probabilities summing to 1: ``weights / weights.sum()``, or ``1 / K`` each when the sum
+        is 0.
+    """
     total = weights.sum()
     return np.full(len(weights), 1.0 / len(weights)) if total <= 0 else weights / total
 
@@ -47,6 +72,16 @@ def interest_probabilities(interests: np.ndarray) -> np.ndarray:
 
     When every region has the same interest (the sum is 0) the choice is uniform (our choice: the
     paper's formula is undefined there). ACTUATOR-RIAC chooses its regions with the same formula.
+
+    Parameters
+    ----------
+    interests : array_like, shape (L,)
+        Interests of the L regions to choose among (the leaves), L >= 1.
+
+    Returns
+    -------
+    ndarray, shape (L,)
+        Selection probability of each region, summing to 1.
     """
     it = np.asarray(interests, dtype=float)
     return proportional(it - it.min())
@@ -74,6 +109,17 @@ class Region:
     interest_sets: ClassVar[int] = 0  # interests set by hand, of any region (LeafInterests notices)
 
     def add(self, y: np.ndarray, value: float) -> None:
+        """Append the point ``y`` and its value (time order), growing the storage when it is full; the
+        interest is recomputed at its next read.
+
+        Parameters
+        ----------
+        y : ndarray, shape (d,)
+            The point; d = the tree's dimension (m for the task space Y, 2n for ACTUATOR-RIAC's
+            (α, Δα)).
+        value : float
+            Its value: competence Γ (SAGG-RIAC) or minus the prediction error (ACTUATOR-RIAC).
+        """
         if self.count == len(self.values):
             cap = max(8, 2 * len(self.values))
             self.points = np.resize(self.points, (cap, self.points.shape[1]))
@@ -105,9 +151,28 @@ class Region:
         return self.values[: self.count]
 
     def contains(self, y: np.ndarray) -> bool:
+        """Whether ``y`` lies in the region's closed box (faces included).
+
+        Parameters
+        ----------
+        y : ndarray, shape (d,)
+            A point of the tree's space (d = its dimension).
+
+        Returns
+        -------
+        bool
+            True when ``lower <= y <= upper`` in every dimension.
+        """
         return bool(np.all(y >= self.lower) and np.all(y <= self.upper))
 
     def mean_value(self) -> float:
+        """Mean of the region's values (its mean competence); 0 when it holds no point.
+
+        Returns
+        -------
+        float
+            The mean of the values held, or 0.0 for an empty region.
+        """
         return float(self.filled_values.mean()) if self.count else 0.0
 
 
@@ -121,7 +186,22 @@ class SplitChoice:
 
 
 def split_quality(values_left: np.ndarray, values_right: np.ndarray, zeta: int) -> float:
-    """Split quality of paper Sec. 2.4.4: ``card(R1)·card(R2)·|interest(R1) − interest(R2)|``."""
+    """Split quality of paper Sec. 2.4.4: ``card(R1)·card(R2)·|interest(R1) − interest(R2)|``.
+
+    Parameters
+    ----------
+    values_left : ndarray, shape (n1,)
+        Values of the n1 points that go to R1, in the order they were added.
+    values_right : ndarray, shape (n2,)
+        Values of the n2 points that go to R2, in the order they were added.
+    zeta : int
+        Interest window ζ of :func:`interest`.
+
+    Returns
+    -------
+    float
+        The quality ``n1 · n2 · |interest(R1) − interest(R2)|``, >= 0.
+    """
     return len(values_left) * len(values_right) * abs(
         interest(values_left, zeta) - interest(values_right, zeta)
     )
@@ -133,7 +213,26 @@ def split_qualities(values: np.ndarray, left: np.ndarray, zeta: int) -> tuple[np
     Returns (qualities, left counts, right counts), each (C,). Each side's interest is
     :func:`interest` of its own values in time order: its newest h = min(ζ, n) // 2 values against
     the h before them, found by the members' rank from the newest. The same quantities as the
-    per-candidate calls, summed in another order (the floats may differ in the last bits)."""
+    per-candidate calls, summed in another order (the floats may differ in the last bits).
+
+    Parameters
+    ----------
+    values : array_like, shape (N,)
+        Values of the region's N points, in the order they were added.
+    left : ndarray of bool, shape (N, C)
+        ``left[i, c]``: point i goes left (to R1) under candidate c; C = number of candidates.
+    zeta : int
+        Interest window ζ of :func:`interest`.
+
+    Returns
+    -------
+    quality : ndarray of float, shape (C,)
+        :func:`split_quality` of each candidate.
+    left_count : ndarray of int, shape (C,)
+        card(R1) of each candidate.
+    right_count : ndarray of int, shape (C,)
+        card(R2) of each candidate.
+    """
     values = np.asarray(values, dtype=float)
     n = len(values)
     nl = left.sum(axis=0)
@@ -168,6 +267,26 @@ def choose_split(points: np.ndarray, values: np.ndarray, n_candidates: int, zeta
     be split (all points identical). The candidates are drawn one after the other (dimension, then
     value) although their evaluation is batched: the same stream gives the same candidates as an
     evaluation one candidate at a time.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, d)
+        The region's N points (rows); d = the tree's dimension (m for the task space Y, 2n for
+        ACTUATOR-RIAC's (α, Δα)).
+    values : ndarray, shape (N,)
+        Their values, in the order they were added.
+    n_candidates : int
+        Number of random candidates drawn (parameter ``split_candidates``), >= 1.
+    zeta : int
+        Interest window ζ of :func:`interest`.
+    rng : numpy.random.Generator
+        Stream the candidates are drawn from (the tree's split stream).
+
+    Returns
+    -------
+    SplitChoice or None
+        The best candidate: its dimension, value, quality and the two sides' point counts; None
+        when every point is identical (nothing is drawn then).
     """
     lo = points.min(axis=0)
     hi = points.max(axis=0)
@@ -190,7 +309,27 @@ def choose_split(points: np.ndarray, values: np.ndarray, n_candidates: int, zeta
 
 
 class RegionTree:
-    """Recursive split of a box into regions; Algorithm 2 (UpdateRegions) of the paper."""
+    """Recursive split of a box into regions; Algorithm 2 (UpdateRegions) of the paper.
+
+    Parameters
+    ----------
+    lower, upper : array_like, shape (d,)
+        Bounds of the root box, upper > lower in every dimension; d = the tree's dimension (m for
+        the task space Y, 2n for ACTUATOR-RIAC's (α, Δα)).
+    g_max : int
+        Most points a region holds: one more splits it (Sec. 2.4.4), >= 2.
+    zeta : int
+        Interest window ζ (Sec. 2.4.3), >= 2.
+    n_candidates : int
+        Random split candidates per split (:func:`choose_split`), >= 1.
+    rng : numpy.random.Generator
+        Stream of the split candidates.
+
+    Raises
+    ------
+    ValueError
+        Bounds of unequal length, not 1-D or not increasing, or a parameter out of its range.
+    """
 
     def __init__(self, lower, upper, g_max: int, zeta: int, n_candidates: int,
                  rng: np.random.Generator):
@@ -227,6 +366,18 @@ class RegionTree:
         return r
 
     def inside(self, y) -> bool:
+        """Whether ``y`` is a point of the tree's space inside the root box (faces included).
+
+        Parameters
+        ----------
+        y : array_like
+            A candidate point; anything not of shape (d,) (d = the tree's dimension) is outside.
+
+        Returns
+        -------
+        bool
+            True when ``y`` has shape (d,) and ``lower <= y <= upper`` in every dimension.
+        """
         y = np.asarray(y, dtype=float)
         return y.shape == (self.dim,) and self._inside_list(y.tolist())
 
@@ -234,7 +385,18 @@ class RegionTree:
         return all(lo <= v <= hi for lo, v, hi in zip(self._lower_list, yl, self._upper_list))
 
     def find(self, y) -> Region:
-        """The leaf containing ``y`` (``y`` must be inside the root box)."""
+        """The leaf containing ``y`` (``y`` must be inside the root box).
+
+        Parameters
+        ----------
+        y : array_like, shape (d,)
+            A point inside the root box (d = the tree's dimension).
+
+        Returns
+        -------
+        Region
+            The leaf whose box holds ``y``; a point on a split face belongs to the upper child.
+        """
         return self._find_list(y.tolist() if isinstance(y, np.ndarray) else list(y))
 
     def _find_list(self, yl: list[float]) -> Region:
@@ -244,6 +406,14 @@ class RegionTree:
         return r
 
     def leaves(self) -> list[Region]:
+        """The current leaves: the regions goals are chosen among.
+
+        Returns
+        -------
+        list of Region, length L
+            The tree's own list (not a copy), in the order of :meth:`interests`: a split puts the
+            two children in the place of their parent.
+        """
         return self._leaves
 
     def add(self, y, value: float, stamp: int | None = None) -> Region | None:
@@ -251,6 +421,22 @@ class RegionTree:
 
         Points outside the root box are ignored (returns None). ``stamp`` (e.g. the number of
         goals so far) is recorded with any split it causes, for the split-history figures.
+
+        Parameters
+        ----------
+        y : array_like, shape (d,)
+            The point: a goal, subgoal or reached position in Y, or an (α, Δα) pair for
+            ACTUATOR-RIAC (d = the tree's dimension).
+        value : float
+            Its value: competence Γ, or minus the prediction error.
+        stamp : int, optional
+            Recorded with a split this point causes (None: no stamp).
+
+        Returns
+        -------
+        Region or None
+            The leaf the point was added to (when it caused a split, that region is now the parent
+            of the two new leaves); None when ``y`` is outside the root box or not of shape (d,).
         """
         y = np.asarray(y, dtype=float)
         if y.shape != (self.dim,):
@@ -300,11 +486,24 @@ class RegionTree:
 
     def interests(self) -> np.ndarray:
         """``np.array([r.interest for r in self.leaves()])``, kept up to date leaf by leaf
-        (:mod:`sagg_common.leaf_interests`)."""
+        (:mod:`sagg_common.leaf_interests`).
+
+        Returns
+        -------
+        ndarray, shape (L,)
+            Interest of each of the L leaves, in :meth:`leaves` order (a fresh array).
+        """
         return self._interests.get()
 
     def snapshot(self) -> list[dict]:
-        """The leaves as JSON-able dicts (bounds, interest, count, mean value)."""
+        """The leaves as JSON-able dicts (bounds, interest, count, mean value).
+
+        Returns
+        -------
+        list of dict, length L
+            One dict per leaf, in :meth:`leaves` order: ``id``, ``lower`` and ``upper`` (lists of d
+            floats), ``interest``, ``count`` and ``mean_competence`` (:meth:`Region.mean_value`).
+        """
         return [{"id": r.id, "lower": r.lower.tolist(), "upper": r.upper.tolist(),
                  "interest": r.interest, "count": r.count, "mean_competence": r.mean_value()}
                 for r in self._leaves]

@@ -93,7 +93,18 @@ SCHEMA: Schema = (
 
 def check_params(params: dict) -> None:
     """Cross-parameter checks (each parameter's own range is the schema's): ConfigError naming the
-    parameter."""
+    parameter.
+
+    Parameters
+    ----------
+    params : dict
+        The generator's parameters by name (the ``alp_gmm.*`` ones are read).
+
+    Raises
+    ------
+    ConfigError
+        ``bootstrap`` < ``fit_every``, ``k_min`` > ``k_max``, or ``k_max`` > ``fit_every``.
+    """
     if params[P + "bootstrap"] < params[P + "fit_every"]:
         raise ConfigError(f"{P}bootstrap: got {params[P + 'bootstrap']}; allowed: at least "
                          f"{P}fit_every ({params[P + 'fit_every']})")
@@ -114,7 +125,27 @@ def absolute_learning_progress(goal, competence: float, past_goals: np.ndarray, 
     goals are known (reference: ALP is computed once its dataset holds more than 5 tasks). Ties of
     distance: the first such row. The search is the compiled ``em_kernel.nearest`` (the row sums of
     squared differences in the same order as numpy's for goals of up to 4 dimensions, the first
-    minimum: the same row; in numpy the search of a long history costs much more)."""
+    minimum: the same row; in numpy the search of a long history costs much more).
+
+    Parameters
+    ----------
+    goal : array_like, shape (m,)
+        The attempted goal, in the teacher's space (Y, or Y scaled to [0, 1] with
+        ``unit_goals``); m = task dimensions.
+    competence : float
+        Its competence.
+    past_goals : ndarray, shape (H, m)
+        The H earlier goals kept, in the same space.
+    past_competences : ndarray, shape (H,)
+        Their competences.
+    min_history : int
+        Fewest earlier goals for a non-zero ALP.
+
+    Returns
+    -------
+    float
+        The ALP ``|competence − r_old|``, >= 0.
+    """
     if len(past_goals) < min_history:
         return 0.0
     past, g = np.ascontiguousarray(past_goals, dtype=float), np.ascontiguousarray(goal, dtype=float)
@@ -129,7 +160,18 @@ def absolute_learning_progress(goal, competence: float, past_goals: np.ndarray, 
 def component_probabilities(alp_means: np.ndarray) -> np.ndarray:
     """Probability of choosing each Gaussian: proportional to its mean ALP (Portelas et al. 2019,
     Sec. 4.1; reference ``proportional_choice`` with eps = 0); uniform when every mean is 0. A mean
-    below 0 (possible only numerically: ALP >= 0) counts as 0."""
+    below 0 (possible only numerically: ALP >= 0) counts as 0.
+
+    Parameters
+    ----------
+    alp_means : array_like, shape (K,)
+        Mean ALP of each of the K Gaussians (the last coordinate of their means).
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Probability of each Gaussian, summing to 1.
+    """
     return proportional(np.clip(np.asarray(alp_means, float), 0.0, None))
 
 
@@ -139,7 +181,43 @@ def fit_mixture(data: np.ndarray, k_min: int, k_max: int, criterion: str, covari
     """Fit one Gaussian mixture per k in ``k_min..k_max`` to ``data`` (rows: goal then ALP) and keep
     the one of least ``criterion`` (AIC or BIC; Portelas et al. 2019 Sec. 4.1, reference: AIC).
     Returns (weights (k,), means (k, D), covariances (k, D, D), full matrices whatever the type).
-    Each k's k-means initialisations draw from ``numpy.random.default_rng((random_state, k))``."""
+    Each k's k-means initialisations draw from ``numpy.random.default_rng((random_state, k))``.
+
+    Parameters
+    ----------
+    data : ndarray, shape (N, D)
+        The N fitted points (rows: goal then ALP), D = m + 1 (m = task dimensions).
+    k_min, k_max : int
+        The numbers of Gaussians tried, ``1 <= k_min <= k_max <= N``.
+    criterion : {'aic', 'bic'}
+        Information criterion that picks the mixture.
+    covariance : {'full', 'diag'}
+        Covariance type of the Gaussians.
+    em_inits : int
+        EM initialisations per number of Gaussians, the best kept.
+    random_state : int
+        Seed of the k-means initialisations.
+    tol : float, optional
+        EM stops when the mean log-likelihood changes by less than this.
+    max_iter : int, optional
+        Most EM iterations per initialisation.
+    reg_covar : float, optional
+        Added to the diagonal of every covariance.
+
+    Returns
+    -------
+    weights : ndarray, shape (K,)
+        Mixture weights; K = the number of Gaussians kept.
+    means : ndarray, shape (K, D)
+        Their means.
+    covariances : ndarray, shape (K, D, D)
+        Their covariance matrices.
+
+    Raises
+    ------
+    MixtureFitError
+        A covariance is not positive definite (:mod:`.gaussian_mixture`).
+    """
     best, best_score = None, np.inf
     for k in range(k_min, k_max + 1):
         m = gaussian_mixture.fit(data, k, np.random.default_rng((random_state, k)), covariance, em_inits,
@@ -153,14 +231,40 @@ def fit_mixture(data: np.ndarray, k_min: int, k_max: int, criterion: str, covari
 def sampling_factor(cov: np.ndarray) -> np.ndarray:
     """The factor F with ``x = μ + z F``, z standard normal, of ``numpy.random.Generator.multivariate_normal``
     (its default ``method='svd'``: ``F = (U √S)ᵀ`` of the SVD of the covariance), computed once per
-    fit instead of once per goal (the covariance changes only with a fit, so an SVD per draw is wasted)."""
+    fit instead of once per goal (the covariance changes only with a fit, so an SVD per draw is wasted).
+
+    Parameters
+    ----------
+    cov : ndarray, shape (D, D)
+        A covariance matrix (symmetric, positive semi-definite).
+
+    Returns
+    -------
+    ndarray, shape (D, D)
+        The factor F.
+    """
     u, s, _ = np.linalg.svd(cov)
     return (u * np.sqrt(s)).T
 
 
 def gaussian_draw(rng: np.random.Generator, mean: np.ndarray, factor: np.ndarray) -> np.ndarray:
     """``rng.multivariate_normal(mean, cov)`` given ``factor = sampling_factor(cov)``: the same draw from
-    the same stream, bit for bit (the same standard normals, the same product; test/test_teachers.py)."""
+    the same stream, bit for bit (the same standard normals, the same product; test/test_teachers.py).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The stream drawn from (the generator's goal stream).
+    mean : ndarray, shape (D,)
+        Mean of the Gaussian.
+    factor : ndarray, shape (D, D)
+        :func:`sampling_factor` of its covariance.
+
+    Returns
+    -------
+    ndarray, shape (D,)
+        The draw.
+    """
     x = np.dot(rng.standard_normal((1, len(mean))), factor)
     x += mean
     return x[0]
@@ -168,7 +272,19 @@ def gaussian_draw(rng: np.random.Generator, mean: np.ndarray, factor: np.ndarray
 
 class AlpGmm(Teacher):
     """The ``alp-gmm`` teacher of a :class:`~sagg_goal_generator.core.GoalGenerator`: goal draws from
-    the generator's goal stream, fit seeds from the stream ``alp_gmm.fit``."""
+    the generator's goal stream, fit seeds from the stream ``alp_gmm.fit``.
+
+    Parameters
+    ----------
+    gen : GoalGenerator
+        The generator the teacher chooses goals for (its parameters hold the ``alp_gmm.*``
+        ones).
+
+    Raises
+    ------
+    ConfigError
+        Inconsistent ``alp_gmm.*`` parameters (:func:`check_params`).
+    """
 
     def __init__(self, gen):
         p = gen.params
@@ -201,6 +317,22 @@ class AlpGmm(Teacher):
 
     # ------------------------------------------------------------------ reports
     def report(self, kind: int, target, competence: float) -> None:
+        """Take a goal report (the other kinds are ignored): the goal and its ALP against the nearest
+        earlier goal join the history and the fit data; every ``fit_every`` goals from
+        ``bootstrap`` on, a new mixture is fitted.
+
+        Parameters
+        ----------
+        kind : int
+            A ``KIND_*`` constant of :mod:`sagg_common.report_kinds` (goal, subgoal, reached,
+            exploration).
+        target : array_like, shape (m,)
+            The goal or subgoal position (goal and subgoal reports), or the reached position
+            (reached and exploration reports); m = task dimensions.
+        competence : float
+            Its competence (Γ for goals and subgoals; for the others, the learner's choice: see
+            :meth:`~sagg_goal_generator.core.GoalGenerator.report`).
+        """
         if kind != KIND_GOAL:
             return
         x = self._scaled(target)
@@ -224,6 +356,18 @@ class AlpGmm(Teacher):
 
     # -------------------------------------------------------------------- goals
     def choose(self) -> tuple[np.ndarray, int]:
+        """The next goal (Portelas et al. 2019 Sec. 4.1): uniform in Y during the bootstrap (mode
+        ``initial``), with probability ``random_share`` after it or while no mixture is fitted
+        (``global``), else drawn from a Gaussian chosen by :func:`component_probabilities`,
+        without its ALP coordinate, clipped to Y (``region``).
+
+        Returns
+        -------
+        goal : ndarray, shape (m,)
+            The goal, in Y (m = task dimensions).
+        mode : int
+            How it was chosen: a ``MODE_*`` constant of :mod:`~sagg_goal_generator.modes`.
+        """
         gen, rng = self.gen, self.gen.rng
         if self.n < self.p["bootstrap"]:
             return gen.uniform(gen.lower, gen.upper), MODE_INITIAL
@@ -244,7 +388,19 @@ class AlpGmm(Teacher):
 
     # -------------------------------------------------------------------- state
     def state(self) -> tuple[dict[str, np.ndarray], dict]:
-        """Arrays (npz) and JSON of the teacher's state (the goal stream is the generator's)."""
+        """Arrays (npz) and JSON of the teacher's state (the goal stream is the generator's).
+
+        Returns
+        -------
+        arrays : dict of str to ndarray
+            ``hist_goals`` (H, m) and ``hist_comp`` (H,), the history rings (H = ``history``);
+            ``fit_data`` (F, m + 1), the ring of (goal, ALP) rows (F = ``fit_every``); per fit,
+            ``fit_goals`` and ``fit_k`` (the goal count and number of Gaussians); the fits'
+            Gaussians stacked, ``fit_weights`` (S,), ``fit_means`` (S, m + 1) and
+            ``fit_covariances`` (S, m + 1, m + 1), S = the sum of ``fit_k``.
+        meta : dict
+            ``n`` (goal reports taken) and ``fit_rng`` (the fit stream's state).
+        """
         f = self.fits
         arrays = {"hist_goals": self.hist_goals, "hist_comp": self.hist_comp, "fit_data": self.fit_data,
                   "fit_goals": np.array([x["goals"] for x in f], np.int64),
@@ -257,6 +413,21 @@ class AlpGmm(Teacher):
         return arrays, {"n": self.n, "fit_rng": rng_state(self.fit_rng)}
 
     def restore(self, arrays: dict, meta: dict) -> None:
+        """Set the state :meth:`state` returned (the sampling factors are recomputed at the next
+        draw).
+
+        Parameters
+        ----------
+        arrays : dict of str to ndarray
+            The arrays of :meth:`state` (from the checkpoint's npz).
+        meta : dict
+            The JSON values of :meth:`state`.
+
+        Raises
+        ------
+        ValueError
+            A history or fit-data array whose shape is not this run's parameters'.
+        """
         for key in ("hist_goals", "hist_comp", "fit_data"):
             if arrays[key].shape != getattr(self, key).shape:
                 raise ValueError(f"alp-gmm checkpoint: {key} has shape {arrays[key].shape}; this run's "
@@ -275,7 +446,15 @@ class AlpGmm(Teacher):
 
     def snapshot(self) -> dict:
         """JSON for the result: every fit's goal count, weights and means / covariances mapped back
-        to Y units (last coordinate: ALP)."""
+        to Y units (last coordinate: ALP).
+
+        Returns
+        -------
+        dict
+            ``teacher`` (the name) and ``fits``: per fit, ``goals``, ``weights`` (K floats),
+            ``means`` (K lists of m + 1) and ``covariances`` (K × (m + 1) × (m + 1) nested lists),
+            in Y's units.
+        """
         scale, shift = np.append(self.scale, 1.0), np.append(self.offset, 0.0)
         return {"teacher": NAME, "fits": [
             {"goals": f["goals"], "weights": f["weights"].tolist(),

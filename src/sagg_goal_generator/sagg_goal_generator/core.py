@@ -59,6 +59,18 @@ class RegionInterest(Teacher):
     phase while the tree has one region."""
 
     def choose(self) -> tuple[np.ndarray, int]:
+        """The next goal: uniform in Y while the tree has one region (mode ``initial``), then mode 1,
+        2 or 3 with probabilities p1, p2, p3: uniform in a region chosen by interest
+        (``region``), uniform in Y (``global``), or near the lowest-competence point of a region
+        chosen by interest (``low-competence``).
+
+        Returns
+        -------
+        goal : ndarray, shape (m,)
+            The goal, in Y (m = task dimensions).
+        mode : int
+            How it was chosen: a ``MODE_*`` constant of :mod:`~sagg_goal_generator.modes`.
+        """
         gen = self.gen
         if len(gen.tree.leaves()) < 2:
             return gen.uniform(gen.lower, gen.upper), MODE_INITIAL
@@ -74,6 +86,15 @@ class UniformGoals(Teacher):
     """``sagg-random``: goals uniform in Y (Sec. 3.7)."""
 
     def choose(self) -> tuple[np.ndarray, int]:
+        """A goal uniform in Y (mode ``random``).
+
+        Returns
+        -------
+        goal : ndarray, shape (m,)
+            The goal, in Y (m = task dimensions).
+        mode : int
+            How it was chosen: a ``MODE_*`` constant of :mod:`~sagg_goal_generator.modes`.
+        """
         return self.gen.uniform(self.gen.lower, self.gen.upper), MODE_RANDOM
 
 
@@ -89,7 +110,21 @@ TEACHERS: dict[str, type] = {
 class GoalGenerator:
     """High-level goal self-generation (Sec. 2.4.4) over a region tree of Y; the goals are chosen by
     the strategy's teacher (:data:`TEACHERS`). The tree takes every report whatever the strategy
-    (it is what /sagg/regions shows)."""
+    (it is what /sagg/regions shows).
+
+    Parameters
+    ----------
+    params : dict
+        The parameters by name (:data:`SCHEMA`), among them ``strategy``, ``seed``,
+        ``task_space.lower`` and ``task_space.upper`` (m values each).
+
+    Raises
+    ------
+    ValueError
+        Task-space bounds of unequal length or not increasing, or p1 + p2 + p3 other than 1.
+    ConfigError
+        Inconsistent parameters of the strategy's teacher.
+    """
 
     def __init__(self, params: dict):
         self.params = params
@@ -130,6 +165,17 @@ class GoalGenerator:
         0 (Sec. 2.5; the evolving learner), or that of the outcome toward its goal (Alg. 4's Γ_{y_i};
         the fixed-context learner's ``outcome_competence``). Reached/exploration reports are ignored
         unless ``count_reached``.
+
+        Parameters
+        ----------
+        kind : int
+            A ``KIND_*`` constant of :mod:`sagg_common.report_kinds` (goal, subgoal, reached,
+            exploration).
+        target : array_like, shape (m,)
+            The goal or subgoal position (goal and subgoal reports), or the reached position
+            (reached and exploration reports); m = task dimensions.
+        competence : float
+            Its competence (Γ for goals and subgoals; for the others, as above).
         """
         self.reports += 1
         if kind == KIND_GOAL and self.goals:
@@ -149,17 +195,44 @@ class GoalGenerator:
 
     # ------------------------------------------------------------------ goals
     def next_goal(self) -> GoalRecord:
-        """Self-generate the next goal (Sec. 2.4.4; the strategy's teacher chooses it)."""
+        """Self-generate the next goal (Sec. 2.4.4; the strategy's teacher chooses it).
+
+        Returns
+        -------
+        GoalRecord
+            The goal: ``seq`` (1, 2, ...), ``position`` (shape (m,)), ``mode`` (a ``MODE_*``
+            constant) and ``after_report`` (the reports processed so far); also appended to
+            ``goals``.
+        """
         y, mode = self.teacher.choose()
         rec = GoalRecord(len(self.goals) + 1, y, mode, self.reports)
         self.goals.append(rec)
         return rec
 
     def uniform(self, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+        """A point uniform in the box [lower, upper], from the goal stream
+        (:func:`~sagg_common.rng.uniform_in`).
+
+        Parameters
+        ----------
+        lower, upper : ndarray, shape (m,)
+            The box's bounds (Y's or a region's), lower <= upper.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The point.
+        """
         return uniform_in(self.rng, lower, upper)
 
     def region_probabilities(self) -> np.ndarray:
-        """Selection probabilities of the leaves (mode 1, Sec. 2.4.4): :func:`interest_probabilities`."""
+        """Selection probabilities of the leaves (mode 1, Sec. 2.4.4): :func:`interest_probabilities`.
+
+        Returns
+        -------
+        ndarray, shape (L,)
+            Probability of each of the L leaves, in ``tree.leaves()`` order.
+        """
         return interest_probabilities(self.tree.interests())
 
     def _region_by_interest(self):
@@ -177,4 +250,13 @@ class GoalGenerator:
 
     # ------------------------------------------------------------- reporting
     def region_snapshot(self) -> list[dict]:
+        """The region tree's leaves as JSON-able dicts
+        (:meth:`~sagg_common.regions.RegionTree.snapshot`).
+
+        Returns
+        -------
+        list of dict
+            One dict per leaf: ``id``, ``lower``, ``upper``, ``interest``, ``count`` and
+            ``mean_competence``.
+        """
         return self.tree.snapshot()

@@ -61,7 +61,20 @@ SCHEMA: Schema = (
 def grid_shape(cells: int, dim: int) -> tuple[int, ...]:
     """Bins per dimension: ``floor(cells ** (1 / dim))`` each (explauto ``DiscretizedProgress``:
     ``int(x_card ** (1. / len(expl_dims)))``); the root is taken exactly (integer check), so 1000
-    cells in 3-D give 10 bins, not 9 from a rounding error."""
+    cells in 3-D give 10 bins, not 9 from a rounding error.
+
+    Parameters
+    ----------
+    cells : int
+        Number of cells aimed at, >= 1.
+    dim : int
+        Dimensions of Y (m), >= 1.
+
+    Returns
+    -------
+    tuple of int, length dim
+        b bins in every dimension, the largest b with ``b ** dim <= cells`` (at least 1).
+    """
     b = max(1, int(math.floor(cells ** (1.0 / dim))))
     while (b + 1) ** dim <= cells:
         b += 1
@@ -74,7 +87,18 @@ def cell_progress(window: np.ndarray) -> float:
     """Progress of one cell (explauto ``DiscreteProgress.update_from_index_and_competence``): the mean
     of the older half of its window (oldest first) minus the mean of the newer half. Negative when
     the competence rises; the choice uses its absolute value. An odd window's newer half is the
-    larger (explauto's ``range(win_size / 2)`` split)."""
+    larger (explauto's ``range(win_size / 2)`` split).
+
+    Parameters
+    ----------
+    window : ndarray, shape (w,)
+        The cell's last w normalised competences, oldest first, w >= 2.
+
+    Returns
+    -------
+    float
+        The progress (older mean − newer mean).
+    """
     h = len(window) // 2
     # (np.mean's arithmetic, without its dispatch: the sum of each half over its length)
     return float(window[:h].sum() / h - window[h:].sum() / (len(window) - h))
@@ -82,13 +106,36 @@ def cell_progress(window: np.ndarray) -> float:
 
 def cell_probabilities(progress: np.ndarray) -> np.ndarray:
     """Probability of each cell: its absolute progress over the sum (explauto ``DiscreteProgress.sample``,
-    ``discrete_random_draw``); uniform when every progress is 0."""
+    ``discrete_random_draw``); uniform when every progress is 0.
+
+    Parameters
+    ----------
+    progress : array_like, shape (G,)
+        Progress of each of the G cells.
+
+    Returns
+    -------
+    ndarray, shape (G,)
+        Probability of each cell, summing to 1.
+    """
     return proportional(np.abs(np.asarray(progress, float)))
 
 
 class DiscretizedProgress(Teacher):
     """The ``discretized-progress`` teacher of a :class:`~sagg_goal_generator.core.GoalGenerator`
-    (its draws from the generator's goal stream)."""
+    (its draws from the generator's goal stream).
+
+    Parameters
+    ----------
+    gen : GoalGenerator
+        The generator the teacher chooses goals for (its parameters hold the
+        ``discretized_progress.*`` ones).
+
+    Raises
+    ------
+    ConfigError
+        More than 10^7 competences to keep (``cells`` × ``window``).
+    """
 
     def __init__(self, gen):
         p = gen.params
@@ -107,7 +154,19 @@ class DiscretizedProgress(Teacher):
 
     def cell_of(self, y) -> int | None:
         """Flat index (C order, as ``np.ravel_multi_index``) of the cell holding ``y`` (the upper
-        faces belong to the last bins); None outside Y (or NaN)."""
+        faces belong to the last bins); None outside Y (or NaN).
+
+        Parameters
+        ----------
+        y : array_like, shape (m,)
+            A point; m = task dimensions.
+
+        Returns
+        -------
+        int or None
+            The cell's flat index, in [0, G) (G = number of cells); None when ``y`` is outside Y,
+            NaN or not of shape (m,).
+        """
         y = np.asarray(y, float)
         if y.shape != self.gen.lower.shape:
             return None
@@ -125,6 +184,23 @@ class DiscretizedProgress(Teacher):
         self.progress[cell] = cell_progress(w)
 
     def report(self, kind: int, target, competence: float) -> None:
+        """A goal report appends its competence, normalised to [0, 1] (``C + 1``), to the window of the
+        goal's cell; with ``novelty_bonus``, a reached-point or exploration report gives a cell
+        whose window sums to 0 the maximal competence 1. Subgoal reports and reports outside Y are
+        ignored.
+
+        Parameters
+        ----------
+        kind : int
+            A ``KIND_*`` constant of :mod:`sagg_common.report_kinds` (goal, subgoal, reached,
+            exploration).
+        target : array_like, shape (m,)
+            The goal or subgoal position (goal and subgoal reports), or the reached position
+            (reached and exploration reports); m = task dimensions.
+        competence : float
+            Its competence (Γ for goals and subgoals; for the others, the learner's choice: see
+            :meth:`~sagg_goal_generator.core.GoalGenerator.report`).
+        """
         cell = self.cell_of(target)
         if cell is None:
             return
@@ -135,6 +211,17 @@ class DiscretizedProgress(Teacher):
             self._append(cell, 1.0)
 
     def choose(self) -> tuple[np.ndarray, int]:
+        """The next goal: a cell uniform with probability ``random_share`` or while every progress is
+        0 (mode ``global``), else one chosen by :func:`cell_probabilities` (``region``); the goal is
+        uniform in that cell.
+
+        Returns
+        -------
+        goal : ndarray, shape (m,)
+            The goal, in Y (m = task dimensions).
+        mode : int
+            How it was chosen: a ``MODE_*`` constant of :mod:`~sagg_goal_generator.modes`.
+        """
         rng = self.gen.rng
         if rng.random() < self.p["random_share"] or not self.progress.any():
             cell, mode = int(rng.integers(self.n_cells)), MODE_GLOBAL
@@ -144,9 +231,33 @@ class DiscretizedProgress(Teacher):
         return np.minimum(self.gen.uniform(lo, lo + self.width), self.gen.upper), mode
 
     def state(self) -> tuple[dict[str, np.ndarray], dict]:
+        """The windows (npz) and the number of cells (JSON); the progress is derived from the
+        windows.
+
+        Returns
+        -------
+        arrays : dict of str to ndarray
+            ``windows``, shape (G, w): every cell's window, oldest first (G = cells, w = ``window``).
+        meta : dict
+            ``cells``: G.
+        """
         return {"windows": self.windows}, {"cells": self.n_cells}
 
     def restore(self, arrays: dict, meta: dict) -> None:
+        """Set the windows :meth:`state` returned and recompute every cell's progress.
+
+        Parameters
+        ----------
+        arrays : dict of str to ndarray
+            The arrays of :meth:`state` (from the checkpoint's npz).
+        meta : dict
+            The JSON values of :meth:`state`.
+
+        Raises
+        ------
+        ValueError
+            Windows whose shape is not this run's parameters'.
+        """
         w = np.asarray(arrays["windows"], float)
         if w.shape != self.windows.shape:
             raise ValueError(f"discretized-progress checkpoint: windows of shape {w.shape}; this run's "
@@ -155,7 +266,15 @@ class DiscretizedProgress(Teacher):
         self.progress = np.array([cell_progress(x) for x in self.windows])
 
     def snapshot(self) -> dict:
-        """JSON for the result: the grid (shape, Y) and every cell's progress and window mean."""
+        """JSON for the result: the grid (shape, Y) and every cell's progress and window mean.
+
+        Returns
+        -------
+        dict
+            ``teacher`` (the name), ``shape`` (bins per dimension), ``lower`` and ``upper`` (Y's
+            bounds, m floats each), ``progress`` and ``competence`` (G floats each, the cells in
+            C order).
+        """
         return {"teacher": NAME, "shape": list(self.shape), "lower": self.gen.lower.tolist(),
                 "upper": self.gen.upper.tolist(), "progress": self.progress.tolist(),
                 "competence": self.windows.mean(axis=1).tolist()}

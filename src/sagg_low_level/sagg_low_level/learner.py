@@ -254,25 +254,88 @@ class Robot:
 def subgoal_points(y_start: np.ndarray, goal: np.ndarray, l: int) -> list[np.ndarray]:
     """Subgoals on the straight path (paper Sec. 3.5): ``y_i = y_start + (i/l)(y_g − y_start)``,
     i = 1..l, so ``y_l = y_g``. (The paper omits ``y_start +``, a typo: its y_i must lie between
-    y_start and y_g.)"""
+    y_start and y_g.)
+
+    Parameters
+    ----------
+    y_start : ndarray, shape (m,)
+        The effector's position when the attempt starts; m = task dimensions.
+    goal : ndarray, shape (m,)
+        The goal y_g.
+    l : int
+        Number of points, >= 1 (learner parameter ``subgoals``).
+
+    Returns
+    -------
+    list of ndarray, length l
+        The points y_1, ..., y_l, each of shape (m,); the last one is the goal's.
+    """
     return [y_start + (i / l) * (goal - y_start) for i in range(1, l + 1)]
 
 
 def timeout_budget(distance: float, v: float, factor: float) -> int:
     """Distance timeout of paper Sec. 3.6.2: up to ``factor`` (1.5) × the micro-actions needed to
-    travel ``distance`` at speed ``v`` (at least one)."""
+    travel ``distance`` at speed ``v`` (at least one).
+
+    Parameters
+    ----------
+    distance : float
+        Distance to travel, D(y_start, y_g), task units.
+    v : float
+        Desired speed, task units per micro-action, > 0.
+    factor : float
+        Allowance factor (``timeout_factor``, or ``eval.timeout_factor`` for the evaluation).
+
+    Returns
+    -------
+    int
+        The most micro-actions allowed, >= 1.
+    """
     return max(1, math.ceil(factor * distance / v))
 
 
 def reach_damping(params: dict, n: int) -> float:
     """λ of the damped least-squares reaching inverse (learner parameter ``reach_damping``, in units
-    of v / (a √n), a = explore_amplitude, n = joints): 0 = the paper's J⁺ (Sec. 3.3)."""
+    of v / (a √n), a = explore_amplitude, n = joints): 0 = the paper's J⁺ (Sec. 3.3).
+
+    Parameters
+    ----------
+    params : dict
+        Learner parameters; reads ``reach_damping`` (0 when absent), ``v`` and
+        ``explore_amplitude``.
+    n : int
+        Number of joints.
+
+    Returns
+    -------
+    float
+        λ >= 0, in task units per radian: it weighs ||Δα|| against ||J Δα − Δy|| (0: the paper's
+        J⁺).
+    """
     return float(params.get("reach_damping", 0.0)) * params["v"] / (params["explore_amplitude"] * math.sqrt(n))
 
 
 def safe_target(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: Robot) -> np.ndarray:
     """Clip a commanded posture to ``max_step`` per joint from ``alpha`` (the step is scaled down
-    as a whole so its direction is kept) and to the robot's joint limits."""
+    as a whole so its direction is kept) and to the robot's joint limits.
+
+    Parameters
+    ----------
+    alpha : ndarray, shape (n,)
+        The current joint posture α; n = joints.
+    target : ndarray, shape (n,)
+        The requested posture.
+    max_step : float
+        Largest joint motion per command, rad (e.g. ``max_joint_step``).
+    robot : Robot
+        Gives the joint limits ``lower`` and ``upper``.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The posture to command: at most ``max_step`` from ``alpha`` in every joint, within the
+        joint limits.
+    """
     step = target - alpha
     big = float(np.abs(step).max()) if step.size else 0.0
     if big > max_step:
@@ -284,20 +347,70 @@ def step_toward(alpha: np.ndarray, target: np.ndarray, max_step: float, robot: R
     """``target`` clipped per joint to at most ``max_step`` from ``alpha`` and to the joint limits:
     the next command of a move done in steps (the return to rest on a real arm: one position
     command across the range is a jump at full speed on a position controller). It
-    equals ``target`` once every joint is within a step of it."""
+    equals ``target`` once every joint is within a step of it.
+
+    Parameters
+    ----------
+    alpha : ndarray, shape (n,)
+        The current joint posture α; n = joints.
+    target : ndarray, shape (n,)
+        The requested posture.
+    max_step : float
+        Largest joint motion per command, rad (e.g. ``max_joint_step``).
+    robot : Robot
+        Gives the joint limits ``lower`` and ``upper``.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The next command of the move.
+    """
     return np.minimum(np.maximum(target, np.maximum(robot.lower, alpha - max_step)),
                       np.minimum(robot.upper, alpha + max_step))
 
 
 def stepped_move_limit(robot: Robot, max_step: float) -> int:
     """The most commands a move in steps (:func:`step_toward`) may take: four times the steps
-    across the widest joint range, at least 50; a joint that does not follow ends it there."""
+    across the widest joint range, at least 50; a joint that does not follow ends it there.
+
+    Parameters
+    ----------
+    robot : Robot
+        Gives the joint limits ``lower`` and ``upper``.
+    max_step : float
+        Largest joint motion per command, rad, > 0.
+
+    Returns
+    -------
+    int
+        The most commands of a move, >= 50.
+    """
     span = float((np.asarray(robot.upper) - np.asarray(robot.lower)).max())
     return max(50, 4 * math.ceil(span / max_step))
 
 
 class EvolvingContextLearner:
-    """Low-level goal-directed exploration with evolving context (Alg. 3) + actuator baselines."""
+    """Low-level goal-directed exploration with evolving context (Alg. 3) + actuator baselines.
+
+    Parameters
+    ----------
+    params : dict
+        The learner's parameters by name (:data:`SCHEMA`), among them ``strategy``,
+        ``task_space.lower`` and ``task_space.upper``.
+    robot : Robot
+        Joint order, limits and rest posture (n joints).
+    task_dim : int, optional
+        m, the task dimensions the robot reports; must equal the task space's (None: taken
+        from it).
+    memory : SampleMemory, optional
+        The sample memory to use (e.g. a restored one); None: a new, empty one.
+
+    Raises
+    ------
+    ValueError
+        A context other than 'evolving', task-space bounds of unequal length or not increasing,
+        or a ``task_dim`` other than the task space's.
+    """
 
     def __init__(self, params: dict, robot: Robot, task_dim: int | None = None,
                  memory: SampleMemory | None = None):
@@ -348,6 +461,19 @@ class EvolvingContextLearner:
                                   self.micro_actions))
 
     def safe_target(self, target: np.ndarray) -> np.ndarray:
+        """:func:`safe_target` from the current posture α with ``max_joint_step``: the posture
+        actually commanded for ``target``.
+
+        Parameters
+        ----------
+        target : ndarray, shape (n,)
+            The requested posture; n = joints.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            The posture to command.
+        """
         return safe_target(self.alpha, target, self.p["max_joint_step"], self.robot)
 
     def _act(self, target: np.ndarray, kind: str) -> Generator:
@@ -372,7 +498,18 @@ class EvolvingContextLearner:
     def jacobian_at(self, alpha: np.ndarray) -> np.ndarray | None:
         """Local Jacobian J(α) from the k nearest samples in α (None while memory is too small):
         :func:`~sagg_low_level.local_model.local_jacobian` (Sec. 3.3), computed by the compiled
-        :func:`~sagg_low_level.compiled.jacobian`."""
+        :func:`~sagg_low_level.compiled.jacobian`.
+
+        Parameters
+        ----------
+        alpha : ndarray, shape (n,)
+            The posture α whose neighbours are used; n = joints.
+
+        Returns
+        -------
+        ndarray, shape (m, n), or None
+            J(α) (m = task dimensions); None with fewer than ``min_samples`` samples.
+        """
         if len(self.memory) < self.min_samples:
             return None
         idx = self.memory.neighbours(alpha, self.k)
@@ -380,7 +517,21 @@ class EvolvingContextLearner:
 
     def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
         """Δα = J⁺(α)·Δy_next from the local model (None while memory is too small):
-        :func:`~sagg_low_level.local_model.pseudo_inverse_step`, compiled."""
+        :func:`~sagg_low_level.local_model.pseudo_inverse_step`, compiled.
+
+        Parameters
+        ----------
+        alpha : ndarray, shape (n,)
+            The posture α; n = joints.
+        dy_next : ndarray, shape (m,)
+            Desired effector displacement Δy_next; m = task dimensions.
+
+        Returns
+        -------
+        ndarray, shape (n,), or None
+            Δα, without joint limits (the damped step when ``reach_damping`` > 0); None with fewer
+            than ``min_samples`` samples.
+        """
         jac = self.jacobian_at(alpha)
         return None if jac is None else reach_step(jac, dy_next, alpha, self.robot.lower, self.robot.upper,
                                                    self.p["pinv_rcond"], self.damping, False)
@@ -388,7 +539,21 @@ class EvolvingContextLearner:
     def reach_step(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
         """The reaching micro-action Δα for a desired effector displacement (Sec. 3.6.1), within
         the joint limits as ``reach_limits`` says; used by learning and by the evaluation's
-        reaching from rest alike. None while the memory is too small."""
+        reaching from rest alike. None while the memory is too small.
+
+        Parameters
+        ----------
+        alpha : ndarray, shape (n,)
+            The posture α; n = joints.
+        dy_next : ndarray, shape (m,)
+            Desired effector displacement Δy_next; m = task dimensions.
+
+        Returns
+        -------
+        ndarray, shape (n,), or None
+            The micro-action Δα (before the reach noise); None with fewer than ``min_samples``
+            samples.
+        """
         return self.reach_plan(alpha, dy_next)[1]
 
     def reach_plan(self, alpha: np.ndarray, dy_next: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -396,7 +561,22 @@ class EvolvingContextLearner:
         the step; (None, None) while the memory is too small. The step is
         :func:`~sagg_low_level.local_model.clamped_step` ('clamp') or
         :func:`~sagg_low_level.local_model.pseudo_inverse_step` ('clip'), compiled
-        (:func:`~sagg_low_level.compiled.reach_step`)."""
+        (:func:`~sagg_low_level.compiled.reach_step`).
+
+        Parameters
+        ----------
+        alpha : ndarray, shape (n,)
+            The posture α; n = joints.
+        dy_next : ndarray, shape (m,)
+            Desired effector displacement Δy_next; m = task dimensions.
+
+        Returns
+        -------
+        jac : ndarray, shape (m, n), or None
+            The local Jacobian J(α).
+        dalpha : ndarray, shape (n,), or None
+            The micro-action Δα of :meth:`reach_step`.
+        """
         jac = self.jacobian_at(alpha)
         if jac is None:
             return None, None
@@ -411,11 +591,39 @@ class EvolvingContextLearner:
         compromise with the joint motion): its aim is the model's own prediction J·Δα of the
         commanded step, so ε measures how wrong the model was, which is what the test is for
         ("judge if the current model has been efficient enough", Sec. 2, Alg. 2), not the
-        shortfall the damping chose."""
+        shortfall the damping chose.
+
+        Parameters
+        ----------
+        jac : ndarray, shape (m, n)
+            The local Jacobian the step was computed from; m = task dimensions, n = joints.
+        dalpha : ndarray, shape (n,)
+            The step computed (before the reach noise).
+        dy_next : ndarray, shape (m,)
+            The desired effector displacement Δy_next.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The aim: ``dy_next`` itself (J⁺), or ``jac @ dalpha`` (damped inverse).
+        """
         return dy_next if self.damping == 0.0 else jac @ dalpha
 
     def predict(self, alpha: np.ndarray, dalpha: np.ndarray) -> np.ndarray:
-        """Forward prediction Δy ≈ J(α)·Δα from the local model (zeros while memory is too small)."""
+        """Forward prediction Δy ≈ J(α)·Δα from the local model (zeros while memory is too small).
+
+        Parameters
+        ----------
+        alpha : ndarray, shape (n,)
+            The posture α; n = joints.
+        dalpha : ndarray, shape (n,)
+            The joint displacement Δα.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The predicted effector displacement Δy; m = task dimensions.
+        """
         jac = self.jacobian_at(alpha)
         return np.zeros(self.m) if jac is None else jac @ dalpha
 
@@ -425,12 +633,39 @@ class EvolvingContextLearner:
 
     def competence_toward(self, target, start) -> Callable[[np.ndarray], float]:
         """``reached -> competence(target, reached, start)`` (Sec. 3.5, with this learner's eps_c and
-        rescaling), the target's part computed once: for the micro-actions of one (sub)goal."""
+        rescaling), the target's part computed once: for the micro-actions of one (sub)goal.
+
+        Parameters
+        ----------
+        target : array_like, shape (m,)
+            The (sub)goal; m = task dimensions.
+        start : array_like, shape (m,)
+            The effector's position when the (sub)goal started.
+
+        Returns
+        -------
+        callable
+            ``of(reached) -> float``: the competence C in [-1, 0] of an effector position of shape
+            (m,).
+        """
         return competence_toward(target, start, self.p["eps_c"], self.scale)
 
     # ------------------------------------------------------------- main loop
     def run(self) -> Generator:
-        """The learner's whole life: yields requests, receives answers, never returns."""
+        """The learner's whole life: yields requests, receives answers, never returns.
+
+        Yields
+        ------
+        Observe, Command or GoalRequest
+            The next request.
+
+        Receives
+        --------
+        tuple
+            The answer to the request just yielded: ``(alpha, y)``, the posture (n,) and the
+            effector's position (m,), for :class:`Observe` and :class:`Command`; ``(goal_seq,
+            goal)``, an int and a goal of shape (m,), for :class:`GoalRequest`.
+        """
         alpha, y = yield Observe()
         self.alpha = np.asarray(alpha, dtype=float)
         self.y = np.asarray(y, dtype=float)
@@ -506,7 +741,15 @@ class EvolvingContextLearner:
 
     def actuator_reset_period(self) -> int:
         """``max`` of Sec. 3.8: micro-actions to reach the farthest point of Y from the rest tip
-        position at speed v (our reading of "the more distant reachable position"), unless set."""
+        position at speed v (our reading of "the more distant reachable position"), unless set.
+
+        Returns
+        -------
+        int
+            Micro-actions between two returns to rest, >= 1: ``actuator_reset_every`` when it is
+            not 0, else the one derived from Y's corners and the rest tip position (known once the
+            babbling has started).
+        """
         if self.p["actuator_reset_every"]:
             return self.p["actuator_reset_every"]
         corners = np.array(np.meshgrid(*zip(self.task_lower, self.task_upper))).reshape(self.m, -1).T
@@ -542,7 +785,14 @@ class EvolvingContextLearner:
             self._report(KIND_EXPLORATION, 0, self.y, self.y, 0.0)
 
     def make_riac_tree(self) -> RegionTree:
-        """ACTUATOR-RIAC's empty region tree over (α, Δα) (Sec. 3.8), with its own split stream."""
+        """ACTUATOR-RIAC's empty region tree over (α, Δα) (Sec. 3.8), with its own split stream.
+
+        Returns
+        -------
+        RegionTree
+            A tree over the 2n-dimensional box of (α, Δα): the joint limits × [−a, a]^n,
+            a = ``explore_amplitude``; ``riac.g_max``, ``riac.zeta``, ``riac.split_candidates``.
+        """
         a = self.p["explore_amplitude"]
         n = self.robot.n
         return RegionTree(np.concatenate([self.robot.lower, np.full(n, -a)]),

@@ -13,6 +13,21 @@ def local_jacobian(delta_alpha: np.ndarray, delta_y: np.ndarray, rcond: float = 
 
     Solves ``min_J Σ_i ||J Δα_i − Δy_i||²`` over the k neighbour samples (minimum-norm solution
     when under-determined). ``delta_alpha`` is (k, n), ``delta_y`` is (k, m); returns J (m, n).
+
+    Parameters
+    ----------
+    delta_alpha : ndarray, shape (k, n)
+        Joint displacements Δα of the k neighbour samples; n = joints.
+    delta_y : ndarray, shape (k, m)
+        Their effector displacements Δy; m = task dimensions.
+    rcond : float, optional
+        Relative cut-off of the small singular values of ``delta_alpha``
+        (``numpy.linalg.lstsq``; learner parameter ``jacobian_rcond``).
+
+    Returns
+    -------
+    ndarray, shape (m, n)
+        The Jacobian J, with ``Δy ≈ J Δα``.
     """
     jt, *_ = np.linalg.lstsq(delta_alpha, delta_y, rcond=rcond)
     return jt.T
@@ -30,6 +45,20 @@ def damped_steps(jacs: np.ndarray, dys: np.ndarray, damping: float) -> np.ndarra
     J⁺'s step. No singular value needs cutting (the gain vanishes with σ), so ``pinv_rcond`` plays
     no part. Each row is computed with the same operations whatever the stack size (one row
     alone gives the same floats; the batched evaluation relies on it, test/test_eval_batch.py).
+
+    Parameters
+    ----------
+    jacs : array_like, shape (B, m, n)
+        A stack of B Jacobians (m task dimensions, n joints).
+    dys : array_like, shape (B, m)
+        The desired effector displacement Δy of each row.
+    damping : float
+        λ > 0 (the callers use this function only then).
+
+    Returns
+    -------
+    ndarray, shape (B, n)
+        The damped joint step Δα of each row.
     """
     jacs = np.asarray(jacs, dtype=float)
     m = jacs.shape[-2]
@@ -45,6 +74,18 @@ def pinv(a: np.ndarray, rcond: float) -> np.ndarray:
     below ``rcond × σ_max`` dropped, the others inverted (the same IEEE divisions ``1 / σ``), and
     the same product ``Vᵀ · (σ⁺ ⊙ Uᵀ)`` on operands of the same layouts (tested in
     test/test_local_model_pinv.py). A stack of matrices: use ``numpy.linalg.pinv``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (p, q)
+        A real matrix.
+    rcond : float
+        Singular values at or below ``rcond × σ_max`` count as 0.
+
+    Returns
+    -------
+    ndarray, shape (q, p)
+        The pseudo-inverse a⁺.
     """
     u, s, vt = np.linalg.svd(a, full_matrices=False)
     sv = s.tolist()
@@ -62,6 +103,22 @@ def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float,
     singularities with noise; our choice, exposed as the learner parameter ``pinv_rcond``).
     With ``damping`` λ > 0 (learner parameter ``reach_damping``; the paper's J⁺ is λ = 0) the
     damped least-squares step of :func:`damped_steps` instead.
+
+    Parameters
+    ----------
+    jac : ndarray, shape (m, n)
+        Local Jacobian J(α); m = task dimensions, n = joints.
+    dy_next : ndarray, shape (m,)
+        Desired effector displacement Δy_next.
+    rcond : float
+        Relative singular-value cut-off of J⁺ (``pinv_rcond``); unused when ``damping`` > 0.
+    damping : float, optional
+        λ of the damped step (0: the paper's J⁺).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The joint displacement Δα (joint limits not considered).
     """
     if damping:
         return damped_steps(jac[None], dy_next[None], damping)[0]
@@ -71,7 +128,24 @@ def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float,
 def pseudo_inverse_steps(jacs: np.ndarray, dys: np.ndarray, rcond: float, damping: float = 0.0) -> np.ndarray:
     """:func:`pseudo_inverse_step` for a stack of rows, (B, m, n) and (B, m) -> (B, n): one stacked
     ``numpy.linalg.pinv`` (numpy computes a stack one matrix at a time with the same LAPACK call, so
-    each row equals the single call; test/test_eval_batch.py), or the stacked :func:`damped_steps`."""
+    each row equals the single call; test/test_eval_batch.py), or the stacked :func:`damped_steps`.
+
+    Parameters
+    ----------
+    jacs : ndarray, shape (B, m, n)
+        A stack of B local Jacobians.
+    dys : ndarray, shape (B, m)
+        The desired effector displacement of each row.
+    rcond : float
+        Relative singular-value cut-off of J⁺ (``pinv_rcond``); unused when ``damping`` > 0.
+    damping : float, optional
+        λ of the damped steps (0: the paper's J⁺).
+
+    Returns
+    -------
+    ndarray, shape (B, n)
+        The joint displacement Δα of each row.
+    """
     if damping:
         return damped_steps(jacs, dys, damping)
     return (np.linalg.pinv(jacs, rcond=rcond) @ dys[:, :, None])[:, :, 0]
@@ -95,6 +169,27 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
     A step that leaves no joint beyond its limit is returned as it is, without the rounds (their
     first round would return the same floats; most steps are such, and skipping saves the rounds' cost);
     the others start the rounds with it.
+
+    Parameters
+    ----------
+    jac : ndarray, shape (m, n)
+        Local Jacobian J(α); m = task dimensions, n = joints.
+    dy_next : ndarray, shape (m,)
+        Desired effector displacement Δy_next.
+    alpha : ndarray, shape (n,)
+        Current joint posture α.
+    lower, upper : ndarray, shape (n,)
+        Joint limits.
+    rcond : float
+        Relative singular-value cut-off of J⁺ (``pinv_rcond``); unused when ``damping`` > 0.
+    damping : float, optional
+        λ of the damped solves (0: the paper's J⁺).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The joint displacement Δα: a joint that a round carries past a limit stops at that limit,
+        the others are re-solved.
     """
     step = pseudo_inverse_step(jac, dy_next, rcond, damping)
     new = alpha + step
@@ -115,7 +210,36 @@ def clamp_rounds(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
                  upper: np.ndarray) -> Generator[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
     """The rounds of :func:`clamped_step` as a coroutine, so that many rows can share their solves
     (:func:`clamped_steps`): yields ``(cols, target)`` (the free joints' columns of J and the
-    displacement they must produce), receives ``J_free⁺ · target``, returns Δα."""
+    displacement they must produce), receives ``J_free⁺ · target``, returns Δα.
+
+    Parameters
+    ----------
+    jac : ndarray, shape (m, n)
+        Local Jacobian J(α); m = task dimensions, n = joints.
+    dy_next : ndarray, shape (m,)
+        Desired effector displacement Δy_next.
+    alpha : ndarray, shape (n,)
+        Current joint posture α.
+    lower, upper : ndarray, shape (n,)
+        Joint limits.
+
+    Yields
+    ------
+    cols : ndarray, shape (m, f)
+        The columns of J of the f free joints (all n in the first round).
+    target : ndarray, shape (m,)
+        The displacement the free joints must produce.
+
+    Receives
+    --------
+    step : ndarray, shape (f,)
+        ``J_free⁺ · target``, the free joints' solve (e.g. by :func:`pseudo_inverse_step`).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The joint displacement Δα (the value of the generator's ``StopIteration``).
+    """
     n = jac.shape[1]
     free = np.ones(n, dtype=bool)
     dalpha = np.zeros(n)
@@ -150,7 +274,30 @@ def clamped_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: 
     together, each round's solves as one stacked ``numpy.linalg.pinv`` per number of free joints
     (numpy solves a stack one matrix at a time with the same LAPACK call as :func:`pinv`; tested in
     test/test_local_model_pinv.py), or with ``damping`` one stacked :func:`damped_steps` (a row gives
-    the same floats in any stack)."""
+    the same floats in any stack).
+
+    Parameters
+    ----------
+    jacs : ndarray, shape (B, m, n)
+        A stack of B local Jacobians; m = task dimensions, n = joints.
+    dys : ndarray, shape (B, m)
+        The desired effector displacement of each row.
+    alphas : ndarray, shape (B, n)
+        The current joint posture of each row.
+    lower, upper : ndarray, shape (n,)
+        Joint limits, shared by every row.
+    rcond : float
+        Relative singular-value cut-off of J⁺ (``pinv_rcond``); unused when ``damping`` > 0.
+    steps : array_like, shape (B, n)
+        The first round of each row (not modified).
+    damping : float, optional
+        λ of the damped solves (0: the paper's J⁺).
+
+    Returns
+    -------
+    ndarray, shape (B, n)
+        The joint displacement Δα of each row (a new array).
+    """
     out = np.array(steps, dtype=float)
     new = alphas + out
     rows = np.flatnonzero(((new > upper) | (new < lower)).any(axis=1))
@@ -180,7 +327,18 @@ def clamped_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: 
 
 def norm(x: np.ndarray) -> float:
     """``float(np.linalg.norm(x))`` of a 1-D float vector, the same float (numpy computes
-    sqrt(x·x) there too) without its argument handling (it runs several times per micro-action)."""
+    sqrt(x·x) there too) without its argument handling (it runs several times per micro-action).
+
+    Parameters
+    ----------
+    x : ndarray, shape (p,)
+        A 1-D float vector.
+
+    Returns
+    -------
+    float
+        Its Euclidean norm.
+    """
     return math.sqrt(x.dot(x))
 
 
@@ -190,6 +348,20 @@ def desired_displacement(y_current: np.ndarray, goal: np.ndarray, v: float) -> n
     The paper's text writes ``y_c − y_g``, which points away from the goal: a sign typo. ``v`` is
     "bounded by v_max"; our choice is to shorten the step to the remaining distance so the effector
     does not overshoot the goal: the step length is ``min(v, ||y_g − y_c||)``.
+
+    Parameters
+    ----------
+    y_current : ndarray, shape (m,)
+        The effector's position y_c; m = task dimensions.
+    goal : ndarray, shape (m,)
+        The (sub)goal y_g.
+    v : float
+        Desired speed, task units per micro-action (learner parameter ``v``), > 0.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Δy_next, of length ``min(v, ||y_g − y_c||)``; zeros when y_c = y_g.
     """
     d = goal - y_current
     dist = norm(d)
