@@ -75,20 +75,3 @@ def test_clamped_step_equals_reference_bytes():
         assert got.tobytes() == ref.tobytes()
         hits += bool(np.any(np.abs(alpha + got) >= 1.0))
     assert hits > 50  # the clamping rounds were exercised
-
-
-def test_clamped_steps_equal_clamped_step_row_by_row():
-    """The batch driver (stacked solves per round) gives each row's clamped_step, byte for byte."""
-    from sagg_low_level.local_model import clamped_steps
-    rng = np.random.default_rng(11)
-    for n in (2, 7, 15):
-        B = 60
-        jacs = rng.normal(size=(B, 2, n))
-        lower, upper = np.full(n, -1.0), np.full(n, 1.0)
-        alphas = rng.uniform(-1.0, 1.0, (B, n))
-        alphas[rng.random((B, n)) < 0.3] = -1.0
-        dys = rng.normal(size=(B, 2)) * np.where(rng.random(B) < 0.5, 0.1, 3.0)[:, None]
-        steps = (np.linalg.pinv(jacs, rcond=1e-2) @ dys[:, :, None])[:, :, 0]
-        got = clamped_steps(jacs, dys, alphas, lower, upper, 1e-2, steps)
-        for i in range(B):
-            assert got[i].tobytes() == clamped_step(jacs[i], dys[i], alphas[i], lower, upper, 1e-2).tobytes()

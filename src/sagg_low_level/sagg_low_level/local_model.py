@@ -125,32 +125,6 @@ def pseudo_inverse_step(jac: np.ndarray, dy_next: np.ndarray, rcond: float,
     return pinv(jac, rcond) @ dy_next
 
 
-def pseudo_inverse_steps(jacs: np.ndarray, dys: np.ndarray, rcond: float, damping: float = 0.0) -> np.ndarray:
-    """:func:`pseudo_inverse_step` for a stack of rows, (B, m, n) and (B, m) -> (B, n): one stacked
-    ``numpy.linalg.pinv`` (numpy computes a stack one matrix at a time with the same LAPACK call, so
-    each row equals the single call; test/test_eval_batch.py), or the stacked :func:`damped_steps`.
-
-    Parameters
-    ----------
-    jacs : ndarray, shape (B, m, n)
-        A stack of B local Jacobians.
-    dys : ndarray, shape (B, m)
-        The desired effector displacement of each row.
-    rcond : float
-        Relative singular-value cut-off of J⁺ (``pinv_rcond``); unused when ``damping`` > 0.
-    damping : float, optional
-        λ of the damped steps (0: the paper's J⁺).
-
-    Returns
-    -------
-    ndarray, shape (B, n)
-        The joint displacement Δα of each row.
-    """
-    if damping:
-        return damped_steps(jacs, dys, damping)
-    return (np.linalg.pinv(jacs, rcond=rcond) @ dys[:, :, None])[:, :, 0]
-
-
 def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower: np.ndarray,
                  upper: np.ndarray, rcond: float, damping: float = 0.0) -> np.ndarray:
     """Pseudo-inverse step that respects joint limits by clamping and re-solving (the "joint
@@ -208,8 +182,8 @@ def clamped_step(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
 
 def clamp_rounds(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower: np.ndarray,
                  upper: np.ndarray) -> Generator[tuple[np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
-    """The rounds of :func:`clamped_step` as a coroutine, so that many rows can share their solves
-    (:func:`clamped_steps`): yields ``(cols, target)`` (the free joints' columns of J and the
+    """The rounds of :func:`clamped_step` as a coroutine (the solve of each round is the caller's):
+    yields ``(cols, target)`` (the free joints' columns of J and the
     displacement they must produce), receives ``J_free⁺ · target``, returns Δα.
 
     Parameters
@@ -263,66 +237,6 @@ def clamp_rounds(jac: np.ndarray, dy_next: np.ndarray, alpha: np.ndarray, lower:
         idx = free.nonzero()[0]
         a, lo, up = alpha[idx], lower[idx], upper[idx]
     return dalpha
-
-
-def clamped_steps(jacs: np.ndarray, dys: np.ndarray, alphas: np.ndarray, lower: np.ndarray,
-                  upper: np.ndarray, rcond: float, steps: np.ndarray, damping: float = 0.0) -> np.ndarray:
-    """``clamped_step(jacs[i], dys[i], alphas[i], lower, upper, rcond, damping)`` for every row i, bit
-    for bit, given ``steps[i]``, its first round (``J_i⁺ · dys[i]`` from one stacked
-    ``numpy.linalg.pinv``, or the stacked :func:`damped_steps`).
-    Rows whose first step stays within the limits keep it; the others run :func:`clamp_rounds`
-    together, each round's solves as one stacked ``numpy.linalg.pinv`` per number of free joints
-    (numpy solves a stack one matrix at a time with the same LAPACK call as :func:`pinv`; tested in
-    test/test_local_model_pinv.py), or with ``damping`` one stacked :func:`damped_steps` (a row gives
-    the same floats in any stack).
-
-    Parameters
-    ----------
-    jacs : ndarray, shape (B, m, n)
-        A stack of B local Jacobians; m = task dimensions, n = joints.
-    dys : ndarray, shape (B, m)
-        The desired effector displacement of each row.
-    alphas : ndarray, shape (B, n)
-        The current joint posture of each row.
-    lower, upper : ndarray, shape (n,)
-        Joint limits, shared by every row.
-    rcond : float
-        Relative singular-value cut-off of J⁺ (``pinv_rcond``); unused when ``damping`` > 0.
-    steps : array_like, shape (B, n)
-        The first round of each row (not modified).
-    damping : float, optional
-        λ of the damped solves (0: the paper's J⁺).
-
-    Returns
-    -------
-    ndarray, shape (B, n)
-        The joint displacement Δα of each row (a new array).
-    """
-    out = np.array(steps, dtype=float)
-    new = alphas + out
-    rows = np.flatnonzero(((new > upper) | (new < lower)).any(axis=1))
-    live, answer = {}, {}
-    for i in rows.tolist():
-        live[i] = clamp_rounds(jacs[i], dys[i], alphas[i], lower, upper)
-        next(live[i])
-        answer[i] = out[i]
-    while live:
-        asks: dict[int, list[tuple[int, np.ndarray, np.ndarray]]] = {}
-        for i in list(live):
-            try:
-                cols, target = live[i].send(answer[i])
-            except StopIteration as done:
-                out[i] = done.value
-                del live[i]
-                continue
-            asks.setdefault(cols.shape[1], []).append((i, cols, target))
-        for group in asks.values():
-            cols = np.stack([c for _, c, _ in group])
-            targets = np.stack([t for _, _, t in group])
-            solved = pseudo_inverse_steps(cols, targets, rcond, damping)
-            for (i, _, _), s in zip(group, solved):
-                answer[i] = s
-    return out
 
 
 def norm(x: np.ndarray) -> float:
