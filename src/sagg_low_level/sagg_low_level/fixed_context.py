@@ -31,7 +31,7 @@ from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import choice_index, stream, uniform_in
 from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 
-from .learner import EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, Report
+from .learner import EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, ReportSource
 from .compiled import jacobian, pinv_step
 from .memory import SampleTable
 from .memory_distance import squared_distances
@@ -330,7 +330,7 @@ class _Attempt:
             self.best_y, self.best_c, self.d_best = y, c, d
 
 
-class FixedContextLearner:
+class FixedContextLearner(ReportSource):
     """Goal-directed optimisation of synergies with a fixed context (Alg. 1 + Alg. 4) and the
     ACTUATOR-RANDOM / ACTUATOR-RIAC baselines over θ."""
 
@@ -368,13 +368,11 @@ class FixedContextLearner:
         self.experiments = 0       # stored experiments (with an outcome): the learning clock
         self.trials = 0            # every executed experiment, discarded ones included
         self.discarded = 0         # experiments without an outcome (not stored)
-        self.reports_sent = 0
+        self._init_reports()
         self.goals_done = 0
         self.exploration_phases = 0
         self.goals_reached = 0     # goals whose best outcome reached them (C > ε_sim)
         self.goals_blocked = 0     # goals not reached and stopped by the blocking test (blocking_w)
-        self.last_competence = float("nan")
-        self.on_report: Callable[[Report], None] | None = None
         self.on_sample: Callable[[int], None] | None = None
         self.riac_tree: RegionTree | None = None
 
@@ -468,13 +466,8 @@ class FixedContextLearner:
 
     # ------------------------------------------------------------- helpers
     def _report(self, kind, goal_seq, target, comp, y) -> None:
-        self.reports_sent += 1
-        if kind == KIND_GOAL:
-            self.last_competence = comp
-        if self.on_report is not None:
-            self.on_report(Report(self.reports_sent, goal_seq, kind, np.array(target, dtype=float),
-                                  np.array(y, dtype=float), self.y_rest.copy(), float(comp),
-                                  self.experiments))
+        self._emit_report(kind, goal_seq, target, np.array(y, dtype=float), self.y_rest.copy(), comp,
+                          self.experiments)
 
     def _execute(self, theta, kind: str) -> Generator:
         """Run one experiment, store it when it has an outcome. Returns y or None."""

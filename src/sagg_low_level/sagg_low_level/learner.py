@@ -223,6 +223,33 @@ class Report:
     micro_actions: int
 
 
+class ReportSource:
+    """What both learners (:class:`EvolvingContextLearner`, and the fixed context's
+    ``FixedContextLearner``) share for their competence reports (Alg. 1: one report per attempt):
+    reports numbered from 1 (``reports_sent``), the competence of the last goal or subgoal
+    (``last_competence``, for the status), each report handed to ``on_report``."""
+
+    reports_sent: int
+    last_competence: float
+    on_report: Callable[[Report], None] | None
+
+    def _init_reports(self) -> None:
+        self.reports_sent = 0
+        self.last_competence = float("nan")
+        self.on_report = None
+
+    def _emit_report(self, kind: int, goal_seq: int, target, reached: np.ndarray, start: np.ndarray, comp: float,
+                     count: int) -> None:
+        """Number and hand on one report (``reached`` and ``start`` as the report keeps them;
+        ``count``: micro-actions, or experiments in the fixed context, so far)."""
+        self.reports_sent += 1
+        if kind in (KIND_GOAL, KIND_SUBGOAL):
+            self.last_competence = comp
+        if self.on_report is not None:
+            self.on_report(Report(self.reports_sent, goal_seq, kind, np.array(target, dtype=float), reached, start,
+                                  float(comp), count))
+
+
 @dataclass
 class Robot:
     """What the learner knows of the robot: joint order, limits and rest posture."""
@@ -389,7 +416,7 @@ def stepped_move_limit(robot: Robot, max_step: float) -> int:
     return max(50, 4 * math.ceil(span / max_step))
 
 
-class EvolvingContextLearner:
+class EvolvingContextLearner(ReportSource):
     """Low-level goal-directed exploration with evolving context (Alg. 3) + actuator baselines.
 
     Parameters
@@ -441,24 +468,17 @@ class EvolvingContextLearner:
         self.y = np.zeros(self.m)
         self.micro_actions = 0
         self.attempts = 0
-        self.reports_sent = 0
+        self._init_reports()
         self.goals_done = 0
         self.exploration_phases = 0
-        self.last_competence = float("nan")
-        self.on_report: Callable[[Report], None] | None = None
         self.on_sample: Callable[[int], None] | None = None
         self.riac_tree: RegionTree | None = None
         self._riac_table: RiacLeaves | None = None
 
     # ---------------------------------------------------------------- helpers
     def _report(self, kind, goal_seq, target, start, comp) -> None:
-        self.reports_sent += 1
-        if kind in (KIND_GOAL, KIND_SUBGOAL):
-            self.last_competence = comp
-        if self.on_report is not None:
-            self.on_report(Report(self.reports_sent, goal_seq, kind, np.array(target, dtype=float),
-                                  self.y.copy(), np.array(start, dtype=float), float(comp),
-                                  self.micro_actions))
+        self._emit_report(kind, goal_seq, target, self.y.copy(), np.array(start, dtype=float), comp,
+                          self.micro_actions)
 
     def safe_target(self, target: np.ndarray) -> np.ndarray:
         """:func:`safe_target` from the current posture α with ``max_joint_step``: the posture
