@@ -29,6 +29,8 @@ from typing import Callable
 SERVICE, DRIVER, JOINT_STATES, TASK_POINT, REACH, FAULT = ("service", "driver", "joint_states", "task_point",
                                                            "reach", "fault")
 SOURCES = "sources "  # + the topic
+# the reason of the SERVICE hold (on /sagg/status: a run's orchestrator tells a user's pause from a stall by it)
+PAUSED_BY_SERVICE = "paused by the /sagg/pause service"
 # holds that are no fault of the graph (a user's pause, a reach): not reported as a fault on /diagnostics
 NOT_FAULTS = (SERVICE, REACH)
 

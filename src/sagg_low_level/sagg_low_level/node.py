@@ -47,7 +47,7 @@ from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .checkpoint import LearnerCheckpointer
-from .holds import Holds
+from .holds import PAUSED_BY_SERVICE, SERVICE, Holds
 from .rest_return import RestReturn
 from .evaluate import frozen_reach, reach_steps_limit
 from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot
@@ -508,7 +508,7 @@ class LearnerNode(LearnerNodeBase):
         """``/sagg/pause`` (std_srvs/SetBool): true = pause (the micro-action in flight completes and
         is stored; no further command goes out), false = resume."""
         if request.data:
-            self._set_hold("service", "paused by the /sagg/pause service")
+            self._set_hold(SERVICE, PAUSED_BY_SERVICE)
         else:
             self._set_hold("service", None)
         response.success = True

@@ -101,8 +101,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--driver external: also evaluate on the robot every K micro-actions, pausing "
                         "learning (default 0: only at the end)")
     r.add_argument("--stall-timeout", type=float, default=None, metavar="S",
-                   help="give up after S seconds without a new sample (default 600); the progress line "
-                        "shows why the learner holds meanwhile, and the error names it")
+                   help="give up after S seconds without a new sample (default 600; a pause by /sagg/pause "
+                        "never counts); the progress line shows why the learner holds meanwhile, and the "
+                        "error names it")
     r.add_argument("--no-report", action="store_true",
                    help="no report.md / figures (summary.json, the bag and the checkpoints as always)")
     r.add_argument("--driver-timeout", type=float, default=120.0,

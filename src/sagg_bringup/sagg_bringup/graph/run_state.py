@@ -10,6 +10,7 @@ import numpy as np
 from sagg_common.diagnostics import goal_problem, report_problem, sample_problem
 from sagg_common.report_kinds import KIND_GOAL, KIND_NAMES
 from sagg_goal_generator.core import MODE_NAMES
+from sagg_low_level.holds import PAUSED_BY_SERVICE
 
 
 HELD_WIDTH = 72  # characters of the hold reason on the progress line
@@ -142,6 +143,13 @@ class RunState:
     def on_status(self, m) -> bool:
         self.status = _status_dict(m, self.status_rate)
         return True
+
+    def paused_by_user(self) -> bool:
+        """Whether the learner's last status says it waits for the ``/sagg/pause`` service only
+        (a user's pause: no stall, however long; any other hold beside it is one)."""
+        s = self.status
+        return bool(s and s.get("paused") and s.get("pause_reason")
+                    and all(r == PAUSED_BY_SERVICE for r in s["pause_reason"].split("; ")))
 
     def unrecorded(self) -> dict[str, int]:
         """What the learner's last /sagg/status counts as published and the recorder has not taken:

@@ -210,7 +210,8 @@ class GraphSession:
         evaluation on the robot); when it returns True it held the run for a while on purpose (learning
         paused) and the stall clock starts again. GraphError when a node exits before the end (a
         node that exits 0 once the learner is done is fine) or no new sample came for
-        ``stall_timeout`` s (``unit``: what a sample counts; ``stall_detail()``: what the error
+        ``stall_timeout`` s while the learner was not paused by the user (``/sagg/pause``: a pause
+        never ends a run) (``unit``: what a sample counts; ``stall_detail()``: what the error
         adds, e.g. what the driver lacks)."""
         st = self.st
         last_progress = (0, time.perf_counter())
@@ -226,7 +227,7 @@ class GraphSession:
                 continue
             learner_done = st.status is not None and st.status["micro_actions"] >= micro_actions
             self.nodes.check(may_exit=learner_done)
-            if st.samples != last_progress[0]:
+            if st.samples != last_progress[0] or st.paused_by_user():  # (a pause is no stall, however long)
                 last_progress = (st.samples, now)
             elif not learner_done and now - last_progress[1] > stall_timeout:
                 detail = f"; {stall_detail()}" if stall_detail is not None else ""
