@@ -283,3 +283,59 @@ def test_driver_with_only_joint_states_learns_through_its_model(tmp_path):
     lp = yaml.safe_load((out / "params.yaml").read_text())["sagg_learner"]["ros__parameters"]
     assert lp["task_source"] == "model" and lp["task_model"]["file"].endswith("arm6.xml")
     assert jump <= lp["max_joint_step"] + MEASURE_SLACK, jump
+
+
+def test_the_robot_evaluation_has_a_time_bound_per_goal():
+    """A robot that answers slowly and never gets there (a velocity-limited arm with a stuck joint):
+    each goal ends after goal_seconds, its error the last measured distance, counted as timed out;
+    a goal reached in time is not."""
+    import time as clock
+
+    from sagg_bringup.graph.external import RobotEvaluation
+
+    class SlowArm:
+        """Answers each command after 50 ms, its tip moving half the way from where it is toward (1, 1)."""
+        rest_tip = np.zeros(2)
+
+        def __init__(self):
+            self.y = np.zeros(2)
+            self.commands = 0
+
+        def reset(self):
+            self.y = np.zeros(2)
+            return np.zeros(3), self.y.copy()
+
+        def command(self, target):
+            clock.sleep(0.05)
+            self.commands += 1
+            self.y = self.y + 0.5 * (np.ones(2) - self.y)
+            return np.asarray(target, float), self.y.copy()
+
+    class Learner:
+        """A frozen model whose every step asks for another command (reach_frozen's protocol)."""
+
+    arm = SlowArm()
+    ev = RobotEvaluation({"eval.seed": 0}, arm, 2, 0, goals=[[1.0, 1.0], [5.0, 5.0]], goal_seconds=0.4)
+
+    def reach(learner, robot, goal):  # as reach_frozen: reset, then commands until the goal is met
+        robot.reset()
+        y = np.zeros(2)
+        for _ in range(1000):
+            _, y = robot.command(np.zeros(3))
+            if np.linalg.norm(goal - y) < 0.2:
+                break
+        return float(np.linalg.norm(goal - y))
+
+    import sagg_bringup.graph.external as external
+    real = external.reach_frozen
+    external.reach_frozen = reach
+    try:
+        t0 = clock.monotonic()
+        near = ev.reach(Learner(), np.array([1.0, 1.0]))
+        far = ev.reach(Learner(), np.array([5.0, 5.0]))
+        took = clock.monotonic() - t0
+    finally:
+        external.reach_frozen = real
+    assert near < 0.2 and ev.timed_out == 1  # the reachable goal in time, the other cut at 0.4 s
+    assert 0.4 <= took < 1.5  # (the first goal: 3 commands of 50 ms; the second cut after 0.4 s)
+    assert abs(far - float(np.linalg.norm(np.array([5.0, 5.0]) - arm.y))) < 1e-12

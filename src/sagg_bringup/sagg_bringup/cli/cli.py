@@ -100,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--robot-eval-every", type=int, default=0, metavar="K",
                    help="--driver external: also evaluate on the robot every K micro-actions, pausing "
                         "learning (default 0: only at the end)")
+    r.add_argument("--robot-eval-goal-seconds", type=float, default=120.0, metavar="S",
+                   help="--driver external: at most S seconds per test goal on the robot (then its error is "
+                        "the last measured distance, and it is counted as timed out; default 120)")
     r.add_argument("--stall-timeout", type=float, default=None, metavar="S",
                    help="give up after S seconds without a new sample (default 600; a pause by /sagg/pause "
                         "never counts); the progress line shows why the learner holds meanwhile, and the "
@@ -266,6 +269,7 @@ def _run(args) -> int:
                           strategy=args.strategy, eval_every=args.eval_every, overrides=parse_set(args.set),
                           progress=not args.quiet, domain_id=args.domain_id,
                           robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
+                          robot_eval_goal_seconds=args.robot_eval_goal_seconds,
                           driver_timeout=args.driver_timeout, **_run_options(args))
         else:
             s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,

@@ -403,16 +403,50 @@ def spread_points(points: np.ndarray, n: int, seed: int) -> np.ndarray:
     return pts[chosen]
 
 
+class GoalTimeUp(Exception):
+    """A test goal's time on the robot is up (:class:`TimedRobot`)."""
+
+
+class TimedRobot:
+    """A reaching robot whose next command is refused once ``deadline`` (monotonic s) has passed:
+    the evaluation's time bound per goal. A command already sent is always completed (the arm
+    settles); the bound is checked between commands. The last measured task point is kept, the
+    error of a goal whose time ran out."""
+
+    def __init__(self, robot, deadline: float):
+        self.robot, self.deadline = robot, deadline
+        self.y: np.ndarray | None = None
+
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        self._check()
+        alpha, self.y = self.robot.reset()
+        return alpha, self.y
+
+    def command(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._check()
+        alpha, self.y = self.robot.command(target)
+        return alpha, self.y
+
+    def _check(self) -> None:
+        if time.monotonic() > self.deadline:
+            raise GoalTimeUp()
+
+
 class RobotEvaluation:
     """The frozen model reaching test goals from rest on the robot, at the scheduled points
     (``every`` micro-actions, 0 = only at the end) and at the end. Results: ``curve`` (micro-actions,
     the evaluation's metrics of sagg_low_level.eval_metrics: mean, median, share within tolerance,
     mean error per distance-from-base band; the errors of every goal) and the initial error (the
-    empty model does not move the arm: the distance from the measured rest tip to each goal)."""
+    empty model does not move the arm: the distance from the measured rest tip to each goal). Each
+    goal has at most ``goal_seconds`` s on the robot (:class:`TimedRobot`): then its error is the
+    distance of the last measured task point, and it is counted (``timed_out``), so an evaluation
+    ends whatever the arm does."""
 
     def __init__(self, learner_params: dict, robot: ContractRobot, n_goals: int, every: int, goals=None,
-                 base=None):
+                 base=None, goal_seconds: float = 120.0):
         self.lp, self.robot, self.n_goals, self.every = learner_params, robot, n_goals, every
+        self.goal_seconds = goal_seconds
+        self.timed_out = 0  # goals whose time ran out
         self.base = base  # the arm's base in Y (the metric bands; None: the origin)
         self.goals = None if goals is None else np.asarray(goals, float)
         self.goal_source = "the simulated model's test goals" if goals is not None else None
@@ -448,7 +482,7 @@ class RobotEvaluation:
         learner = self.learner(alpha[:at], dalpha[:at], dy[:at])
         errors, rest = [], []
         for g in self.goals:
-            errors.append(reach_frozen(learner, self.robot, g))
+            errors.append(self.reach(learner, g))
             rest.append(float(np.linalg.norm(g - self.robot.rest_tip)))
         self.seconds += time.perf_counter() - t0
         errors = np.array(errors)
@@ -458,6 +492,15 @@ class RobotEvaluation:
         self.curve.append({"micro_actions": int(at), **error_metrics(errors, self.frame()),
                            "errors": errors.tolist()})
         return errors
+
+    def reach(self, learner, goal: np.ndarray) -> float:
+        """One test goal reached from rest within ``goal_seconds`` (the final distance)."""
+        timed = TimedRobot(self.robot, time.monotonic() + self.goal_seconds)
+        try:
+            return reach_frozen(learner, timed, goal)
+        except GoalTimeUp:
+            self.timed_out += 1
+            return float(np.linalg.norm(goal - timed.y)) if timed.y is not None else float("nan")
 
     def frame(self) -> dict:
         """The metric frame of the test goals (R, tolerance, distance bands; eval_metrics)."""
@@ -476,6 +519,7 @@ class RobotEvaluation:
                 "band_mean_errors": self.curve[-1]["band_mean_errors"] if self.curve else None,
                 "eval_metrics": None if self.goals is None else frame_summary(self.frame()),
                 "commands": self.robot.commands, "move_steps": self.robot.move_steps,
+                "goal_seconds": self.goal_seconds, "goals_timed_out": self.timed_out,
                 "settle_timeouts": self.robot.timeouts, "seconds": self.seconds}
 
 
@@ -521,11 +565,12 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                        overrides: dict[str, Any] | None = None, progress: bool = True,
                        domain_id: int | None = None, stall_timeout: float = STALL_TIMEOUT, report: bool = True,
                        robot_eval_goals: int = 10, robot_eval_every: int = 0,
-                       driver_timeout: float = 120.0) -> dict:
+                       robot_eval_goal_seconds: float = 120.0, driver_timeout: float = 120.0) -> dict:
     """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
-    if robot_eval_goals < 1 or robot_eval_every < 0:
-        raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every}; "
-                          "allowed: goals >= 1, every >= 0")
+    if robot_eval_goals < 1 or robot_eval_every < 0 or not robot_eval_goal_seconds > 0:
+        raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every} / "
+                          f"--robot-eval-goal-seconds {robot_eval_goal_seconds}; allowed: goals >= 1, every >= 0, "
+                          "seconds > 0")
     plan = plan_arm_run(config_path, micro_actions, out_dir, nodes=EXTERNAL_NODES, eval_every=eval_every,
                         strategy=strategy, seed=seed, overrides=overrides, domain_id=domain_id,
                         node_params=lambda full, spec, ov: external_params(full, micro_actions,
@@ -541,11 +586,13 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     write_run_file(out, setup="arm", driver="external", timing="external driver", domain_id=domain_id,
                    domain_private=False, micro_actions=micro_actions, eval_every=eval_every, config=config_path,
                    overrides=plan.overrides, robot_eval_goals=robot_eval_goals, robot_eval_every=robot_eval_every,
+                   robot_eval_goal_seconds=robot_eval_goal_seconds,
                    driver_timeout=driver_timeout)
     # (the driver's state streams go on after the nodes stop: the final drain does not wait for them)
     session = GraphSession(plan.procs, domain_id, graph_topics(lp), plan.bag_path, out, drain=2000, localhost=False)
     try:
-        robot_run = RobotRun(session, plan, robot_eval_goals, robot_eval_every, simulated, progress)
+        robot_run = RobotRun(session, plan, robot_eval_goals, robot_eval_every, robot_eval_goal_seconds, simulated,
+                             progress)
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, external driver)", enabled=progress)
 
         def body() -> None:
@@ -580,7 +627,8 @@ class RobotRun:
     and every ``every`` micro-actions with learning paused), and, when the config's simulated arm is
     this arm (``simulated``), the offline evaluation of the recorded samples in simulation."""
 
-    def __init__(self, session: GraphSession, plan, n_goals: int, every: int, simulated: bool, progress: bool):
+    def __init__(self, session: GraphSession, plan, n_goals: int, every: int, goal_seconds: float, simulated: bool,
+                 progress: bool):
         # lazy (heavy): mujoco
         from sagg_sim_bridge.arms import arm_base_point, arm_reachable_area, arm_test_goals
         self.session, self.plan, self.progress, self.simulated = session, plan, progress, simulated
@@ -601,7 +649,7 @@ class RobotRun:
         goals = (arm_test_goals(spec, t_lower, t_upper, n=n_goals, seed=lp["eval.seed"], area=self.area)
                  if simulated else None)
         self.robot_eval = RobotEvaluation(lp, self.robot, n_goals, every, goals,
-                                          arm_base_point(spec) if simulated else None)
+                                          arm_base_point(spec) if simulated else None, goal_seconds)
         self.pauser = Pauser(session, self.monitor, lp["settle_timeout"] + 0.5)
         self.driver_wait = float("nan")
 
