@@ -161,7 +161,8 @@ def test_missing_driver_is_named(tmp_path):
 
 
 def test_robot_test_goals_without_a_model_are_spread_over_reached_points():
-    from sagg_bringup.graph.external import spread_points, sim_model_matches
+    from sagg_bringup.graph.external import sim_model_matches
+    from sagg_bringup.graph.robot_eval import spread_points
     pts = np.array([[0.0, 0.0], [0.1, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0], [0.05, 0.02]])
     chosen = spread_points(pts, 4, seed=0)
     # farthest-point selection: the four corners, never two of the clustered points near the origin
@@ -291,7 +292,7 @@ def test_the_robot_evaluation_has_a_time_bound_per_goal():
     a goal reached in time is not."""
     import time as clock
 
-    from sagg_bringup.graph.external import RobotEvaluation
+    from sagg_bringup.graph.robot_eval import RobotEvaluation
 
     class SlowArm:
         """Answers each command after 50 ms, its tip moving half the way from where it is toward (1, 1)."""
@@ -326,16 +327,16 @@ def test_the_robot_evaluation_has_a_time_bound_per_goal():
                 break
         return float(np.linalg.norm(goal - y))
 
-    import sagg_bringup.graph.external as external
-    real = external.reach_frozen
-    external.reach_frozen = reach
+    import sagg_bringup.graph.robot_eval as robot_eval
+    real = robot_eval.reach_frozen
+    robot_eval.reach_frozen = reach
     try:
         t0 = clock.monotonic()
         near = ev.reach(Learner(), np.array([1.0, 1.0]))
         far = ev.reach(Learner(), np.array([5.0, 5.0]))
         took = clock.monotonic() - t0
     finally:
-        external.reach_frozen = real
+        robot_eval.reach_frozen = real
     assert near < 0.2 and ev.timed_out == 1  # the reachable goal in time, the other cut at 0.4 s
     assert 0.4 <= took < 1.5  # (the first goal: 3 commands of 50 ms; the second cut after 0.4 s)
     assert abs(far - float(np.linalg.norm(np.array([5.0, 5.0]) - arm.y))) < 1e-12

@@ -4,7 +4,7 @@ With the learner's parameters of ``CONFIG`` (``joints``, limits, rest posture, c
 topic, ``observation_delay``, ``settle_velocity``; the simulated arm's when the config sets no
 ``joints``), it
 
-1. waits for the contract (:class:`~sagg_bringup.graph.external.DriverMonitor`: ``/joint_states`` and the
+1. waits for the contract (:class:`~sagg_bringup.graph.driver_monitor.DriverMonitor`: ``/joint_states`` and the
    task topic published with the right types and every joint named, a subscriber on the commands);
 2. listens at rest for ``--seconds``: publish rates, the delay between a message's stamp and its
    arrival (same clock assumed), the name mapping (each learner joint's index in the message), and
@@ -31,7 +31,8 @@ from sagg_common.publishers import describe
 from sagg_common.ros_params import HW_DEPTH, reliable
 from sagg_common.sources import with_message_info
 
-from .external import DriverMonitor, explicit_joints, external_params, model_task
+from .driver_monitor import DriverMonitor, model_task
+from .external import explicit_joints, external_params
 from ..inprocess.arm_params import load_graph_config
 
 
