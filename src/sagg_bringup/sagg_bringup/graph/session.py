@@ -12,13 +12,12 @@ from typing import Any, Callable
 import numpy as np
 
 from sagg_common.journal import write_json_atomic
+from sagg_common.params import ConfigError
 from sagg_common.progress import Progress
+from sagg_common.publishers import UNKNOWN_NODE, describe
 from sagg_goal_generator.checkpoint import checkpoint_splits, teacher_snapshot
 
 from .markers import MarkerView  # the live view (/sagg/markers), fed by the same messages
-from sagg_common.params import ConfigError
-from sagg_common.publishers import UNKNOWN_NODE, describe
-
 from .processes import GraphError, NodeGroup, NodeProcess, domain_in_use
 from ..bags.recorder import Acknowledger, BagWriter, TopicRecorder, TopicSpec, both
 from ..inprocess.results import goal_share_stats
