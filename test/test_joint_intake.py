@@ -110,6 +110,6 @@ def test_every_reader_of_joint_states_uses_the_intake():
             readers.append(path.relative_to(ROOT).as_posix())
     assert readers == ["src/sagg_common/sagg_common/joint_intake.py"], readers
     for path in ("src/sagg_low_level/sagg_low_level/node.py", "src/sagg_low_level/sagg_low_level/position_link.py",
-                 "src/sagg_bringup/sagg_bringup/graph/external.py"):
+                 "src/sagg_bringup/sagg_bringup/graph/driver_monitor.py"):
         assert "joint_intake(" in (ROOT / path).read_text(), path
     assert "DriverMonitor(lp" in (ROOT / "src/sagg_bringup/sagg_bringup/graph/check_driver.py").read_text()
