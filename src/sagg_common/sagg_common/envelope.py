@@ -65,6 +65,21 @@ class StampTracker:
         """The latest stamp accepted at ``rx_ns`` (for log lines)."""
         return self.newest + (rx_ns - self.newest_rx) + self.future_ns
 
+    def describe(self, verdict: int, topic: str, stamp: int, rx_ns: int) -> tuple[str, str]:
+        """(field, message) of a verdict other than ACCEPT for a message of ``topic`` stamped
+        ``stamp`` received at ``rx_ns``, as :meth:`check` left the tracker: field ``out_of_order``,
+        ``future_stamp`` or ``clock_jump_back`` (a reader prefixes its stream's name)."""
+        if verdict == OUT_OF_ORDER:
+            return "out_of_order", (f"{topic}: header.stamp {stamp} ns is older than the newest one ({self.newest} "
+                                    f"ns); kept the newest (after {self.resync_after} in a row: a clock jump back)")
+        if verdict == FUTURE:
+            return "future_stamp", (f"{topic}: header.stamp {stamp} ns is in the future of the stream; allowed: <= "
+                                    f"{self.allowed_until(rx_ns)} ns (newest stamp + time since it arrived + "
+                                    "plausibility.future_tolerance); the newest stamp stays")
+        return "clock_jump_back", (f"{topic}: clock jumped back from {self.previous} ns to {stamp} ns "
+                                   f"({self.resync_after} messages in a row older than the newest; driver or "
+                                   "sim-time restart?): re-synchronised on the new stamps")
+
 
 class RejectRun:
     """Implausible readings in a row of one stream; ``hit`` is True once ``limit`` are reached."""

@@ -128,26 +128,19 @@ class JointStateIntake:
             if source != SOURCE_ACCEPT:
                 return _AMBIGUOUS if source == SOURCE_AMBIGUOUS else _GAP
         st = self._stamp
-        stamp = self.track.check(st, time.monotonic_ns())
+        rx_ns = time.monotonic_ns()
+        stamp = self.track.check(st, rx_ns)
         if stamp != ACCEPT:
-            if stamp == OUT_OF_ORDER:
-                return Verdict(OUT_OF_ORDER_STAMP, "joint_states.out_of_order",
-                               f"{TOPIC}: header.stamp {st} ns is older than the newest one ({self.track.newest} "
-                               f"ns); kept the newest (after {self.track.resync_after} in a row: a clock jump back)")
-            if stamp == FUTURE:
-                return Verdict(FUTURE_STAMP, "joint_states.future_stamp",
-                               f"{TOPIC}: header.stamp {st} ns is in the future of the stream; allowed: <= "
-                               f"{self.track.allowed_until(time.monotonic_ns())} ns (newest stamp + time since "
-                               "it arrived + plausibility.future_tolerance); the newest stamp stays")
+            field, message = self.track.describe(stamp, TOPIC, st, rx_ns)
+            if stamp in (OUT_OF_ORDER, FUTURE):
+                return Verdict(OUT_OF_ORDER_STAMP if stamp == OUT_OF_ORDER else FUTURE_STAMP,
+                               f"joint_states.{field}", message)
         self.position, self.velocity, self.stamp = self._alpha, self._vel, st
         v = self._vel
         sv = self.settle_velocity
         self.settled = v is None or bool(-sv < v.min() and v.max() < sv)
         if stamp != ACCEPT:  # (RESYNC: taken)
-            return Verdict(TAKEN, "joint_states.clock_jump_back",
-                           f"{TOPIC}: clock jumped back from {self.track.previous} ns to {st} ns "
-                           f"({self.track.resync_after} messages in a row older than the newest; driver or "
-                           "sim-time restart?): re-synchronised on the new stamps")
+            return Verdict(TAKEN, f"joint_states.{field}", message)
         return _TAKEN
 
     def _content(self, data: bytes) -> Verdict | None:

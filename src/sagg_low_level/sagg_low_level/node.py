@@ -296,24 +296,11 @@ class LearnerNode(LearnerNodeBase):
         """A task point's stamp that was not simply accepted: False (rejected: logged, counted) for
         one out of order or in the future; True for a clock jump back (logged; the stream is
         re-synchronised)."""
-        track = self.tip_track
-        if verdict == OUT_OF_ORDER:
-            self.guard.reject("task_point.out_of_order",
-                              f"{topic}: header.stamp {st} ns is older than the newest one ({track.newest} "
-                              f"ns); kept the newest (after {track.resync_after} in a row: a clock jump back)")
-            return False
+        field, message = self.tip_track.describe(verdict, topic, st, time.monotonic_ns())
+        self.guard.reject(f"task_point.{field}", message)
         if verdict == FUTURE:
-            self.guard.reject("task_point.future_stamp",
-                              f"{topic}: header.stamp {st} ns is in the future of the stream; allowed: <= "
-                              f"{track.allowed_until(time.monotonic_ns())} ns (newest stamp + time since it "
-                              f"arrived + plausibility.future_tolerance); the newest stamp stays")
             self.tip_run.reject()
-            return False
-        self.guard.reject("task_point.clock_jump_back",
-                          f"{topic}: clock jumped back from {track.previous} ns to {st} ns ({track.resync_after} "
-                          "messages in a row older than the newest; driver or sim-time restart?): "
-                          "re-synchronised on the new stamps")
-        return True
+        return verdict not in (OUT_OF_ORDER, FUTURE)
 
     def on_task_point(self, data: bytes, info: dict = sources.NO_INFO) -> None:
         """A task point: decoded, checked (finite, within Y enlarged by ``plausibility.task_margin``),
