@@ -16,6 +16,8 @@ key                     set when                                               r
 ``sources <topic>``     a second source sends what the learner uses            one source quiet for
                                                                                ``plausibility.source_grace`` s
                                                                                and a message of the other taken
+``follow``              the arm does not follow its setpoints for              a probe setpoint moved it
+                        ``follow_timeout`` s (protective stop, e-stop)         (every ``follow_retry`` s)
 ``reach``               a ``/sagg/reach`` goal waits or is being reached       the last queued reach is over
 ``fault``               the learner produced an invalid command                never (a bug: see /diagnostics)
 ======================  =====================================================  ================================
@@ -28,6 +30,8 @@ from typing import Callable
 
 SERVICE, DRIVER, JOINT_STATES, TASK_POINT, REACH, FAULT = ("service", "driver", "joint_states", "task_point",
                                                            "reach", "fault")
+FOLLOW = "follow"
+
 SOURCES = "sources "  # + the topic
 # the reason of the SERVICE hold (on /sagg/status: a run's orchestrator tells a user's pause from a stall by it)
 PAUSED_BY_SERVICE = "paused by the /sagg/pause service"

@@ -32,6 +32,7 @@ import numpy as np
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, UInt64
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from std_srvs.srv import SetBool
 
 from sagg_common.cdr import decode_point_stamped, encode_f64_array
@@ -47,11 +48,12 @@ from sagg_common.report_kinds import KIND_EXPLORATION
 from sagg_msgs.srv import NextGoal
 
 from .checkpoint import LearnerCheckpointer
-from .holds import PAUSED_BY_SERVICE, SERVICE, Holds
+from .holds import FOLLOW, PAUSED_BY_SERVICE, SERVICE, Holds
 from .rest_return import RestReturn
 from .evaluate import frozen_reach, reach_steps_limit
 from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot
 from .memory import SampleMemory
+from .motion import RESUMED, SEND, SETTLE, STOPPED as NOT_FOLLOWING, MoveStream, velocity_limits
 from .reach_server import ACTION, ReachJob, ReachServer
 from .recorder_acks import RecorderAcks
 from .node_base import NODE_NAME, LearnerNodeBase
@@ -192,6 +194,7 @@ class LearnerNode(LearnerNodeBase):
         self.rest_return = p["rest_return"]
         self.rest_moves = RestReturn(self.robot, self.learner.p, self.get_logger().warning)
         self._cmd_subs = (-1, None)  # (subscriber count, only the simulator listens) of the commands topic
+        self._init_motion(p)
         self.create_service(SetBool, "/sagg/pause", self.on_pause)
         # backpressure: a recorder's acknowledgements (recorder_max_lag)
         self.rec_max_lag = p["recorder_max_lag"]
@@ -204,6 +207,35 @@ class LearnerNode(LearnerNodeBase):
         self.samples_published = 0  # samples published (index of the last one + 1)
         self.rec_sub = self.create_subscription(UInt64, "/sagg/recorded", sources.with_message_info(self.on_recorded),
                                                 reliable(10))
+
+    def _init_motion(self, p: dict) -> None:
+        """How a move reaches the arm (:mod:`.motion`): streamed setpoints or a trajectory within the
+        scaled velocity limits, watched for following; without limits, one setpoint per move."""
+        model = p["task_model.file"]
+        if model:
+            model = os.path.normpath(os.path.join(params_dir() or os.getcwd(), model))
+        vmax, source = velocity_limits(p, self.robot.joint_names, model)
+        self.trajectory = p["command_interface"] == "trajectory"
+        self.traj_pub = None
+        if self.trajectory:
+            if vmax is None:
+                raise ConfigError("parameter 'command_interface': 'trajectory' needs velocity limits for its timing; "
+                                  f"{source}: give joint_velocity_limits")
+            self.traj_topic = f"/{p['controller'].strip('/')}/joint_trajectory"
+            self.traj_pub = self.create_publisher(JointTrajectory, self.traj_topic, reliable(HW_DEPTH))
+            self.published[self.traj_topic] = 0
+        self.stream = None if vmax is None else MoveStream(
+            vmax, p["command_rate"], self.trajectory, self.learner.p["max_joint_step"], p["settle_tolerance"],
+            p["follow_timeout"], p["follow_retry"], p["probe_step"], self.robot.lower, self.robot.upper)
+        self.streamed = False  # the command in flight is a streamed move
+        if vmax is None:
+            self.get_logger().warning(f"joint velocity limits: {source}: every move goes out as one setpoint "
+                                      "(fine for the simulator; a real arm needs joint_velocity_limits)")
+        else:
+            how = (f"as trajectories on {self.traj_topic}" if self.trajectory
+                   else f"streamed at {p['command_rate']:g} Hz")
+            self.get_logger().info(f"moves {how} within {[round(v, 3) for v in vmax.tolist()]} rad/s ({source})")
+            self.create_timer(1.0 / p["command_rate"], self.on_stream_tick)
 
     def _init_learning(self, p: dict) -> None:
         """The coroutine (STARTING), its outbox and checkpoints, the reach server, the timers."""
@@ -397,7 +429,13 @@ class LearnerNode(LearnerNodeBase):
     def _try_answer_command(self, timed_out: bool) -> None:
         if not (self.js_fresh and self.tip_fresh):
             return
-        if not self.js_settled and not timed_out:
+        if self.streamed:
+            if self.stream.busy:
+                return  # (setpoints still to go, or the arm stopped)
+            if not timed_out and not self._settled_at(self.stream.target):
+                return
+            self.stream.done()
+        elif not self.js_settled and not timed_out:
             return
         if not self.rest_moves.final:  # a step of the return to rest: the next one, from the measured posture
             self.state = None
@@ -405,6 +443,13 @@ class LearnerNode(LearnerNodeBase):
             return
         self.rest_moves.answered()
         self.advance((self.js_alpha, self.tip))
+
+    def _settled_at(self, target: np.ndarray) -> bool:
+        """A streamed move's end: settled by the velocities when the driver publishes them, else
+        by position (every joint within ``settle_tolerance`` of the last setpoint)."""
+        if self.js_intake.velocity is not None:
+            return self.js_settled
+        return float(np.abs(self.js_alpha - target).max()) <= self.params["settle_tolerance"]
 
     # ------------------------------------------------------------------ coroutine driving
     def on_poll(self) -> None:
@@ -433,6 +478,8 @@ class LearnerNode(LearnerNodeBase):
         elif self.state is self.RUNNING_GOAL:
             self._retry_goal_request()
         elif self.state is self.RUNNING_COMMAND and time.monotonic() - self.cmd_time > self.settle_timeout:
+            if self.streamed:
+                self.stream.done()  # (settle_timeout runs from the last setpoint: the move is over)
             if self.js_fresh and self.tip_fresh:
                 self.get_logger().warning(
                     f"no settled observation {self.settle_timeout} s after a command: taking the "
@@ -531,6 +578,8 @@ class LearnerNode(LearnerNodeBase):
                                        "a task point (from the joint states through task_model.file) within Y",
                                        self.tip)) if v is None]
             return self._waiting_for(" and ".join(missing))
+        if self.trajectory:
+            return self._peers_ready(self.traj_pub, self.traj_topic, match_reports=True)
         return self._peers_ready(self.cmd_pub, self.cmd_topic, match_reports=True)
 
     def advance(self, answer) -> None:
@@ -601,18 +650,82 @@ class LearnerNode(LearnerNodeBase):
             self.pending, self.state = req, self.PAUSED
             return
         self.pending = req  # (a stepped return to rest sends it again until the rest is reached)
-        data = encode_f64_array(target)
-        self.js_min = self.js_stamp + self.delay_ns
-        self.tip_min = self.tip_stamp + self.delay_ns
-        self.js_fresh = self.tip_fresh = False
         self.state = self.RUNNING_COMMAND
-        self.cmd_time = time.monotonic()
-        self.cmd_pub.publish(data)
-        self.published[self.cmd_topic] += 1
+        self.streamed = self.stream is not None and not self._sim_only()
+        if self.streamed:  # (the answer waits for the last setpoint: on_stream_tick)
+            self.cmd_time = math.inf
+            self.js_fresh = self.tip_fresh = False
+            self.stream.begin(self.js_alpha, target, time.monotonic())
+            if self.trajectory:
+                self._publish_trajectory(self.js_alpha, target, self.stream.duration)
+        else:
+            self._await_answer()
+            self._publish_setpoint(target)
         # while the driver works: publish the queued reports/samples in bursts
         if self.outbox and (len(self.outbox) >= self.publish_batch
                             or self.cmd_time - self.last_flush >= self.publish_period):
             self.flush()
+
+    def _await_answer(self) -> None:
+        """The last setpoint of the command goes out now: its answer is the first observation
+        stamped after it (``observation_delay``) that is settled, or the latest after ``settle_timeout``."""
+        self.js_min = self.js_stamp + self.delay_ns
+        self.tip_min = self.tip_stamp + self.delay_ns
+        self.js_fresh = self.tip_fresh = False
+        self.cmd_time = time.monotonic()
+
+    def _publish_setpoint(self, target: np.ndarray) -> None:
+        self.cmd_pub.publish(encode_f64_array(target))
+        self.published[self.cmd_topic] += 1
+
+    def _publish_trajectory(self, start: np.ndarray, target: np.ndarray, duration: float) -> None:
+        """One JointTrajectory from ``start`` (now) to ``target`` in ``duration`` s (the velocity limits)."""
+        msg = JointTrajectory()
+        msg.joint_names = list(self.robot.joint_names)
+        points = []
+        for t, q in ((0.0, start), (max(duration, 1.0 / self.params["command_rate"]), target)):
+            pt = JointTrajectoryPoint()
+            pt.positions = [float(v) for v in q]
+            pt.velocities = [0.0] * len(q)
+            pt.time_from_start.sec, pt.time_from_start.nanosec = int(t), int(round((t - int(t)) * 1e9))
+            points.append(pt)
+        msg.points = points
+        self.traj_pub.publish(msg)
+        self.published[self.traj_topic] += 1
+
+    def on_stream_tick(self) -> None:
+        """At ``command_rate``: the streamed move in flight steps on (:class:`.motion.MoveStream`):
+        the next setpoint; the wait for the settled end; a hold when the arm does not follow
+        (``follow``), probes, and the move again once the arm follows."""
+        stream = self.stream
+        if not self.streamed or stream.phase is None or self.state is not self.RUNNING_COMMAND:
+            return
+        was = stream.phase
+        what, setpoint = stream.tick(self.js_alpha, time.monotonic())
+        if what == SEND:
+            if was in (stream.STOPPED, stream.PROBING):  # a probe
+                self.get_logger().info(f"probing whether the arm follows: one setpoint {self.params['probe_step']:g} "
+                                       "rad toward the stopped move's target", throttle_duration_sec=30.0)
+                if self.trajectory:
+                    self._publish_trajectory(self.js_alpha, setpoint,
+                                             float(np.max(np.abs(setpoint - self.js_alpha) / stream.vmax)))
+                    return
+            self._publish_setpoint(setpoint)
+            if stream.phase is stream.SETTLING:
+                self._await_answer()
+        elif what == SETTLE:  # (a trajectory's time is over)
+            self._await_answer()
+        elif what == NOT_FOLLOWING:
+            j, lag = stream.watch.lag(self.js_alpha, stream.sent)
+            self._set_hold(FOLLOW, f"the arm does not follow its setpoints (protective stop or e-stop?): "
+                                   f"{self.robot.joint_names[j]} {lag:.3f} rad from its setpoint, no motion for "
+                                   f"follow_timeout ({self.params['follow_timeout']:g} s); probing every "
+                                   f"follow_retry ({self.params['follow_retry']:g} s)")
+        elif what == RESUMED:
+            self._set_hold(FOLLOW, None)
+            stream.begin(self.js_alpha, stream.target, time.monotonic())
+            if self.trajectory:
+                self._publish_trajectory(self.js_alpha, stream.target, stream.duration)
 
     def _request_goal(self, req: GoalRequest) -> None:
         """GOAL: ``/sagg/next_goal`` is asked (answered in :meth:`on_goal`, asked again after ``goal_retry`` s)."""
@@ -787,21 +900,31 @@ class LearnerNode(LearnerNodeBase):
         return target
 
     def _direct_rest(self) -> bool:
-        """``rest_return`` 'direct' applies: the commands topic is listened to by the simulated
-        bridge and otherwise only by sagg's recorders (re-read when its subscriber count changes).
-        Anything else (a real driver) gets the stepped return, logged once."""
+        """``rest_return`` 'direct' applies: only the simulator listens (:meth:`_sim_only`).
+        Anything else (a real driver) gets the stepped return, logged once per change of listeners."""
         if self.rest_return != "direct":
+            return False
+        before = self._cmd_subs
+        ok = self._sim_only()
+        if not ok and self._cmd_subs != before:
+            others = [i for i in self.get_subscriptions_info_by_topic(self.cmd_topic)
+                      if i.node_name not in (SIM_BRIDGE,) + RECORDERS]
+            self.get_logger().warning(
+                f"rest_return 'direct' ignored: {self.cmd_topic} is subscribed by "
+                f"{'; '.join(describe(i) for i in others) or 'no simulator'}, not only the simulator: returning "
+                "to rest in steps of max_joint_step")
+        return ok
+
+    def _sim_only(self) -> bool:
+        """The commands topic is listened to by the simulated bridge and otherwise only by sagg's
+        recorders (re-read when its subscriber count changes): it gets a move as one setpoint."""
+        if self.trajectory:
             return False
         n = self.cmd_pub.get_subscription_count()
         if n != self._cmd_subs[0]:
             infos = self.get_subscriptions_info_by_topic(self.cmd_topic)
             others = [i for i in infos if i.node_name not in (SIM_BRIDGE,) + RECORDERS]
             ok = any(i.node_name == SIM_BRIDGE for i in infos) and not others
-            if others and self._cmd_subs[1] is not False:
-                self.get_logger().warning(
-                    f"rest_return 'direct' ignored: {self.cmd_topic} is subscribed by "
-                    f"{'; '.join(describe(i) for i in others)}, not only the simulator: returning to rest "
-                    "in steps of max_joint_step")
             unknown = any(i.node_name == UNKNOWN_NODE for i in infos)
             self._cmd_subs = (-1 if unknown else n, ok)
         return self._cmd_subs[1]

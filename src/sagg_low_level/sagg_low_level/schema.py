@@ -58,6 +58,43 @@ LEARNER_NODE_SCHEMA: Schema = (
           "before the command by more than this (s). 0 for a lockstep bridge; about two publish "
           "periods for real-time drivers, so that a state sampled before the command arrived is "
           "not taken for the settled result.", low=0.0, high=3600.0),
+    # how a move reaches the arm (motion.py; docs/safety.md)
+    Param("command_interface", "str", "position",
+          "How a move is sent: 'position' = setpoints (std_msgs/Float64MultiArray on "
+          "/<controller>/commands, a forward position controller) streamed at command_rate along the "
+          "straight joint-space line within the velocity limits; 'trajectory' = one "
+          "trajectory_msgs/JointTrajectory on /<controller>/joint_trajectory (a joint_trajectory_controller) "
+          "whose time_from_start comes from the same limits. The simulated bridge, when it alone listens, "
+          "gets each move as one setpoint (it simulates the servo itself).", choices=("position", "trajectory")),
+    Param("command_rate", "float", 50.0,
+          "Setpoints per second of a streamed move (command_interface 'position'). Our choice: 50 Hz, "
+          "finer than a micro-action's motion and well under a ros2_control loop's 100-1000 Hz.",
+          low=0.0, high=10000.0, low_open=True),
+    Param("joint_velocity_limits", "float_list", [0.0],
+          "Velocity limit of each joint (rad/s, m/s for a slide joint), in the order of 'joints'. [0.0] = "
+          "from the model: the URDF's <limit velocity> (an MJCF has none: give them here). Without any, "
+          "a move is one setpoint (said at start): give them for a real arm."),
+    Param("velocity_scale", "float", 0.5,
+          "The fraction of the velocity limits a move may use. Our choice: 0.5, the usual first-run "
+          "speed of an arm beside people and furniture; lower it for a first run.",
+          low=0.0, high=1.0, low_open=True),
+    Param("settle_tolerance", "float", 0.01,
+          "rad: a streamed move is settled when every joint is within this of the last setpoint, if the "
+          "driver publishes no velocities (with velocities: settle_velocity); also the motion that "
+          "counts as following (follow_timeout).", low=0.0, high=10.0, low_open=True),
+    Param("follow_timeout", "float", 1.0,
+          "Seconds without progress toward the setpoints (no joint moved by settle_tolerance and the "
+          "arm farther than settle_tolerance from its setpoint) after which the arm is taken as stopped "
+          "(protective stop, e-stop): the learner stops commanding and holds, named ('follow').",
+          low=0.0, high=3600.0, low_open=True),
+    Param("follow_retry", "float", 5.0,
+          "While the arm does not follow: every this many seconds one probe setpoint (probe_step) is "
+          "sent; when the arm follows it, the move goes on from the measured posture and learning "
+          "resumes by itself. Our choice: above the 3 s many safety controllers ignore commands after "
+          "a protective stop.", low=0.0, high=3600.0, low_open=True),
+    Param("probe_step", "float", 0.02,
+          "rad: the largest joint motion of a probe setpoint (follow_retry), toward the stopped move's "
+          "target.", low=0.0, high=1.0, low_open=True),
     Param("max_micro_actions", "int", 0,
           "Stop acting after this many micro-actions (0 = unlimited).", low=0),
     Param("frozen_memory", "str", "",
