@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Generator
+from typing import Callable, Generator, Protocol
 
 import numpy as np
 
@@ -184,6 +184,13 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
           "Evaluation stops early when the effector is this close to the test goal (task units).",
           low=0.0, high=1e9),
 )
+
+
+class MoveCheck(Protocol):
+    """What the learner asks of a scene (:class:`sagg_common.scene.SceneChecker`): the refusal of
+    the joint-space segment between two postures (an object with ``cause`` and ``detail``), or None."""
+
+    def segment(self, alpha0: np.ndarray, alpha1: np.ndarray): ...
 
 
 # --------------------------------------------------------------------------- coroutine protocol
@@ -474,6 +481,11 @@ class EvolvingContextLearner(ReportSource):
         self.on_sample: Callable[[int], None] | None = None
         self.riac_tree: RegionTree | None = None
         self._riac_table: RiacLeaves | None = None
+        # the scene (sagg_common.scene): every micro-action's joint-space segment is checked before
+        # it is requested; a refused one is not sent (counted per cause: ``refused``)
+        self.scene: MoveCheck | None = None
+        self.refused: dict[str, int] = {}
+        self.on_refusal: Callable[[object], None] | None = None
 
     # ---------------------------------------------------------------- helpers
     def _report(self, kind, goal_seq, target, start, comp) -> None:
@@ -497,9 +509,14 @@ class EvolvingContextLearner(ReportSource):
         return safe_target(self.alpha, target, self.p["max_joint_step"], self.robot)
 
     def _act(self, target: np.ndarray, kind: str) -> Generator:
-        """Execute one micro-action and store the sample (α, Δα, Δy). Returns Δy."""
+        """Execute one micro-action and store the sample (α, Δα, Δy). Returns Δy, or None when
+        the scene refuses the move (:meth:`refuses`): nothing is sent, nothing stored, and the
+        caller counts it as a failed move and picks another."""
         alpha0, y0 = self.alpha, self.y
-        alpha1, y1 = yield Command(self.safe_target(target), kind)
+        command = self.safe_target(target)
+        if self.scene is not None and self.refuses(alpha0, command):
+            return None
+        alpha1, y1 = yield Command(command, kind)
         alpha1 = np.asarray(alpha1, dtype=float)
         y1 = np.asarray(y1, dtype=float)
         dy = y1 - y0
@@ -509,6 +526,29 @@ class EvolvingContextLearner(ReportSource):
         if self.on_sample is not None:
             self.on_sample(idx)
         return dy
+
+    def refuses(self, alpha0: np.ndarray, alpha1: np.ndarray) -> bool:
+        """Whether the scene refuses the joint-space segment ``alpha0`` -> ``alpha1`` (a
+        collision with itself, the floor or a box on the way or at the end): counted per cause in
+        :attr:`refused`, handed to ``on_refusal``.
+
+        Parameters
+        ----------
+        alpha0, alpha1 : ndarray, shape (n,)
+            The current posture and the one to command.
+
+        Returns
+        -------
+        bool
+            True: the move must not be sent.
+        """
+        refusal = self.scene.segment(alpha0, alpha1)
+        if refusal is None:
+            return False
+        self.refused[refusal.cause] = self.refused.get(refusal.cause, 0) + 1
+        if self.on_refusal is not None:
+            self.on_refusal(refusal)
+        return True
 
     def _reset(self) -> Generator:
         alpha, y = yield Command(self.robot.rest.copy(), "reset")
@@ -690,6 +730,10 @@ class EvolvingContextLearner(ReportSource):
         self.alpha = np.asarray(alpha, dtype=float)
         self.y = np.asarray(y, dtype=float)
         if self.strategy in GOAL_STRATEGIES:
+            if self.micro_actions and self.attempts % self.p["reset_every"]:
+                # a resumed learner: its first motion is the return to rest from the posture measured
+                # now (its first attempt would not start with one)
+                yield from self._reset()
             while True:
                 yield from self._sagg_attempt()
         else:
@@ -701,9 +745,9 @@ class EvolvingContextLearner(ReportSource):
         (the distance timeout's counter, Sec. 3.6.2). Returns the number of micro-actions done."""
         self.exploration_phases += 1
         n = self.p["q"] if budget_left is None else max(0, min(self.p["q"], budget_left))
-        for _ in range(n):
-            yield from self._act(self.alpha + self._random_step(), "explore")
-            self._report(KIND_EXPLORATION, goal_seq, self.y, self.y, 0.0)
+        for _ in range(n):  # (a move the scene refuses counts as one of the q: the next one is another)
+            if (yield from self._act(self.alpha + self._random_step(), "explore")) is not None:
+                self._report(KIND_EXPLORATION, goal_seq, self.y, self.y, 0.0)
         return n
 
     def _sagg_attempt(self) -> Generator:
@@ -743,9 +787,10 @@ class EvolvingContextLearner(ReportSource):
                         a = self.p["reach_noise"]
                         dalpha = dalpha + self.rng.uniform(-a, a, self.robot.n)
                     dy = yield from self._act(self.alpha + dalpha, "reach")
-                    used += 1
-                    self._report(KIND_REACHED, goal_seq, self.y, self.y, 0.0)
-                    need_explore = norm(dy - aim) > self.eps_max
+                    used += 1  # (refused by the scene: a failed move, exploration picks others)
+                    if dy is not None:
+                        self._report(KIND_REACHED, goal_seq, self.y, self.y, 0.0)
+                    need_explore = dy is None or norm(dy - aim) > self.eps_max
                 if need_explore:
                     # the timeout counter runs through both phases (Sec. 3.6.2); with
                     # exploration_respects_timeout it may cut the phase short, and a phase that
@@ -795,6 +840,8 @@ class EvolvingContextLearner(ReportSource):
                 predicted = self.predict(alpha0, dalpha)
             dy = yield from self._act(alpha0 + dalpha, "babble")
             since_reset += 1
+            if dy is None:
+                continue  # (refused by the scene: another Δα next)
             if riac:
                 # RIAC's value: minus the prediction error of Δy; interest = its progress
                 actual_dalpha = self.memory.delta_alpha[len(self.memory) - 1]
