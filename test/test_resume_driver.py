@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from sagg_bringup.graph.processes import pick_domain_id
-from sagg_bringup.graph.run_file import RUN_FILE, read_run_file, resume_settings, write_run_file
+from sagg_bringup.graph.run_file import RUN_FILE, read_run_file, write_run_file
 from sagg_common.params import ConfigError
 from sagg_low_level.checkpoint import published
 from installed import SAGG
@@ -46,13 +46,13 @@ def test_run_file_round_trip_and_the_refusals_of_resume(tmp_path):
     s = read_run_file(tmp_path)
     assert (s["driver"], s["timing"], s["domain_id"], s["micro_actions"], s["overrides"]) == \
         ("sim", "realtime", 17, 500, {"seed": 3})
-    assert resume_settings(tmp_path)["eval_every"] == 100
+    assert read_run_file(tmp_path)["eval_every"] == 100
 
     write_run_file(tmp_path, setup="arm", driver="external", timing="realtime", domain_id=95,
-                   domain_private=False, micro_actions=5000, eval_every=1000, config="/x/arm3.yaml", overrides={})
-    with pytest.raises(ConfigError, match="--driver external run") as e:
-        resume_settings(tmp_path)
-    assert "simulated bridge" in str(e.value) and "domain 95" in str(e.value)
+                   domain_private=False, micro_actions=5000, eval_every=1000, config="/x/arm3.yaml", overrides={},
+                   robot_eval_goals=4)
+    s = read_run_file(tmp_path)
+    assert (s["driver"], s["domain_id"], s["domain_private"], s["robot_eval_goals"]) == ("external", 95, False, 4)
 
     cases = {
         "missing": None,
@@ -71,7 +71,7 @@ def test_run_file_round_trip_and_the_refusals_of_resume(tmp_path):
         if text is not None:
             (d / RUN_FILE).write_text(text)
         with pytest.raises(ConfigError, match="--resume") as e:
-            resume_settings(d)
+            read_run_file(d)
         assert "refus" in str(e.value) or "not found" in str(e.value), (what, str(e.value))
 
     # the first format was written by the simulated-bridge runner only: its driver is known
@@ -79,13 +79,14 @@ def test_run_file_round_trip_and_the_refusals_of_resume(tmp_path):
     old.mkdir()
     (old / RUN_FILE).write_text(json.dumps({"format": "sagg.run/1", "micro_actions": 300, "eval_every": 100,
                                             "timing": "lockstep"}))
-    assert resume_settings(old)["driver"] == "sim"
+    assert read_run_file(old)["driver"] == "sim"
 
 
 # ------------------------------------------------------------------------------ through the graph
-def test_a_killed_external_driver_run_is_not_resumed_as_a_simulation(tmp_path):
-    """SIGKILL of a whole `sagg run --driver external` mid-run, then `--resume`: refused with the
-    reason, and not one command reaches the driver that is still publishing on the domain."""
+def test_a_killed_external_driver_run_resumes_on_its_robot(tmp_path):
+    """SIGKILL of a whole `sagg run --driver external` mid-run, then `--resume`: it goes on on the
+    robot (its driver, its domain) to the full budget, never with the simulated bridge; without the
+    driver the resume waits for it and gives up, sending nothing anywhere."""
     domain = pick_domain_id()
     env = env_for(domain)
     cfg = config(tmp_path / "arm3.yaml")
@@ -114,20 +115,30 @@ def test_a_killed_external_driver_run_is_not_resumed_as_a_simulation(tmp_path):
     assert not (run / "summary.json").exists()
     assert commands_received(tmp_path / "driver.log") > 0  # the run did command the robot
 
-    # a fresh driver on the same domain, as the robot would still be there; then --resume
+    # no driver on the domain: the resume waits for it (--driver-timeout) and sends nothing
+    r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "400", "--quiet",
+                        "--domain-id", str(domain), "--driver-timeout", "3"],
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "driver" in r.stderr, r.stdout + r.stderr
+    assert not list((run / "logs").glob("mujoco_bridge*")), sorted(p.name for p in (run / "logs").iterdir())
+
+    # a fresh driver on the same domain, as the robot would still be there; then --resume to 400
     driver = start_driver(env, tmp_path / "driver2.log")
     try:
         time.sleep(1.0)  # the driver is up and publishing
-        r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "700", "--quiet",
-                            "--domain-id", str(domain)], env=env, capture_output=True, text=True, timeout=120)
+        r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "400", "--quiet",
+                            "--no-report", "--domain-id", str(domain)],
+                           env=env, capture_output=True, text=True, timeout=300)
     finally:
         stop(driver)
-    assert r.returncode == 2, r.stdout + r.stderr
-    assert "--driver external run" in r.stderr and "never with the simulated bridge" in r.stderr, r.stderr
-    assert commands_received(tmp_path / "driver2.log") == 0
-    # nothing was started or written: no simulated bridge log, no new bag, the unfinished bag untouched
+    assert r.returncode == 0, r.stdout + r.stderr
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["micro_actions"] >= 400 and summary["driver"] == "external", summary.get("driver")
+    assert commands_received(tmp_path / "driver2.log") > 0
     assert not list((run / "logs").glob("mujoco_bridge*")), sorted(p.name for p in (run / "logs").iterdir())
-    assert not (run / "bag2").exists() and not (run / "bag" / "bag.mcap.unfinished").exists()
+    learner_logs = sorted((run / "logs").glob("learner*.log"))
+    assert any("resumed from" in f.read_text() for f in learner_logs), [f.name for f in learner_logs]
+    assert json.loads((run / RUN_FILE).read_text())["driver"] == "external"
 
 
 def test_the_simulated_bridge_is_not_started_where_a_driver_publishes(tmp_path):

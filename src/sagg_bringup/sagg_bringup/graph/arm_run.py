@@ -155,6 +155,25 @@ class ArmStreams:
                 (deserialize_message(bytes(raw), Evaluation) for topic, _, _, raw in self._prior
                  if topic == "/sagg/evaluation")}
 
+    def resume_evaluation(self, make_evaluator: Callable[[list[int]], Any] | None) -> Any:
+        """A resumed run's earlier segments read back (:meth:`read_prior`) and replayed
+        (:meth:`replay_prior`) into the evaluation that ``make_evaluator(checkpoints to do)`` makes
+        (None: no evaluation); the earlier segments' evaluations are kept in it, not repeated.
+        Returns the evaluator (or None)."""
+        done = self.read_prior()
+        evaluator = None
+        if make_evaluator is not None:
+            checkpoints = self.plan.checkpoints
+            evaluator = make_evaluator([c for c in checkpoints if c not in done])
+            evaluator.checkpoints = sorted(set(checkpoints))
+            for at, errors in sorted(done.items()):
+                evaluator.errors[at] = errors
+                evaluator.curve.append({"micro_actions": at, "mean_error": float(errors.mean()),
+                                        "median_error": float(np.median(errors))})
+            self.evaluator = evaluator
+        self.replay_prior()
+        return evaluator
+
     def replay_prior(self) -> None:
         """The earlier segments' messages through the handlers (to the evaluation set by then)."""
         if not self._prior:

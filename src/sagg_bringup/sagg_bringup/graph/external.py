@@ -158,14 +158,21 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
                        overrides: dict[str, Any] | None = None, progress: bool = True,
                        domain_id: int | None = None, stall_timeout: float = STALL_TIMEOUT, report: bool = True,
                        robot_eval_goals: int = 10, robot_eval_every: int = 0,
-                       robot_eval_goal_seconds: float = 120.0, driver_timeout: float = 120.0) -> dict:
-    """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json)."""
+                       robot_eval_goal_seconds: float = 120.0, driver_timeout: float = 120.0,
+                       resume: dict | None = None) -> dict:
+    """``sagg run CONFIG --driver external``; returns the summary (also in DIR/summary.json).
+
+    ``resume``: the settings of the stopped run in ``out_dir`` (``sagg run --resume DIR``, on the
+    same robot): as :func:`~sagg_bringup.graph.graph.run_graph`'s, the nodes resume from their
+    checkpoints and this segment is recorded into the next bag; the learner measures the posture
+    and returns to rest first."""
     if robot_eval_goals < 1 or robot_eval_every < 0 or not robot_eval_goal_seconds > 0:
         raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every} / "
                           f"--robot-eval-goal-seconds {robot_eval_goal_seconds}; allowed: goals >= 1, every >= 0, "
                           "seconds > 0")
     plan = plan_arm_run(config_path, micro_actions, out_dir, nodes=EXTERNAL_NODES, eval_every=eval_every,
                         strategy=strategy, seed=seed, overrides=overrides, domain_id=domain_id,
+                        resume=resume is not None,
                         node_params=lambda full, spec, ov: external_params(full, micro_actions,
                                                                            explicit_joints(config_path, ov), spec))
     out, lp, spec = plan.out, plan.lp, plan.spec
@@ -177,8 +184,10 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
         domain_id = int(os.environ.get("ROS_DOMAIN_ID") or 0)
     # before anything starts: a killed run is known to have learned on this robot (never resumed otherwise)
     write_run_file(out, setup="arm", driver="external", timing="external driver", domain_id=domain_id,
-                   domain_private=False, micro_actions=micro_actions, eval_every=eval_every, config=config_path,
-                   overrides=plan.overrides, robot_eval_goals=robot_eval_goals, robot_eval_every=robot_eval_every,
+                   domain_private=False, micro_actions=micro_actions, eval_every=eval_every,
+                   config=(resume or {}).get("config", config_path),
+                   overrides=(resume or {}).get("overrides", plan.overrides), robot_eval_goals=robot_eval_goals,
+                   robot_eval_every=robot_eval_every,
                    robot_eval_goal_seconds=robot_eval_goal_seconds,
                    driver_timeout=driver_timeout)
     # (the driver's state streams go on after the nodes stop: the final drain does not wait for them)
@@ -231,9 +240,10 @@ class RobotRun:
         task_topic = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
         self.monitor = DriverMonitor(lp, task_topic, cmd_topic, model_task(lp))
         self.monitor.subscribe(session.node)
-        self.evaluator = Evaluator(plan.config["sagg_learner"], spec, plan.checkpoints) if simulated else None
+        self.streams = ArmStreams(session, plan)
+        self.evaluator = self.streams.resume_evaluation(
+            (lambda todo: Evaluator(plan.config["sagg_learner"], spec, todo)) if simulated else None)
         self.evaluation = FollowedEvaluation(session, self.evaluator, progress) if simulated else None
-        self.streams = ArmStreams(session, plan, self.evaluator)
         self.reached: list[np.ndarray] = []  # task points measured while learning (robot test goals)
         self.monitor.on_tip = self._on_tip
         self.streams.record()

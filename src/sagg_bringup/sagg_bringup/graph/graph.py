@@ -31,7 +31,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from sagg_common.params import ConfigError
 from sagg_common.progress import Progress
@@ -78,15 +77,7 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
         # the evaluation (a process: it computes the area and test goals meanwhile); a resumed
         # run's earlier evaluations are kept, not repeated
         streams = ArmStreams(session, plan)
-        done = streams.read_prior()
-        evaluator = Evaluator(lp, spec, [c for c in plan.checkpoints if c not in done])
-        evaluator.checkpoints = sorted(set(plan.checkpoints))
-        for at, errors in sorted(done.items()):
-            evaluator.errors[at] = errors
-            evaluator.curve.append({"micro_actions": at, "mean_error": float(errors.mean()),
-                                    "median_error": float(np.median(errors))})
-        streams.evaluator = evaluator
-        streams.replay_prior()
+        evaluator = streams.resume_evaluation(lambda todo: Evaluator(lp, spec, todo))
         extra = streams.node_extra()
         streams.record()
         bar = Progress(micro_actions, f"{lp['strategy']} seed {lp['seed']} (graph, {timing})", enabled=progress)

@@ -74,18 +74,3 @@ def read_run_file(out: Path) -> dict[str, Any]:
     if not isinstance(doc.get("timing"), str):
         raise _refuse(path, f"'{path}': timing {doc.get('timing')!r}; allowed: a string")
     return doc
-
-
-def resume_settings(out: Path) -> dict[str, Any]:
-    """The settings ``sagg run --resume out`` continues with: :func:`read_run_file`, refused for a
-    driver that cannot be resumed (an external driver's run: only on its robot, which sagg cannot
-    do yet; never with the simulated bridge)."""
-    settings = read_run_file(out)
-    if settings["driver"] == "external":
-        domain = settings.get("domain_id")
-        raise ConfigError(
-            f"--resume: '{out}' is a --driver external run (its {RUN_FILE}: driver external, domain {domain}); "
-            "such a run can be continued only on its robot, never with the simulated bridge, and "
-            "resuming an external-driver run is not supported yet; allowed: the directory of a run with "
-            "the simulated bridge (start a new run on the robot: sagg run CONFIG --driver external)")
-    return settings

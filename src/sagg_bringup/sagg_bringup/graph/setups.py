@@ -37,7 +37,7 @@ from ..bags import bags, topics
 from ..inprocess import arm_params, experiment, fixed_experiment
 from ..report import report
 from . import external, graph, fixed_graph
-from .run_file import resume_settings
+from .run_file import read_run_file
 from ..bags.recorder import TopicSpec
 
 GOAL_GENERATOR = ("sagg_goal_generator", "goal_generator")  # (package, console script)
@@ -316,8 +316,8 @@ def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, 
 def resume_graph(out_dir: str | Path, micro_actions: int | None = None, domain_id: int | None = None,
                  **options) -> dict:
     """``sagg run --resume DIR`` for any set-up: the stopped run in ``out_dir`` continued with its
-    own parameters (DIR/params.yaml) and settings (DIR/run.json, :func:`.run_file.resume_settings`:
-    refused when unreadable, and for a run that learned through an external driver). Budget:
+    own parameters (DIR/params.yaml) and settings (DIR/run.json, :func:`.run_file.read_run_file`:
+    refused when unreadable), on its own driver (an external driver's run on its robot). Budget:
     ``micro_actions``, else the run's own; domain: ``domain_id``, else the run's own when it was
     given one, else a new private one."""
     out = Path(out_dir)
@@ -329,11 +329,20 @@ def resume_graph(out_dir: str | Path, micro_actions: int | None = None, domain_i
         raise ConfigError(f"--resume: '{out}' is a run of set-up {setup.name!r}, which keeps no "
                           "checkpoints (start a new run); allowed: "
                           + ", ".join(s.name for s in SETUPS.values() if s.resumable))
-    settings = resume_settings(out)
+    settings = read_run_file(out)
     if domain_id is None and not settings.get("domain_private", True):
         domain_id = settings["domain_id"]
-    return setup.run_graph(params_file, micro_actions or settings["micro_actions"], out, timing=settings["timing"],
+    budget = micro_actions or settings["micro_actions"]
+    if settings["driver"] == "external":  # (on the robot: its driver, its evaluation settings)
+        robot = {k: settings[k] for k in EXTERNAL_RESUMED if k in settings}
+        return setup.run_graph(params_file, budget, out, driver="external", eval_every=settings["eval_every"],
+                               domain_id=domain_id, resume=settings, **{**robot, **options})
+    return setup.run_graph(params_file, budget, out, timing=settings["timing"],
                            eval_every=settings["eval_every"], domain_id=domain_id, resume=settings, **options)
+
+
+# the options of an external-driver run that its resume keeps (run.json)
+EXTERNAL_RESUMED = ("robot_eval_goals", "robot_eval_every", "robot_eval_goal_seconds", "driver_timeout")
 
 
 def relearn(bag_dirs: list[str | Path], out_dir: str | Path, params_file: str | Path | None = None, **options) -> dict:
