@@ -110,6 +110,30 @@ def test_overrides_from_a_parameter_file(tmp_path):
         c.try_shutdown()
 
 
+BOX = [0.5, 0.0, 0.2, 0.1, 0.1, 0.1]
+
+
+@pytest.mark.parametrize("given,expected", [(None, []), ([], []), (BOX, BOX)])
+def test_a_list_that_may_be_empty_through_a_parameter_file(tmp_path, given, expected):
+    """A float list whose default is [] (scene.boxes): not given, given as [] (which rclpy's
+    parameter file reader takes as not set) and given with values, it reads as expected."""
+    schema = (Param("scene.boxes", "float_list", [], "boxes", empty_ok=True),)
+    path = tmp_path / "params.yaml"
+    body = {} if given is None else {"scene": {"boxes": given}}
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": body}}))
+    args = ["--ros-args", "--params-file", str(path)]
+    c = rclpy.Context()
+    rclpy.init(args=args, context=c, domain_id=pick_domain_id(),
+               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        node = Node("sagg_param_test", context=c)
+        values = declare_schema(node, schema, args)
+        assert values["scene.boxes"] == expected
+        assert list(node.get_parameter("scene.boxes").value) == expected
+    finally:
+        c.try_shutdown()
+
+
 def test_declared_parameters_are_read_only(ctx):
     node = node_with(ctx)
     declare_schema(node, SCHEMA)

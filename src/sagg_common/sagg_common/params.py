@@ -51,7 +51,8 @@ class Param:
 
     ``kind`` is one of ``float``, ``int``, ``bool``, ``str``, ``float_list``, ``int_list``,
     ``str_list``. ``low``/``high`` bound numbers (and every element of numeric lists),
-    ``choices`` restricts strings, ``length`` fixes a list's length (None = any non-empty).
+    ``choices`` restricts strings, ``length`` fixes a list's length (None = any non-empty; with
+    ``empty_ok`` any, the empty list included: a list of items whose "none" is no item).
     """
 
     name: str
@@ -64,6 +65,7 @@ class Param:
     length: int | None = None
     low_open: bool = False  # True: value must be > low instead of >= low
     deprecated: str = ""    # non-empty: kept so that old parameter files load; why, said once when set
+    empty_ok: bool = False  # a list parameter may be empty
 
     def allowed(self) -> str:
         """Human-readable description of the allowed values."""
@@ -83,6 +85,8 @@ class Param:
                 "str_list": "a list of strings"}[self.kind]
         if self.kind.endswith("_list") and self.length is not None:
             base += f" of length {self.length}"
+        elif self.kind.endswith("_list") and self.empty_ok:
+            base += " (empty allowed)"
         return base + (" in " + parts[0] if parts else "")
 
     def _fail(self, value: Any, why: str = "") -> ConfigError:
@@ -124,8 +128,8 @@ class Param:
         if k in ("float", "int"):
             return self._number(value, k == "int")
         if k.endswith("_list"):
-            if not isinstance(value, (list, tuple)) or len(value) == 0:
-                raise self._fail(value, "not a non-empty list")
+            if not isinstance(value, (list, tuple)) or (len(value) == 0 and not self.empty_ok):
+                raise self._fail(value, "not a list" if self.empty_ok else "not a non-empty list")
             if self.length is not None and len(value) != self.length:
                 raise self._fail(value, f"length {len(value)}")
             if k == "str_list":
