@@ -154,9 +154,13 @@ class RobotModel:
 
     def __init__(self, path: str, model: mujoco.MjModel, effector: str = "", task_axes: Sequence[str] = AXES,
                  joints: Sequence[str] = (), joint_lower: Sequence[float] = (), joint_upper: Sequence[float] = (),
-                 rest: Sequence[float] = (), dropped: tuple[str, ...] = ()):
+                 rest: Sequence[float] = (), dropped: tuple[str, ...] = (), package_paths: Sequence[str] = (),
+                 prefixes: tuple[str, ...] | None = None):
         m = model
         self.path, self.model, self.effector, self.task_axes = path, m, effector, tuple(task_axes)
+        # where the file's package:// meshes were looked up (a model built again from the file, e.g.
+        # the scene's collision model, looks in the same places; prefixes None = AMENT_PREFIX_PATH's)
+        self.package_paths, self.prefixes = tuple(package_paths), prefixes
         self.notices: list[str] = []
         self.mesh_notice = ""  # (the one notice that also concerns a model used for kinematics only)
         if dropped:
@@ -255,10 +259,10 @@ class RobotModel:
         fields = (path, effector, tuple(task_axes), tuple(joints), tuple(joint_lower), tuple(joint_upper),
                   tuple(rest), tuple(package_paths))
         check_robot_fields(*fields)
-        mjspec, dropped = load_spec(path, tuple(package_paths), ament_prefixes() if prefixes is None else prefixes,
-                                    True)
+        prefixes = ament_prefixes() if prefixes is None else prefixes
+        mjspec, dropped = load_spec(path, tuple(package_paths), prefixes, True)
         return cls(path, compile_spec(mjspec, path), effector, task_axes, joints, joint_lower, joint_upper, rest,
-                   dropped)
+                   dropped, tuple(package_paths), prefixes)
 
     # ------------------------------------------------------------------ what callers need
     @property
@@ -366,16 +370,29 @@ def task_from_params(p: dict, joints: Sequence[str], m: int, base_dir: str) -> T
     if not p["task_model.file"]:
         raise ConfigError("parameter 'task_model.file': empty; allowed: the robot's MJCF (.xml) or URDF (.urdf) "
                           "file (task_source 'model')")
-    if len(p["task_model.task_axes"]) != m:
+    robot = robot_from_params(p, joints, base_dir, m)
+    try:
+        return TaskFromJoints(robot, joints)
+    except ConfigError as exc:  # (the model's errors name the bridge's arm.* parameters)
+        raise ConfigError(in_learner_terms(str(exc))) from exc
+
+
+def robot_from_params(p: dict, joints: Sequence[str], base_dir: str, m: int | None = None) -> RobotModel:
+    """The robot's model from a learner's parameters ``p`` (``task_model.file``, ``.effector``,
+    ``.task_axes``, ``.package_paths``: relative ones relative to ``base_dir``; ``joint_limits.*``
+    and ``rest_posture``), its commanded joints ``joints`` in the learner's order; ``m`` (when
+    given) the task dimensions the task axes must match. Shared by :func:`task_from_params` and
+    the scene's collision checker (:func:`sagg_common.scene.scene_from_params`). ConfigError names
+    the learner's parameter."""
+    if m is not None and len(p["task_model.task_axes"]) != m:
         raise ConfigError(f"parameter 'task_model.task_axes': {p['task_model.task_axes']!r}; allowed: {m} axes, "
                           "one per task_space dimension")
     try:
-        robot = RobotModel.load(os.path.normpath(os.path.join(base_dir, p["task_model.file"])),
-                                p["task_model.effector"], tuple(p["task_model.task_axes"]),
-                                [os.path.normpath(os.path.join(base_dir, d)) for d in p["task_model.package_paths"]],
-                                joints=joints, joint_lower=p["joint_limits.lower"], joint_upper=p["joint_limits.upper"],
-                                rest=p["rest_posture"])
-        return TaskFromJoints(robot, joints)
+        return RobotModel.load(os.path.normpath(os.path.join(base_dir, p["task_model.file"])),
+                               p["task_model.effector"], tuple(p["task_model.task_axes"]),
+                               [os.path.normpath(os.path.join(base_dir, d)) for d in p["task_model.package_paths"]],
+                               joints=joints, joint_lower=p["joint_limits.lower"], joint_upper=p["joint_limits.upper"],
+                               rest=p["rest_posture"])
     except ConfigError as exc:  # (the model's errors name the bridge's arm.* parameters)
         raise ConfigError(in_learner_terms(str(exc))) from exc
 
