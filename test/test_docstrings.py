@@ -11,7 +11,8 @@ CORES = ["sagg_common/sagg_common/regions.py", "sagg_common/sagg_common/competen
          "sagg_low_level/sagg_low_level/local_model.py", "sagg_low_level/sagg_low_level/learner.py",
          "sagg_goal_generator/sagg_goal_generator/teacher.py", "sagg_goal_generator/sagg_goal_generator/alp_gmm.py",
          "sagg_goal_generator/sagg_goal_generator/discretized_progress.py",
-         "sagg_goal_generator/sagg_goal_generator/core.py"]
+         "sagg_goal_generator/sagg_goal_generator/core.py", "sagg_common/sagg_common/scene.py",
+         "sagg_common/sagg_common/scene_model.py", "sagg_common/sagg_common/scene_params.py"]
 PROPERTIES = {"property", "setter", "getter", "deleter", "cached_property"}
 
 
