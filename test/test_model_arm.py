@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 import yaml
@@ -469,3 +470,89 @@ def test_the_registry_builds_the_planar_arm_from_the_full_schema():
     assert spec == ArmSpec()
     sim = make_arm_sim(spec, 0)
     assert type(sim) is ArmSim and sim.task_dim == 2
+
+
+# ------------------------------------------------------------------ the scene (scene.*)
+def arm6_in_scene(mode: str = "kinematic", **scene) -> ModelArmSim:
+    """config/arm6_mjcf.yaml's arm with the scene parameters ``scene.<key>``."""
+    p = params(model="robots/arm6.xml", effector="tool", mode=mode)
+    p.update({f"scene.{k}": v for k, v in scene.items()})
+    return make_arm_sim(arm_spec_from_params(p, str(CONFIG)), 0)
+
+
+@pytest.mark.parametrize("mode", ["kinematic", "dynamic"])
+def test_a_model_arm_with_a_floor_counts_a_command_that_goes_through_it(mode):
+    """arm6 above a table at z = 0: free commands count no contact; a command that lowers the arm
+    through the table counts one (by cause floor); lifting it out again counts none. In dynamic mode
+    the table holds the arm up (the tool stays at the table); in kinematic mode nothing blocks."""
+    sim = arm6_in_scene(mode, use_floor=True)
+    assert sim.scene is not None and sim.contacts == 0
+    rest = sim.rest.copy()
+    for pan, lift in ((0.5, -1.8), (-0.5, -1.2), (0.0, -2.0)):
+        sim.command(np.array([pan, lift, *rest[2:]]))
+    assert sim.contacts == 0
+    _, y = sim.command(np.array([0.0, 0.0, *rest[2:]]))  # the folded forearm down into the table
+    assert sim.contacts == 1 and sim.contacts_by_cause == {"self": 0, "floor": 1, "box": 0}
+    assert sim.last_contact.cause == "floor" and "the floor at z=0.000" in sim.last_contact.detail
+    if mode == "dynamic":
+        assert y[2] > -0.01 and sim.observe()[0][1] < -0.3  # blocked: the tool stays at the table
+    else:
+        assert y[2] < -0.3                                   # set through it
+    sim.command(rest)  # the way out
+    assert sim.contacts == 1
+
+
+def test_a_box_is_a_contact_and_without_a_scene_nothing_is_counted_or_built():
+    target = np.array([0.0, -1.0, 1.6, -1.1707963267948966, -1.5707963267948966, 0.0])
+    probe = arm6_in_scene()
+    probe.command(target)
+    wrist = probe.data.xpos[mujoco.mj_name2id(probe.model, mujoco.mjtObj.mjOBJ_BODY, "wrist_1_link")].tolist()
+    sim = arm6_in_scene(boxes=[*wrist, 0.03, 0.03, 0.03])  # a box where that command takes the wrist
+    sim.command(target)
+    assert sim.contacts == 1 and sim.contacts_by_cause["box"] == 1 and sim.last_contact.cause == "box"
+    assert "box 1" in sim.last_contact.detail
+    plain = arm_spec_from_params(params(model="robots/arm6.xml", effector="tool"), str(CONFIG))
+    assert plain.scene is None  # self-collision alone (on by default) does not make a simulated scene
+    sim = make_arm_sim(plain, 0)
+    sim.command(np.array([0.0, -2.0, 3.1, *sim.rest[3:]]))  # folded onto itself: not counted
+    assert sim.scene is None and sim.contacts == 0 and sim.arm._scene_model is None
+
+
+def test_the_planar_arm_has_no_scene():
+    p = schema_defaults(SCHEMA)
+    p["scene.boxes"] = [0.5, 0.0, 0.2, 0.1, 0.1, 0.1]
+    with pytest.raises(ConfigError, match=r"parameter 'scene.boxes'.*planar arm"):
+        arm_spec_from_params(p)
+    p = schema_defaults(SCHEMA)
+    p["scene.self_collision"] = False
+    assert arm_spec_from_params(p) == ArmSpec()
+
+
+def test_the_bridge_publishes_the_contacts_on_its_diagnostics(tmp_path):
+    """The bridge node (built in this process, not spun) with arm6 above a table: a command through
+    the table shows as contacts = 1, contacts.floor = 1 in its /diagnostics status."""
+    import rclpy
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64MultiArray
+
+    from sagg_bringup.graph.processes import pick_domain_id
+    from sagg_sim_bridge.node import BridgeNode
+
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump({
+        "/**": {"ros__parameters": {"scene": {"use_floor": True, "floor": 0.0}}},
+        "sagg_sim_bridge": {"ros__parameters": {"arm": {"model": str(CONFIG / "robots/arm6.xml"),
+                                                        "effector": "tool"}}}}))
+    rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=pick_domain_id())
+    try:
+        node = BridgeNode()
+        sent = []
+        node.diag_pub.publish = sent.append
+        rest = node.sim.rest
+        node.on_command(serialize_message(Float64MultiArray(data=[0.0, 0.0, *map(float, rest[2:])])))
+        node.publish_diagnostics()
+        values = {kv.key: kv.value for kv in sent[-1].status[0].values}
+        assert values["contacts"] == "1" and values["contacts.floor"] == "1" and values["contacts.self"] == "0"
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()

@@ -18,7 +18,15 @@ What this module adds to the robot model (parameters ``arm.*``, see :mod:`.param
   joint: gain ``arm.kp``, the joint's damping ``arm.damping`` and armature ``arm.armature``, as the
   planar arm's critically damped servos; physics step ``arm.timestep`` replaces the model's;
   gravity and contacts off: an ideal position-controlled arm that holds any posture, as a real
-  arm's controller with gravity compensation does).
+  arm's controller with gravity compensation does);
+- the scene (``scene.*``, :mod:`sagg_common.scene_params`), when it declares a floor or boxes: in
+  dynamic mode they are in the physics and block the arm (contacts on between the moving links
+  and them only: links among themselves still pass through each other, the servos would fight
+  it); in kinematic mode the arm is set by qpos and nothing blocks. In both modes every command's
+  motion (the straight joint-space segment from the posture before it to the posture after it) is
+  checked with a :class:`sagg_common.scene.SceneChecker` of the simulated arm, and counted in
+  :attr:`ModelArmSim.contacts` when the checker would refuse it (closer than ``scene.clearance``
+  to an obstacle, or links overlapping): what a learner that checks its moves should never cause.
 
 The reachable set of the effector (2-D or 3-D occupancy grid, :func:`model_reachable_area`) is
 estimated by sampling the joint space through the model's own forward kinematics
@@ -38,6 +46,9 @@ from sagg_common.diagnostics import all_finite
 from sagg_common.model_load import compile_spec, load_spec
 from sagg_common.params import ConfigError, is_int
 from sagg_common.robot_model import AXES, PostureFK, RobotModel, ament_prefixes, check_robot_fields
+from sagg_common.scene import CAUSES, Refusal, SceneChecker
+from sagg_common.scene_model import SceneModel, add_scene_physics
+from sagg_common.scene_params import SceneParams
 
 from .arm import NOISE_BLOCK, ArmSim, ArmSpec, ReachableArea, check_bounds, goals_in_area, occupancy_grid
 
@@ -91,16 +102,18 @@ class ModelArmSpec:
     settle_velocity: float = ArmSpec.settle_velocity
     max_settle_steps: int = ArmSpec.max_settle_steps
     settle_check_every: int = ArmSpec.settle_check_every
+    scene: SceneParams | None = None         # None = no floor, no box (scene.*): no contact counting
 
     # ------------------------------------------------------------------ building
     @classmethod
-    def from_params(cls, fields: dict[str, Any], base_dir: str | None) -> "ModelArmSpec":
+    def from_params(cls, fields: dict[str, Any], base_dir: str | None,
+                    scene: SceneParams | None = None) -> "ModelArmSpec":
         """The spec from the resolved ``arm.*`` parameters (names without ``arm.``) of the
         schema in :mod:`.params`: ``arm.model`` and relative ``arm.package_paths`` are relative to
         ``base_dir`` (the config file's directory; package paths default to the model file's
         directory when it is None); ``rest_posture`` is the bridge's parameter of that name (not
-        under ``arm.``: one value for every node). Planar-only fields are ignored. Validated (model loaded);
-        ConfigError names the parameter."""
+        under ``arm.``: one value for every node). Planar-only fields are ignored. ``scene``: the
+        scene the arm meets (None: none). Validated (model loaded); ConfigError names the parameter."""
         model = fields.get("model", "")
         if not isinstance(model, str) or not model:
             raise ConfigError(f"parameter arm.model: got {model!r}; allowed: the path of a .xml (MJCF) or "
@@ -128,7 +141,8 @@ class ModelArmSpec:
             if f in kw and is_int(kw[f]):
                 kw[f] = float(kw[f])
         spec = cls(model=model, effector=fields.get("effector", ""), task_axes=tuple(fields.get("task_axes", "xyz")),
-                   joints=joints, joint_lower=lower, joint_upper=upper, rest=rest, package_paths=paths, **kw)
+                   joints=joints, joint_lower=lower, joint_upper=upper, rest=rest, package_paths=paths, scene=scene,
+                   **kw)
         spec.validate()
         return spec
 
@@ -208,15 +222,21 @@ class LoadedArm(RobotModel):
     effector, forward kinematics, reach; loaded for kinematics in kinematic mode) and what
     simulating it needs: ``sim_model``, the MjModel the simulator runs (the robot's own in
     kinematic mode; in dynamic mode every mesh is required and a position servo is added per
-    commanded joint), the servos' actuator ids ``act`` and the rest controls ``ctrl_rest``."""
+    commanded joint), the servos' actuator ids ``act`` and the rest controls ``ctrl_rest``; in dynamic
+    mode with a scene, its floor and boxes are in ``sim_model`` (:func:`sagg_common.scene_model.add_scene_physics`).
+    :meth:`scene_model` is the collision model the simulators' contact counting shares."""
 
     def __init__(self, spec: ModelArmSpec, prefixes: tuple[str, ...]):
         path = spec.model
         kinematic = spec.mode == "kinematic"
         mjspec, dropped = load_spec(path, spec.package_paths, prefixes, kinematic)
         super().__init__(path, compile_spec(mjspec, path), spec.effector, spec.task_axes, spec.joints,
-                         spec.joint_lower, spec.joint_upper, spec.rest, dropped)
+                         spec.joint_lower, spec.joint_upper, spec.rest, dropped, spec.package_paths, prefixes)
         m, key, jids, rest = self.model, self.key, self.jids, self.rest
+        self.scene = spec.scene
+        self._scene_model: SceneModel | None = None
+        if self.scene is not None and not kinematic:
+            add_scene_physics(mjspec, m, jids, self.qpos_rest, self.scene)
         # ---- dynamic mode: a position servo per commanded joint
         self.act = np.zeros(0, dtype=np.int64)
         if not kinematic:
@@ -233,6 +253,14 @@ class LoadedArm(RobotModel):
         self.ctrl_rest = ctrl
         self.ctrl_rest.flags.writeable = False
 
+    def scene_model(self) -> SceneModel:
+        """The collision model of this arm in its scene (built on first use, then shared)."""
+        if self._scene_model is None:
+            if self.scene is None:
+                raise ValueError("this arm has no scene")
+            self._scene_model = SceneModel(self, self.scene)
+        return self._scene_model
+
     @staticmethod
     def _servo_of(m: mujoco.MjModel, j: int) -> int:
         acts = [a for a in range(m.nu)
@@ -243,7 +271,8 @@ class LoadedArm(RobotModel):
                     names: list[str], lower: np.ndarray, upper: np.ndarray) -> mujoco.MjModel:
         """Dynamic mode: keep the model's position servos of commanded joints, add one (gain
         arm.kp; the joint's damping arm.damping and armature arm.armature) where there is none;
-        physics step arm.timestep, gravity and contacts off, implicitfast integrator."""
+        physics step arm.timestep, gravity off, contacts off unless a scene is declared (then
+        between the links and its obstacles only), implicitfast integrator."""
         for i, j in enumerate(self.jids):
             acts = [a for a in range(m.nu) if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
                     and int(m.actuator_trnid[a, 0]) == int(j)]
@@ -264,7 +293,10 @@ class LoadedArm(RobotModel):
             joint.armature = float(spec.armature)
         mjspec.option.timestep = float(spec.timestep)
         mjspec.option.gravity = [0.0, 0.0, 0.0]
-        mjspec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        if spec.scene is None:
+            mjspec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        else:
+            mjspec.option.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         mjspec.option.integrator = int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
         return compile_spec(mjspec, path)
 
@@ -276,7 +308,12 @@ class ModelArmSim(ArmSim):
     ``command`` realises clip(α + Δ·(1 + motor_noise·N(0,1)), limits) on the commanded joints
     exactly as the planar arm; ``observe``/``command`` return the commanded joints' values (in
     ``joint_names`` order) and the effector's world position on the task axes. The MjModel is
-    shared by every simulator of the spec (read-only); each has its own MjData."""
+    shared by every simulator of the spec (read-only); each has its own MjData.
+
+    With a scene (``spec.scene``): ``scene`` is this simulator's :class:`~sagg_common.scene.SceneChecker`
+    (else None), ``contacts`` counts the commands whose motion it refuses (since this simulator
+    was built; not part of :meth:`get_state`), ``contacts_by_cause`` by cause (self, floor, box),
+    ``last_contact`` the latest refusal."""
 
     def __init__(self, spec: ModelArmSpec, seed: int):
         # (ArmSim.__init__ is not called: it generates the planar model; the attributes its
@@ -320,6 +357,14 @@ class ModelArmSim(ArmSim):
         self._every = int(spec.settle_check_every)
         self.last_settle_steps = 0
         self.last_settled = True
+        self.contacts = 0
+        self.contacts_by_cause = dict.fromkeys(CAUSES, 0)
+        self.last_contact: Refusal | None = None
+        self.scene: SceneChecker | None = None
+        if spec.scene is not None:
+            self.scene = SceneChecker(arm, spec.scene, model=arm.scene_model())
+            for note in [spec.scene.describe(), *self.scene.notices]:
+                _said(note)
         self.reset()
 
     # ------------------------------------------------------------------ protocol
@@ -342,6 +387,7 @@ class ModelArmSim(ArmSim):
         if not all_finite(t):
             raise ValueError("alpha_target must be finite (no NaN/inf)")
         q = self._qpos[self._qsel]
+        q0 = None if self.scene is None else q.copy()
         if self._noise > 0.0:
             if self._nidx >= NOISE_BLOCK:
                 self._draw_noise_block()
@@ -360,7 +406,23 @@ class ModelArmSim(ArmSim):
         else:
             self._qpos[self._qsel] = c
             mujoco.mj_kinematics(self.model, self.data)
+        if q0 is not None:
+            self.note_motion(q0, self._qpos[self._qsel])
         return self.observe()
+
+    def note_motion(self, alpha0: np.ndarray, alpha1: np.ndarray) -> Refusal | None:
+        """Check the straight joint-space motion from ``alpha0`` to ``alpha1`` (commanded joints)
+        against the scene and count it in :attr:`contacts` if it is refused; returns the refusal
+        (None when free or without a scene). ``command`` calls it; a real-time runner, whose arm
+        moves between commands, calls it with the postures at two commands."""
+        if self.scene is None:
+            return None
+        refusal = self.scene.segment(alpha0, alpha1)
+        if refusal is not None:
+            self.contacts += 1
+            self.contacts_by_cause[refusal.cause] += 1
+            self.last_contact = refusal
+        return refusal
 
     def _settle(self) -> None:
         """:meth:`ArmSim._settle` on the commanded joints: step until ||qvel|| < settle_velocity

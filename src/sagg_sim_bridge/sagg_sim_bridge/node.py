@@ -22,6 +22,12 @@ Timing (parameter ``timing``):
   with the same motor noise as ``ArmSim.command``, then the actuators move the arm over the next
   steps; kinematic mode applies a command at once), joint_states + tip are published at
   ``publish_rate`` Hz and the simulation time on ``/clock``.
+
+Diagnostics (``/diagnostics``, every second): the commands received and the timing; with a scene
+(a model arm whose config declares a floor or boxes, ``scene.*``) also ``contacts`` and
+``contacts.self`` / ``contacts.floor`` / ``contacts.box``: the commands whose motion met an
+obstacle or the arm itself (:attr:`.model_arm.ModelArmSim.contacts`; in real-time dynamic mode the
+motion between two commands).
 """
 from __future__ import annotations
 
@@ -83,6 +89,8 @@ class BridgeNode(Node):
         self.tip_encoder = PointStampedEncoder(p["frame_id"])
         self.zeros = np.zeros(self.n)
         self.commands = 0
+        self.scene = getattr(self.sim, "scene", None)  # a model arm's scene checker (None: no scene)
+        self.last_q = self.sim.observe()[0]  # real-time dynamic mode: the posture at the last command
         self.virtual_ns = 0   # lockstep + kinematic: simulation clock (no physics time)
 
         if self.lockstep:
@@ -139,6 +147,9 @@ class BridgeNode(Node):
         the following physics steps instead of settling at once."""
         sim = self.sim
         q = sim.observe()[0]
+        if self.scene is not None:  # the arm moved since the last command: that motion met the scene?
+            sim.note_motion(self.last_q, q)
+            self.last_q = q
         delta = target - q
         if sim.spec.motor_noise > 0.0:
             delta *= 1.0 + sim.spec.motor_noise * sim.rng.standard_normal(self.n)
@@ -161,6 +172,9 @@ class BridgeNode(Node):
     # ------------------------------------------------------------------ output
     def publish_diagnostics(self) -> None:
         state = {"commands": str(self.commands), "timing": self.params["timing"]}
+        if self.scene is not None:
+            state["contacts"] = str(self.sim.contacts)
+            state.update({f"contacts.{cause}": str(n) for cause, n in self.sim.contacts_by_cause.items()})
         self.diag_pub.publish(diagnostic_array(to_time(time.time_ns()), NODE_NAME, self.guard, state))
 
     def publish_state(self) -> None:

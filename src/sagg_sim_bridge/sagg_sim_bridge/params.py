@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 
 from sagg_common.params import ConfigError, Param, Schema, dataclass_schema
+from sagg_common.scene_params import SCENE_PARAMS, SceneParams
 
 from .arm import ArmSpec
 from .model_arm import SHARED_FIELDS, ModelArmSpec
@@ -90,21 +91,31 @@ MODEL_SCHEMA: Schema = (
           "planar arm."),
 )
 
+# scene.* (sagg_common.scene_params): given once under '/**', read by the learner (which checks every
+# move) and by the simulated arm (its physics meets the floor and boxes; it counts the contacts)
 SCHEMA: Schema = (
     Param("seed", "int", 0, "Run seed; the simulator's motor-noise stream is derived from it.", low=0),
 ) + dataclass_schema("arm", ArmSpec, _ARM_DOC, {"link_profile": ("equal", "golden"), "rest_shape": ("arc", "zigzag"),
-                                               "mode": ("kinematic", "dynamic")}) + MODEL_SCHEMA
+                                               "mode": ("kinematic", "dynamic")}) + MODEL_SCHEMA + SCENE_PARAMS
 
 
 def arm_spec_from_params(params: dict, base_dir: str | None = None) -> ArmSpec | ModelArmSpec:
     """Build and validate the arm from resolved ``arm.*`` parameters (errors name the parameter):
     the planar :class:`ArmSpec` when ``arm.model`` is empty, else a :class:`ModelArmSpec` whose
-    relative paths are resolved against ``base_dir`` (the config file's directory)."""
+    relative paths are resolved against ``base_dir`` (the config file's directory). A model arm
+    meets the scene ``scene.*`` when it declares a floor or boxes (the spec's ``scene``, else
+    None: the arm as without a scene); the planar arm has no scene (ConfigError if one is declared)."""
     fields = {k[len("arm."):]: v for k, v in params.items() if k.startswith("arm.")}
+    scene = SceneParams.from_params(params)
     if fields.get("model", ""):
         if "rest_posture" in params:
             fields["rest_posture"] = params["rest_posture"]
-        return ModelArmSpec.from_params(fields, base_dir)
+        return ModelArmSpec.from_params(fields, base_dir, scene if scene.obstacles else None)
+    if scene.obstacles:
+        name = "scene.use_floor" if scene.floor is not None else "scene.boxes"
+        raise ConfigError(f"parameter '{name}': set, but the planar arm (arm.model empty) lives in its task plane "
+                          "and has no scene; allowed: a scene for a model arm (arm.model), else scene.use_floor "
+                          "false and scene.boxes []")
     planar = {f.name for f in dataclasses.fields(ArmSpec)}
     try:
         return ArmSpec.from_dict({k: v for k, v in fields.items() if k in planar})
