@@ -485,7 +485,7 @@ def test_a_model_arm_with_a_floor_counts_a_command_that_goes_through_it(mode):
     """arm6 above a table at z = 0: free commands count no contact; a command that lowers the arm
     through the table counts one (by cause floor); lifting it out again counts none. In dynamic mode
     the table holds the arm up (the tool stays at the table); in kinematic mode nothing blocks."""
-    sim = arm6_in_scene(mode, use_floor=True)
+    sim = arm6_in_scene(mode, floor=0.0)
     assert sim.scene is not None and sim.contacts == 0
     rest = sim.rest.copy()
     for pan, lift in ((0.5, -1.8), (-0.5, -1.2), (0.0, -2.0)):
@@ -540,7 +540,7 @@ def test_the_bridge_publishes_the_contacts_on_its_diagnostics(tmp_path):
 
     path = tmp_path / "params.yaml"
     path.write_text(yaml.safe_dump({
-        "/**": {"ros__parameters": {"scene": {"use_floor": True, "floor": 0.0}}},
+        "/**": {"ros__parameters": {"scene": {"floor": 0.0}}},
         "sagg_sim_bridge": {"ros__parameters": {"arm": {"model": str(CONFIG / "robots/arm6.xml"),
                                                         "effector": "tool"}}}}))
     rclpy.init(args=["--ros-args", "--params-file", str(path)], domain_id=pick_domain_id())

@@ -41,7 +41,7 @@ def scene(**kw) -> SceneParams:
     return SceneParams.from_params({f"scene.{k}": v for k, v in kw.items()})
 
 
-FLOOR = scene(use_floor=True, floor=0.0)
+FLOOR = scene(floor=0.0)
 
 
 # ------------------------------------------------------------------ postures
@@ -59,7 +59,7 @@ def test_a_posture_through_the_floor_is_refused_and_the_rest_posture_is_not(name
     assert refusal is not None and refusal.cause == "floor" and refusal.distance < 0
     assert "through the floor at z=0.000" in refusal.detail and refusal.at == 1.0
     # the same posture above a floor lowered by a metre is free
-    assert SceneChecker(r, scene(use_floor=True, floor=-1.0)).posture(low) is None
+    assert SceneChecker(r, scene(floor=-1.0)).posture(low) is None
 
 
 def test_within_the_clearance_of_the_floor_is_a_collision():
@@ -69,7 +69,7 @@ def test_within_the_clearance_of_the_floor_is_a_collision():
     refusal = SceneChecker(robot("arm6"), FLOOR).posture(a)
     assert refusal is not None and refusal.cause == "floor" and 0.0 < refusal.distance < 0.03
     assert refusal.detail.startswith("wrist_3_link 0.028 m above the floor at z=0.000 (clearance 0.03)")
-    assert SceneChecker(robot("arm6"), scene(use_floor=True, floor=0.0, clearance=0.02)).posture(a) is None
+    assert SceneChecker(robot("arm6"), scene(floor=0.0, clearance=0.02)).posture(a) is None
 
 
 def test_the_base_and_links_turning_about_a_vertical_axis_never_meet_the_floor():
@@ -205,7 +205,7 @@ def test_a_move_out_of_a_collision_is_allowed_only_on_its_way_out():
     assert deeper is not None and deeper.cause == "floor" and deeper.distance < c.posture(start).distance
     assert c.segment(start, turned) is not None and c.segment(start, turned).at == 1.0
     # a box where the lifted wrist goes: a new colliding pair on the way out
-    boxed = SceneChecker(r, scene(use_floor=True, floor=0.0,
+    boxed = SceneChecker(r, scene(floor=0.0,
                                   boxes=[*body_position(r, up, "wrist_3_link"), 0.04, 0.04, 0.04]))
     refusal = boxed.segment(start, up)
     assert refusal is not None and refusal.cause == "box"
@@ -233,7 +233,8 @@ def test_joints_in_another_order():
     ({"scene.margin": 0.0}, r"scene.margin.*0.0.*\[0.001, 1.0\]"),
     ({"scene.clearance": -0.01}, r"scene.clearance"),
     ({"scene.floor": float("nan")}, r"scene.floor.*not finite"),
-    ({"scene.use_floor": 1}, r"scene.use_floor.*true or false"),
+    ({"scene.floor": -1000.5}, r"scene.floor.*\[-1000.0, 100.0\]"),
+    ({"scene.self_collision": 1}, r"scene.self_collision.*true or false"),
 ])
 def test_bad_parameters_name_the_parameter_value_and_range(params, match):
     with pytest.raises(ConfigError, match=match):
@@ -244,7 +245,9 @@ def test_parameters_default_to_no_scene_and_an_empty_box_list_is_valid():
     defaults = schema_defaults(SCENE_PARAMS)
     assert defaults["scene.boxes"] == [] and resolve(SCENE_PARAMS, {"scene.boxes": []})["scene.boxes"] == []
     p = SceneParams.from_params(defaults)
-    assert p == SceneParams() and p.floor is None and p.boxes == ()
+    assert p == SceneParams() and p.floor is None and p.boxes == () and defaults["scene.floor"] == -1000.0
+    assert SceneParams.from_params({"scene.floor": 0.0}).floor == 0.0  # floor: 0.0 alone is a table at z = 0
+    assert SceneParams.from_params({"scene.floor": -999.0}).floor == -999.0
     assert not p.obstacles and p.declared  # (self-collision is on by default)
     assert not SceneParams(self_collision=False).declared
     two = SceneParams.from_params({"scene.boxes": [1, 2, 3, 0.1, 0.2, 0.3, 4, 5, 6, 1, 1, 1]})
@@ -254,7 +257,7 @@ def test_parameters_default_to_no_scene_and_an_empty_box_list_is_valid():
 
 # ------------------------------------------------------------------ without a model
 def test_the_task_point_alone():
-    p = scene(use_floor=True, floor=0.1, boxes=[0.5, 0.0, 0.3, 0.1, 0.1, 0.1])
+    p = scene(floor=0.1, boxes=[0.5, 0.0, 0.3, 0.1, 0.1, 0.1])
     assert task_point_refusal(np.array([0.0, 0.0, 0.5]), p) is None
     below = task_point_refusal(np.array([0.0, 0.0, 0.05]), p)
     assert below.cause == "floor" and "the task point 0.050 m below the floor at z=0.100" in below.detail
@@ -275,7 +278,7 @@ def test_scene_from_a_learners_parameters():
     p = {"task_model.file": "robots/arm7.urdf", "task_model.effector": "tool0", "task_model.task_axes": "xyz",
          "task_model.package_paths": ["."], "joint_limits.lower": list(r.lower), "joint_limits.upper": list(r.upper),
          "rest_posture": REST7, **{k: v for k, v in schema_defaults(SCENE_PARAMS).items()},
-         "scene.use_floor": True}
+         "scene.floor": 0.0}
     joints = list(r.joint_names)[::-1]
     p["joint_limits.lower"], p["joint_limits.upper"] = p["joint_limits.lower"][::-1], p["joint_limits.upper"][::-1]
     p["rest_posture"] = REST7[::-1]
@@ -284,7 +287,7 @@ def test_scene_from_a_learners_parameters():
     assert c.posture(np.array(REST7[::-1])) is None
     assert c.posture(posture("arm7", j1=1.5, j3=-0.5)[::-1]).cause == "floor"
     assert scene_from_params({**p, "task_model.file": ""}, joints, "config") is None
-    assert scene_from_params({**p, "scene.use_floor": False, "scene.self_collision": False}, joints, "config") is None
+    assert scene_from_params({**p, "scene.floor": -1000.0, "scene.self_collision": False}, joints, "config") is None
     with pytest.raises(ConfigError, match="task_model.effector"):
         scene_from_params({**p, "task_model.effector": "nope"}, joints, "config")
 

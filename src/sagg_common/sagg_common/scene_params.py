@@ -5,9 +5,11 @@ sends it, :class:`sagg_common.scene.SceneChecker`) and the simulated bridge (who
 same obstacles and which counts the contacts) read the same scene. Lengths in metres, in the
 robot model's world frame (z up).
 
-Why ``scene.use_floor`` and not an unset ``scene.floor``: a NaN "unset" passes ROS parameter
-files but not JSON (the ``-p`` values of a graph run), and compares unequal to itself wherever
-two parameter sets are compared; a bool says it plainly.
+No floor is ``scene.floor: -1000.0`` (:data:`NO_FLOOR`, the default), so that ``floor: 0.0``
+alone declares a table at z = 0. Not NaN: a NaN default passes a ROS parameter file but not the
+JSON of a graph run's ``-p`` values, and compares unequal to itself where two runs' parameter sets
+are compared (a comparison's restart would see a changed setting). Not a separate on/off switch:
+a floor given without it would be silently ignored.
 """
 from __future__ import annotations
 
@@ -17,15 +19,15 @@ from typing import Any, Mapping
 
 from .params import ConfigError, Param, Schema
 
-BOX_FIELDS = 6  # centre x y z, half sizes x y z
+BOX_FIELDS = 6      # centre x y z, half sizes x y z
+NO_FLOOR = -1000.0  # m: scene.floor's "no floor"
 
 SCENE_PARAMS: Schema = (
-    Param("scene.use_floor", "bool", False,
-          "true: no moving link may come below scene.floor (nor within scene.clearance of it). The robot's "
-          "base and every body no commanded joint moves never count (the arm is mounted on the table)."),
-    Param("scene.floor", "float", 0.0,
-          "Height (m, world z of the robot model) of the floor or table top the arm is mounted on; used "
-          "when scene.use_floor is true.", low=-100.0, high=100.0),
+    Param("scene.floor", "float", NO_FLOOR,
+          "Height (m, world z of the robot model) of the floor or table top the arm is mounted on: no moving "
+          "link may come below it, nor within scene.clearance of it. The robot's base and every body no "
+          "commanded joint moves never count (the arm is mounted on the table). -1000.0 (the default) = no "
+          "floor.", low=NO_FLOOR, high=100.0),
     Param("scene.boxes", "float_list", [],
           "Obstacles as boxes, 6 numbers each in one flat list: centre x y z, then half sizes x y z (m, "
           "world frame of the robot model, axis-aligned). Empty (default) = no box. A box is named by its "
@@ -95,7 +97,7 @@ class SceneParams:
             if not all(h > 0.0 for h in box[3:]):
                 raise ConfigError(f"parameter 'scene.boxes': got {flat!r}; box {k + 1} has half sizes "
                                   f"{list(box[3:])}; allowed: half sizes > 0")
-        return cls(floor=float(v["scene.floor"]) if v["scene.use_floor"] else None, boxes=boxes,
+        return cls(floor=float(v["scene.floor"]) if v["scene.floor"] > NO_FLOOR else None, boxes=boxes,
                    link_radius=float(v["scene.link_radius"]), margin=float(v["scene.margin"]),
                    clearance=float(v["scene.clearance"]), self_collision=bool(v["scene.self_collision"]))
 

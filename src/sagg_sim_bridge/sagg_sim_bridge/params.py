@@ -112,10 +112,10 @@ def arm_spec_from_params(params: dict, base_dir: str | None = None) -> ArmSpec |
             fields["rest_posture"] = params["rest_posture"]
         return ModelArmSpec.from_params(fields, base_dir, scene if scene.obstacles else None)
     if scene.obstacles:
-        name = "scene.use_floor" if scene.floor is not None else "scene.boxes"
+        name = "scene.floor" if scene.floor is not None else "scene.boxes"
         raise ConfigError(f"parameter '{name}': set, but the planar arm (arm.model empty) lives in its task plane "
-                          "and has no scene; allowed: a scene for a model arm (arm.model), else scene.use_floor "
-                          "false and scene.boxes []")
+                          "and has no scene; allowed: a scene for a model arm (arm.model), else no scene.floor "
+                          "(-1000.0) and scene.boxes []")
     planar = {f.name for f in dataclasses.fields(ArmSpec)}
     try:
         return ArmSpec.from_dict({k: v for k, v in fields.items() if k in planar})
