@@ -222,9 +222,10 @@ class LoadedArm(RobotModel):
     effector, forward kinematics, reach; loaded for kinematics in kinematic mode) and what
     simulating it needs: ``sim_model``, the MjModel the simulator runs (the robot's own in
     kinematic mode; in dynamic mode every mesh is required and a position servo is added per
-    commanded joint), the servos' actuator ids ``act`` and the rest controls ``ctrl_rest``; in dynamic
-    mode with a scene, its floor and boxes are in ``sim_model`` (:func:`sagg_common.scene_model.add_scene_physics`).
-    :meth:`scene_model` is the collision model the simulators' contact counting shares."""
+    commanded joint), the servos' actuator ids ``act`` and the rest controls ``ctrl_rest``;
+    ``scene_params``, the spec's scene (None: none), whose floor and boxes are in ``sim_model`` in
+    dynamic mode (:func:`sagg_common.scene_model.add_scene_physics`); :meth:`scene_model`, the
+    collision model the simulators' contact counting shares."""
 
     def __init__(self, spec: ModelArmSpec, prefixes: tuple[str, ...]):
         path = spec.model
@@ -233,10 +234,10 @@ class LoadedArm(RobotModel):
         super().__init__(path, compile_spec(mjspec, path), spec.effector, spec.task_axes, spec.joints,
                          spec.joint_lower, spec.joint_upper, spec.rest, dropped, spec.package_paths, prefixes)
         m, key, jids, rest = self.model, self.key, self.jids, self.rest
-        self.scene = spec.scene
+        self.scene_params = spec.scene
         self._scene_model: SceneModel | None = None
-        if self.scene is not None and not kinematic:
-            add_scene_physics(mjspec, m, jids, self.qpos_rest, self.scene)
+        if self.scene_params is not None and not kinematic:
+            add_scene_physics(mjspec, m, jids, self.qpos_rest, self.scene_params)
         # ---- dynamic mode: a position servo per commanded joint
         self.act = np.zeros(0, dtype=np.int64)
         if not kinematic:
@@ -256,9 +257,9 @@ class LoadedArm(RobotModel):
     def scene_model(self) -> SceneModel:
         """The collision model of this arm in its scene (built on first use, then shared)."""
         if self._scene_model is None:
-            if self.scene is None:
+            if self.scene_params is None:
                 raise ValueError("this arm has no scene")
-            self._scene_model = SceneModel(self, self.scene)
+            self._scene_model = SceneModel(self, self.scene_params)
         return self._scene_model
 
     @staticmethod
