@@ -248,8 +248,7 @@ def test_parameters_default_to_no_scene_and_an_empty_box_list_is_valid():
     assert p == SceneParams() and p.floor is None and p.boxes == () and defaults["scene.floor"] == -1000.0
     assert SceneParams.from_params({"scene.floor": 0.0}).floor == 0.0  # floor: 0.0 alone is a table at z = 0
     assert SceneParams.from_params({"scene.floor": -999.0}).floor == -999.0
-    assert not p.obstacles and p.declared  # (self-collision is on by default)
-    assert not SceneParams(self_collision=False).declared
+    assert not p.obstacles and p.self_collision  # (no scene by default; with one, self-collision on)
     two = SceneParams.from_params({"scene.boxes": [1, 2, 3, 0.1, 0.2, 0.3, 4, 5, 6, 1, 1, 1]})
     assert two.boxes == ((1.0, 2.0, 3.0, 0.1, 0.2, 0.3), (4.0, 5.0, 6.0, 1.0, 1.0, 1.0))
     assert hash(two) == hash(SceneParams.from_params({"scene.boxes": [1, 2, 3, 0.1, 0.2, 0.3, 4, 5, 6, 1, 1, 1]}))

@@ -322,10 +322,10 @@ def scene_from_params(p: dict, joints: Sequence[str], base_dir: str) -> SceneChe
     -------
     SceneChecker or None
         None when there is no model (``task_model.file`` empty: only :func:`task_point_refusal`
-        can check then) or nothing to check (no floor, no box, no self-collision).
+        can check then) or no scene (no floor, no box).
     """
     params = SceneParams.from_params(p)
-    if not p.get("task_model.file") or not params.declared:
+    if not p.get("task_model.file") or not params.obstacles:
         return None
     robot = robot_from_params(p, joints, base_dir)
     return SceneChecker(robot, params, joints)

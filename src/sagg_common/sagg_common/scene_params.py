@@ -49,8 +49,9 @@ SCENE_PARAMS: Schema = (
           "gaps between the model and the real arm and scene (calibration, cables, a model's simplified "
           "shapes). Links among themselves collide only when they overlap.", low=0.0, high=1.0),
     Param("scene.self_collision", "bool", True,
-          "Check the arm against itself: links that are not parent and child, nor already touching at "
-          "the rest posture (the pairs left out are said once)."),
+          "With a scene declared (a floor or a box), check the arm against itself too: links that are not "
+          "parent and child, nor already touching at the rest posture (the pairs left out are said once). "
+          "Without a floor or a box there is no scene: nothing is checked (the paper's simulated arms)."),
 )
 
 _BY_NAME = {p.name: p for p in SCENE_PARAMS}
@@ -103,13 +104,9 @@ class SceneParams:
 
     @property
     def obstacles(self) -> bool:
-        """Whether a floor or a box is declared."""
+        """Whether a floor or a box is declared: a scene (the arm against it and, with
+        ``self_collision``, against itself), else nothing to check."""
         return self.floor is not None or bool(self.boxes)
-
-    @property
-    def declared(self) -> bool:
-        """Whether there is anything to check: a floor, a box, or the arm against itself."""
-        return self.obstacles or self.self_collision
 
     def describe(self) -> str:
         """What the scene holds, for the notice said at start.

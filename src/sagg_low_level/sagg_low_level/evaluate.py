@@ -31,9 +31,20 @@ def reach_frozen(learner: EvolvingContextLearner, robot: ReachingRobot, goal: np
     try:
         target = next(reach)
         while True:
-            target = reach.send(robot.command(target))
+            if not allowed(learner, alpha, target):
+                target = reach.send((alpha, y))  # (not sent: the arm stays, the step is spent)
+                continue
+            alpha, y = robot.command(target)
+            target = reach.send((alpha, y))
     except StopIteration as done:
         return done.value[1]
+
+
+def allowed(learner: EvolvingContextLearner, alpha: np.ndarray, target: np.ndarray) -> bool:
+    """Whether the learner's scene (``learner.scene``, None: none) lets an evaluation's step go from
+    ``alpha`` to ``target``: an evaluation meets the scene as the learner node's reaches do (a
+    refused step is not sent, the arm stays). Not counted among the learner's refusals."""
+    return learner.scene is None or learner.scene.segment(alpha, target) is None
 
 
 REACH_STEPS_FACTOR = 10  # a reach may ask for this many times the evaluation's longest budget
@@ -143,6 +154,7 @@ def evaluate_batch(learner: EvolvingContextLearner, robots: Sequence[ReachingRob
             step[j] = step[j] * (max_step / float(big[j]))
         target = np.minimum(np.maximum(a + step, lower), upper)
         for j, i in enumerate(active):
-            alpha[i], y[i] = robots[i].command(target[j])
+            if allowed(learner, alpha[i], target[j]):
+                alpha[i], y[i] = robots[i].command(target[j])
             used[i] += 1
     return np.array([norm(g - yy) for g, yy in zip(goals, y)])

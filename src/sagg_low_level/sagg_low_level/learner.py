@@ -190,7 +190,19 @@ class MoveCheck(Protocol):
     """What the learner asks of a scene (:class:`sagg_common.scene.SceneChecker`): the refusal of
     the joint-space segment between two postures (an object with ``cause`` and ``detail``), or None."""
 
-    def segment(self, alpha0: np.ndarray, alpha1: np.ndarray): ...
+    def segment(self, alpha0: np.ndarray, alpha1: np.ndarray):
+        """Whether the straight joint-space move may be sent.
+
+        Parameters
+        ----------
+        alpha0, alpha1 : ndarray, shape (n,)
+            The current posture and the one to command.
+
+        Returns
+        -------
+        Refusal or None
+            Why the move is refused (``cause``, ``detail``), or None.
+        """
 
 
 # --------------------------------------------------------------------------- coroutine protocol

@@ -168,6 +168,7 @@ class LearnerNode(LearnerNodeBase):
         if self.task_fk is None:
             self.create_subscription(PointStamped, p["task_topic"], sources.with_message_info(self.on_task_point),
                                      reliable(10), raw=True)
+        self._init_scene(p)
         # one source per input (docs/safety.md, sagg_common.sources): judged by the messages that
         # arrive, never by who merely publishes
         self.check_sources = p["plausibility.check_sources"]
@@ -182,6 +183,27 @@ class LearnerNode(LearnerNodeBase):
         self.js_min = self.tip_min = 0
         self.js_fresh = self.tip_fresh = False
         self.cmd_time = 0.0
+
+    def _init_scene(self, p: dict) -> None:
+        """The scene (:mod:`.move_check`): every move is checked before it is sent; the learner's
+        micro-actions by the learner itself, the other commands (return to rest, reaches) here."""
+        # lazy (heavy): mujoco, only with a model or a declared scene
+        from sagg_common.robot_model import in_learner_terms
+        from .move_check import build_move_check
+        self.scene, notices = build_move_check(p, self.robot.joint_names, params_dir() or os.getcwd(), self.learner)
+        for line in notices:
+            self.get_logger().info(in_learner_terms(line))
+        self.learner.scene = self.scene
+        self.learner.on_refusal = self._on_refusal
+
+    def _on_refusal(self, refusal) -> None:
+        """A move the scene refused (not sent): logged (at most every 10 s) and counted (/diagnostics,
+        /sagg/status)."""
+        self.get_logger().warning(f"move refused by the scene ({refusal.cause}: {refusal.detail}); refused so far: "
+                                  f"{self._refused_text()}", throttle_duration_sec=10.0)
+
+    def _refused_text(self) -> str:
+        return ", ".join(f"{cause} {n}" for cause, n in sorted(self.learner.refused.items()))
 
     def _init_outputs(self, p: dict) -> None:
         """The commands, the /sagg topics, the pause service and the recorders' backpressure."""
@@ -558,6 +580,11 @@ class LearnerNode(LearnerNodeBase):
                       "recorder acknowledged samples": str(self.rec_acks.largest()),
                       "recorders seen": str(self.rec_acks.recorders_seen)})
         state["rest-return commands"] = str(self.rest_moves.steps)
+        for cause, n in sorted(self.learner.refused.items()):
+            state[f"moves refused by the scene: {cause}"] = str(n)
+        if self.stream is not None:
+            state["arm stopped following (episodes)"] = str(self.stream.stops)
+            state["probe setpoints"] = str(self.stream.probes)
         ignored = sum(self.js_intake.other_joints.values())
         if ignored:
             state["ignored /joint_states without the learner's joints"] = str(ignored)
@@ -649,6 +676,10 @@ class LearnerNode(LearnerNodeBase):
             self._set_hold("fault", "the learner produced an invalid command (see /diagnostics)")
             self.pending, self.state = req, self.PAUSED
             return
+        if (self.scene is not None and (req.kind in ("reset", "return") or self.reach is not None)
+                and self.learner.refuses(self.js_alpha, target)):
+            self._not_sent(req)  # (the learner's micro-actions were checked by the learner)
+            return
         self.pending = req  # (a stepped return to rest sends it again until the rest is reached)
         self.state = self.RUNNING_COMMAND
         self.streamed = self.stream is not None and not self._sim_only()
@@ -665,6 +696,14 @@ class LearnerNode(LearnerNodeBase):
         if self.outbox and (len(self.outbox) >= self.publish_batch
                             or self.cmd_time - self.last_flush >= self.publish_period):
             self.flush()
+
+    def _not_sent(self, req) -> None:
+        """A command the scene refused: nothing goes out, and its answer is the posture where the
+        arm is (the next fresh observation); a return to rest ends there."""
+        self.pending, self.state, self.streamed = req, self.RUNNING_COMMAND, False
+        self.rest_moves.not_resting()
+        self._await_answer()
+        self.js_min, self.tip_min = self.js_stamp - 1, self.tip_stamp - 1  # (the newest observation answers it)
 
     def _await_answer(self) -> None:
         """The last setpoint of the command goes out now: its answer is the first observation
@@ -723,6 +762,10 @@ class LearnerNode(LearnerNodeBase):
                                    f"follow_retry ({self.params['follow_retry']:g} s)")
         elif what == RESUMED:
             self._set_hold(FOLLOW, None)
+            if self.scene is not None and self.learner.refuses(self.js_alpha, stream.target):
+                stream.done()  # (the way on from here is refused: the move ends where the arm is)
+                self._not_sent(self.pending)
+                return
             stream.begin(self.js_alpha, stream.target, time.monotonic())
             if self.trajectory:
                 self._publish_trajectory(self.js_alpha, stream.target, stream.duration)
@@ -1052,7 +1095,8 @@ class LearnerNode(LearnerNodeBase):
                       "acknowledged on /sagg/recorded)")
         self._publish_status(learner.strategy.upper(), learner.micro_actions, len(learner.memory),
                              (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0, paused,
-                             "; ".join([r for r in [reason, *self.holds.values()] if r]) if paused else "")
+                             "; ".join([r for r in [reason, *self.holds.values()] if r]) if paused else "",
+                             self._refused_text())
 
 
 def main(args: list[str] | None = None) -> int:

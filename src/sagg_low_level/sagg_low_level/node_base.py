@@ -124,7 +124,7 @@ class LearnerNodeBase(Node):
 
     # ------------------------------------------------------------------ outputs
     def _publish_status(self, strategy: str, micro_actions: int, samples: int, rate: float, paused: bool,
-                        pause_reason: str) -> None:
+                        pause_reason: str, refused: str = "") -> None:
         """``/sagg/status`` (sagg_msgs/LearnerStatus); goals and last competence from the node."""
         msg = LearnerStatus()
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -137,4 +137,5 @@ class LearnerNodeBase(Node):
         msg.micro_actions_per_second = rate
         msg.paused = paused
         msg.pause_reason = pause_reason
+        msg.refused = refused
         self.status_pub.publish(msg)

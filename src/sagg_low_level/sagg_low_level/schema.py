@@ -8,6 +8,7 @@ import math
 
 from sagg_common.joint_intake import JointStateIntake
 from sagg_common.params import Param, Schema
+from sagg_common.scene_params import SCENE_PARAMS
 
 from .fixed_context import SCHEMA as FIXED_CORE_SCHEMA, SYNERGY_SCHEMA
 from .learner import CONTEXT, SCHEMA as LEARNER_CORE_SCHEMA
@@ -213,8 +214,8 @@ LEARNER_NODE_SCHEMA: Schema = (
           "(driver or sim-time restart): logged, and the stream re-synchronised on them.",
           low=1, high=1_000_000),
 )
-# the node `learner` (evolving context)
-LEARNER_SCHEMA: Schema = LEARNER_CORE_SCHEMA + LEARNER_NODE_SCHEMA
+# the node `learner` (evolving context); the scene (config's /** section) is checked before every move
+LEARNER_SCHEMA: Schema = LEARNER_CORE_SCHEMA + LEARNER_NODE_SCHEMA + SCENE_PARAMS
 # what the joint-state intake reads (joint_intake), with the learner's defaults for a reader whose
 # parameters lack them (the fixed-context learner's position link)
 _INTAKE_DEFAULTS = {q.name: q.default for q in LEARNER_NODE_SCHEMA if q.name.startswith("plausibility.")}

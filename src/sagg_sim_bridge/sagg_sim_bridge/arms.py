@@ -11,12 +11,14 @@ from typing import Any, Callable
 
 import numpy as np
 
+from sagg_common.scene import SceneChecker
+
 from .arm import ArmSim, ArmSpec, ReachableArea, reachable_area, test_goals
 from .model_arm import ModelArmSim, ModelArmSpec, model_reachable_area, model_test_goals
 from .params import arm_spec_from_params
 
 __all__ = ["ARM_KINDS", "ArmKind", "arm_base_point", "arm_kind", "arm_reach", "arm_reachable_area",
-           "arm_spec_from_params", "arm_task_dim", "arm_test_goals", "make_arm_sim"]
+           "arm_scene_checker", "arm_spec_from_params", "arm_task_dim", "arm_test_goals", "make_arm_sim"]
 
 
 @dataclass(frozen=True)
@@ -29,14 +31,23 @@ class ArmKind:
     reach: Callable[[Any], float]          # task-unit scale of the arm (for task-unit defaults)
     base_point: Callable[[Any], np.ndarray]  # the arm's base in task coordinates (metric bands)
     task_dim: Callable[[Any], int]
+    scene_checker: Callable[[Any], Any]     # a learner's collision checker in the arm's scene, or None
+
+
+def _model_scene_checker(spec: ModelArmSpec):
+    """The arm's own SceneChecker in its scene (the collision model shared with its simulators)."""
+    if spec.scene is None:
+        return None
+    arm = spec.loaded()
+    return SceneChecker(arm, spec.scene, model=arm.scene_model())
 
 
 ARM_KINDS: dict[type, ArmKind] = {
     # planar: reach = total length (the tip's farthest distance from the base at the origin)
     ArmSpec: ArmKind(ArmSim, reachable_area, test_goals, lambda s: float(s.total_length),
-                     lambda s: np.zeros(2), lambda s: ArmSim.task_dim),
+                     lambda s: np.zeros(2), lambda s: ArmSim.task_dim, lambda s: None),
     ModelArmSpec: ArmKind(ModelArmSim, model_reachable_area, model_test_goals, ModelArmSpec.reach,
-                          ModelArmSpec.base_point, lambda s: s.task_dim),
+                          ModelArmSpec.base_point, lambda s: s.task_dim, _model_scene_checker),
 }
 
 
@@ -72,3 +83,9 @@ def arm_base_point(spec) -> np.ndarray:
 
 def arm_task_dim(spec) -> int:
     return int(arm_kind(spec).task_dim(spec))
+
+
+def arm_scene_checker(spec):
+    """The learner's collision checker of ``spec`` in its scene (``scene.*``: a floor or boxes), as
+    the learner node builds it from the same model; None without a scene (or for the planar arm)."""
+    return arm_kind(spec).scene_checker(spec)

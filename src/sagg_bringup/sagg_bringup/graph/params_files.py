@@ -106,7 +106,11 @@ def write_params_file(path: Path, params: dict[str, dict]) -> None:
 class _RosDumper(yaml.SafeDumper):
     """A YAML dumper for ROS 2 parameter files: a string that a YAML 1.1 reader takes for a boolean
     (``y``, ``n``, ``yes``, ``on``, ...; rcl's parser does, PyYAML does not for ``y``/``n``) is
-    quoted, so a joint named ``y`` stays a string."""
+    quoted, so a joint named ``y`` stays a string. No anchors and aliases (rcl's parser does not
+    support them): a value shared by two nodes is written twice."""
+
+    def ignore_aliases(self, data) -> bool:
+        return True
 
 
 _BOOL_LIKE = {w for b in ("y", "n", "yes", "no", "on", "off", "true", "false") for w in (b, b.upper(), b.title())}

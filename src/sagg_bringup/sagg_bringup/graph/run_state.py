@@ -178,6 +178,8 @@ class RunState:
         out = {"goals": len(self.goals),
                "regions": len(self.last_regions.regions) if self.last_regions is not None else 1,
                "competence": self.last_competence, "error": self.last_error}
+        if self.status is not None and self.status.get("refused"):
+            out["refused"] = self.status["refused"]
         reason = self.hold_reason()
         if reason:
             out["held"] = reason if len(reason) <= HELD_WIDTH else reason[:HELD_WIDTH - 1] + "…"
@@ -232,4 +234,6 @@ def _status_dict(m, rate: bool = True) -> dict:
     if rate:
         out["micro_actions_per_second"] = float(m.micro_actions_per_second)
     out.update(paused=bool(m.paused), pause_reason=m.pause_reason)
+    if m.refused:
+        out["refused"] = m.refused
     return out

@@ -45,10 +45,20 @@ GOAL_SERVER_NODE = "sagg_goal_generator_goals"
 SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_file", "timing", "domain_id",
                 "micro_actions", "micro_actions_requested", "micro_actions_per_second", "eval_every",
                 "resumed_segments", "learn_seconds", "startup_seconds", "eval_seconds", "wall_seconds", "curve",
-                "final_mean_error", "final_median_error", "memory", "learner_status", "reports", "goals",
-                "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
+                "final_mean_error", "final_median_error", "memory", "learner_status", "scene_refusals", "reports",
+                "goals", "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
                 "interrupted", "error", "eval_metrics", "driver", "curve_source", "simulated_evaluation",
                 "robot_evaluation", "teacher")
+
+
+def refusal_counts(text: str) -> dict[str, int]:
+    """The learner status's ``refused`` ("floor 12, self 3") as {cause: count}."""
+    out = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        cause, _, count = part.rpartition(" ")
+        if cause and count.isdigit():
+            out[cause] = int(count)
+    return out
 
 
 class GraphSession:
@@ -435,6 +445,7 @@ class GraphSession:
             "final_mean_error": curve[-1]["mean_error"] if curve else float("nan"),
             "final_median_error": curve[-1]["median_error"] if curve else float("nan"),
             "learner_status": st.status,
+            "scene_refusals": refusal_counts((st.status or {}).get("refused", "")),
             "reports": st.reports,
             "goals": goals,
             "goal_stats": goal_share_stats(pos, gma, area, micro_actions) if area is not None else {},

@@ -56,13 +56,17 @@ def core_config(full: dict[str, dict]) -> dict[str, dict]:
 
 
 def fill_task_model(lp: dict, bp: dict) -> None:
-    """``task_source: model`` without a ``task_model.file``: the config's simulated arm's model
-    (``arm.model``, effector, axes, package paths); ConfigError when there is none (in place)."""
-    if lp.get("task_source") != "model" or lp.get("task_model.file"):
+    """The learner's robot model (``task_model.*``: the task point with ``task_source: model``, the
+    scene's geometry and the velocity limits) when it has none: the config's simulated arm's model
+    (``arm.model``, effector, axes, package paths); ConfigError when ``task_source: model`` has
+    none (in place)."""
+    if lp.get("task_model.file") or "task_model.file" not in lp:
         return
     if not bp.get("arm.model"):
-        raise ConfigError("parameter 'task_source': 'model' needs the robot's model: task_model.file (or a "
-                          "simulated arm from a model file, arm.model, in the config)")
+        if lp.get("task_source") == "model":
+            raise ConfigError("parameter 'task_source': 'model' needs the robot's model: task_model.file (or a "
+                              "simulated arm from a model file, arm.model, in the config)")
+        return
     lp.update({"task_model.file": bp["arm.model"], "task_model.effector": bp["arm.effector"],
                "task_model.task_axes": bp["arm.task_axes"], "task_model.package_paths": list(bp["arm.package_paths"])})
 

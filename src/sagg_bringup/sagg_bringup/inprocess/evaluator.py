@@ -30,7 +30,7 @@ def evaluation_setup(learner_params: dict, spec, memory=None):
     learner (empty memory, or ``memory``) is built exactly as the learner node builds its own
     (same neighbour search). Used by ``sagg run``'s evaluator, ``sagg relearn`` and ``sagg reach``."""
     # lazy (heavy): mujoco
-    from sagg_sim_bridge.arms import arm_reachable_area, arm_test_goals
+    from sagg_sim_bridge.arms import arm_reachable_area, arm_scene_checker, arm_test_goals
     lp = learner_params
     area = arm_reachable_area(spec, lp["task_space.lower"], lp["task_space.upper"], seed=lp["eval.seed"])
     goals = arm_test_goals(spec, lp["task_space.lower"], lp["task_space.upper"], n=lp["eval.goals"],
@@ -38,6 +38,7 @@ def evaluation_setup(learner_params: dict, spec, memory=None):
     lower, upper = spec.limits()
     robot = Robot(spec.joint_names(), lower, upper, spec.rest_posture())
     learner = EvolvingContextLearner(lp, robot, len(lp["task_space.lower"]), memory=memory)
+    learner.scene = arm_scene_checker(spec)  # (its reaches meet the scene as the learner node's do)
     return area, goals, learner
 
 

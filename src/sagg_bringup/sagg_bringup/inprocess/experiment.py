@@ -19,7 +19,8 @@ from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import frame_summary, metric_frame
 from sagg_low_level.learner import (SCHEMA as LEARNER_SCHEMA, Command, EvolvingContextLearner,
                                     GoalRequest, Observe, Robot)
-from sagg_sim_bridge.arms import (arm_base_point, arm_reachable_area, arm_spec_from_params, arm_test_goals,
+from sagg_sim_bridge.arms import (arm_base_point, arm_reachable_area, arm_scene_checker, arm_spec_from_params,
+                                  arm_test_goals,
                                   make_arm_sim)
 from sagg_sim_bridge.params import SCHEMA as BRIDGE_SCHEMA
 
@@ -50,6 +51,8 @@ class InProcessRun:
         self.generator = GoalGenerator(gp)
         self.learner = EvolvingContextLearner(lp, robot, self.sim.task_dim)
         self.learner.on_report = self._on_report
+        # the scene, as the learner node checks it (the config's arm model, its scene.*)
+        self.learner.scene = arm_scene_checker(self.spec)
         self.goal_micro_actions: dict[int, int] = {}
         self.phases = PhaseCounter()
         self.sim.reset()
@@ -67,7 +70,10 @@ class InProcessRun:
         t0 = time.perf_counter()
         while learner.micro_actions < micro_actions:
             if isinstance(req, Command):
-                answer = sim.command(req.target)
+                if req.kind == "reset" and learner.scene is not None and learner.refuses(learner.alpha, req.target):
+                    answer = sim.observe()  # (refused by the scene, as the learner node does: the arm stays)
+                else:
+                    answer = sim.command(req.target)
                 phases.command(req.kind)
             elif isinstance(req, GoalRequest):
                 g = gen.next_goal()
