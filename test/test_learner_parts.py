@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sagg_low_level.holds import REACH, SERVICE, Holds
+from sagg_low_level.holds import FOLLOW, REACH, SERVICE, Holds
 from sagg_low_level.learner import Robot
 from sagg_low_level.rest_return import RestReturn
 
@@ -26,6 +26,11 @@ def test_holds_set_release_and_block():
     assert said[-1] == ("info", "service hold released: resuming") and not h.blocking(reaching=False)
     h.set(REACH, "reaching a goal")
     assert h.blocking(reaching=False) and not h.blocking(reaching=True) and h.faults() == ""
+    # a pause holds learning, not a reach asked for meanwhile (the evaluation on the robot); a fault does
+    h.set(SERVICE, "paused by the /sagg/pause service")
+    assert h.blocking(reaching=False) and not h.blocking(reaching=True)
+    h.set(FOLLOW, "the arm does not follow its setpoints")
+    assert h.blocking(reaching=True) and h.faults() == "the arm does not follow its setpoints"
 
 
 def test_the_return_to_rest_steps_from_the_measured_posture():

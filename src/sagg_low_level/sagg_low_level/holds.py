@@ -22,7 +22,9 @@ key                     set when                                               r
 ``fault``               the learner produced an invalid command                never (a bug: see /diagnostics)
 ======================  =====================================================  ================================
 
-During a reach only the ``reach`` hold itself does not block (the reach's own commands go out).
+During a reach the ``reach`` hold itself and a pause by ``/sagg/pause`` do not block (the reach's own
+commands go out: a reach asked for while learning is paused is a deliberate request, e.g. the evaluation
+on the robot pauses learning and then reaches its test goals); every other hold does.
 """
 from __future__ import annotations
 
@@ -35,7 +37,8 @@ FOLLOW = "follow"
 SOURCES = "sources "  # + the topic
 # the reason of the SERVICE hold (on /sagg/status: a run's orchestrator tells a user's pause from a stall by it)
 PAUSED_BY_SERVICE = "paused by the /sagg/pause service"
-# holds that are no fault of the graph (a user's pause, a reach): not reported as a fault on /diagnostics
+# holds that are no fault of the graph (a user's pause, a reach): not reported as a fault on /diagnostics,
+# and not in the way of a reach's own commands
 NOT_FAULTS = (SERVICE, REACH)
 
 
@@ -59,8 +62,8 @@ class Holds(dict):
         return True
 
     def blocking(self, reaching: bool) -> bool:
-        """Whether a new command must wait (during a reach its own hold does not count)."""
-        return any(k != REACH for k in self) if reaching else bool(self)
+        """Whether a new command must wait (during a reach its own hold and a pause do not count)."""
+        return any(k not in NOT_FAULTS for k in self) if reaching else bool(self)
 
     def faults(self) -> str:
         """The holds that are a fault of the graph (not a pause or a reach), in words."""

@@ -467,11 +467,12 @@ class LearnerNode(LearnerNodeBase):
         self.advance((self.js_alpha, self.tip))
 
     def _settled_at(self, target: np.ndarray) -> bool:
-        """A streamed move's end: settled by the velocities when the driver publishes them, else
-        by position (every joint within ``settle_tolerance`` of the last setpoint)."""
-        if self.js_intake.velocity is not None:
-            return self.js_settled
-        return float(np.abs(self.js_alpha - target).max()) <= self.params["settle_tolerance"]
+        """A streamed move's end: every joint within ``settle_tolerance`` of the last setpoint and,
+        when the driver publishes velocities, every one below ``settle_velocity``. (Slow alone is
+        not enough: a stopped arm is slow; it never gets there and :class:`.motion.FollowWatch`
+        tells it.)"""
+        near = float(np.abs(self.js_alpha - target).max()) <= self.params["settle_tolerance"]
+        return near and (self.js_intake.velocity is None or self.js_settled)
 
     # ------------------------------------------------------------------ coroutine driving
     def on_poll(self) -> None:
@@ -501,6 +502,8 @@ class LearnerNode(LearnerNodeBase):
             self._retry_goal_request()
         elif self.state is self.RUNNING_COMMAND and time.monotonic() - self.cmd_time > self.settle_timeout:
             if self.streamed:
+                if self.stream.busy:
+                    return  # (the arm stopped on the way: the follow hold and its probes decide)
                 self.stream.done()  # (settle_timeout runs from the last setpoint: the move is over)
             if self.js_fresh and self.tip_fresh:
                 self.get_logger().warning(
@@ -530,6 +533,10 @@ class LearnerNode(LearnerNodeBase):
               and getattr(self.pending, "kind", None) in ("reset", "reach")):
             self.state = None  # canceled while a hold keeps its command waiting: nothing moved
             self.dispatch(self.coro.send(None))
+        elif (self.reach is not None and self.reach.cancel and self.state is self.RUNNING_COMMAND
+              and self.streamed and self.stream.phase in (self.stream.STOPPED, self.stream.PROBING)):
+            self.stream.done()  # canceled while the arm does not follow: the move ends where the arm is
+            self._answer_where_it_is()
 
     # ------------------------------------------------------------------ safety holds
     def _check_driver(self) -> None:
@@ -700,7 +707,14 @@ class LearnerNode(LearnerNodeBase):
     def _not_sent(self, req) -> None:
         """A command the scene refused: nothing goes out, and its answer is the posture where the
         arm is (the next fresh observation); a return to rest ends there."""
-        self.pending, self.state, self.streamed = req, self.RUNNING_COMMAND, False
+        self.pending, self.state = req, self.RUNNING_COMMAND
+        self._answer_where_it_is()
+
+    def _answer_where_it_is(self) -> None:
+        """The command in flight is answered by the next observation, wherever the arm is (a move
+        refused or abandoned); a return to rest ends there."""
+        self.streamed = False
+        self._set_hold(FOLLOW, None)  # (a next move that the arm does not follow sets it again)
         self.rest_moves.not_resting()
         self._await_answer()
         self.js_min, self.tip_min = self.js_stamp - 1, self.tip_stamp - 1  # (the newest observation answers it)

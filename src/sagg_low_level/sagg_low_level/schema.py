@@ -80,9 +80,9 @@ LEARNER_NODE_SCHEMA: Schema = (
           "speed of an arm beside people and furniture; lower it for a first run.",
           low=0.0, high=1.0, low_open=True),
     Param("settle_tolerance", "float", 0.01,
-          "rad: a streamed move is settled when every joint is within this of the last setpoint, if the "
-          "driver publishes no velocities (with velocities: settle_velocity); also the motion that "
-          "counts as following (follow_timeout).", low=0.0, high=10.0, low_open=True),
+          "rad: a streamed move is settled when every joint is within this of the last setpoint (and, when "
+          "the driver publishes velocities, every one is below settle_velocity: a stopped arm is slow too); "
+          "also the motion that counts as following (follow_timeout).", low=0.0, high=10.0, low_open=True),
     Param("follow_timeout", "float", 1.0,
           "Seconds without progress toward the setpoints (no joint moved by settle_tolerance and the "
           "arm farther than settle_tolerance from its setpoint) after which the arm is taken as stopped "

@@ -276,12 +276,11 @@ def _run(args) -> int:
                           timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
                           progress=not args.quiet, domain_id=args.domain_id, **_run_options(args))
     except GraphError as exc:
-        print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
+        hint = _resume_hint(setup, out, args.driver == "external")
+        print(f"sagg: error: {exc}\nsagg: partial results in {out}{hint}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
-        hint = (" (external-driver runs cannot be resumed: start a new run)" if args.driver == "external"
-                else f" (sagg run --resume {out} continues)" if setup.resumable
-                else f" ({setup.name} runs cannot be resumed: start a new run)")
+        hint = _resume_hint(setup, out, args.driver == "external")
         print(f"\nsagg: interrupted; bag closed, partial results in {out}{hint}", file=sys.stderr)
         return 130
     report = "" if args.no_report else f", {Path(out) / 'report.md'}"
@@ -297,6 +296,13 @@ def _run(args) -> int:
               f"(initial {r['initial_mean_error']:.3f}); the test error above is "
               f"{s['curve_source']}")
     return 0
+
+
+def _resume_hint(setup, out, robot: bool) -> str:
+    """How a stopped run goes on (an external driver's on its robot: its driver must be running)."""
+    if not setup.resumable:
+        return f" ({setup.name} runs cannot be resumed: start a new run)"
+    return f" (sagg run --resume {out} continues" + (", with the robot's driver running)" if robot else ")")
 
 
 def _resume(args) -> int:

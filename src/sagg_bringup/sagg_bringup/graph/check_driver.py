@@ -20,6 +20,7 @@ Exit code 0 when the contract holds and only the moved joint moved (by 50-150 % 
 """
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import time
@@ -98,6 +99,21 @@ def publishers_report(node, mon: DriverMonitor, say) -> dict:
     return out
 
 
+def probe_target(start: np.ndarray, j: int, step: float, lower: np.ndarray, upper: np.ndarray, scene):
+    """The probe move: joint ``j`` by ``step`` rad (down when up leaves its range) from ``start``,
+    within the limits; the other way when the scene (None: none) refuses the first. Returns the
+    target, or None and the last refusal when the scene refuses both."""
+    refusal = None
+    first = 1.0 if start[j] + step <= upper[j] else -1.0
+    for sign in (first, -first):
+        target = start.copy()
+        target[j] = np.clip(start[j] + sign * step, lower[j], upper[j])
+        refusal = None if scene is None else scene.segment(start, target)
+        if refusal is None:
+            return target, None
+    return None, refusal
+
+
 def check_driver(config: str, joint: str | None = None, step: float = 0.05, seconds: float = 2.0,
                  domain_id: int | None = None, timeout: float = 30.0, out=sys.stdout) -> dict:
     """Run the check; returns the measurements and ``problems`` (empty = fine)."""
@@ -109,6 +125,7 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     from geometry_msgs.msg import PointStamped
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
+    from sagg_common.scene import scene_from_params  # (mujoco)
 
     lp = learner_params(config)
     joints = list(lp["joints"])
@@ -128,6 +145,8 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     ex.add_node(node)
     probe = _Probe(lp)
     mon = probe.mon
+    # the scene (scene.*, with the robot's model): the probe move is checked as the learner's moves are
+    scene = scene_from_params(lp, joints, os.path.dirname(os.path.abspath(config)))
     node.create_subscription(JointState, "/joint_states", with_message_info(probe.on_js), reliable(100), raw=True)
     if mon.task_fk is None:
         node.create_subscription(PointStamped, mon.task_topic, with_message_info(probe.on_tip), reliable(100))
@@ -195,9 +214,11 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
         start = mon.alpha.copy()
         tip0 = mon.tip[:probe.m].copy()
         lower, upper = np.asarray(lp["joint_limits.lower"]), np.asarray(lp["joint_limits.upper"])
-        sign = 1.0 if start[j] + step <= upper[j] else -1.0
-        target = start.copy()
-        target[j] = np.clip(start[j] + sign * step, lower[j], upper[j])
+        target, refusal = probe_target(start, j, step, lower, upper, scene)
+        if target is None:  # (both ways refused by the scene: no motion test, said)
+            say(f"the probe move of {joint} by ±{step} rad is refused by the scene ({refusal.cause}: "
+                f"{refusal.detail}): not moved; try another --joint")
+            return res
         stamp0 = mon.js_stamp
         msg = Float64MultiArray()
         msg.data = target.tolist()

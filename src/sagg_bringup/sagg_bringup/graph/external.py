@@ -11,9 +11,10 @@ Like :func:`~sagg_bringup.graph.graph.run_graph` (same session: private ``ROS_DO
   ``joints`` (your arm), else those of the config's simulated arm;
 - **evaluation on the robot** (:mod:`.robot_eval`): with learning paused (at the end, the
   learner has stopped at ``max_micro_actions``; in between, ``/sagg/pause``), each test goal is
-  reached from rest with the frozen model *through the driver* (``ContractRobot``: the same
-  commands, freshness and settle rules as the learner node, joint limits and ``max_joint_step``),
-  and the final distance is measured by the task-point topic. ``robot_eval_goals`` goals, at the
+  reached from rest by the learner's own ``/sagg/reach`` action (:class:`~.robot_eval.ReachClient`:
+  the learner's model, and its rules for every motion: joint limits, ``max_joint_step``, the scene,
+  streamed setpoints within the velocity limits, the stopped-arm hold), and the final distance is
+  the learner's measured task point. ``robot_eval_goals`` goals, at the
   end and every ``robot_eval_every`` micro-actions (0: only at the end; real robots are slow), at
   most ``robot_eval_goal_seconds`` s per goal;
 - **simulated evaluation**, labelled as such: when the config's simulated arm is the same arm (same
@@ -46,7 +47,7 @@ from ..report.report import arm_rows, write_report
 from ..bags.topics import graph_topics
 from .arm_run import ArmStreams, plan_arm_run
 from .driver_monitor import DriverMonitor, model_task
-from .robot_eval import ContractRobot, RobotEvaluation
+from .robot_eval import ReachClient, RobotEvaluation
 from .processes import GraphError
 from .run_file import write_run_file
 from .session import STALL_TIMEOUT, FollowedEvaluation, GraphSession
@@ -247,11 +248,11 @@ class RobotRun:
         self.reached: list[np.ndarray] = []  # task points measured while learning (robot test goals)
         self.monitor.on_tip = self._on_tip
         self.streams.record()
-        self.robot = ContractRobot(session, self.monitor, lp)
+        self.client = ReachClient(session)
         self.area = arm_reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"]) if simulated else None
         goals = (arm_test_goals(spec, t_lower, t_upper, n=n_goals, seed=lp["eval.seed"], area=self.area)
                  if simulated else None)
-        self.robot_eval = RobotEvaluation(lp, self.robot, n_goals, every, goals,
+        self.robot_eval = RobotEvaluation(lp, self.client, n_goals, every, goals,
                                           arm_base_point(spec) if simulated else None, goal_seconds)
         self.pauser = Pauser(session, self.monitor, lp["settle_timeout"] + 0.5)
         self.driver_wait = float("nan")
@@ -279,19 +280,17 @@ class RobotRun:
         return False
 
     def evaluate(self, at: int, final: bool) -> None:
-        """The evaluation on the robot at ``at`` micro-actions; during learning (not ``final``) with
-        learning paused, and the arm brought back where it paused (in steps) before learning resumes."""
-        session, monitor = self.session, self.monitor
+        """The evaluation on the robot at ``at`` micro-actions, through the learner's ``/sagg/reach``;
+        during learning (not ``final``) with learning paused (each reach ends back where it paused)."""
+        session = self.session
         if self.progress:
             print(f"\nevaluating on the robot at {at} micro-actions ({self.robot_eval.n_goals} goals from rest"
                   + (", learning paused)" if not final else ")"), file=sys.stderr, flush=True)
-        if not final:
+        if not final:  # (each reach then ends back where learning paused: the learner's own return)
             self.pauser.set(True)
-            posture = monitor.alpha.copy()
-        errors = self.robot_eval.run(at, *self.streams.received(), self.reached)
+        errors = self.robot_eval.run(at, self.reached)
         session.view.set_test_goals(self.robot_eval.goals)
         if not final:
-            self.robot.move_to(posture)
             self.pauser.set(False)
         session.st.last_error = float(errors.mean())
 
@@ -319,7 +318,7 @@ class RobotRun:
             simulated_evaluation=self.simulated, **self.streams.summary_keys())
         if ev is not None:
             summary["test_goals"] = ev.test_goals.tolist() if ev.test_goals is not None else None
-        write_json_atomic(plan.out / "robot_evaluation.json", {"summary": robot_summary, "trace": self.robot.trace})
+        write_json_atomic(plan.out / "robot_evaluation.json", {"summary": robot_summary, "trace": self.client.trace})
         return summary
 
 
@@ -345,8 +344,8 @@ def robot_report_section(summary: dict) -> str:
                   + "; ".join(f"{a:.3g}-{b:.3g} ({c} goals): {'–' if e is None else f'{e:.3f}'}"
                               for a, b, c, e in zip(edges, edges[1:], frame["band_counts"], bands)) + "."]
     lines += ["", f"Joint states at {r['joint_state_rate']:.0f}/s, task points at {r['task_point_rate']:.0f}/s; "
-              f"{r['commands']} evaluation commands in {r['seconds']:.1f} s ({r['settle_timeouts']} answered only "
-              "after settle_timeout).", ""]
+              f"{r['steps']} reaching steps through the learner's /sagg/reach in {r['seconds']:.1f} s "
+              f"({r['goals_timed_out']} goals cut at {r['goal_seconds']:g} s).", ""]
     if summary.get("simulated_evaluation"):
         lines += ["The learning curve above is the **simulated** evaluation (offline, the recorded samples "
                   "in the config's simulated model of the same arm, on its test goals).", ""]
