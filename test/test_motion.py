@@ -68,11 +68,13 @@ def test_velocity_limits_from_the_urdf_scaled_and_overridden():
     p["velocity_scale"] = 0.25
     assert np.allclose(velocity_limits(p, PANDA_JOINTS, ARM7)[0], 0.25)
     # an MJCF gives none: no limits (single setpoints), said by the source
-    vmax, source = velocity_limits({**p, "joint_velocity_limits": [0.0]}, ["shoulder_pan_joint"],
+    vmax, source = velocity_limits({**p, "joint_velocity_limits": []}, ["shoulder_pan_joint"],
                                    str(ROOT / "config" / "robots" / "arm6.xml"))
     assert vmax is None and "none known" in source
     with pytest.raises(ConfigError, match="joint_velocity_limits"):
         velocity_limits({**p, "joint_velocity_limits": [1.0, -1.0]}, ["a", "b"], "")
+    with pytest.raises(ConfigError, match="joint_velocity_limits"):
+        velocity_limits({**p, "joint_velocity_limits": [0.0, 1.0]}, ["a", "b"], "")
     with pytest.raises(ConfigError, match="joint_velocity_limits"):
         velocity_limits({**p, "joint_velocity_limits": [1.0]}, ["a", "b"], "")
 

@@ -17,7 +17,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +106,26 @@ def test_a_real_arm_on_a_table_learns_without_a_stop_or_a_contact(tmp_path):
     assert stats["largest_setpoint_jump"] < 0.15, stats  # (the old single setpoints: up to max_joint_step 0.5)
     log = (tmp_path / "run" / "logs" / "learner.log").read_text()
     assert "moves streamed at 50 Hz" in log and "scene: floor at z=0.000 m" in log
+
+
+def test_a_joint_trajectory_controller_gets_one_timed_trajectory_per_move(tmp_path):
+    """command_interface 'trajectory': each move is one JointTrajectory on the trajectory
+    controller's topic, timed by the scaled velocity limits; nothing on the commands topic."""
+    domain = pick_domain_id()
+    env = env_for(domain)
+    cfg = table_config(tmp_path / "arm7_table.yaml")
+    arm = start_arm(env, tmp_path / "arm")
+    n = 40
+    try:
+        r = sagg_run(env, cfg, tmp_path / "run", domain, n, "--robot-eval-goals", "1",
+                     "--set", "command_interface=trajectory", "--set", "controller=joint_trajectory_controller")
+    finally:
+        stats = stop_arm(arm, tmp_path / "arm")
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert stats["protective_stops"] == 0 and stats["commands"] == 0, stats
+    assert stats["trajectories"] >= n, stats
+    log = (tmp_path / "run" / "logs" / "learner.log").read_text()
+    assert "moves as trajectories on /joint_trajectory_controller/joint_trajectory" in log
 
 
 def test_a_stopped_arm_is_held_and_learning_resumes_by_itself(tmp_path):

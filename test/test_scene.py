@@ -321,3 +321,34 @@ def test_a_posture_of_another_length_or_not_finite_is_an_error():
         c.posture(np.zeros(5))
     with pytest.raises(ValueError, match="6 finite values"):
         c.segment(robot("arm6").rest, np.full(6, np.nan))
+
+
+def test_a_tracker_set_up_checks_the_predicted_task_point_only():
+    """Without the robot's model (a tracker gives the task point) the learner checks where its
+    local model predicts the task point after the move (move_check.TaskPointCheck): refused below
+    the floor's clearance or in a box; a point already too close may move away; said at start."""
+    from sagg_low_level.move_check import TaskPointCheck, build_move_check
+
+    params = SceneParams.from_params({"scene.floor": 0.0, "scene.boxes": [0.5, 0.0, 0.5, 0.1, 0.1, 0.1]})
+    y = np.array([0.0, 0.0, 0.2])
+    check = TaskPointCheck(params, "xyz", lambda a, da: np.array([0.0, 0.0, -da.sum()]), lambda: y)
+    assert check.segment(np.zeros(2), np.array([0.05, 0.05])) is None           # to z = 0.1: clear
+    r = check.segment(np.zeros(2), np.array([0.1, 0.09]))                      # to z = 0.01: too close
+    assert r is not None and r.cause == "floor"
+    into_box = TaskPointCheck(params, "xyz", lambda a, da: np.array([0.5, 0.0, 0.3]), lambda: y)
+    assert into_box.segment(np.zeros(2), np.ones(2)).cause == "box"
+    y = np.array([0.0, 0.0, 0.01])  # resting too close to the floor: moving up is allowed, down is not
+    assert check.segment(np.zeros(2), np.array([-0.05, 0.0])) is None
+    assert check.segment(np.zeros(2), np.array([0.005, 0.0])) is not None
+
+    class Learner:
+        task_lower = np.zeros(3)
+        y = np.zeros(3)
+
+        def predict(self, a, da):
+            return np.zeros(3)
+
+    p = {"scene.floor": 0.0, "task_model.file": "", "task_model.task_axes": "xyz"}
+    got, notices = build_move_check(p, ["j0", "j1"], ".", Learner())
+    assert isinstance(got, TaskPointCheck) and "the task point only" in notices[0]
+    assert build_move_check({"task_model.file": ""}, ["j0"], ".", Learner()) == (None, [])

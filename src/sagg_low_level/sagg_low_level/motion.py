@@ -10,8 +10,8 @@ the same limits (:func:`move_duration`). The learner still learns from the settl
 move stays one micro-action.
 
 The limits: URDF ``<limit velocity>`` of the learner's joints (:func:`urdf_velocity_limits`), or
-the parameter ``joint_velocity_limits`` (MJCF and tracker set-ups, or to override; its default
-[0.0] means "from the model"), scaled by
+the parameter ``joint_velocity_limits`` (MJCF and tracker set-ups, or to override; empty, the
+default: from the model), scaled by
 ``velocity_scale``. Without any (no URDF value, no parameter) a move is one setpoint, as for the
 simulator, and the learner says so once at start.
 
@@ -71,7 +71,7 @@ def velocity_limits(p: dict, joints: Sequence[str], model_path: str) -> tuple[np
     Parameters
     ----------
     p : dict
-        The learner's parameters: ``joint_velocity_limits`` ([0.0] = from the model),
+        The learner's parameters: ``joint_velocity_limits`` (empty = from the model),
         ``velocity_scale``.
     joints : sequence of str
         The learner's joints; n = their number.
@@ -85,7 +85,7 @@ def velocity_limits(p: dict, joints: Sequence[str], model_path: str) -> tuple[np
         their source in words.
     """
     given = list(p["joint_velocity_limits"])
-    if given != [0.0]:  # ([0.0]: the default, "from the model")
+    if given:  # (empty, the default: from the model)
         if len(given) != len(joints) or not all(math.isfinite(v) and v > 0 for v in given):
             raise ConfigError(f"parameter 'joint_velocity_limits': got {given}; allowed: {len(joints)} positive "
                               f"values (rad/s), one per joint {list(joints)}")

@@ -57,7 +57,7 @@ from .motion import RESUMED, SEND, SETTLE, STOPPED as NOT_FOLLOWING, MoveStream,
 from .reach_server import ACTION, ReachJob, ReachServer
 from .recorder_acks import RecorderAcks
 from .node_base import NODE_NAME, LearnerNodeBase
-from .schema import LEARNER_CORE_SCHEMA as CORE_SCHEMA, LEARNER_SCHEMA as SCHEMA, joint_intake
+from .schema import LEARNER_CORE_SCHEMA as CORE_SCHEMA, LEARNER_SCHEMA as SCHEMA, command_topic, joint_intake
 
 class ReachDone:
     """The last request of a reach (:meth:`LearnerNode._reach_requests`): the learner's own
@@ -68,6 +68,20 @@ SIM_BRIDGE = "sagg_sim_bridge"       # the simulated bridge's node (rest_return 
 RECORDERS = ("sagg_run", "sagg_record")  # sagg's recorders: they subscribe to the commands, never act on them
 
 
+
+
+def trajectory_message(joints, start: np.ndarray, target: np.ndarray, duration: float) -> JointTrajectory:
+    """A joint_trajectory_controller's move: from ``start`` now to ``target`` at ``duration`` s, at
+    rest at both ends (the controller interpolates between them)."""
+    msg = JointTrajectory()
+    msg.joint_names = list(joints)
+    for t, q in ((0.0, start), (duration, target)):
+        pt = JointTrajectoryPoint()
+        pt.positions = [float(v) for v in q]
+        pt.velocities = [0.0] * len(q)
+        pt.time_from_start.sec, pt.time_from_start.nanosec = int(t), int(round((t - int(t)) * 1e9))
+        msg.points.append(pt)
+    return msg
 
 
 def robot_from_params(p: dict) -> Robot:
@@ -207,7 +221,7 @@ class LearnerNode(LearnerNodeBase):
 
     def _init_outputs(self, p: dict) -> None:
         """The commands, the /sagg topics, the pause service and the recorders' backpressure."""
-        self.cmd_topic = f"/{p['controller'].strip('/')}/commands"
+        self.cmd_topic = command_topic({**p, "command_interface": "position"})[0]
         # messages published per topic (logged at shutdown and on /diagnostics: what a bag must hold)
         self.published = {self.cmd_topic: 0, "/sagg/sample": 0, "/sagg/competence": 0}
         self.cmd_pub = self.create_publisher(Float64MultiArray, self.cmd_topic, reliable(HW_DEPTH))
@@ -243,7 +257,7 @@ class LearnerNode(LearnerNodeBase):
             if vmax is None:
                 raise ConfigError("parameter 'command_interface': 'trajectory' needs velocity limits for its timing; "
                                   f"{source}: give joint_velocity_limits")
-            self.traj_topic = f"/{p['controller'].strip('/')}/joint_trajectory"
+            self.traj_topic = command_topic(p)[0]
             self.traj_pub = self.create_publisher(JointTrajectory, self.traj_topic, reliable(HW_DEPTH))
             self.published[self.traj_topic] = 0
         self.stream = None if vmax is None else MoveStream(
@@ -733,17 +747,8 @@ class LearnerNode(LearnerNodeBase):
 
     def _publish_trajectory(self, start: np.ndarray, target: np.ndarray, duration: float) -> None:
         """One JointTrajectory from ``start`` (now) to ``target`` in ``duration`` s (the velocity limits)."""
-        msg = JointTrajectory()
-        msg.joint_names = list(self.robot.joint_names)
-        points = []
-        for t, q in ((0.0, start), (max(duration, 1.0 / self.params["command_rate"]), target)):
-            pt = JointTrajectoryPoint()
-            pt.positions = [float(v) for v in q]
-            pt.velocities = [0.0] * len(q)
-            pt.time_from_start.sec, pt.time_from_start.nanosec = int(t), int(round((t - int(t)) * 1e9))
-            points.append(pt)
-        msg.points = points
-        self.traj_pub.publish(msg)
+        self.traj_pub.publish(trajectory_message(self.robot.joint_names, start, target,
+                                                 max(duration, 1.0 / self.params["command_rate"])))
         self.published[self.traj_topic] += 1
 
     def on_stream_tick(self) -> None:

@@ -71,10 +71,10 @@ LEARNER_NODE_SCHEMA: Schema = (
           "Setpoints per second of a streamed move (command_interface 'position'). Our choice: 50 Hz, "
           "finer than a micro-action's motion and well under a ros2_control loop's 100-1000 Hz.",
           low=0.0, high=10000.0, low_open=True),
-    Param("joint_velocity_limits", "float_list", [0.0],
-          "Velocity limit of each joint (rad/s, m/s for a slide joint), in the order of 'joints'. [0.0] = "
+    Param("joint_velocity_limits", "float_list", [],
+          "Velocity limit of each joint (rad/s, m/s for a slide joint), in the order of 'joints'. Empty = "
           "from the model: the URDF's <limit velocity> (an MJCF has none: give them here). Without any, "
-          "a move is one setpoint (said at start): give them for a real arm."),
+          "a move is one setpoint (said at start): give them for a real arm.", empty_ok=True),
     Param("velocity_scale", "float", 0.5,
           "The fraction of the velocity limits a move may use. Our choice: 0.5, the usual first-run "
           "speed of an arm beside people and furniture; lower it for a first run.",
@@ -214,6 +214,16 @@ LEARNER_NODE_SCHEMA: Schema = (
           "(driver or sim-time restart): logged, and the stream re-synchronised on them.",
           low=1, high=1_000_000),
 )
+def command_topic(p: dict) -> tuple[str, str]:
+    """The learner's command topic and its type for its ``command_interface``: position setpoints on
+    ``/<controller>/commands`` (std_msgs/Float64MultiArray) or trajectories on
+    ``/<controller>/joint_trajectory`` (trajectory_msgs/JointTrajectory)."""
+    controller = p.get("controller", "forward_position_controller").strip("/")
+    if p.get("command_interface", "position") == "trajectory":
+        return f"/{controller}/joint_trajectory", "trajectory_msgs/msg/JointTrajectory"
+    return f"/{controller}/commands", "std_msgs/msg/Float64MultiArray"
+
+
 # the node `learner` (evolving context); the scene (config's /** section) is checked before every move
 LEARNER_SCHEMA: Schema = LEARNER_CORE_SCHEMA + LEARNER_NODE_SCHEMA + SCENE_PARAMS
 # what the joint-state intake reads (joint_intake), with the learner's defaults for a reader whose

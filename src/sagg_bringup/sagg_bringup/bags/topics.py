@@ -2,6 +2,8 @@
 topics (the names follow the learner's ``controller`` and ``task_topic``)."""
 from __future__ import annotations
 
+from sagg_low_level.schema import command_topic
+
 from .recorder import TopicSpec
 
 # the hardware contract's command types (docs/your-robot.md): position commands on /<controller>/commands,
@@ -56,13 +58,13 @@ def graph_topics(learner_params: dict, timing: str = "lockstep") -> list[TopicSp
     """The arm's topics (the position contract: joint states, position commands, the tip), and
     /clock in real time. With ``task_source: model`` the tip is recorded when something publishes
     it (the simulated bridge does) but is no part of the contract (:func:`awaited_topics`)."""
-    controller = learner_params.get("controller", "forward_position_controller")
+    cmd_topic, cmd_type = command_topic(learner_params)
     task_topic = learner_params.get("task_topic", "/tip_position")
     if not task_topic.startswith("/"):
         task_topic = "/" + task_topic
     return sagg_topics() + [
         TopicSpec("/joint_states", "sensor_msgs/msg/JointState"),
-        TopicSpec(f"/{controller}/commands", "std_msgs/msg/Float64MultiArray"),
+        TopicSpec(cmd_topic, cmd_type),
         TopicSpec(task_topic, "geometry_msgs/msg/PointStamped",
                   optional=learner_params.get("task_source") == "model"),
     ] + ([TopicSpec("/clock", "rosgraph_msgs/msg/Clock", depth=100)] if timing == "realtime" else [])

@@ -47,7 +47,7 @@ class _Probe:
 
     def __init__(self, lp: dict):
         task = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
-        self.mon = DriverMonitor(lp, task, f"/{lp['controller'].strip('/')}/commands", model_task(lp))
+        self.mon = DriverMonitor(lp, task, model_task(lp))
         self.js: list[tuple[float, int, np.ndarray | None]] = []
         self.tips: list[tuple[float, int, np.ndarray]] = []
         self.index: list[int] | None = None
@@ -99,6 +99,10 @@ def publishers_report(node, mon: DriverMonitor, say) -> dict:
     return out
 
 
+# s: a probe move sent as a trajectory (command_interface 'trajectory') takes this long (slow, a few cm)
+PROBE_SECONDS = 1.0
+
+
 def probe_target(start: np.ndarray, j: int, step: float, lower: np.ndarray, upper: np.ndarray, scene):
     """The probe move: joint ``j`` by ``step`` rad (down when up leaves its range) from ``start``,
     within the limits; the other way when the scene (None: none) refuses the first. Returns the
@@ -125,7 +129,9 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     from geometry_msgs.msg import PointStamped
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
+    from trajectory_msgs.msg import JointTrajectory
     from sagg_common.scene import scene_from_params  # (mujoco)
+    from sagg_low_level.node import trajectory_message
 
     lp = learner_params(config)
     joints = list(lp["joints"])
@@ -152,7 +158,16 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
         node.create_subscription(PointStamped, mon.task_topic, with_message_info(probe.on_tip), reliable(100))
     else:  # task_source 'model': the task point of each measured posture, through the robot's model
         mon.on_tip = lambda p: probe.tips.append((time.time(), mon.tip_stamp, p[:probe.m]))
-    pub = node.create_publisher(Float64MultiArray, mon.cmd_topic, reliable(HW_DEPTH))
+    trajectory = mon.cmd_type.startswith("trajectory_msgs")  # (command_interface 'trajectory')
+    pub = node.create_publisher(JointTrajectory if trajectory else Float64MultiArray, mon.cmd_topic,
+                                reliable(HW_DEPTH))
+
+    def command(start: np.ndarray, target: np.ndarray) -> None:
+        """The probe's setpoint; as a trajectory over PROBE_SECONDS with that interface."""
+        if trajectory:
+            pub.publish(trajectory_message(joints, start, target, PROBE_SECONDS))
+        else:
+            pub.publish(Float64MultiArray(data=target.tolist()))
     problems: list[str] = []
     res: dict = {"joints": joints, "moved_joint": joint, "step": step, "problems": problems}
 
@@ -220,10 +235,8 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
                 f"{refusal.detail}): not moved; try another --joint")
             return res
         stamp0 = mon.js_stamp
-        msg = Float64MultiArray()
-        msg.data = target.tolist()
         t_cmd = time.time()
-        pub.publish(msg)
+        command(start, target)
         half = abs(target[j] - start[j]) / 2
         # wait for any joint to move (a wrong mapping moves another one), then for the arm to settle
         moved = spin_for(10.0, lambda: mon.js_stamp > stamp0 and np.abs(mon.alpha - start).max() > half)
@@ -254,8 +267,7 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
                 problems.append(f"commanding {joint} also moved {', '.join(others)}: the command order (= 'joints') "
                                 "or the names in /joint_states do not match the driver's")
             # back where it was
-            msg.data = start.tolist()
-            pub.publish(msg)
+            command(mon.alpha.copy(), start)
             spin_for(0.2)
             spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled)
             period = 1.0 / res["joint_state_rate"]

@@ -11,11 +11,10 @@ import numpy as np
 from sagg_common.joint_intake import AMBIGUOUS, OTHER, TAKEN
 from sagg_common.ros_params import reliable
 from sagg_common.sources import ACCEPT, AMBIGUOUS as SOURCES_AMBIGUOUS, NO_INFO, SourceChains, with_message_info
-from sagg_low_level.schema import joint_intake
+from sagg_low_level.schema import command_topic, joint_intake
 
 JS_TYPE = "sensor_msgs/msg/JointState"
 TIP_TYPE = "geometry_msgs/msg/PointStamped"
-CMD_TYPE = "std_msgs/msg/Float64MultiArray"
 
 
 class DriverMonitor:
@@ -28,9 +27,10 @@ class DriverMonitor:
     come from two sources (:class:`~sagg_common.sources.SourceChains`) nothing of that stream is
     taken: the evaluation on the robot commands from these readings."""
 
-    def __init__(self, lp: dict, task_topic: str, cmd_topic: str, task_fk=None):
+    def __init__(self, lp: dict, task_topic: str, task_fk=None):
         self.joints = list(lp["joints"])
-        self.task_topic, self.cmd_topic = task_topic, cmd_topic
+        self.task_topic = task_topic
+        self.cmd_topic, self.cmd_type = command_topic(lp)  # (the learner's command_interface)
         self.intake = joint_intake(lp, self.joints, lp["joint_limits.lower"], lp["joint_limits.upper"])
         self.js_names: list[str] | None = None   # names of the last joint state carrying our joints
         self.rejected: dict[str, int] = {}       # joint states not taken for their content, per kind
@@ -61,12 +61,14 @@ class DriverMonitor:
         from geometry_msgs.msg import PointStamped
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64MultiArray
+        from trajectory_msgs.msg import JointTrajectory
         node.create_subscription(JointState, "/joint_states", with_message_info(self.on_joint_state), reliable(100),
                                  raw=True)
         if self.task_fk is None:
             node.create_subscription(PointStamped, self.task_topic, with_message_info(self.on_task_point),
                                      reliable(100))
-        node.create_subscription(Float64MultiArray, self.cmd_topic, self.on_command, reliable(100))
+        cmd_class = JointTrajectory if self.cmd_type.startswith("trajectory_msgs") else Float64MultiArray
+        node.create_subscription(cmd_class, self.cmd_topic, self.on_command, reliable(100))
 
     @staticmethod
     def _stamp(msg) -> int:
@@ -157,11 +159,11 @@ class DriverMonitor:
                            "decreasing)")
         out += self.two_sources()
         subs = [s for s in node.get_subscriptions_info_by_topic(self.cmd_topic) if s.node_name != own_node]
-        wrong = sorted({s.topic_type for s in subs if s.topic_type != CMD_TYPE})
+        wrong = sorted({s.topic_type for s in subs if s.topic_type != self.cmd_type})
         if not subs:
-            out.append(f"{self.cmd_topic} ({CMD_TYPE}): no subscriber (the driver's position controller)")
+            out.append(f"{self.cmd_topic} ({self.cmd_type}): no subscriber (the driver's controller)")
         elif wrong:
-            out.append(f"{self.cmd_topic}: subscribed as {', '.join(wrong)}; expected {CMD_TYPE}")
+            out.append(f"{self.cmd_topic}: subscribed as {', '.join(wrong)}; expected {self.cmd_type}")
         return out
 
     @staticmethod

@@ -237,9 +237,8 @@ class RobotRun:
         self.session, self.plan, self.progress, self.simulated = session, plan, progress, simulated
         lp, spec = plan.lp, plan.spec
         t_lower, t_upper = plan.task_box
-        cmd_topic = f"/{lp['controller'].strip('/')}/commands"
         task_topic = lp["task_topic"] if lp["task_topic"].startswith("/") else "/" + lp["task_topic"]
-        self.monitor = DriverMonitor(lp, task_topic, cmd_topic, model_task(lp))
+        self.monitor = DriverMonitor(lp, task_topic, model_task(lp))
         self.monitor.subscribe(session.node)
         self.streams = ArmStreams(session, plan)
         self.evaluator = self.streams.resume_evaluation(
