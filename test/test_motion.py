@@ -35,6 +35,13 @@ class ServoArm:
         if not self.stopped:
             self.setpoint = np.array(setpoint, dtype=float)
 
+    def stop(self, stopped: bool):
+        """A protective stop (the arm holds where it is, commands ignored) or its release (it holds
+        until the next command)."""
+        if stopped != self.stopped:
+            self.setpoint = self.q.copy()
+        self.stopped = stopped
+
     def step(self, dt):
         if self.stopped:
             return
@@ -111,17 +118,18 @@ def run_move(stream, arm, dt, t_end, stop_at=None, release_at=None, sent=None):
     sent = [] if sent is None else sent
     while t < t_end:
         if stop_at is not None and stop_at <= t and release_at is not None and t < release_at:
-            arm.stopped = True
+            arm.stop(True)
         elif release_at is not None and t >= release_at:
-            arm.stopped = False
+            arm.stop(False)
         if t >= next_tick:
             next_tick += 1.0 / stream.rate
             what, sp = stream.tick(arm.q.copy(), t)
             if what == SEND:
+                sent.append((t, sp.copy(), arm.q.copy()))
                 arm.command(sp)
-                sent.append((t, sp.copy()))
-            elif what == RESUMED:
-                stream.begin(arm.q.copy(), stream.target, t)
+            elif what == RESUMED:  # (the caller ends the move where the arm is)
+                events.append((round(t, 3), what))
+                return events, sent
             if what != WAIT:
                 events.append((round(t, 3), what))
             if stream.phase == stream.SETTLING and np.abs(arm.q - stream.target).max() < 0.01:
@@ -139,13 +147,13 @@ def test_a_streamed_move_reaches_the_target_within_the_limits():
     stream.begin(arm.q.copy(), np.array([0.4, -0.3, 0.45]), 0.0)
     events, sent = run_move(stream, arm, 0.002, 5.0)
     assert events[-1][1] == "settled" and STOPPED not in [e[1] for e in events]
-    pts = np.array([s for _, s in sent])
+    pts = np.array([s for _, s, _ in sent])
     assert (np.abs(np.diff(pts, axis=0)) <= vmax / 50.0 + 1e-12).all()
     # the move took about its time at the limits (0.6 s for joint 1), not a jump
     assert 0.55 < events[-1][0] < 1.2
 
 
-def test_a_stopped_arm_is_held_then_probed_and_the_move_goes_on():
+def test_a_stopped_arm_is_held_then_probed_back_and_the_move_ends_where_it_is():
     vmax = np.array([1.0, 1.0])
     stream = MoveStream(vmax, 50.0, False, 0.5, 0.01, 1.0, 2.0, 0.02, np.full(2, -3.0), np.full(2, 3.0))
     arm = ServoArm([0.0, 0.0], vmax)
@@ -157,13 +165,13 @@ def test_a_stopped_arm_is_held_then_probed_and_the_move_goes_on():
     assert kinds.count(STOPPED) == 1
     t_stop = events[kinds.index(STOPPED)][0]
     assert 1.1 < t_stop < 1.4  # follow_timeout after the arm stopped
-    # while stopped: nothing but probes, the first one follow_retry after the stop, each small
-    during = [(t, s) for t, s in sent if t_stop <= t < 6.0]
-    assert during and all(t >= t_stop + 2.0 - 1e-9 for t, _ in during)
-    assert stream.probes >= 1
-    # released: a probe moved the arm, the move went on and ended at the target
-    assert RESUMED in kinds and kinds[-1] == "settled"
-    assert np.abs(arm.q - [0.5, 0.5]).max() < 0.01
+    # while stopped: nothing but probes, the first one follow_retry after the stop, each small and
+    # back toward where the move began (away from what stopped it)
+    probes = [(t, sp, q) for t, sp, q in sent if t >= t_stop]
+    assert probes and probes[0][0] >= t_stop + 2.0 - 1e-9
+    assert all(np.abs(sp - q).max() == pytest.approx(0.02) and (sp < q).all() for _, sp, q in probes)
+    # released: a probe moved the arm, it follows again; the move ends there (the caller answers)
+    assert kinds[-1] == RESUMED and events[-1][0] >= 6.0 and stream.probes >= 2
 
 
 def test_a_trajectory_move_waits_its_time_then_settles():

@@ -150,14 +150,15 @@ def streamed_setpoints(start: np.ndarray, target: np.ndarray, vmax: np.ndarray, 
 def probe_setpoint(measured: np.ndarray, toward: np.ndarray, probe_step: float, lower: np.ndarray,
                    upper: np.ndarray) -> np.ndarray:
     """One small setpoint that tells whether a stopped arm follows again: ``probe_step`` rad (in
-    the joint that moves most; the direction kept) from the measured posture toward the move's
-    target, within the joint limits. Toward the target: a probe never goes where the move would
-    not have gone (it lies on the checked segment when the arm stopped on it).
+    the joint that moves most; the direction kept) from the measured posture toward ``toward`` (the
+    stopped move's start, where the arm came from; or its target when it stopped at the start),
+    within the joint limits: on the move's checked segment when the arm stopped on it, and away
+    from whatever stopped it.
 
     Parameters
     ----------
     measured, toward : ndarray, shape (n,)
-        The measured posture; the target of the move that stopped (rad).
+        The measured posture; where the probe heads (rad).
     probe_step : float
         Largest joint motion of the probe (rad), > 0.
     lower, upper : ndarray, shape (n,)
@@ -241,10 +242,11 @@ class MoveStream:
                 time
     settling    nothing: the caller waits for a settled observation     (the caller answers the move)
     stopped     nothing for ``follow_retry`` s, then one probe           probing
-                (:func:`probe_setpoint`)
-    probing     watch the probe for ``follow_timeout`` s                 streaming again from the
-                                                                         measured posture (the arm
-                                                                         followed), else stopped
+                (:func:`probe_setpoint`) back toward the move's start
+    probing     watch the probe for ``follow_timeout`` s                 the move ends where the arm
+                                                                         is (the arm followed: the
+                                                                         caller answers it), else
+                                                                         stopped
     ==========  =======================================================  ==============================
 
     Parameters
@@ -305,8 +307,9 @@ class MoveStream:
         (str, ndarray or None)
             ``(SEND, setpoint)``: publish it; ``(SETTLE, None)``: the last setpoint is out, wait for
             a settled observation (said once); ``(STOPPED, None)``: the arm was just found not
-            following (said once); ``(RESUMED, None)``: a probe moved the arm, the move goes on
-            (the caller restarts it with :meth:`begin`); ``(WAIT, None)``: nothing to do now.
+            following (said once); ``(RESUMED, None)``: a probe moved the arm: it follows again,
+            and the move ends where the arm is (the caller answers it: the same move again would
+            meet what stopped it); ``(WAIT, None)``: nothing to do now.
         """
         phase = self.phase
         if phase == self.STREAMING:
@@ -318,7 +321,11 @@ class MoveStream:
         if phase == self.STOPPED:
             if now - self.t_phase < self.retry:
                 return WAIT, None
-            probe = probe_setpoint(measured, self.target, self.probe_step, self.lower, self.upper)
+            # back toward where the move started (the arm was there: the way the safety
+            # controller let it come), or toward the target when it stopped at the start
+            back = float(np.abs(self.start - measured).max()) >= 0.5 * self.probe_step
+            probe = probe_setpoint(measured, self.start if back else self.target, self.probe_step, self.lower,
+                                   self.upper)
             self.probe_from, self.sent = np.array(measured, dtype=float), probe
             self.phase, self.t_phase = self.PROBING, now
             self.probes += 1

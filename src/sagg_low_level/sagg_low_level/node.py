@@ -4,11 +4,15 @@ It drives the :class:`~sagg_low_level.learner.EvolvingContextLearner` coroutine 
 state machine; nothing ever sleeps or blocks the executor):
 
 - ``Observe``: answered with the latest observation (joint_states mapped by name + task point);
-- ``Command``: publishes ``std_msgs/Float64MultiArray`` on ``/<controller>/commands`` (joint order =
-  the ``joints`` parameter) and waits for a *fresh, settled* observation: a joint state and a task
-  point both received after the command was published and stamped later than the newest ones
-  received before it (plus ``observation_delay``); settled when every |velocity| is below
-  ``settle_velocity``, or, after ``settle_timeout`` seconds, the latest fresh one is taken;
+- ``Command``: checked against the scene (:mod:`.move_check`), then sent as setpoints
+  (``std_msgs/Float64MultiArray`` on ``/<controller>/commands``, joint order = the ``joints``
+  parameter) streamed within the velocity limits, or one ``JointTrajectory`` (:mod:`.motion`; the
+  simulator alone gets one setpoint), and answered by a *fresh, settled* observation: a joint
+  state and a task point both received after the last setpoint was published and stamped later
+  than the newest ones received before it (plus ``observation_delay``); settled when every
+  |velocity| is below ``settle_velocity`` (a streamed move: and every joint within
+  ``settle_tolerance`` of the last setpoint), or, after ``settle_timeout`` seconds, the latest
+  fresh one is taken; an arm that stops following is held (``follow``) and probed;
 - ``GoalRequest``: calls ``/sagg/next_goal`` (the generator answers once it has processed the
   reports 1..after_report), answered from the response.
 
@@ -64,6 +68,7 @@ class ReachDone:
     coroutine takes over again."""
 
 
+MICRO_ACTIONS = ("explore", "reach", "babble")  # the learner's Command kinds that are micro-actions
 SIM_BRIDGE = "sagg_sim_bridge"       # the simulated bridge's node (rest_return 'direct' is for it only)
 RECORDERS = ("sagg_run", "sagg_record")  # sagg's recorders: they subscribe to the commands, never act on them
 
@@ -106,9 +111,12 @@ class LearnerNode(LearnerNodeBase):
     ===============  ==============================================  =====================================
     STARTING         joint states, a task point, the driver's        the first request dispatched
                      controller, the recorder and the generator      (:meth:`on_poll`)
-    RUNNING_COMMAND  a fresh, settled observation after the          the coroutine's next request
-                     command (:meth:`_try_answer_command`; a step    (:meth:`advance`); a return to rest
-                     of a stepped return to rest: the next step)     steps on (:mod:`.rest_return`)
+    RUNNING_COMMAND  the move's setpoints streamed at command_rate   the coroutine's next request
+                     (:meth:`on_stream_tick`, :mod:`.motion`), then   (:meth:`advance`); a return to rest
+                     a fresh, settled observation after the last     steps on (:mod:`.rest_return`);
+                     one (:meth:`_try_answer_command`); while the    a move the scene refuses is answered
+                     arm does not follow: the ``follow`` hold and    where the arm is (:meth:`_not_sent`)
+                     its probes
     RUNNING_GOAL     the answer of ``/sagg/next_goal``               the next request (``on_goal``)
     PAUSED           a command is due but a hold is set              the command, once no hold blocks and
                      (:mod:`.holds`) or the recorder is behind        the recorder caught up
@@ -697,9 +705,8 @@ class LearnerNode(LearnerNodeBase):
             self._set_hold("fault", "the learner produced an invalid command (see /diagnostics)")
             self.pending, self.state = req, self.PAUSED
             return
-        if (self.scene is not None and (req.kind in ("reset", "return") or self.reach is not None)
-                and self.learner.refuses(self.js_alpha, target)):
-            self._not_sent(req)  # (the learner's micro-actions were checked by the learner)
+        if self.scene is not None and not self._checked(req, target) and self.learner.refuses(self.js_alpha, target):
+            self._not_sent(req)
             return
         self.pending = req  # (a stepped return to rest sends it again until the rest is reached)
         self.state = self.RUNNING_COMMAND
@@ -717,6 +724,14 @@ class LearnerNode(LearnerNodeBase):
         if self.outbox and (len(self.outbox) >= self.publish_batch
                             or self.cmd_time - self.last_flush >= self.publish_period):
             self.flush()
+
+    def _checked(self, req, target: np.ndarray) -> bool:
+        """Whether the learner itself checked this very move against the scene: one of its
+        micro-actions, from the posture measured now, not clipped here (:meth:`_safe_command`).
+        Every other command (a return to rest, a reach's step, a micro-action clipped because the
+        arm is not where the learner believed) is checked here, from the measured posture."""
+        return (req.kind in MICRO_ACTIONS and self.reach is None and np.array_equal(target, req.target)
+                and np.array_equal(self.js_alpha, self.learner.alpha))
 
     def _not_sent(self, req) -> None:
         """A command the scene refused: nothing goes out, and its answer is the posture where the
@@ -763,7 +778,7 @@ class LearnerNode(LearnerNodeBase):
         if what == SEND:
             if was in (stream.STOPPED, stream.PROBING):  # a probe
                 self.get_logger().info(f"probing whether the arm follows: one setpoint {self.params['probe_step']:g} "
-                                       "rad toward the stopped move's target", throttle_duration_sec=30.0)
+                                       "rad back toward where the stopped move began", throttle_duration_sec=30.0)
                 if self.trajectory:
                     self._publish_trajectory(self.js_alpha, setpoint,
                                              float(np.max(np.abs(setpoint - self.js_alpha) / stream.vmax)))
@@ -779,15 +794,9 @@ class LearnerNode(LearnerNodeBase):
                                    f"{self.robot.joint_names[j]} {lag:.3f} rad from its setpoint, no motion for "
                                    f"follow_timeout ({self.params['follow_timeout']:g} s); probing every "
                                    f"follow_retry ({self.params['follow_retry']:g} s)")
-        elif what == RESUMED:
-            self._set_hold(FOLLOW, None)
-            if self.scene is not None and self.learner.refuses(self.js_alpha, stream.target):
-                stream.done()  # (the way on from here is refused: the move ends where the arm is)
-                self._not_sent(self.pending)
-                return
-            stream.begin(self.js_alpha, stream.target, time.monotonic())
-            if self.trajectory:
-                self._publish_trajectory(self.js_alpha, stream.target, stream.duration)
+        elif what == RESUMED:  # (the arm follows again: the move ends where it is, learning goes on)
+            stream.done()
+            self._answer_where_it_is()
 
     def _request_goal(self, req: GoalRequest) -> None:
         """GOAL: ``/sagg/next_goal`` is asked (answered in :meth:`on_goal`, asked again after ``goal_retry`` s)."""
