@@ -55,8 +55,9 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
         huge = client.client.send_goal_async(client.Reach.Goal(target=[30.0, 10.0], max_steps=4_000_000_000))
         client._spin_until(None, huge.done, 30.0, "no answer")
         assert not huge.result().accepted                           # a budget beyond the limit: rejected
-        # learning paused by /sagg/pause (a hold): a reach waits; a second one is refused while it
-        # does; cancelling the first answers at once, nothing moved; then learning resumes
+        # learning paused by /sagg/pause: a reach asked for meanwhile is a request of its own and
+        # runs (the evaluation on the robot pauses learning, then reaches its goals); a second one is
+        # refused while it does; then learning resumes
         from std_srvs.srv import SetBool
         pause = client.node.create_client(SetBool, "/sagg/pause")
         call = pause.call_async(SetBool.Request(data=True))
@@ -68,11 +69,9 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
         second = client.client.send_goal_async(client.Reach.Goal(target=[25.0, 0.0]))
         client._spin_until(None, second.done, 30.0, "no answer")
         assert not second.result().accepted                         # one reach at a time
-        cancel = held.cancel_goal_async()
-        client._spin_until(None, cancel.done, 30.0, "no answer to the cancel request")
         res = held.get_result_async()
-        client._spin_until(None, res.done, 30.0, "a canceled reach held by a pause never answered")
-        assert res.result().result.outcome == "canceled" and res.result().result.steps == 0
+        client._spin_until(None, res.done, 60.0, "a reach asked for during a pause never answered")
+        assert res.result().result.outcome in ("reached", "budget") and res.result().result.steps > 0
         call = pause.call_async(SetBool.Request(data=False))
         client._spin_until(None, call.done, 30.0, "no answer to /sagg/pause")
         stdout, stderr = proc.communicate(timeout=300)
@@ -87,7 +86,7 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
     log = (out / "logs" / "learner.log").read_text()
     assert "reach of [30.0, 10.0]" in log and "reach hold released" in log
     assert "rejected input [reach.invalid]" in log and "rejected input [reach.busy]" in log
-    assert "reach of [20.0, -10.0]: canceled" in log
+    assert "reach of [20.0, -10.0]: " in log and "paused by the /sagg/pause service" in log
 
 
 def test_sagg_reach_of_a_finished_run_from_rest(tmp_path):
