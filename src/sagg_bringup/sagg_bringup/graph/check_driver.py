@@ -131,7 +131,7 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     from std_msgs.msg import Float64MultiArray
     from trajectory_msgs.msg import JointTrajectory
     from sagg_common.scene import scene_from_params  # (mujoco)
-    from sagg_low_level.node import trajectory_message
+    from sagg_low_level.node_moves import trajectory_message
 
     lp = learner_params(config)
     joints = list(lp["joints"])
