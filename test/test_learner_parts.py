@@ -58,3 +58,20 @@ def test_the_return_to_rest_steps_from_the_measured_posture():
     assert r.final and "a at 1.0000 rad" in warned[-1]
     # straight to rest (only a simulator listens), clipped to the limits
     assert r.command(stuck, np.array([3.0, 0.0]), direct=True).tolist() == [2.0, 0.0] and r.final
+
+
+def test_the_detours_of_a_refused_return_to_rest():
+    """When the scene refuses the straight step to rest: partial returns, the distal joints first
+    then the proximal ones, each one step of at most max_joint_step, none that stays put."""
+    from sagg_low_level.learner import Robot
+    from sagg_low_level.rest_return import detours
+
+    robot = Robot(["a", "b", "c"], np.full(3, -2.0), np.full(3, 2.0), np.zeros(3))
+    measured = np.array([1.0, 0.3, -0.2])
+    got = detours(measured, robot.rest, 0.5, robot)
+    # distal first: joints 1.. then 2.. to rest; proximal first: joints ..1 then ..0 to rest
+    expected = [[1.0, 0.0, 0.0], [1.0, 0.3, 0.0], [0.5, 0.0, -0.2], [0.5, 0.3, -0.2]]
+    assert np.allclose(got, expected)
+    assert all(np.abs(t - measured).max() <= 0.5 + 1e-12 for t in got)
+    # a joint already at rest gives no candidate that stays put
+    assert all(np.abs(t - measured).max() > 0 for t in detours(np.array([0.0, 0.0, 0.3]), robot.rest, 0.5, robot))

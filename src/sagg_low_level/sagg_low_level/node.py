@@ -629,9 +629,11 @@ class LearnerNode(LearnerNodeBase, MoveSender):
             self._set_hold("fault", "the learner produced an invalid command (see /diagnostics)")
             self.pending, self.state = req, self.PAUSED
             return
-        if self.scene is not None and not self._checked(req, target) and self.learner.refuses(self.js_alpha, target):
-            self._not_sent(req)
-            return
+        if self.scene is not None and not self._checked(req, target):
+            target = self._allowed(req, target)
+            if target is None:
+                self._not_sent(req)
+                return
         self.pending = req  # (a stepped return to rest sends it again until the rest is reached)
         self.state = self.RUNNING_COMMAND
         self.streamed = self.stream is not None and not self._sim_only()

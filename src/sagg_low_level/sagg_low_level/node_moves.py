@@ -27,6 +27,7 @@ from sagg_common.ros_params import HW_DEPTH, params_dir, reliable
 
 from .holds import FOLLOW
 from .learner import Command
+from .rest_return import detours
 from .motion import RESUMED, SEND, SETTLE, STOPPED as NOT_FOLLOWING, MoveStream, velocity_limits
 from .schema import command_topic
 
@@ -118,6 +119,21 @@ class MoveSender:
         arm is not where the learner believed) is checked here, from the measured posture."""
         return (req.kind in MICRO_ACTIONS and self.reach is None and np.array_equal(target, req.target)
                 and np.array_equal(self.js_alpha, self.learner.alpha))
+
+    def _allowed(self, req, target: np.ndarray) -> np.ndarray | None:
+        """``target`` when the scene allows the move there from the measured posture; for a step of
+        a return to rest it refuses, the first detour it allows (:func:`.rest_return.detours`: the
+        return goes on from there); else None (the refusal counted and logged)."""
+        if self.scene.segment(self.js_alpha, target) is None:
+            return target
+        if req.kind in ("reset", "return"):
+            for t in detours(self.js_alpha, np.asarray(req.target, float), self.learner.p["max_joint_step"],
+                             self.robot):
+                if self.scene.segment(self.js_alpha, t) is None:
+                    self.rest_moves.final = False  # (a detour: the return steps on from where it ends)
+                    return t
+        self.learner.refuses(self.js_alpha, target)
+        return None
 
     def _not_sent(self, req) -> None:
         """A command the scene refused: nothing goes out, and its answer is the posture where the

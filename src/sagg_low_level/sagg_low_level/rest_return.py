@@ -1,6 +1,7 @@
 """The learner's return to the rest posture (ROS-free): one command straight to rest, or steps of at most
 ``max_joint_step`` from the newest measured posture (``rest_return`` 'stepped', what a real arm
-gets), the request answered once the rest is reached or after a bounded number of steps."""
+gets), the request answered once the rest is reached or after a bounded number of steps. When the
+scene refuses the straight step, :func:`detours` are the partial returns tried instead."""
 from __future__ import annotations
 
 from typing import Callable
@@ -52,3 +53,38 @@ class RestReturn:
     def answered(self) -> None:
         """The request was answered: the next return starts counting anew."""
         self.count = 0
+
+
+def detours(measured: np.ndarray, rest: np.ndarray, max_step: float, robot: Robot) -> list[np.ndarray]:
+    """Partial returns to rest, for when the scene refuses the straight step: the distal joints
+    first (joints k..n-1 to rest, the others kept; k from 1 up: the wrist before the elbow, as an
+    arm folds away from a table), then the proximal ones first; each one step of at most
+    ``max_step`` (:func:`step_toward`). Our choice, no planner: the caller takes the first one the
+    scene allows; the return goes on from there.
+
+    Parameters
+    ----------
+    measured, rest : ndarray, shape (n,)
+        The measured posture and the rest posture.
+    max_step : float
+        Largest joint motion per command (``max_joint_step``).
+    robot : Robot
+        Gives the joint limits.
+
+    Returns
+    -------
+    list of ndarray, shape (n,)
+        The candidate commands in the order to try, none equal to ``measured``.
+    """
+    n = len(rest)
+    partial = []
+    for k in range(1, n):
+        t = measured.copy()
+        t[k:] = rest[k:]
+        partial.append(t)
+    for k in range(n - 1, 0, -1):
+        t = measured.copy()
+        t[:k] = rest[:k]
+        partial.append(t)
+    steps = [step_toward(measured, t, max_step, robot) for t in partial]
+    return [t for t in steps if float(np.abs(t - measured).max()) > 1e-9]
