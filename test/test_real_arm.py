@@ -122,8 +122,8 @@ def test_a_joint_trajectory_controller_gets_one_timed_trajectory_per_move(tmp_pa
     finally:
         stats = stop_arm(arm, tmp_path / "arm")
     assert r.returncode == 0, r.stderr[-3000:]
-    assert stats["protective_stops"] == 0 and stats["commands"] == 0, stats
-    assert stats["trajectories"] >= n, stats
+    # (the driver counts every command; all of them came as trajectories)
+    assert stats["protective_stops"] == 0 and stats["commands"] == stats["trajectories"] >= n, stats
     log = (tmp_path / "run" / "logs" / "learner.log").read_text()
     assert "moves as trajectories on /joint_trajectory_controller/joint_trajectory" in log
 
