@@ -86,9 +86,9 @@ def test_a_real_arm_on_a_table_learns_without_a_stop_or_a_contact(tmp_path):
     env = env_for(domain)
     cfg = table_config(tmp_path / "arm7_table.yaml")
     arm = start_arm(env, tmp_path / "arm")
-    n = 100
+    n = 70
     try:
-        r = sagg_run(env, cfg, tmp_path / "run", domain, n, "--robot-eval-goals", "3")
+        r = sagg_run(env, cfg, tmp_path / "run", domain, n, "--robot-eval-goals", "2")
     finally:
         stats = stop_arm(arm, tmp_path / "arm")
     assert r.returncode == 0, r.stderr[-3000:]
@@ -115,7 +115,7 @@ def test_a_joint_trajectory_controller_gets_one_timed_trajectory_per_move(tmp_pa
     env = env_for(domain)
     cfg = table_config(tmp_path / "arm7_table.yaml")
     arm = start_arm(env, tmp_path / "arm")
-    n = 40
+    n = 30
     try:
         r = sagg_run(env, cfg, tmp_path / "run", domain, n, "--robot-eval-goals", "1",
                      "--set", "command_interface=trajectory", "--set", "controller=joint_trajectory_controller")

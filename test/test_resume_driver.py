@@ -116,24 +116,24 @@ def test_a_killed_external_driver_run_resumes_on_its_robot(tmp_path):
     assert commands_received(tmp_path / "driver.log") > 0  # the run did command the robot
 
     # no driver on the domain: the resume waits for it (--driver-timeout) and sends nothing
-    r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "400", "--quiet",
+    r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "300", "--quiet",
                         "--domain-id", str(domain), "--driver-timeout", "3"],
                        env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "driver" in r.stderr, r.stdout + r.stderr
     assert not list((run / "logs").glob("mujoco_bridge*")), sorted(p.name for p in (run / "logs").iterdir())
 
-    # a fresh driver on the same domain, as the robot would still be there; then --resume to 400
+    # a fresh driver on the same domain, as the robot would still be there; then --resume to 300
     driver = start_driver(env, tmp_path / "driver2.log")
     try:
         time.sleep(1.0)  # the driver is up and publishing
-        r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "400", "--quiet",
+        r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "300", "--quiet",
                             "--no-report", "--domain-id", str(domain)],
                            env=env, capture_output=True, text=True, timeout=300)
     finally:
         stop(driver)
     assert r.returncode == 0, r.stdout + r.stderr
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["micro_actions"] >= 400 and summary["driver"] == "external", summary.get("driver")
+    assert summary["micro_actions"] >= 300 and summary["driver"] == "external", summary.get("driver")
     assert commands_received(tmp_path / "driver2.log") > 0
     assert not list((run / "logs").glob("mujoco_bridge*")), sorted(p.name for p in (run / "logs").iterdir())
     learner_logs = sorted((run / "logs").glob("learner*.log"))
