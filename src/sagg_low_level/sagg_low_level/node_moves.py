@@ -126,11 +126,12 @@ class MoveSender:
         return goes on from there); else None (the refusal counted and logged)."""
         if self.scene.segment(self.js_alpha, target) is None:
             return target
-        if req.kind in ("reset", "return"):
+        moves = self.rest_moves
+        if req.kind in ("reset", "return") and moves.count < moves.limit:  # (a return ends within its limit)
             for t in detours(self.js_alpha, np.asarray(req.target, float), self.learner.p["max_joint_step"],
                              self.robot):
                 if self.scene.segment(self.js_alpha, t) is None:
-                    self.rest_moves.final = False  # (a detour: the return steps on from where it ends)
+                    moves.final = False  # (a detour: the return steps on from where it ends)
                     return t
         self.learner.refuses(self.js_alpha, target)
         return None
