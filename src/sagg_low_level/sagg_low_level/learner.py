@@ -557,10 +557,21 @@ class EvolvingContextLearner(ReportSource):
         refusal = self.scene.segment(alpha0, alpha1)
         if refusal is None:
             return False
+        self.count_refusal(refusal)
+        return True
+
+    def count_refusal(self, refusal) -> None:
+        """Count one move the scene refused in :attr:`refused` and hand it to ``on_refusal``: the
+        learner's own moves (:meth:`refuses`) and the ones its node checks for it.
+
+        Parameters
+        ----------
+        refusal : Refusal
+            Why the move was refused (``cause``, ``detail``: :class:`sagg_common.scene.Refusal`).
+        """
         self.refused[refusal.cause] = self.refused.get(refusal.cause, 0) + 1
         if self.on_refusal is not None:
             self.on_refusal(refusal)
-        return True
 
     def _reset(self) -> Generator:
         alpha, y = yield Command(self.robot.rest.copy(), "reset")

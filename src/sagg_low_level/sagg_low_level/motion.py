@@ -288,8 +288,7 @@ class MoveStream:
         return self.phase in (self.STREAMING, self.STOPPED, self.PROBING)
 
     def begin(self, measured: np.ndarray, target: np.ndarray, now: float) -> float:
-        """A new move (or the stopped one again) from ``measured`` to ``target``; returns its
-        duration at the limits (s)."""
+        """A new move from ``measured`` to ``target``; returns its duration at the limits (s)."""
         start = np.array(measured, dtype=float)
         self.target = np.array(target, dtype=float)
         self.duration = move_duration(start, self.target, self.vmax)

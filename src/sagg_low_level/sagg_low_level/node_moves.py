@@ -124,7 +124,8 @@ class MoveSender:
         """``target`` when the scene allows the move there from the measured posture; for a step of
         a return to rest it refuses, the first detour it allows (:func:`.rest_return.detours`: the
         return goes on from there); else None (the refusal counted and logged)."""
-        if self.scene.segment(self.js_alpha, target) is None:
+        refusal = self.scene.segment(self.js_alpha, target)
+        if refusal is None:
             return target
         moves = self.rest_moves
         if req.kind in ("reset", "return") and moves.count < moves.limit:  # (a return ends within its limit)
@@ -133,7 +134,7 @@ class MoveSender:
                 if self.scene.segment(self.js_alpha, t) is None:
                     moves.final = False  # (a detour: the return steps on from where it ends)
                     return t
-        self.learner.refuses(self.js_alpha, target)
+        self.learner.count_refusal(refusal)
         return None
 
     def _not_sent(self, req) -> None:
@@ -172,7 +173,7 @@ class MoveSender:
     def on_stream_tick(self) -> None:
         """At ``command_rate``: the streamed move in flight steps on (:class:`.motion.MoveStream`):
         the next setpoint; the wait for the settled end; a hold when the arm does not follow
-        (``follow``), probes, and the move again once the arm follows."""
+        (``follow``), probes, and the move's end where the arm is once it follows again."""
         stream = self.stream
         if not self.streamed or stream.phase is None or self.state is not self.RUNNING_COMMAND:
             return
@@ -208,7 +209,7 @@ class MoveSender:
         belief came from a stale observation (e.g. ``observation_delay`` too short for a real-time
         driver), and then the measured posture wins: the arm never moves more than a step. Clipped
         micro-actions are counted on /diagnostics. A return to rest is sent in such steps too
-        (``rest_return`` 'stepped'; :meth:`_rest_command`)."""
+        (``rest_return`` 'stepped'; :mod:`.rest_return`)."""
         target = np.asarray(req.target, dtype=float)
         robot = self.robot
         if target.shape != robot.lower.shape or not all_finite(target):
