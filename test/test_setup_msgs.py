@@ -140,6 +140,23 @@ def test_next_goal_service_roundtrip():
     assert NextGoal.Response.get_fields_and_field_types() == {'goal': 'sagg_msgs/Goal'}
 
 
+def test_compute_ik_service_and_reach_result_fields():
+    from sagg_msgs.action import Reach
+    from sagg_msgs.srv import ComputeIK
+    assert ComputeIK.Request.get_fields_and_field_types() == {
+        'target': 'sequence<double>', 'start': 'sequence<double>', 'start_point': 'sequence<double>',
+        'tolerance': 'double', 'max_steps': 'uint32'}
+    assert ComputeIK.Response.get_fields_and_field_types() == {
+        'success': 'boolean', 'message': 'string', 'joint_names': 'sequence<string>', 'joints': 'sequence<double>',
+        'predicted': 'sequence<double>', 'predicted_error': 'double', 'nearest_sample': 'double',
+        'steps': 'uint32', 'outcome': 'string'}
+    assert Reach.Result.get_fields_and_field_types() == {
+        'reached': 'sequence<double>', 'error': 'double', 'steps': 'uint32', 'outcome': 'string',
+        'joint_names': 'sequence<string>', 'joints': 'sequence<double>'}
+    for cls in (ComputeIK.Request, ComputeIK.Response, Reach.Result):
+        _roundtrip(cls())
+
+
 def test_field_types():
     assert Goal.get_fields_and_field_types() == {
         'header': 'std_msgs/Header', 'seq': 'uint64', 'after_report': 'uint64', 'mode': 'uint8',
