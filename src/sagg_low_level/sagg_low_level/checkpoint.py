@@ -228,6 +228,8 @@ class LearnerCheckpointer(Checkpointer):
                 applied += 1
         if lr.micro_actions != len(mem):
             raise ValueError(f"checkpoint_dir: {lr.micro_actions} micro-actions but {len(mem)} samples restored")
+        if lr.prior is not None:  # the prior samples the restored ones supersede
+            lr.prior.cover_all(mem.alpha)
         if applied:
             # numbers drawn after the checkpoint must not be drawn again
             lr.rng = np.random.Generator(lr.rng.bit_generator.jumped())

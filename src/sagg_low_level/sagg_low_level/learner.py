@@ -24,6 +24,7 @@ from sagg_common.rng import choice_index, stream, uniform_in
 from .compiled import jacobian, reach_step
 from .local_model import desired_displacement, norm
 from .memory import SampleMemory
+from .prior import Prior, load_prior, neighbour_rows
 from .riac_leaves import RiacLeaves
 
 CONTEXT = Param(
@@ -106,6 +107,14 @@ SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("min_samples", "int", 0,
           "Fewest stored samples before the learner tries the inverse model; with fewer it explores. "
           "0 = number of joints.", low=0, high=1_000_000),
+    Param("prior.memory", "str", "",
+          "A prior: the sample memory (.npz) of another run of this robot, e.g. a simulation (sagg run "
+          "--prior sets it). Its samples are used by the local models beside the robot's own until robot "
+          "samples supersede them (prior.radius; sagg_low_level/prior.py). '' = none. Not in the paper."),
+    Param("prior.radius", "float", 0.0,
+          "A prior sample is no longer used once a robot sample lies within this distance of it in α "
+          "(rad). 0 = the largest exploratory micro-action, explore_amplitude × √joints (our choice: "
+          "that close, the robot has probed the neighbourhood itself).", low=0.0, high=100.0),
     Param("explore_amplitude", "float", 0.05,
           "Exploratory micro-actions: Δα_i uniform in [−a, a] rad per joint around α (Sec. 3.6.2, "
           "'small random'; our choice). Also the step of ACTUATOR-RANDOM.", low=0.0, high=10.0,
@@ -498,6 +507,8 @@ class EvolvingContextLearner(ReportSource):
         self.scene: MoveCheck | None = None
         self.refused: dict[str, int] = {}
         self.on_refusal: Callable[[object], None] | None = None
+        # another run's samples beside the robot's own (prior.memory; sagg_low_level.prior)
+        self.prior: Prior | None = load_prior(params, n, self.m) if params.get("prior.memory") else None
 
     # ---------------------------------------------------------------- helpers
     def _report(self, kind, goal_seq, target, start, comp) -> None:
@@ -532,12 +543,32 @@ class EvolvingContextLearner(ReportSource):
         alpha1 = np.asarray(alpha1, dtype=float)
         y1 = np.asarray(y1, dtype=float)
         dy = y1 - y0
-        idx = self.memory.add(alpha0, alpha1 - alpha0, dy)
+        idx = self.store(alpha0, alpha1 - alpha0, dy)
         self.alpha, self.y = alpha1, y1
         self.micro_actions += 1
         if self.on_sample is not None:
             self.on_sample(idx)
         return dy
+
+    def store(self, alpha: np.ndarray, delta_alpha: np.ndarray, delta_y: np.ndarray) -> int:
+        """Store one robot sample in the memory; with a prior, the prior samples it supersedes
+        (:meth:`sagg_low_level.prior.Prior.cover`) are no longer used. Every path that adds the
+        robot's samples to a learner (learning, a rebuilt memory) goes through here.
+
+        Parameters
+        ----------
+        alpha, delta_alpha : ndarray, shape (n,)
+        delta_y : ndarray, shape (m,)
+
+        Returns
+        -------
+        int
+            The sample's index in the memory.
+        """
+        idx = self.memory.add(alpha, delta_alpha, delta_y)
+        if self.prior is not None:
+            self.prior.cover(self.memory.alpha[idx])
+        return idx
 
     def refuses(self, alpha0: np.ndarray, alpha1: np.ndarray) -> bool:
         """Whether the scene refuses the joint-space segment ``alpha0`` -> ``alpha1`` (a
@@ -593,10 +624,17 @@ class EvolvingContextLearner(ReportSource):
         ndarray, shape (m, n), or None
             J(α) (m = task dimensions); None with fewer than ``min_samples`` samples.
         """
-        if len(self.memory) < self.min_samples:
+        if self.model_samples() < self.min_samples:
             return None
+        if self.prior is not None:
+            da, dy, _ = neighbour_rows(self.memory, self.prior, alpha, self.k)
+            return jacobian(da, dy, None, self.p["jacobian_rcond"])
         idx = self.memory.neighbours(alpha, self.k)
         return jacobian(self.memory.delta_alpha, self.memory.delta_y, idx, self.p["jacobian_rcond"])
+
+    def model_samples(self) -> int:
+        """The samples the local models are fitted from: the robot's, and the prior's still in use."""
+        return len(self.memory) + (self.prior.live_count if self.prior is not None else 0)
 
     def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
         """Δα = J⁺(α)·Δy_next from the local model (None while memory is too small):

@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .compiled import jacobians, reach_steps as compiled_steps
+from .compiled import jacobian, jacobians, reach_steps as compiled_steps
 from .memory_batch import neighbours_many
+from .prior import neighbour_rows
 
 
 def batch_supported(learner) -> bool:
@@ -41,7 +42,7 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
     alphas = np.asarray(alphas, dtype=float)
     dys = np.asarray(dys, dtype=float)
     mem = learner.memory
-    if len(mem) < learner.min_samples:
+    if learner.model_samples() < learner.min_samples:
         return None
     p = learner.p
     cache = {} if cache is None else cache
@@ -49,7 +50,9 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
     # a posture met before (a reach stuck at a limit repeats its posture) has its Jacobian already
     keys = [("posture", a.tobytes()) for a in alphas]
     new = [i for i, key in enumerate(keys) if key not in cache]
-    if new:
+    if new and learner.prior is not None:
+        _fit_with_prior(learner, alphas, keys, new, cache)
+    elif new:
         idx = neighbours_many(mem, alphas[new], learner.k)
         sets = {}  # the new neighbour sets, fitted together below
         for i, row in zip(new, idx):
@@ -65,3 +68,16 @@ def reach_steps(learner, alphas: np.ndarray, dys: np.ndarray,
         jacs[i] = cache[key]
     return compiled_steps(jacs, dys, alphas, learner.robot.lower, learner.robot.upper, p["pinv_rcond"],
                           learner.damping, p["reach_limits"] == "clamp")
+
+
+def _fit_with_prior(learner, alphas: np.ndarray, keys: list, new: list[int], cache: dict) -> None:
+    """The Jacobians of the postures ``new`` for a learner with a prior: each from the merged
+    neighbours of :func:`sagg_low_level.prior.neighbour_rows` (the learner's own
+    :meth:`~sagg_low_level.learner.EvolvingContextLearner.jacobian_at`), kept by set and posture."""
+    rcond = learner.p["jacobian_rcond"]
+    for i in new:
+        da, dy, set_key = neighbour_rows(learner.memory, learner.prior, alphas[i], learner.k)
+        key = ("set", set_key)
+        if key not in cache:
+            cache[key] = jacobian(da, dy, None, rcond)
+        cache[keys[i]] = cache[key]

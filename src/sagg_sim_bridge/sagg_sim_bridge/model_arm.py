@@ -34,6 +34,7 @@ estimated by sampling the joint space through the model's own forward kinematics
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 from dataclasses import dataclass
@@ -51,6 +52,7 @@ from sagg_common.scene_model import SceneModel, add_scene_physics
 from sagg_common.scene_params import SceneParams
 
 from .arm import NOISE_BLOCK, ArmSim, ArmSpec, ReachableArea, check_bounds, goals_in_area, occupancy_grid
+from .calibration import Calibration, apply_calibration
 
 # ArmSpec fields that mean the same for the model arm (mode, noise, dynamic-mode servo and settling);
 # the other ArmSpec fields describe the planar arm's geometry and are ignored when arm.model is set.
@@ -103,6 +105,7 @@ class ModelArmSpec:
     max_settle_steps: int = ArmSpec.max_settle_steps
     settle_check_every: int = ArmSpec.settle_check_every
     scene: SceneParams | None = None         # None = no floor, no box (scene.*): no contact counting
+    calibration: Calibration | None = None   # None = the arm is its model file (arm.calibration.*)
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -140,9 +143,11 @@ class ModelArmSpec:
         for f in ("timestep", "kp", "damping", "armature", "motor_noise", "settle_tolerance", "settle_velocity"):
             if f in kw and is_int(kw[f]):
                 kw[f] = float(kw[f])
+        calibration = Calibration(fields.get("calibration.length_scale", 1.0),
+                                  tuple(fields.get("calibration.joint_offsets", ())))
         spec = cls(model=model, effector=fields.get("effector", ""), task_axes=tuple(fields.get("task_axes", "xyz")),
                    joints=joints, joint_lower=lower, joint_upper=upper, rest=rest, package_paths=paths, scene=scene,
-                   **kw)
+                   calibration=None if calibration.nominal else calibration, **kw)
         spec.validate()
         return spec
 
@@ -159,6 +164,10 @@ class ModelArmSpec:
         """Fields, then the model (loaded once per process); ConfigError names the parameter."""
         self.validate_fields()
         self.loaded()
+
+    def nominal(self) -> "ModelArmSpec":
+        """This arm as its model file says (no calibration gap): what the learner knows of it."""
+        return self if self.calibration is None else dataclasses.replace(self, calibration=None)
 
     def loaded(self) -> "LoadedArm":
         """The loaded model and everything derived from it (kept per process)."""
@@ -194,9 +203,10 @@ class ModelArmSpec:
         """The arm's reach in task units: the largest distance, on the task axes, from
         :meth:`base_point` to the effector over the joint space within the limits, found by
         :func:`sagg_common.robot_model.farthest_reach` (a seeded search: deterministic; within ~1e-4
-        of the true maximum).
+        of the true maximum); of the model file (:meth:`nominal`: the task-unit defaults derived
+        from it are the same with or without a calibration gap).
         The planar arm's analogue is its total length."""
-        return self.loaded().reach
+        return self.nominal().loaded().reach
 
     def base_point(self) -> np.ndarray:
         """The arm's base in task coordinates: the point the first moving joint turns the arm
@@ -231,6 +241,8 @@ class LoadedArm(RobotModel):
         path = spec.model
         kinematic = spec.mode == "kinematic"
         mjspec, dropped = load_spec(path, spec.package_paths, prefixes, kinematic)
+        if spec.calibration is not None:  # the commanded joints are the nominal arm's
+            apply_calibration(mjspec, spec.calibration, list(spec.nominal().loaded().joint_names))
         super().__init__(path, compile_spec(mjspec, path), spec.effector, spec.task_axes, spec.joints,
                          spec.joint_lower, spec.joint_upper, spec.rest, dropped, spec.package_paths, prefixes)
         m, key, jids, rest = self.model, self.key, self.jids, self.rest

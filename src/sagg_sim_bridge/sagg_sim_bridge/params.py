@@ -83,6 +83,15 @@ MODEL_SCHEMA: Schema = (
           "joint has no range in the model; when given they must lie within the model's ranges."),
     Param("arm.joint_limits.upper", "float_list", [0.0],
           "Model arm: upper joint limits, one per commanded joint (see arm.joint_limits.lower)."),
+    Param("arm.calibration.length_scale", "float", 1.0,
+          "Model arm, simulated only: a calibration gap (sagg_sim_bridge/calibration.py): every translation "
+          "of the chain (link lengths, tool offset) times this factor. 1 = the arm is its model file. The "
+          "learner's model and a prior from a nominal simulation do not know it; the published task point "
+          "and the evaluation do.", low=0.5, high=2.0),
+    Param("arm.calibration.joint_offsets", "float_list", [],
+          "Model arm, simulated only: joint zero offsets (rad), one per commanded joint: the true angle is "
+          "the reported one plus the offset, as on an arm whose encoder zeros differ from its URDF. [] = "
+          "none.", empty_ok=True),
     Param("rest_posture", "float_list", [0.0],
           "Model arm: rest posture, one value per commanded joint (arm.joints order), used when the model "
           "has no keyframe named 'home' (which wins when present). Not under arm.: give it once in the "

@@ -309,7 +309,7 @@ def relearn(bags: list[str | Path], out_dir: str | Path, params_file: str | Path
                         ahead.add(int(idx))
                     drop("sample")
                     continue
-                mem.add(a, da, dy)
+                learner.store(a, da, dy)
             elif topic == "/sagg/competence":
                 r = decode_report(raw)
                 target = r.target if len(r.target) else r.reached

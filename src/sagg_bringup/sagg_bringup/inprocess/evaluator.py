@@ -102,7 +102,7 @@ def _eval_worker(inbox, outbox, learner_params: dict, spec, checkpoints: list[in
             if start != len(memory):
                 raise RuntimeError(f"sample batch starts at {start} but {len(memory)} samples were rebuilt")
             for i in range(len(alpha)):
-                memory.add(alpha[i], dalpha[i], dy[i])
+                learner.store(alpha[i], dalpha[i], dy[i])
                 due()
     except Exception as exc:  # noqa: BLE001 - reported by the orchestrator
         outbox.put(("error", f"{type(exc).__name__}: {exc}"))
