@@ -90,6 +90,64 @@ def frozen_reach(learner: EvolvingContextLearner, alpha: np.ndarray, y: np.ndarr
     return y, norm(goal - y), steps, outcome
 
 
+def open_loop_reach(learner: EvolvingContextLearner, alpha: np.ndarray, y: np.ndarray, goal: np.ndarray,
+                    tolerance: float = 0.0, max_steps: int = 0, check=None) -> tuple:
+    """The frozen model's reach of ``goal`` run on the model alone, with no robot: inverse
+    kinematics from what was learned (``/sagg/compute_ik``).
+
+    The paper reaches with local inverse models (Sec. 3.3, reaching in Sec. 3.6.1): at each step
+    ``Δα = J⁺(α)·Δy_next`` from the k nearest samples, then the arm moves and its effector is
+    *measured*. Here the steps are :func:`frozen_reach`'s, the same step (``reach_step``, joint
+    limits and ``max_joint_step`` included), but each is answered by the local forward model's
+    *prediction* ``y ← y + J(α)·Δα`` (Sec. 3.3, ``learner.predict``) instead of a measurement:
+    open loop, our choice for an answer without motion. Its errors add up along the way where a
+    measured reach corrects them at every step (so its error exceeds the evaluation's).
+
+    ``check(alpha0, alpha1, y0)`` (None: none) is the scene: a step it refuses is not taken, as
+    the evaluation's reaches meet the scene (:func:`allowed`); open loop, the same step would come
+    again, so the reach ends there (outcome 'scene').
+
+    Parameters
+    ----------
+    learner : EvolvingContextLearner
+        The model (its memory, ``robot`` limits and parameters); nothing is stored or changed.
+    alpha : ndarray, shape (n,)
+        The start posture.
+    y : ndarray, shape (m,)
+        The effector's point at ``alpha`` (measured, or predicted).
+    goal : ndarray, shape (m,)
+        The point to reach.
+    tolerance, max_steps
+        As :func:`frozen_reach` (0: ``eval.tolerance``; 0: the evaluation's budget).
+    check : callable, optional
+        ``(alpha0, alpha1, y0) -> Refusal | None``.
+
+    Returns
+    -------
+    tuple
+        ``(alpha, y, distance, steps, outcome, refusal)``: the final posture, its predicted point,
+        the predicted distance to ``goal``, the steps taken, the outcome of :func:`frozen_reach`
+        or 'scene', and the refusal that ended it (None).
+    """
+    alpha, y = np.asarray(alpha, dtype=float), np.asarray(y, dtype=float)
+    reach = frozen_reach(learner, alpha, y, goal, tolerance, max_steps)
+    steps = 0
+    try:
+        target = next(reach)
+        while True:
+            refusal = None if check is None else check(alpha, target, y)
+            if refusal is not None:
+                reach.close()
+                return alpha, y, norm(goal - y), steps, "scene", refusal
+            y = y + learner.predict(alpha, target - alpha)
+            alpha = target
+            steps += 1
+            target = reach.send((alpha, y))
+    except StopIteration as done:
+        y, distance, steps, outcome = done.value
+        return alpha, y, distance, steps, outcome, None
+
+
 def evaluate(learner: EvolvingContextLearner, robot: ReachingRobot, goals: np.ndarray) -> np.ndarray:
     """Final distances for every test goal (paper Sec. 3.7: mean and median are reported)."""
     return np.array([reach_frozen(learner, robot, g) for g in np.asarray(goals, dtype=float)])

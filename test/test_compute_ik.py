@@ -1,0 +1,152 @@
+"""/sagg/compute_ik's core (sagg_low_level.ik, evaluate.open_loop_reach): joint positions for a point
+of Y from the learned model alone, on a known arm (the forward kinematics of the answer), the
+request checks, the start point, the scene, and the model's files. ROS-free."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from sagg_common.params import resolve
+from sagg_common.scene import Refusal
+from sagg_low_level.evaluate import frozen_reach, open_loop_reach
+from sagg_low_level.ik import (compute_ik, load_model, nearest_sample, predicted_point, request_problem,
+                               rest_point_file, write_rest_point)
+from sagg_low_level.learner import SCHEMA, EvolvingContextLearner, Robot
+
+LENGTHS = np.array([1.0, 0.8, 0.6])
+REST = np.array([0.3, 0.4, 0.4])
+
+
+def fk(alpha):
+    ang = np.cumsum(np.atleast_2d(alpha), axis=1)
+    return np.stack([(LENGTHS * np.cos(ang)).sum(1), (LENGTHS * np.sin(ang)).sum(1)], axis=1)
+
+
+def known_arm(samples=20000, seed=0):
+    """A 3-link planar arm's model: ``samples`` micro-actions of 0.05 rad at most from postures
+    spread over the joint range, stored as the learner stores them (α, Δα, Δy)."""
+    p = resolve(SCHEMA, {"task_space.lower": [-3.0, -3.0], "task_space.upper": [3.0, 3.0], "v": 0.1})
+    learner = EvolvingContextLearner(p, Robot(["j0", "j1", "j2"], np.full(3, -2.0), np.full(3, 2.0), REST), 2)
+    rng = np.random.default_rng(seed)
+    alpha = rng.uniform(-1.6, 1.6, (samples, 3)) + REST * 0.0
+    dalpha = rng.uniform(-0.05, 0.05, (samples, 3))
+    dy = fk(alpha + dalpha) - fk(alpha)
+    for a, da, d in zip(alpha, dalpha, dy):
+        learner.memory.add(a, da, d)
+    return learner
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return known_arm()
+
+
+def targets(n, seed=1):
+    rng = np.random.default_rng(seed)
+    return fk(REST + rng.uniform(-0.8, 0.8, (n, 3)))
+
+
+def test_the_answer_puts_the_known_arm_at_the_target(arm):
+    rest_point = fk(REST)[0]
+    errors, nearest = [], []
+    for goal in targets(20):
+        a = compute_ik(arm, rest_point, goal, tolerance=0.005)
+        assert a.success and a.outcome == "reached", a.message
+        assert np.all(a.joints >= arm.robot.lower) and np.all(a.joints <= arm.robot.upper)
+        assert a.predicted_error <= 0.005 and np.linalg.norm(a.predicted - goal) == pytest.approx(a.predicted_error)
+        errors.append(np.linalg.norm(fk(a.joints)[0] - goal))      # the forward kinematics of the answer
+        nearest.append(a.nearest_sample)
+    # open loop: the model's small errors add up along the way (a measured reach corrects them)
+    assert np.median(errors) < 0.04 and max(errors) < 0.1, errors  # (targets about 1.0 from the rest point)
+    assert 0 < max(nearest) < 0.3  # dense samples: never far from one
+
+
+def test_open_loop_reach_takes_frozen_reachs_steps(arm):
+    """Answered with what the model predicts, the steps are frozen_reach's (the same generator)."""
+    goal = targets(1, seed=5)[0]
+    y0 = fk(REST)[0]
+    alpha, y, dist, steps, outcome, refusal = open_loop_reach(arm, REST, y0, goal, 0.005)
+    reach = frozen_reach(arm, REST.copy(), y0, goal, 0.005)
+    a, yy = REST.copy(), y0.copy()
+    try:
+        target = next(reach)
+        while True:
+            yy = yy + arm.predict(a, target - a)
+            a = target
+            target = reach.send((a, yy))
+    except StopIteration as done:
+        assert np.array_equal(done.value[0], y) and done.value[2] == steps and done.value[3] == outcome
+    assert np.array_equal(a, alpha) and refusal is None
+
+
+def test_a_start_posture_is_reached_from_rest_on_the_model(arm):
+    start = REST + np.array([0.5, -0.4, 0.3])
+    assert np.linalg.norm(predicted_point(arm, fk(REST)[0], start) - fk(start)[0]) < 0.08  # (1.3 rad away)
+    assert np.array_equal(predicted_point(arm, fk(REST)[0], REST), fk(REST)[0])
+    goal = targets(1, seed=7)[0]
+    a = compute_ik(arm, fk(REST)[0], goal, start=start, tolerance=0.005)
+    b = compute_ik(arm, None, goal, start=start, start_point=fk(start)[0], tolerance=0.005)  # measured
+    assert a.success and b.success
+    assert np.linalg.norm(fk(b.joints)[0] - goal) < 0.1
+
+
+def test_without_a_rest_point_a_start_point_is_needed(arm):
+    a = compute_ik(arm, None, targets(1)[0])
+    assert not a.success and a.outcome == "no rest point" and "start_point" in a.message
+
+
+def test_too_few_samples_is_no_model():
+    small = known_arm(samples=2)
+    a = compute_ik(small, fk(REST)[0], targets(1)[0])
+    assert not a.success and a.outcome == "no model" and "too few samples" in a.message
+
+
+def test_a_step_the_scene_refuses_ends_the_answer(arm):
+    class Wall:  # refuses every posture whose first joint passes 0.5
+        def segment(self, a0, a1):
+            return Refusal("box", "wall", 0.0, 0.0) if a1[0] > 0.5 else None
+    arm.scene = Wall()
+    try:
+        a = compute_ik(arm, fk(REST)[0], fk(np.array([1.2, 0.4, 0.4]))[0], tolerance=0.005)
+    finally:
+        arm.scene = None
+    assert not a.success and a.outcome == "scene" and "box: wall" in a.message
+    assert a.joints[0] <= 0.5 and a.steps >= 1
+
+
+@pytest.mark.parametrize("field, kwargs, words", [
+    ("target", {"target": [1.0]}, "target at [1.0]: allowed: 2"),                       # wrong dimension
+    ("target", {"target": [np.nan, 0.0]}, "finite"),                    # NaN
+    ("target", {"target": [9.0, 0.0]}, "within task_space"),            # outside Y
+    ("start", {"start": [0.0, 0.0]}, "start [0.0, 0.0]: allowed"),        # wrong dimension
+    ("start", {"start": [0.0, 0.0, 3.0]}, "within the joint limits"),   # outside the limits
+    ("start_point", {"start_point": [np.inf, 0.0]}, "start_point"),
+    ("tolerance", {"tolerance": -1.0}, "tolerance -1.0: allowed"),
+    ("max_steps", {"max_steps": 10 ** 9}, "max_steps 1000000000: allowed"),
+])
+def test_bad_requests_say_what_is_wrong(arm, field, kwargs, words):
+    req = {"target": [1.0, 1.0], "start": [], "start_point": [], "tolerance": 0.0, "max_steps": 0, **kwargs}
+    why = request_problem(arm, req["target"], req["start"], req["start_point"], req["tolerance"],
+                          req["max_steps"], 1000)
+    assert why.startswith(field) and words in why, why
+    assert request_problem(arm, [1.0, 1.0], [], [], 0.0, 0, 1000) == ""
+
+
+def test_nearest_sample_is_the_distance_to_the_closest_stored_posture(arm):
+    q = np.array([0.1, -0.2, 0.3])
+    assert nearest_sample(arm.memory, q) == pytest.approx(np.linalg.norm(arm.memory.alpha[:len(arm.memory)] - q,
+                                                                         axis=1).min())
+
+
+def test_the_model_files(tmp_path, arm):
+    with pytest.raises(ValueError, match="no learned model"):
+        load_model(tmp_path)
+    arm.memory.save(tmp_path / "memory.npz")
+    mem, rest, what = load_model(tmp_path)
+    assert len(mem) == len(arm.memory) and rest is None and what.endswith("memory.npz")
+    write_rest_point(tmp_path, fk(REST)[0], "test")
+    assert np.array_equal(rest_point_file(tmp_path), fk(REST)[0])
+    assert json.loads((tmp_path / "model.json").read_text())["source"] == "test"
+    assert np.array_equal(load_model(tmp_path / "memory.npz")[1], fk(REST)[0])
