@@ -18,6 +18,7 @@ What a real ``robot_description`` needs (docs/your-robot.md):
 from __future__ import annotations
 
 import os
+import xml.etree.ElementTree as ElementTree
 
 import mujoco
 
@@ -47,6 +48,60 @@ def asset_candidates(uri: str, model_dir: str, asset_dir: str, package_paths: tu
     return [os.path.normpath(os.path.join(model_dir, asset_dir, uri))]
 
 
+def find_asset(uri: str, model_dir: str, asset_dir: str, package_paths: tuple[str, ...],
+               ament_prefixes: tuple[str, ...]) -> str | None:
+    """The first existing file of :func:`asset_candidates` (None: not found)."""
+    return next((p for p in asset_candidates(uri, model_dir, asset_dir, package_paths, ament_prefixes)
+                 if os.path.isfile(p)), None)
+
+
+def included_files(path: str, model_dir: str | None = None) -> list[str]:
+    """The files an MJCF model pulls in with ``<include file=...>``, recursively, as absolute paths
+    (relative names are relative to the top model's directory, as MuJoCo reads them); a URDF has
+    none. ConfigError for an include that is missing or not XML."""
+    if not path.lower().endswith(".xml"):
+        return []
+    model_dir = os.path.dirname(path) if model_dir is None else model_dir
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (OSError, ElementTree.ParseError) as exc:
+        raise ConfigError(f"parameter arm.model: cannot read {path!r} ({exc})") from exc
+    out: list[str] = []
+    for el in root.iter("include"):
+        name = el.get("file", "")
+        inc = os.path.normpath(os.path.join(model_dir, name))
+        if not name or not os.path.isfile(inc):
+            raise ConfigError(f"parameter arm.model: {path} includes {name!r}, not found (looked for {inc})")
+        out += [inc, *included_files(inc, model_dir)]
+    return out
+
+
+def model_files(path: str, package_paths: tuple[str, ...],
+                ament_prefixes: tuple[str, ...]) -> tuple[list[str], dict[str, str | None], tuple[str, ...]]:
+    """Every file the model ``path`` (absolute) is read from: its MJCF includes, and each asset
+    file URI (meshes found as :func:`load_spec` finds them, textures, height fields and skins
+    relative to their directory) with the absolute path it was found at, None when not found
+    (a mesh kinematic mode drops); and its asset directories (``meshdir``, ``texturedir``) that are
+    absolute. For copying a model elsewhere (a sweep's workers)."""
+    try:
+        spec = mujoco.MjSpec.from_file(path)
+    except Exception as exc:  # noqa: BLE001 - MuJoCo raises ValueError (parse errors) or others
+        raise ConfigError(f"parameter arm.model: MuJoCo cannot parse {path!r}: "
+                          f"{' '.join(str(exc).split())}") from exc
+    model_dir = os.path.dirname(path)
+    assets: dict[str, str | None] = {}
+    for mesh in spec.meshes:
+        if mesh.file:
+            assets[mesh.file] = find_asset(mesh.file, model_dir, spec.meshdir, package_paths, ament_prefixes)
+    others = ([(t.file, spec.texturedir) for t in spec.textures]
+              + [(a.file, spec.meshdir) for a in (*spec.hfields, *spec.skins)])
+    for uri, asset_dir in others:
+        if uri and not uri.startswith("package://"):  # (MuJoCo resolves package:// for meshes only)
+            assets[uri] = find_asset(uri, model_dir, asset_dir, (), ())
+    dirs = tuple(d for d in (spec.meshdir, spec.texturedir) if d and os.path.isabs(d))
+    return included_files(path), assets, dirs
+
+
 def load_spec(path: str, package_paths: tuple[str, ...], ament_prefixes: tuple[str, ...],
               kinematic: bool) -> tuple[mujoco.MjSpec, tuple[str, ...]]:
     """The parsed model with every mesh file resolved to an absolute path, fixed joints kept as
@@ -64,8 +119,7 @@ def load_spec(path: str, package_paths: tuple[str, ...], ament_prefixes: tuple[s
         uri = mesh.file
         if not uri:
             continue  # an inline mesh (vertices in the file)
-        found = next((p for p in asset_candidates(uri, model_dir, spec.meshdir, package_paths, ament_prefixes)
-                      if os.path.isfile(p)), None)
+        found = find_asset(uri, model_dir, spec.meshdir, package_paths, ament_prefixes)
         if found is None:
             missing[mesh.name] = uri
         else:

@@ -8,15 +8,19 @@ Layout of the output directory ``DIR``::
     DIR/summary.md, DIR/summary.json, DIR/curves.png
 
 Runs execute on a local process pool (``concurrent.futures`` with the ``spawn`` context: no state
-of the parent leaks into a run) or on Ray. A worker only computes; the driver writes every result,
-so a killed driver never leaves a half-written or late result behind, and a restart reruns exactly
-the runs that have no valid ``result.json``.
+of the parent leaks into a run) or on Ray. Both get the same task: the config and every file it
+references as content (:mod:`.bundle`), so a worker needs neither the caller's directory nor its
+files. A worker only computes and returns its result, or its traceback, with where it ran; the
+driver writes every result, so a killed driver never leaves a half-written or late result behind,
+and a restart reruns exactly the runs that have no valid ``result.json``.
 """
 from __future__ import annotations
 
 import json
 import multiprocessing
 import os
+import socket
+import tempfile
 import time
 import traceback
 from concurrent.futures import FIRST_COMPLETED, wait, ProcessPoolExecutor
@@ -29,6 +33,7 @@ from sagg_common.params import STRATEGIES, ConfigError
 
 from ..inprocess.results import code_commit
 from ..graph.setups import load_experiment_config, run_experiment
+from .bundle import Bundle, driver_paths, make_bundle, materialise
 
 FINGERPRINT_FORMAT = "sagg.compare/1"
 
@@ -147,17 +152,49 @@ def validate_result(path: Path, spec: RunSpec, micro_actions: int, eval_every: i
     return None
 
 
-def execute_run(config: str, strategy: str, seed: int, micro_actions: int, eval_every: int,
-                overrides: dict | None) -> dict:
-    """One run in a worker (process pool or Ray): computes and returns the result; writes nothing."""
-    return run_experiment(config, strategy, seed, micro_actions, eval_every, None, progress=False,
-                          overrides=overrides)
+def local_where() -> str:
+    """Where a local worker runs: this machine and the worker's process id."""
+    return f"{socket.gethostname()} pid {os.getpid()}"
+
+
+def execute_run(bundle: Bundle, strategy: str, seed: int, micro_actions: int, eval_every: int,
+                overrides: dict | None, where: Callable[[], str] = local_where) -> dict:
+    """One run in a worker (process pool or Ray): the bundle written to a temporary directory of
+    the worker's own, the run computed there; writes nothing the driver sees. Returns
+    ``{"result", "error", "where"}``: the result (its file parameters as the driver names them),
+    or None and the traceback of what failed; ``where()`` says where it ran."""
+    try:
+        with tempfile.TemporaryDirectory(prefix="sagg-run-") as tmp:
+            config, files = materialise(bundle, Path(tmp))
+            result = run_experiment(config, strategy, seed, micro_actions, eval_every, None, progress=False,
+                                    overrides={**(overrides or {}), **files})
+        return {"result": driver_paths(result, bundle), "error": None, "where": where()}
+    except Exception:  # noqa: BLE001 - any failure of the run is reported to the driver, with its traceback
+        return {"result": None, "error": traceback.format_exc().strip(), "where": where()}
+
+
+def ray_where() -> str:
+    """Where a Ray task runs: its node's id and IP address, and the worker's process id."""
+    # lazy (heavy): ray (imported already in a Ray worker)
+    import ray
+    return (f"Ray node {ray.get_runtime_context().get_node_id()} ({ray.util.get_node_ip_address()}) "
+            f"pid {os.getpid()}")
+
+
+def execute_ray_run(*args) -> dict:
+    """:func:`execute_run` as a Ray task (where: the Ray node)."""
+    return execute_run(*args, where=ray_where)
 
 
 class _LocalPool:
     def __init__(self, workers: int):
         self.ex = ProcessPoolExecutor(max_workers=workers,
                                       mp_context=multiprocessing.get_context("spawn"))
+
+    @staticmethod
+    def share(bundle: Bundle) -> Bundle:
+        """What a task gets of ``bundle`` (each task a copy of it)."""
+        return bundle
 
     def submit(self, *args):
         return self.ex.submit(execute_run, *args)
@@ -167,11 +204,13 @@ class _LocalPool:
         return list(done)
 
     @staticmethod
-    def outcome(fut) -> tuple[dict | None, str | None]:
+    def outcome(fut) -> dict:
+        """The task's outcome (:func:`execute_run`); a worker process that died: its error."""
         exc = fut.exception()
         if exc is None:
-            return fut.result(), None
-        return None, "".join(traceback.format_exception(exc)).strip()
+            return fut.result()
+        return {"result": None, "error": "".join(traceback.format_exception(exc)).strip(),
+                "where": "a local worker process (it died)"}
 
     def close(self) -> None:
         self.ex.shutdown(wait=True, cancel_futures=True)
@@ -180,8 +219,9 @@ class _LocalPool:
 class _RayPool:
     """Ray tasks; ``address`` 'local' starts a local instance with ``workers`` CPUs, anything else
     connects to that cluster. Workers need the sagg packages importable (same venv locally; on a
-    cluster install them on the nodes). The driver writes the results, so no shared file system
-    is needed."""
+    cluster install them on the nodes), nothing else: each task gets the config's bundle (put in
+    the object store once per comparison). The driver writes the results, so no shared file
+    system is needed."""
 
     def __init__(self, address: str, workers: int):
         try:
@@ -198,8 +238,23 @@ class _RayPool:
                 ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
                          configure_logging=False)
             else:
-                ray.init(address=address, log_to_driver=False, configure_logging=False)
-        self.remote = ray.remote(num_cpus=1, max_retries=0)(execute_run)
+                self._connect(address)
+        self.remote = ray.remote(num_cpus=1, max_retries=0)(execute_ray_run)
+        self.shared: dict[str, Any] = {}
+
+    def _connect(self, address: str) -> None:
+        """Join the cluster at ``address``; ConfigError saying so when it cannot."""
+        try:
+            self.ray.init(address=address, log_to_driver=False, configure_logging=False)
+        except (ConnectionError, ValueError, RuntimeError) as exc:
+            raise ConfigError(f"--ray {address}: cannot connect to a Ray cluster there ({exc}); start one "
+                              "with `ray start --head` (docs/experiments.md, on a cluster)") from exc
+
+    def share(self, bundle: Bundle):
+        """The bundle in the object store, once per content: every task gets a reference."""
+        if bundle.digest not in self.shared:
+            self.shared[bundle.digest] = self.ray.put(bundle)
+        return self.shared[bundle.digest]
 
     def submit(self, *args):
         return self.remote.remote(*args)
@@ -208,11 +263,14 @@ class _RayPool:
         done, _ = self.ray.wait(list(pending), num_returns=1)
         return done
 
-    def outcome(self, ref) -> tuple[dict | None, str | None]:
+    def outcome(self, ref) -> dict:
+        """The task's outcome (:func:`execute_run`); a task Ray could not finish (its worker or
+        node died): Ray's error, which names the worker's address."""
         try:
-            return self.ray.get(ref), None
-        except Exception as exc:  # a failed task: report it, keep the others
-            return None, f"{exc.__class__.__name__}: {exc}"
+            return self.ray.get(ref)
+        except Exception as exc:  # noqa: BLE001 - a failed task: report it, keep the others
+            return {"result": None, "error": f"{exc.__class__.__name__}: {exc}",
+                    "where": "a Ray worker that did not finish (see the error)"}
 
     def close(self) -> None:
         if self.started:
@@ -301,12 +359,14 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
         t0 = time.perf_counter()
         done_now = 0
         try:
-            pending = {pool.submit(config, sp.strategy, sp.seed, micro_actions, eval_every, overrides): sp
+            task = pool.share(make_bundle(config, overrides))
+            pending = {pool.submit(task, sp.strategy, sp.seed, micro_actions, eval_every, overrides): sp
                        for sp in todo}
             while pending:
                 for fut in pool.wait_any(pending):
                     spec = pending.pop(fut)
-                    result, err = pool.outcome(fut)
+                    outcome = pool.outcome(fut)
+                    result, err, where = outcome["result"], outcome["error"], outcome["where"]
                     d = run_dir(out, spec)
                     d.mkdir(parents=True, exist_ok=True)
                     done_now += 1
@@ -317,10 +377,10 @@ def run_compare(config: str | Path, strategies: list[str], seeds: int, micro_act
                         if on_result is not None:
                             on_result(d / "result.json")
                         what = (f"final mean error {result['final_mean_error']:.3f} "
-                                f"({result['learn_seconds'] + result['eval_seconds']:.1f} s)")
+                                f"({result['learn_seconds'] + result['eval_seconds']:.1f} s, on {where})")
                     else:
-                        (d / "error.txt").write_text(err + "\n")
-                        failures[spec.name] = err.strip().splitlines()[-1]
+                        (d / "error.txt").write_text(f"{spec.name} failed on {where}:\n{err}\n")
+                        failures[spec.name] = f"{err.strip().splitlines()[-1]} (on {where})"
                         what = f"FAILED: {failures[spec.name]} (see {d / 'error.txt'})"
                     elapsed = time.perf_counter() - t0
                     # ETA from this session's runs only; runs are about equally long per strategy,
