@@ -166,3 +166,77 @@ def test_a_bad_calibration_names_its_parameter():
         load_arm_config("config/arm7_urdf.yaml", {"arm.calibration.joint_offsets": [0.01, 0.02]})
     with pytest.raises(ConfigError, match="arm.calibration.length_scale"):
         load_arm_config("config/arm7_urdf.yaml", {"arm.calibration.length_scale": 3.0})
+
+
+# ---------------------------------------------------------------------- regions, sources, the graph
+def test_the_goal_generator_starts_from_a_prior_region_tree(tmp_path):
+    from sagg_bringup.inprocess.experiment import load_arm_config, run_arm_experiment
+    from sagg_goal_generator.core import GoalGenerator
+    run_arm_experiment("config/arm6_mjcf.yaml", None, 0, 3000, 3000, tmp_path / "p", progress=False,
+                       save_model=True)
+    gp = load_arm_config("config/arm6_mjcf.yaml")["sagg_goal_generator"]
+    fresh = GoalGenerator(gp)
+    started = GoalGenerator({**gp, "prior.regions": str(tmp_path / "p" / "regions.npz")})
+    assert len(fresh.tree.leaves()) == 1 and len(started.tree.leaves()) > 1
+    assert started.tree.splits == [] and started.goals == []  # this run's own history
+    started.next_goal()  # the tree is usable
+    with pytest.raises(ConfigError, match="prior.regions.*allowed: a tree of this task space"):
+        GoalGenerator({**gp, "task_space.upper": [2.0, 2.0, 2.0], "prior.regions": str(tmp_path / "p" / "regions.npz")})
+
+
+def test_a_prior_source_without_a_model_or_a_tree_is_refused(tmp_path):
+    from sagg_bringup.graph.prior_source import prepare_prior
+    with pytest.raises(ConfigError, match="--prior: .* does not exist"):
+        prepare_prior(tmp_path / "nothing", tmp_path / "out", say=lambda _: None)
+    src = tmp_path / "model"
+    src.mkdir()
+    mem = SampleMemory(N, N, M)
+    mem.add(np.zeros(N), np.zeros(N), np.zeros(M))
+    mem.save(src / "memory.npz")
+    ov = prepare_prior(src, tmp_path / "out", say=lambda _: None)
+    assert ov == {"prior.memory": str((tmp_path / "out" / "prior" / "memory.npz").resolve())}
+    with pytest.raises(ConfigError, match="--prior-regions: .* holds no region tree"):
+        prepare_prior(src, tmp_path / "out2", regions=True, say=lambda _: None)
+
+
+def test_a_graph_run_with_a_prior_and_a_gap_equals_the_in_process_run_and_resumes(tmp_path):
+    """sagg run --prior (the simulated bridge with a calibration gap as the robot): the same samples,
+    curve and prior counts as the in-process run; then --resume, whose superseded set is rebuilt
+    from the restored samples (a resumed learner starts a new attempt, so its run is its own)."""
+    import json
+    import os
+    import subprocess
+
+    from installed import SAGG
+    from sagg_low_level.checkpoint import checkpoint_memory
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    gap = ["--set", "arm.calibration.length_scale=1.03", "--set",
+           "arm.calibration.joint_offsets=[0.03,-0.03,0.03,-0.03,0.03,-0.03]"]
+
+    def sagg(*args):
+        p = subprocess.run([SAGG, *args], env=env, capture_output=True, text=True, timeout=400)
+        assert p.returncode == 0, p.stdout + p.stderr
+        return p
+
+    sagg("experiment", "--config", "config/arm6_mjcf.yaml", "--seed", "7", "--micro-actions", "3000",
+         "--eval-every", "3000", "--out", str(tmp_path / "sim"), "--quiet", "--save-model")
+    run = tmp_path / "robot"
+    prior = ["--prior", str(tmp_path / "sim"), "--prior-regions", *gap]
+    sagg("run", "config/arm6_mjcf.yaml", "--seed", "1", "--micro-actions", "300", "--eval-every", "150", *prior,
+         "--out", str(run), "--quiet", "--no-report")
+    sagg("experiment", "--config", "config/arm6_mjcf.yaml", "--seed", "1", "--micro-actions", "300",
+         "--eval-every", "150", *prior, "--out", str(tmp_path / "ip"), "--quiet")
+    s = json.loads((run / "summary.json").read_text())
+    r = json.loads((tmp_path / "ip" / "result.json").read_text())
+    assert s["memory"]["digest"] == r["memory"]["digest"] and s["memory"]["samples"] == 300
+    assert [c["mean_error"] for c in s["curve"]] == [c["mean_error"] for c in r["curve"]]
+    assert s["prior"] == {"samples": r["prior"]["samples"], "superseded": r["prior"]["superseded"]}
+    assert 0 < s["prior"]["superseded"] < s["prior"]["samples"] == 3000
+    assert json.loads((run / "prior" / "prior.json").read_text())["regions"] is True
+    sagg("run", "--resume", str(run), "--micro-actions", "450", "--quiet", "--no-report")
+    s = json.loads((run / "summary.json").read_text())
+    robot = checkpoint_memory(run / "checkpoint")
+    recount = Prior(*(getattr(SampleMemory.load(run / "prior" / "memory.npz"), k)
+                      for k in ("alpha", "delta_alpha", "delta_y")), radius=r["prior"]["radius"])
+    recount.cover_all(robot.alpha)
+    assert len(robot) == 450 and s["prior"]["superseded"] == recount.superseded_count

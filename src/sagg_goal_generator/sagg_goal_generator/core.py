@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sagg_common.params import SHARED_SCHEMA, Param, Schema
+from sagg_common.params import SHARED_SCHEMA, ConfigError, Param, Schema
+from sagg_common.region_arrays import restore_tree
 from sagg_common.regions import RegionTree, interest_probabilities
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
 from sagg_common.rng import choice_index, stream, uniform_in
@@ -22,6 +23,11 @@ from .modes import (MODE_GLOBAL, MODE_INITIAL, MODE_LOW_COMPETENCE, MODE_NAMES, 
 
 
 SCHEMA: Schema = SHARED_SCHEMA + (
+    Param("prior.regions", "str", "",
+          "Start the region tree from another run's (an .npz of its tree: `sagg run/experiment --prior SRC "
+          "--prior-regions` writes and sets it): its regions, their points and competences, so the first "
+          "goals follow that run's interests. '' (default) = an empty tree, the paper's start. The "
+          "strategy's teacher keeps no other state from it. Not in the paper."),
     Param("g_max", "int", 50, "Maximal number of points in a region before it splits (Sec. 2.4.4).",
           low=2, high=1_000_000),
     Param("zeta", "int", 20,
@@ -151,6 +157,8 @@ class GoalGenerator:
         self.skipped_reports = 0  # rejected or lost reports (skip_report)
         # actuator strategies choose no goals; their generator keeps sagg-riac's teacher (never asked)
         self.teacher: Teacher = TEACHERS.get(self.strategy, RegionInterest)(self)
+        if params.get("prior.regions"):
+            start_tree_from(self.tree, params["prior.regions"])
 
     @property
     def dim(self) -> int:
@@ -260,3 +268,24 @@ class GoalGenerator:
             ``mean_competence``.
         """
         return self.tree.snapshot()
+
+
+def start_tree_from(tree: RegionTree, path: str) -> None:
+    """Put the regions of another run's tree (the arrays of
+    :func:`sagg_common.region_arrays.tree_arrays` in the .npz at ``path``: a prior's regions.npz or a
+    goal-generator checkpoint's state file) into the fresh ``tree``; its split history stays empty
+    (this run's splits). ConfigError naming ``prior.regions`` when the file cannot be read or its
+    root box is not this task space."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            lower, upper = z["region_lower"][0], z["region_upper"][0]
+            if lower.shape != tree.root.lower.shape or not (np.allclose(lower, tree.root.lower)
+                                                           and np.allclose(upper, tree.root.upper)):
+                raise ConfigError(f"parameter 'prior.regions': {path!r} covers {lower.tolist()}..{upper.tolist()}; "
+                                  f"allowed: a tree of this task space {tree.root.lower.tolist()}.."
+                                  f"{tree.root.upper.tolist()}")
+            restore_tree(tree, z)
+    except ConfigError:
+        raise
+    except (OSError, KeyError, ValueError) as exc:
+        raise ConfigError(f"parameter 'prior.regions': {path!r}: {exc}") from exc

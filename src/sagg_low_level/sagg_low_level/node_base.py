@@ -138,4 +138,7 @@ class LearnerNodeBase(Node):
         msg.paused = paused
         msg.pause_reason = pause_reason
         msg.refused = refused
+        prior = getattr(self.learner, "prior", None)  # (the fixed-context learner has none)
+        if prior is not None:
+            msg.prior_samples, msg.prior_superseded = len(prior), prior.superseded_count
         self.status_pub.publish(msg)

@@ -56,6 +56,29 @@ def replace_params_block(text: str, tables: str) -> str:
     return f"{head}{PARAMS_BEGIN}\n{tables}\n{PARAMS_END}{tail}"
 
 
+def _prior_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--prior", metavar="SOURCE",
+                        help="start from another run's model (a `sagg run` DIR or bag, or a DIR with memory.npz): "
+                             "its samples serve the local models until the robot's own supersede them")
+    parser.add_argument("--prior-regions", action="store_true",
+                        help="with --prior: the goal generator starts from that run's region tree (default: empty)")
+
+
+def _with_prior(args, out, setup) -> dict:
+    """The ``--set`` overrides, plus the prior's (copied into ``out``) when ``--prior`` is given."""
+    overrides = parse_set(args.set)
+    if args.prior_regions and not args.prior:
+        raise ConfigError("--prior-regions: only with --prior SOURCE")
+    if not args.prior:
+        return overrides
+    if setup.context != "evolving":
+        raise ConfigError(f"--prior: set-up {setup.name!r} (fixed context) has no prior; allowed: the "
+                          "evolving-context arms")
+    # lazy (heavy): mujoco
+    from ..graph.prior_source import prepare_prior
+    return {**overrides, **prepare_prior(args.prior, out, args.prior_regions)}
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="sagg", description="SAGG-RIAC goal babbling for ROS 2.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -72,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override any parameter, e.g. --set arm.dof=7 (repeatable)")
     e.add_argument("--quiet", action="store_true", help="no progress display")
     e.add_argument("--report", action="store_true", help="also write report.md + figures into --out")
+    e.add_argument("--save-model", action="store_true",
+                   help="also write the learned model (memory.npz, regions.npz) into --out: a prior for --prior")
+    _prior_arguments(e)
 
     r = sub.add_parser("run", help="run the ROS 2 graph (three node processes), record a bag, "
                                    "evaluate, report")
@@ -109,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "error names it")
     r.add_argument("--no-report", action="store_true",
                    help="no report.md / figures (summary.json, the bag and the checkpoints as always)")
+    _prior_arguments(r)
     r.add_argument("--driver-timeout", type=float, default=120.0,
                    help="--driver external: seconds to wait for the driver's topics (default 120)")
 
@@ -263,17 +290,18 @@ def _run(args) -> int:
         strategy = "" if args.strategy is None else f"-{args.strategy}"
         out = Path("runs") / f"{Path(args.config).stem}{strategy}{seed}-{time.strftime('%Y%m%d-%H%M%S')}"
     setup = setup_of(args.config, parse_set(args.set))
+    overrides = _with_prior(args, out, setup)
     try:
         if args.driver == "external":
             s = run_graph(args.config, args.micro_actions, out, driver="external", seed=args.seed,
-                          strategy=args.strategy, eval_every=args.eval_every, overrides=parse_set(args.set),
+                          strategy=args.strategy, eval_every=args.eval_every, overrides=overrides,
                           progress=not args.quiet, domain_id=args.domain_id,
                           robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
                           robot_eval_goal_seconds=args.robot_eval_goal_seconds,
                           driver_timeout=args.driver_timeout, **_run_options(args))
         else:
             s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
-                          timing=args.timing, eval_every=args.eval_every, overrides=parse_set(args.set),
+                          timing=args.timing, eval_every=args.eval_every, overrides=overrides,
                           progress=not args.quiet, domain_id=args.domain_id, **_run_options(args))
     except GraphError as exc:
         hint = _resume_hint(setup, out, args.driver == "external")
@@ -342,10 +370,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "experiment":
             # lazy (heavy): ROS, mujoco
-            from ..graph.setups import run_experiment
+            from ..graph.setups import run_experiment, setup_of
+            overrides = _with_prior(args, args.out, setup_of(args.config, parse_set(args.set)))
             res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions,
                                  args.eval_every, args.out, progress=not args.quiet,
-                                 overrides=parse_set(args.set))
+                                 overrides=overrides, save_model=args.save_model)
             print(f"{res['strategy']} seed {res['seed']}: final mean test error "
                   f"{res['final_mean_error']:.3f} (median {res['final_median_error']:.3f}) after "
                   f"{res['micro_actions']} micro-actions at {res['micro_actions_per_second']:,.0f}/s; "

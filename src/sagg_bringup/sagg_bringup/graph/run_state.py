@@ -236,4 +236,6 @@ def _status_dict(m, rate: bool = True) -> dict:
     out.update(paused=bool(m.paused), pause_reason=m.pause_reason)
     if m.refused:
         out["refused"] = m.refused
+    if m.prior_samples:
+        out["prior"] = {"samples": int(m.prior_samples), "superseded": int(m.prior_superseded)}
     return out

@@ -45,8 +45,8 @@ GOAL_SERVER_NODE = "sagg_goal_generator_goals"
 SUMMARY_KEYS = ("format", "strategy", "seed", "config", "node_params", "params_file", "timing", "domain_id",
                 "micro_actions", "micro_actions_requested", "micro_actions_per_second", "eval_every",
                 "resumed_segments", "learn_seconds", "startup_seconds", "eval_seconds", "wall_seconds", "curve",
-                "final_mean_error", "final_median_error", "memory", "learner_status", "scene_refusals", "reports",
-                "goals", "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
+                "final_mean_error", "final_median_error", "memory", "learner_status", "scene_refusals", "prior",
+                "reports", "goals", "goal_stats", "test_goals", "regions", "splits", "bag", "rates", "synergy", "nodes",
                 "interrupted", "error", "eval_metrics", "driver", "curve_source", "simulated_evaluation",
                 "robot_evaluation", "teacher")
 
@@ -455,6 +455,8 @@ class GraphSession:
             "interrupted": self.interrupted,
             "error": str(self.error) if self.error else None,
         })
+        if (st.status or {}).get("prior"):  # another run's samples the learner was given
+            out["prior"] = st.status["prior"]
         unknown = set(out) - set(SUMMARY_KEYS)
         if unknown:
             raise ValueError(f"summary keys {sorted(unknown)}; allowed: {', '.join(SUMMARY_KEYS)}")

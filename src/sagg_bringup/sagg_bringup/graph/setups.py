@@ -76,8 +76,10 @@ class Setup:
         raise NotImplementedError
 
     def run_experiment(self, path, strategy, seed, micro_actions: int, eval_every: int, out_dir,
-                       progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
-        """``sagg experiment``: one (strategy, seed) in-process; writes ``out_dir/result.json``."""
+                       progress: bool = True, overrides: dict[str, Any] | None = None,
+                       save_model: bool = False) -> dict:
+        """``sagg experiment``: one (strategy, seed) in-process; writes ``out_dir/result.json``
+        (``save_model``: and the learned model, where the set-up can be a prior)."""
         raise NotImplementedError
 
     def graph_config(self, path, overrides: dict[str, Any] | None = None) -> dict[str, dict]:
@@ -130,9 +132,9 @@ class EvolvingArm(Setup):
         return experiment.InProcessRun(config)
 
     def run_experiment(self, path, strategy, seed, micro_actions, eval_every, out_dir, progress=True,
-                       overrides=None):
+                       overrides=None, save_model=False):
         return experiment.run_arm_experiment(path, strategy, seed, micro_actions, eval_every, out_dir,
-                                             progress=progress, overrides=overrides)
+                                             progress=progress, overrides=overrides, save_model=save_model)
 
     def graph_config(self, path, overrides=None):
         return arm_params.load_graph_config(path, overrides)
@@ -191,7 +193,10 @@ class FixedContext(Setup):
         return fixed_experiment.FixedRun(config, self.adapter)
 
     def run_experiment(self, path, strategy, seed, micro_actions, eval_every, out_dir, progress=True,
-                       overrides=None):
+                       overrides=None, save_model=False):
+        if save_model:
+            raise ConfigError(f"--save-model: set-up {self.name!r} (fixed context) has no prior; allowed: the "
+                              "evolving-context arms")
         return fixed_experiment.run_fixed_experiment(self.adapter, path, strategy, seed, micro_actions,
                                                          eval_every, out_dir, progress=progress,
                                                          overrides=overrides)
@@ -292,12 +297,12 @@ def in_process_run(path: str | Path, overrides: dict[str, Any] | None = None):
 
 def run_experiment(config_path: str | Path, strategy: str | None, seed: int | None, micro_actions: int,
                    eval_every: int, out_dir: str | Path | None, progress: bool = True,
-                   overrides: dict[str, Any] | None = None) -> dict:
+                   overrides: dict[str, Any] | None = None, save_model: bool = False) -> dict:
     """``sagg experiment`` for any set-up (result.json: ``micro_actions`` counts experiments in the
     fixed context)."""
     setup = setup_of(config_path, overrides)
     return setup.run_experiment(config_path, strategy, seed, micro_actions, eval_every, out_dir,
-                                progress=progress, overrides=overrides)
+                                progress=progress, overrides=overrides, save_model=save_model)
 
 
 def run_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *, driver: str = "sim",

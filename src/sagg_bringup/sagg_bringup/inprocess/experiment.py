@@ -13,7 +13,9 @@ from typing import Any
 import numpy as np
 
 from sagg_common.params import resolve_nodes
+from sagg_common.journal import save_npz_atomic
 from sagg_common.progress import Progress
+from sagg_common.region_arrays import tree_arrays
 from sagg_common.rng import substream_seed
 from sagg_goal_generator.core import SCHEMA as GEN_SCHEMA, GoalGenerator
 from sagg_low_level.eval_metrics import frame_summary, metric_frame
@@ -96,8 +98,11 @@ class InProcessRun:
 
 def run_arm_experiment(config_path: str | Path, strategy: str | None, seed: int | None,
                        micro_actions: int, eval_every: int, out_dir: str | Path | None,
-                       progress: bool = True, overrides: dict[str, Any] | None = None) -> dict:
-    """Run one (strategy, seed) arm experiment in-process and write ``out_dir/result.json``."""
+                       progress: bool = True, overrides: dict[str, Any] | None = None,
+                       save_model: bool = False) -> dict:
+    """Run one (strategy, seed) arm experiment in-process and write ``out_dir/result.json``;
+    ``save_model``: also the learned model, ``out_dir/memory.npz`` and ``out_dir/regions.npz`` (the
+    goal generator's region tree), what another run takes as its prior (``--prior out_dir``)."""
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
     config = load_arm_config(config_path, ov)
     run = InProcessRun(config)
@@ -118,8 +123,23 @@ def run_arm_experiment(config_path: str | Path, strategy: str | None, seed: int 
     mem = run.learner.memory
     n = len(mem)
     result["coverage"] = coverage(run.sim.tip_positions(mem.alpha[:n] + mem.delta_alpha[:n]), goals)
+    prior = run.learner.prior
+    if prior is not None:
+        result["prior"] = {"samples": len(prior), "superseded": prior.superseded_count, "radius": prior.radius,
+                           "source": prior.source,
+                           "regions": bool(config["sagg_goal_generator"]["prior.regions"])}
+    if save_model and out_dir is not None:
+        save_model_files(run, Path(out_dir))
     write_result(out_dir, result)
     return result
+
+
+def save_model_files(run: InProcessRun, out: Path) -> None:
+    """The run's model as a prior source: ``memory.npz`` (the learner's samples) and ``regions.npz``
+    (the goal generator's region tree, :func:`sagg_common.region_arrays.tree_arrays`)."""
+    out.mkdir(parents=True, exist_ok=True)
+    run.learner.memory.save(out / "memory.npz")
+    save_npz_atomic(out / "regions.npz", **tree_arrays(run.generator.tree))
 
 
 _AREAS: dict[str, Any] = {}

@@ -471,6 +471,11 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
     if mem:
         rows.append(("memory samples", mem.get("samples")))
         rows.append(("memory digest", f"`{mem.get('digest')}`"))
+    prior = result.get("prior")
+    if prior:
+        rows.append(("prior (another run's samples)",
+                     f"{prior['samples']:,} samples, {prior['superseded']:,} superseded by the robot's"
+                     + (f"; from {prior['source']}" if prior.get("source") else "")))
     gs = result.get("goal_stats") or {}
     if gs:
         rows.append(("reachable share of Y", float(gs.get("reachable_share_of_Y", float("nan")))))
