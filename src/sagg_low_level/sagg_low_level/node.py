@@ -48,14 +48,15 @@ from sagg_common.joint_intake import AMBIGUOUS, FUTURE_STAMP, OTHER, OUT_OF_ORDE
 from sagg_common.publishers import UNKNOWN_NODE, describe
 from sagg_common.ros_params import HW_DEPTH, params_dir, reliable, run_node
 from sagg_common.report_kinds import KIND_EXPLORATION
-from sagg_msgs.srv import NextGoal
+from sagg_msgs.srv import ComputeIK, NextGoal
 
 from .checkpoint import LearnerCheckpointer
 from .holds import PAUSED_BY_SERVICE, SERVICE, Holds
 from .rest_return import RestReturn
 from .evaluate import frozen_reach, reach_steps_limit
+from .ik import load_model, rest_point_file, write_rest_point
+from .ik_service import SERVICE as IK_SERVICE, answer_ik
 from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot
-from .memory import SampleMemory
 from .reach_server import ACTION, ReachJob, ReachServer
 from .recorder_acks import RecorderAcks
 from .node_base import NODE_NAME, LearnerNodeBase
@@ -119,6 +120,9 @@ class LearnerNode(LearnerNodeBase, MoveSender):
         p = self.params
         self.robot = robot_from_params(p)
         self.frozen = bool(p["frozen_memory"])  # a learned model used without learning (sagg reach)
+        # the effector's point at rest, measured at each return to rest (or the frozen model's): the
+        # point /sagg/compute_ik starts from
+        self.rest_point: np.ndarray | None = None
         core = self._build_learner(CORE_SCHEMA, "2 or 3 (the task point is a geometry_msgs/PointStamped)",
                                    lambda core, m: EvolvingContextLearner(core, self.robot, m,
                                                                           memory=self._frozen_memory(p, m)))
@@ -232,8 +236,12 @@ class LearnerNode(LearnerNodeBase, MoveSender):
         # /sagg/reach (use what was learned): jobs from the action's thread, run one at a time
         self.reach: ReachJob | None = None
         self.reach_saved: tuple | None = None  # the learner's (coroutine, pending request, state)
-        self.reach_server = ReachServer(self, p["task_space.lower"], p["task_space.upper"],
-                                        reach_steps_limit(self.learner, p["task_space.lower"], p["task_space.upper"]))
+        self.steps_limit = reach_steps_limit(self.learner, p["task_space.lower"], p["task_space.upper"])
+        self.reach_server = ReachServer(self, p["task_space.lower"], p["task_space.upper"], self.steps_limit,
+                                        self.robot.joint_names)
+        # /sagg/compute_ik: answered in this node's thread (the one that grows the memory)
+        self.create_service(ComputeIK, IK_SERVICE, self.on_compute_ik)
+        self.ik_answered = 0
         self.goals_received = 0
         self.t_started = time.monotonic()
         self.ma_start = self.learner.micro_actions  # (resumed: those of earlier segments, not in the stop line's rate)
@@ -418,7 +426,15 @@ class LearnerNode(LearnerNodeBase, MoveSender):
             self.dispatch(self.pending)
             return
         self.rest_moves.answered()
+        self._note_rest_point(self.pending)
         self.advance((self.js_alpha, self.tip))
+
+    def _note_rest_point(self, req) -> None:
+        """A return to rest answered with the arm at rest (within ``explore_amplitude`` per joint; a
+        return the scene stopped is not): the task point measured there is the rest point."""
+        if (getattr(req, "kind", None) == "reset"
+                and np.abs(self.js_alpha - self.robot.rest).max() <= self.learner.p["explore_amplitude"]):
+            self.rest_point = self.tip.copy()
 
     # ------------------------------------------------------------------ coroutine driving
     def on_poll(self) -> None:
@@ -533,6 +549,7 @@ class LearnerNode(LearnerNodeBase, MoveSender):
                       "recorder acknowledged samples": str(self.rec_acks.largest()),
                       "recorders seen": str(self.rec_acks.recorders_seen)})
         state["rest-return commands"] = str(self.rest_moves.steps)
+        state["compute_ik requests answered"] = str(self.ik_answered)
         for cause, n in sorted(self.learner.refused.items()):
             state[f"moves refused by the scene: {cause}"] = str(n)
         if self.stream is not None:
@@ -662,11 +679,12 @@ class LearnerNode(LearnerNodeBase, MoveSender):
 
     # ------------------------------------------------------------------ /sagg/reach
     def _frozen_memory(self, p: dict, m: int):
-        """The sample memory of ``frozen_memory`` (None: learn); ConfigError naming the parameter."""
+        """The sample memory of ``frozen_memory`` (None: learn) and its rest point when its files
+        hold one (:func:`.ik.load_model`); ConfigError naming the parameter."""
         if not p["frozen_memory"]:
             return None
         try:
-            mem = SampleMemory.load(p["frozen_memory"])
+            mem, self.rest_point, _ = load_model(p["frozen_memory"])
         except (OSError, ValueError) as exc:
             raise ConfigError(f"parameter 'frozen_memory': {p['frozen_memory']!r}: {exc}") from exc
         if (mem.state_dim, mem.outcome_dim) != (self.robot.n, m):
@@ -728,7 +746,9 @@ class LearnerNode(LearnerNodeBase, MoveSender):
         yield ReachDone()
 
     def _answer_reach(self, job: ReachJob, result: tuple) -> None:
-        """The result of one reach to its client: (reached point, error, steps, outcome)."""
+        """The result of one reach to its client: (reached point, error, steps, outcome) and the
+        measured joint positions."""
+        job.joints = self.js_alpha.copy()
         job.result = (np.array(result[0], float), *result[1:])
         job.done.set()
         self.get_logger().info(f"reach of {job.target.tolist()}: {result[3]}, error {result[1]:.6g} after "
@@ -743,6 +763,12 @@ class LearnerNode(LearnerNodeBase, MoveSender):
             self._poll_reach()  # (the next job: learning stays paused)
         else:
             self._set_hold("reach", None)
+
+    def on_compute_ik(self, request: ComputeIK.Request, response: ComputeIK.Response) -> ComputeIK.Response:
+        """``/sagg/compute_ik``: joint positions for a point of Y from the model as it is now
+        (:mod:`.ik_service`); nothing moves, learning goes on after the answer."""
+        self.ik_answered += 1
+        return answer_ik(request, response, self.learner, self.rest_point, self.steps_limit, self.guard)
 
     # ------------------------------------------------------------------ recorder backpressure
     def _recorder_behind(self, lag: int | None = None) -> bool:
@@ -819,8 +845,8 @@ class LearnerNode(LearnerNodeBase, MoveSender):
                 self.publish_report(item)
         box.clear()
         self.last_flush = time.monotonic()
-        if self.checkpointer is not None:
-            self.checkpointer.maybe_save()  # everything stored so far is published now
+        if self.checkpointer is not None and self.checkpointer.maybe_save():  # (everything stored is published now)
+            self._save_rest_point()
 
     # ------------------------------------------------------------------ checkpoint / resume
     def _setup_checkpoint(self, p: dict) -> None:
@@ -836,6 +862,8 @@ class LearnerNode(LearnerNodeBase, MoveSender):
         except (ValueError, OSError) as exc:
             raise ConfigError(f"parameter 'checkpoint_dir': {exc}") from exc
         self.checkpointer = ck
+        if ck.resumed_from is not None:
+            self.rest_point = rest_point_file(p["checkpoint_dir"])
 
         def on_report(r) -> None:
             ck.on_report(r)
@@ -886,7 +914,13 @@ class LearnerNode(LearnerNodeBase, MoveSender):
         finally:
             if self.checkpointer is not None:
                 self.checkpointer.close()
+                self._save_rest_point()
                 self.checkpointer = None
+
+    def _save_rest_point(self) -> None:
+        """The rest point beside the checkpoint (``model.json``: what the model server reads)."""
+        if self.rest_point is not None:
+            write_rest_point(self.params["checkpoint_dir"], self.rest_point, "measured by the learner at rest")
 
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds if self.sim_time else time.time_ns()

@@ -41,6 +41,7 @@ class ReachJob:
         self.steps = 0               # set by the learner node, read for feedback
         self.distance = math.nan
         self.result: tuple | None = None   # (reached point, error, steps, outcome)
+        self.joints: np.ndarray | None = None  # the measured joint positions at the end
         self.done = threading.Event()
 
 
@@ -50,10 +51,12 @@ class ReachServer:
     is rejected (its client is told; the two executor threads stay free for cancel and result
     requests). Rejected goals go to ``rejections`` as ``(kind, message)``: the learner node
     counts and logs them in its own thread (its input guard is not shared between threads).
-    ``max_steps_limit``: the largest ``max_steps`` a goal may ask for."""
+    ``max_steps_limit``: the largest ``max_steps`` a goal may ask for; ``joint_names``: the
+    learner's joints (the order of a result's ``joints``)."""
 
-    def __init__(self, owner, task_lower, task_upper, max_steps_limit: int):
+    def __init__(self, owner, task_lower, task_upper, max_steps_limit: int, joint_names=()):
         self.lower, self.upper = np.asarray(task_lower, float), np.asarray(task_upper, float)
+        self.joint_names = [str(j) for j in joint_names]
         self.max_steps_limit = int(max_steps_limit)
         self.jobs: collections.deque[ReachJob] = collections.deque()
         self.rejections: collections.deque[tuple[str, str]] = collections.deque(maxlen=1000)
@@ -127,6 +130,8 @@ class ReachServer:
             return result
         reached, error, steps, outcome = job.result
         result.reached, result.error, result.steps, result.outcome = [float(v) for v in reached], error, steps, outcome
+        if job.joints is not None:
+            result.joint_names, result.joints = self.joint_names, [float(v) for v in job.joints]
         if outcome == "canceled":
             goal_handle.canceled()
         elif outcome in ("reached", "budget"):

@@ -164,7 +164,8 @@ def _env_domain(domain_id: int | None) -> int:
 
 
 class ReachClient:
-    """An rclpy action client of /sagg/reach in this process (its own context)."""
+    """An rclpy client of the learned model in this process (its own context): the action
+    /sagg/reach and the service /sagg/compute_ik."""
 
     def __init__(self, domain: int):
         # lazy (heavy): ROS
@@ -180,6 +181,7 @@ class ReachClient:
         rclpy.init(context=self.ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("sagg_reach", context=self.ctx)
         self.client = ActionClient(self.node, Reach, "/sagg/reach")
+        self.ik = None  # the /sagg/compute_ik client (made at the first call)
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
 
@@ -207,7 +209,24 @@ class ReachClient:
         self._spin_until(group, res.done, ANSWER_TIMEOUT, "no result")
         r = res.result().result
         return {"reached": list(r.reached), "error": float(r.error), "steps": int(r.steps), "outcome": r.outcome,
-                "seconds": time.monotonic() - t0}
+                "joints": list(r.joints), "seconds": time.monotonic() - t0}
+
+    def compute_ik(self, target, start=(), start_point=(), tolerance: float = 0.0, max_steps: int = 0,
+                   timeout: float = 30.0):
+        """One ``/sagg/compute_ik`` call (sagg_msgs/srv/ComputeIK): its response and the seconds it
+        took (request sent to response received)."""
+        # lazy (heavy): ROS
+        from sagg_msgs.srv import ComputeIK
+        if self.ik is None:
+            self.ik = self.node.create_client(ComputeIK, "/sagg/compute_ik")
+            self._spin_until(None, self.ik.service_is_ready, timeout, "no /sagg/compute_ik server")
+        req = ComputeIK.Request(target=[float(v) for v in target], start=[float(v) for v in start],
+                                start_point=[float(v) for v in start_point], tolerance=float(tolerance),
+                                max_steps=int(max_steps))
+        t0 = time.perf_counter()
+        fut = self.ik.call_async(req)
+        self._spin_until(None, fut.done, timeout, "no answer from /sagg/compute_ik")
+        return fut.result(), time.perf_counter() - t0
 
     def close(self) -> None:
         self.client.destroy()
