@@ -7,8 +7,8 @@ from sagg_bringup.graph.processes import find_node_executable
 
 # console script -> the package that installs it
 PACKAGE = {"sagg": "sagg_bringup", "goal_generator": "sagg_goal_generator", "learner": "sagg_low_level",
-           "fixed_learner": "sagg_low_level", "synergy_learner": "sagg_low_level", "mujoco_bridge": "sagg_sim_bridge",
-           "synergy_bridge": "sagg_sim_bridge"}
+           "fixed_learner": "sagg_low_level", "synergy_learner": "sagg_low_level", "model_server": "sagg_low_level",
+           "mujoco_bridge": "sagg_sim_bridge", "synergy_bridge": "sagg_sim_bridge"}
 
 
 def executable(script: str) -> str:

@@ -51,6 +51,7 @@ setup(
     entry_points={
         'console_scripts': [
             'learner = sagg_low_level.node:main',
+            'model_server = sagg_low_level.model_server:main',
             'fixed_learner = sagg_low_level.fixed_node:main',
             # the old name of fixed_learner, kept as an alias for one release
             'synergy_learner = sagg_low_level.fixed_node:main',

@@ -100,8 +100,10 @@ LEARNER_NODE_SCHEMA: Schema = (
           "Stop acting after this many micro-actions (0 = unlimited).", low=0),
     Param("frozen_memory", "str", "",
           "A learned model to use without learning: a sample memory file (.npz, as `sagg relearn` "
-          "writes DIR/memory.npz). The learner then never learns (no goal requests, no samples) and "
-          "serves reach goals on /sagg/reach (`sagg reach`). Empty = learn."),
+          "writes DIR/memory.npz), a run directory with its learner checkpoint, or a model directory of "
+          "`sagg serve` (its rest point too, from model.json). The learner then never learns (no goal "
+          "requests, no samples) and serves /sagg/reach and /sagg/compute_ik (`sagg reach`, `sagg serve "
+          "--driver`). Empty = learn."),
     Param("publish_batch", "int", 64,
           "Reports and samples are queued and published in bursts: when this many are queued, "
           "before every goal request (the generator needs the reports so far), at a stop, and at "
@@ -272,3 +274,15 @@ FIXED_NODE_SCHEMA: Schema = (
 )
 # the node `fixed_learner` (fixed context: quadruped, fishing rod, the arm with context: fixed)
 FIXED_LEARNER_SCHEMA: Schema = FIXED_CORE_SCHEMA + SYNERGY_SCHEMA + FIXED_NODE_SCHEMA
+
+# the node `model_server` (sagg_low_level.model_server): a finished run's model, learning off
+MODEL_SERVER_SCHEMA: Schema = (
+    Param("run", "str", "",
+          "The learned model: a run directory (its params.yaml and learner checkpoint, checkpoint/), or the "
+          "model directory `sagg serve` writes (params.yaml, memory.npz, model.json). Required."),
+    Param("rest_point", "float_list", [],
+          "The effector's point at the rest posture (task units), /sagg/compute_ik's default start point, "
+          "when the run's files hold none (a learner measures it at its returns to rest and keeps it beside "
+          "its checkpoint, in model.json). Empty: the files' (none there: a request must give start and "
+          "start_point).", empty_ok=True),
+)

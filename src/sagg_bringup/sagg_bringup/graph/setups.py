@@ -30,6 +30,7 @@ from typing import Any, Callable
 from sagg_common.params import ConfigError, node_params, read_config
 from sagg_goal_generator.schema import SCHEMA as GEN_NODE_SCHEMA
 from sagg_low_level.learner import CONTEXT
+from sagg_low_level.schema import MODEL_SERVER_SCHEMA
 from sagg_sim_bridge.schema import BRIDGE_SCHEMA as ARM_BRIDGE_SCHEMA
 from sagg_sim_bridge.synergy_params import SETUPS as SYNERGY_SIMS
 
@@ -280,6 +281,7 @@ def node_tables() -> dict[str, tuple]:
                 continue
             seen.add(script)
             out[section if section not in out else f"{section} ({script})"] = schemas[section]
+    out["sagg_model_server (model_server)"] = MODEL_SERVER_SCHEMA  # (a finished run's model: sagg serve)
     return out
 
 
