@@ -177,7 +177,8 @@ def test_field_types():
     assert LearnerStatus.get_fields_and_field_types() == {
         'header': 'std_msgs/Header', 'strategy': 'string', 'micro_actions': 'uint64',
         'goals': 'uint64', 'samples': 'uint64', 'reports': 'uint64', 'last_competence': 'double',
-        'micro_actions_per_second': 'double', 'paused': 'boolean', 'pause_reason': 'string', 'refused': 'string'}
+        'micro_actions_per_second': 'double', 'paused': 'boolean', 'pause_reason': 'string', 'refused': 'string',
+        'prior_samples': 'uint64', 'prior_superseded': 'uint64'}
     assert Evaluation.get_fields_and_field_types() == {
         'header': 'std_msgs/Header', 'micro_actions': 'uint64', 'mean_error': 'double',
         'median_error': 'double', 'errors': 'sequence<double>'}

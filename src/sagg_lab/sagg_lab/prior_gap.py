@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from sagg_bringup.experiments.compare import pairwise_tests
-from sagg_bringup.inprocess.experiment import run_arm_experiment
+from sagg_bringup.inprocess.experiment import load_arm_config, run_arm_experiment
+from sagg_sim_bridge.arms import arm_spec_from_params
 from sagg_sim_bridge.calibration import test_gap
 
 POINTS = (0, 250, 500, 1000, 2000)
@@ -37,8 +38,6 @@ def _gap_overrides(n: int, factor: float) -> dict:
 
 def run_arm(config: str, seeds: int, prior_ma: int, out: Path) -> dict:
     """Every run of one arm; returns {variant: {gap: [per-seed {point: error}]}}."""
-    from sagg_bringup.inprocess.experiment import load_arm_config
-    from sagg_sim_bridge.arms import arm_spec_from_params
     n = len(arm_spec_from_params(load_arm_config(config)["sagg_sim_bridge"]).joint_names())
     runs: dict = {}
     name = Path(config).stem

@@ -9,6 +9,7 @@ from pathlib import Path
 from sagg_common.params import PAPER_STRATEGIES, STRATEGIES, ConfigError, parse_set, schema_markdown
 
 from ..graph.check_driver import main_check_driver
+from ..graph.prior_source import prepare_prior
 from ..graph.processes import GraphError
 from ..graph.reach import main_reach
 from ..graph.record import LOST_EXIT_CODE, default_out, record
@@ -74,8 +75,6 @@ def _with_prior(args, out, setup) -> dict:
     if setup.context != "evolving":
         raise ConfigError(f"--prior: set-up {setup.name!r} (fixed context) has no prior; allowed: the "
                           "evolving-context arms")
-    # lazy (heavy): mujoco
-    from ..graph.prior_source import prepare_prior
     return {**overrides, **prepare_prior(args.prior, out, args.prior_regions)}
 
 
