@@ -180,6 +180,8 @@ class RunState:
                "competence": self.last_competence, "error": self.last_error}
         if self.status is not None and self.status.get("refused"):
             out["refused"] = self.status["refused"]
+        if self.status is not None and self.status.get("prior"):
+            out["prior"] = "{superseded}/{samples} superseded".format(**self.status["prior"])
         reason = self.hold_reason()
         if reason:
             out["held"] = reason if len(reason) <= HELD_WIDTH else reason[:HELD_WIDTH - 1] + "…"
