@@ -32,7 +32,6 @@ from .checkpoint import checkpoint_memory
 from .evaluate import open_loop_reach
 from .learner import EvolvingContextLearner, step_toward, stepped_move_limit
 from .memory import SampleMemory
-from .move_check import TaskPointCheck
 
 REST_POINT_FILE = "model.json"  # beside a memory.npz: {"rest_point": [...], "source": "..."}
 
@@ -105,11 +104,14 @@ def nearest_sample(memory: SampleMemory, alpha: np.ndarray) -> float:
 def scene_check(scene):
     """``(alpha0, alpha1, y0) -> Refusal | None`` of the learner's scene for an open-loop reach (None:
     no scene). A check without the robot's model (:class:`~.move_check.TaskPointCheck`) judges the
-    predicted task point, from the reach's own point ``y0`` (not the learner's)."""
+    predicted task point, from the reach's own point ``y0`` (not the learner's): it is made again with
+    that point (its ``current``)."""
     if scene is None:
         return None
-    if isinstance(scene, TaskPointCheck):
-        return lambda a0, a1, y0: TaskPointCheck(scene.params, scene.axes, scene.predict, lambda: y0).segment(a0, a1)
+    if hasattr(scene, "current"):  # (TaskPointCheck, known by its attribute: move_check loads mujoco)
+        def at(y0):
+            return type(scene)(scene.params, scene.axes, scene.predict, lambda: y0)
+        return lambda a0, a1, y0: at(y0).segment(a0, a1)
     return lambda a0, a1, y0: scene.segment(a0, a1)
 
 

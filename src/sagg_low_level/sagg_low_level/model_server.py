@@ -21,13 +21,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticArray
 
 from sagg_common.diagnostics import InputGuard, diagnostic_array
-from sagg_common.params import ConfigError, flatten, resolve
+from sagg_common.params import ConfigError, read_config, resolve
 from sagg_common.ros_params import declare_schema, reliable, run_node
 from sagg_msgs.srv import ComputeIK
 
@@ -46,13 +45,11 @@ def run_learner_params(params_file: Path) -> dict:
     """The learner node's parameters of a run (``params_file``: its ``sagg_learner`` section over the
     ``/**`` entries the learner declares, over the defaults), checked; ConfigError naming the file."""
     try:
-        doc = yaml.safe_load(params_file.read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"parameter 'run': cannot read {params_file} ({exc})") from exc
+        sections = read_config(params_file)
+    except ConfigError as exc:
+        raise ConfigError(f"parameter 'run': {exc}") from exc
     known = {p.name for p in LEARNER_SCHEMA}
-    shared = flatten((doc.get("/**") or {}).get("ros__parameters") or {})
-    own = flatten((doc.get("sagg_learner") or {}).get("ros__parameters") or {})
-    values = {**{k: v for k, v in shared.items() if k in known}, **own}
+    values = {**{k: v for k, v in sections.get("/**", {}).items() if k in known}, **sections.get("sagg_learner", {})}
     values.pop("frozen_memory", None)
     return resolve(LEARNER_SCHEMA, values, f"{params_file} (sagg_learner)")
 

@@ -12,6 +12,7 @@ from ..graph.check_driver import main_check_driver
 from ..graph.prior_source import prepare_prior
 from ..graph.processes import GraphError
 from ..graph.reach import main_reach
+from ..graph.serve import main_serve
 from ..graph.record import LOST_EXIT_CODE, default_out, record
 from ..experiments.reproduce import estimate, run_reproduce
 from ..experiments.sensitivity import run_sensitivity
@@ -189,6 +190,15 @@ def build_parser() -> argparse.ArgumentParser:
     ra.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: private for sim, the environment's "
                                                    "for external)")
     ra.add_argument("--out", help="output directory (default runs/reach-<time>): reach.json, logs")
+    sv = sub.add_parser("serve", help="serve what a run learned until Ctrl-C: /sagg/compute_ik (the model server), "
+                                      "and /sagg/reach with a driver")
+    sv.add_argument("source", help="a run directory (DIR of `sagg run`) or one of its bags")
+    sv.add_argument("--driver", choices=["none", "sim", "external"], default="none",
+                    help="none: the model server alone (/sagg/compute_ik); sim: the frozen learner and the run's "
+                         "simulated bridge (also /sagg/reach); external: the frozen learner next to your driver")
+    sv.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
+    sv.add_argument("--out", help="the model directory (default runs/serve-<time>): params.yaml, memory.npz, "
+                                  "model.json, logs")
     rl = sub.add_parser("relearn", help="rebuild the learner memory and the region tree from bags, "
                                         "check them against the recording, evaluate")
     rl.add_argument("bags", nargs="+", help="rosbag2 directories of one run, in order (bag, bag2, ...)")
@@ -402,6 +412,8 @@ def main(argv: list[str] | None = None) -> int:
             return main_check_driver(args)
         if args.command == "reach":
             return main_reach(args)
+        if args.command == "serve":
+            return main_serve(args)
         if args.command == "relearn":
             # lazy (heavy): ROS, mujoco
             from ..graph.setups import relearn

@@ -22,11 +22,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from sagg_common.msg_codecs import decode_report
 from sagg_common.params import ConfigError, flatten
+from sagg_common.report_kinds import KIND_GOAL, KIND_SUBGOAL
 from sagg_low_level.checkpoint import checkpoint_memory
+from sagg_low_level.ik import rest_point_file, write_rest_point
 from sagg_low_level.learner import SCHEMA as LEARNER_CORE
 from sagg_low_level.memory import SampleMemory
 
+from ..bags.bag_reader import bag_messages
 from ..inprocess.arm_params import NODES
 from ..inprocess.evaluator import evaluate_frozen, evaluation_setup
 from .params_files import run_bags, write_params_file
@@ -47,7 +51,8 @@ def _model_source(source: Path) -> tuple[Path, list[Path]]:
 
 def frozen_model(source: Path, out: Path, say=print) -> tuple[dict, Path]:
     """The run's node parameters and its sample memory written to ``out/memory.npz``: the
-    learner's final checkpoint when the run has one, else rebuilt from its bags."""
+    learner's final checkpoint when the run has one, else rebuilt from its bags; and its rest point
+    (``out/model.json``, :func:`rest_point_of`) when the run has one."""
     # lazy (heavy): mujoco (relearn's evaluation set-up)
     from ..bags.bags import relearn
     params_file, bags = _model_source(source)
@@ -63,7 +68,26 @@ def frozen_model(source: Path, out: Path, say=print) -> tuple[dict, Path]:
         say(f"model: rebuilt from {', '.join(map(str, bags))}")
     else:
         raise ConfigError(f"sagg reach: '{source}' has no checkpoint and no bag to take the model from")
+    rest, where = rest_point_of(ck, bags)
+    if rest is not None:
+        write_rest_point(out, rest, where)
+        say(f"rest point: {where}")
     return doc, memory
+
+
+def rest_point_of(checkpoint: Path, bags: list[Path]) -> tuple[np.ndarray | None, str]:
+    """The effector's point at rest as the run measured it, and where it was read: the learner's
+    (``checkpoint/model.json``), else the start of the run's first goal in its bags (an attempt
+    whose learner returned to rest first: the first attempt of every goal strategy); (None, '')."""
+    rest = rest_point_file(checkpoint) if checkpoint.is_dir() else None
+    if rest is not None:
+        return rest, f"measured by the learner ({checkpoint / 'model.json'})"
+    if bags:
+        for _, _, _, raw in bag_messages(bags, {"/sagg/competence"}):
+            r = decode_report(raw)
+            if r.kind in (KIND_GOAL, KIND_SUBGOAL) and r.seq >= 1:
+                return np.asarray(r.start, dtype=float), f"the start of the first goal's attempt in {bags[0]}"
+    return None, ""
 
 
 def reach_goals(source: str | Path, goals: list[list[float]] | None = None, test_goals: int = 0,
@@ -197,6 +221,14 @@ class ReachClient:
     def wait_for_server(self, group: NodeGroup | None, timeout: float) -> None:
         self._spin_until(group, self.client.server_is_ready, timeout, "no /sagg/reach server (the learner)")
 
+    def wait_for_ik(self, group: NodeGroup | None, timeout: float) -> None:
+        """Until /sagg/compute_ik is served (GraphError after ``timeout`` s or when a node of ``group`` exits)."""
+        # lazy (heavy): ROS
+        from sagg_msgs.srv import ComputeIK
+        if self.ik is None:
+            self.ik = self.node.create_client(ComputeIK, "/sagg/compute_ik")
+        self._spin_until(group, self.ik.service_is_ready, timeout, "no /sagg/compute_ik server")
+
     def reach(self, group: NodeGroup | None, goal, tolerance: float = 0.0, from_rest: bool = False) -> dict:
         t0 = time.monotonic()
         fut = self.client.send_goal_async(self.Reach.Goal(target=[float(v) for v in goal], tolerance=float(tolerance),
@@ -217,9 +249,7 @@ class ReachClient:
         took (request sent to response received)."""
         # lazy (heavy): ROS
         from sagg_msgs.srv import ComputeIK
-        if self.ik is None:
-            self.ik = self.node.create_client(ComputeIK, "/sagg/compute_ik")
-            self._spin_until(None, self.ik.service_is_ready, timeout, "no /sagg/compute_ik server")
+        self.wait_for_ik(None, timeout)
         req = ComputeIK.Request(target=[float(v) for v in target], start=[float(v) for v in start],
                                 start_point=[float(v) for v in start_point], tolerance=float(tolerance),
                                 max_steps=int(max_steps))
