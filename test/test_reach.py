@@ -49,6 +49,12 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
         # below 1,500 at the graph's ~1,000-2,000 micro-actions/s)
         r = client.reach(None, [30.0, 10.0], from_rest=True)
         assert r["outcome"] in ("reached", "budget") and r["error"] < 5.0, r
+        assert len(r["joints"]) == 8                                # the measured final joints
+        # /sagg/compute_ik while it learns: the model as it is now, nothing moves; a bad request says why
+        ik, _ = client.compute_ik([30.0, 10.0])
+        assert ik.outcome in ("reached", "budget") and len(ik.joints) == 8 and ik.nearest_sample >= 0.0, ik.message
+        ik, _ = client.compute_ik([30.0, 10.0], start=[0.0] * 3)
+        assert not ik.success and ik.outcome == "invalid" and ik.message.startswith("start [0.0, 0.0, 0.0]: allowed")
         bad = client.client.send_goal_async(client.Reach.Goal(target=[1e9, 0.0]))
         client._spin_until(None, bad.done, 30.0, "no answer")
         assert not bad.result().accepted                            # outside Y: rejected
@@ -86,6 +92,7 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
     log = (out / "logs" / "learner.log").read_text()
     assert "reach of [30.0, 10.0]" in log and "reach hold released" in log
     assert "rejected input [reach.invalid]" in log and "rejected input [reach.busy]" in log
+    assert "rejected input [compute_ik.invalid]" in log
     assert "reach of [20.0, -10.0]: " in log and "paused by the /sagg/pause service" in log
 
 
