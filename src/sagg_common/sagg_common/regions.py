@@ -15,14 +15,54 @@ import numpy as np
 from .leaf_interests import LeafInterests
 
 
+def half_window(n, zeta):
+    """``h = min(ζ, n) // 2``: the size of each half of the interest window of a region holding
+    ``n`` values (:func:`interest`); 0 for fewer than two values.
+
+    Parameters
+    ----------
+    n : int or ndarray of int
+        Number of values of the region (or of each of several regions).
+    zeta : int
+        Interest window ζ.
+
+    Returns
+    -------
+    int or ndarray of int
+        h, of the same shape as ``n``.
+    """
+    return min(zeta, n) // 2 if isinstance(n, int) else np.minimum(zeta, n) // 2
+
+
+def window_interest(signed_sum, h):
+    """The interest of a window from its signed sum: ``|Σ older half − Σ recent half| / 2h``
+    (:func:`interest`); the one place the formula's last step is written, for one region or many.
+
+    Parameters
+    ----------
+    signed_sum : float or ndarray
+        ``Σ older half − Σ recent half`` of each window (0 for an empty window).
+    h : int or ndarray of int
+        Each window's half size (:func:`half_window`), of the shape of ``signed_sum``.
+
+    Returns
+    -------
+    float or ndarray
+        The interest, >= 0; 0 where h = 0 (the window is empty, its signed sum 0, and the
+        divisor 1 instead of 0).
+    """
+    return abs(signed_sum) / (2 * h + (h == 0))
+
+
 def interest(values: np.ndarray, zeta: int) -> float:
     """Interest of a region: paper Sec. 2.4.3, equation (interest) / Algorithm 2.
 
     ``|Σ older half − Σ recent half| / ζ`` over the ``ζ`` most recent values of the region, in the
     order they were added. Vague in the paper: both sums include the middle element and the region
     may hold fewer than ζ values. Choice: the window is ``w = min(ζ, n)`` values split into two halves
-    of ``h = w // 2`` (the oldest value is dropped when w is odd), divided by ``2h`` (= ζ for a full
-    window with even ζ); fewer than two values give interest 0.
+    of ``h = w // 2`` (:func:`half_window`; the oldest value is dropped when w is odd), divided by
+    ``2h`` (= ζ for a full window with even ζ; :func:`window_interest`); fewer than two values give
+    interest 0. :func:`split_qualities` takes the same windows of many candidate regions at once.
 
     Parameters
     ----------
@@ -38,12 +78,12 @@ def interest(values: np.ndarray, zeta: int) -> float:
         The region's interest, >= 0 (0 for fewer than two values).
     """
     n = len(values)
-    h = min(zeta, n) // 2
+    h = half_window(n, zeta)
     if h == 0:
         return 0.0
     recent = values[n - h:n]
     older = values[n - 2 * h:n - h]
-    return abs(float(older.sum()) - float(recent.sum())) / (2 * h)
+    return window_interest(float(older.sum()) - float(recent.sum()), h)
 
 
 def proportional(weights: np.ndarray) -> np.ndarray:
@@ -211,8 +251,9 @@ def split_qualities(values: np.ndarray, left: np.ndarray, zeta: int) -> tuple[np
     """:func:`split_quality` of many candidate splits of one region at once: ``left`` (N, C) says,
     per candidate, which of the region's N points (in time order, ``values`` theirs) go left.
     Returns (qualities, left counts, right counts), each (C,). Each side's interest is
-    :func:`interest` of its own values in time order: its newest h = min(ζ, n) // 2 values against
-    the h before them, found by the members' rank from the newest. The same quantities as the
+    :func:`interest` of its own values in time order (the same :func:`half_window` and
+    :func:`window_interest`): its newest h values against the h before them, found by the members'
+    rank from the newest, their signed sum taken in one pass. The same quantities as the
     per-candidate calls, summed in another order (the floats may differ in the last bits).
 
     Parameters
@@ -239,7 +280,7 @@ def split_qualities(values: np.ndarray, left: np.ndarray, zeta: int) -> tuple[np
     nr = n - nl
     rank_l = np.cumsum(left[::-1], axis=0)[::-1]              # left points at index >= t
     rank_r = np.arange(n, 0, -1)[:, None] - rank_l            # right points at index >= t
-    hl, hr = np.minimum(zeta, nl) // 2, np.minimum(zeta, nr) // 2
+    hl, hr = half_window(nl, zeta), half_window(nr, zeta)
     # each point's rank from its side's newest (1 = newest) and its side's h
     rank = np.where(left, rank_l, rank_r)
     h = np.where(left, hl, hr)
@@ -247,9 +288,9 @@ def split_qualities(values: np.ndarray, left: np.ndarray, zeta: int) -> tuple[np
     w = (rank <= 2 * h).astype(float) - 2.0 * (rank <= h)
     # the windows' values only (a value outside them never enters a sum, as in interest())
     wv = np.where(w != 0.0, values[:, None] * w, 0.0)
-    il = np.abs((wv * left).sum(axis=0)) / np.maximum(2 * hl, 1)
-    ir = np.abs((wv * ~left).sum(axis=0)) / np.maximum(2 * hr, 1)
-    quality = nl * nr * np.abs(np.where(hl > 0, il, 0.0) - np.where(hr > 0, ir, 0.0))
+    il = window_interest((wv * left).sum(axis=0), hl)
+    ir = window_interest((wv * ~left).sum(axis=0), hr)
+    quality = nl * nr * np.abs(il - ir)
     return quality, nl, nr
 
 
