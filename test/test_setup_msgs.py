@@ -235,6 +235,7 @@ def test_interface_definitions_installed():
 CONSOLE_SCRIPTS = {
     'goal_generator': ('sagg_goal_generator', 'sagg_goal_generator.node:main'),
     'learner': ('sagg_low_level', 'sagg_low_level.node:main'),
+    'model_server': ('sagg_low_level', 'sagg_low_level.model_server:main'),
     'mujoco_bridge': ('sagg_sim_bridge', 'sagg_sim_bridge.node:main'),
     'sagg': ('sagg_bringup', 'sagg_bringup.cli.cli:main'),
     'fixed_learner': ('sagg_low_level', 'sagg_low_level.fixed_node:main'),
