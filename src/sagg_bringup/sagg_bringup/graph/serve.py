@@ -16,6 +16,7 @@ Learning is off in every case: nothing is stored.
 """
 from __future__ import annotations
 
+import signal
 import sys
 import time
 from pathlib import Path
@@ -49,7 +50,8 @@ def model_directory(source: str | Path, out: Path, driver: str, say=print) -> di
 
 def serve(source: str | Path, out_dir: str | Path | None = None, driver: str = "none",
           domain_id: int | None = None, say=print, should_stop=lambda: False) -> None:
-    """Serve the model of ``source`` (the module docstring) until Ctrl-C or ``should_stop()``."""
+    """Serve the model of ``source`` (the module docstring) until SIGINT (Ctrl-C), SIGTERM or
+    ``should_stop()`` (its own handlers: a shell starting it in the background ignores SIGINT)."""
     if driver not in ("none", "sim", "external"):
         raise ConfigError(f"--driver: got {driver!r}; allowed: none, sim, external")
     check_domain_id(domain_id)
@@ -62,6 +64,9 @@ def serve(source: str | Path, out_dir: str | Path | None = None, driver: str = "
         nodes = {k: v for k, v in NODES.items() if k == "sagg_learner" or (driver == "sim" and k == "sagg_sim_bridge")}
     group = NodeGroup(node_processes(nodes, out / "logs"), _env_domain(domain_id), localhost=False)
     client = None
+    stop = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.append(True))
     try:
         group.start(out / "params.yaml", {"sagg_model_server": {"run": str(out.resolve())}})
         client = ReachClient(group.domain)
@@ -69,11 +74,9 @@ def serve(source: str | Path, out_dir: str | Path | None = None, driver: str = "
         served = "/sagg/compute_ik" + ("" if driver == "none" else " and /sagg/reach")
         say(f"serving {served} on ROS_DOMAIN_ID {group.domain} (model {out}; logs {out / 'logs'}): ready. "
             "Ctrl-C stops")
-        while not should_stop():
+        while not (stop or should_stop()):
             group.check()
             time.sleep(0.2)
-    except KeyboardInterrupt:
-        pass
     finally:
         if client is not None:
             client.close()
