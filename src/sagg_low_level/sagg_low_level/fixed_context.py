@@ -6,7 +6,7 @@ Every experiment starts from the same rest state, runs the synergy π_θ and yie
 Like :class:`~sagg_low_level.learner.EvolvingContextLearner`, the learner is a coroutine:
 :meth:`FixedContextLearner.run` yields :class:`Observe` (answer: the rest outcome y_rest),
 :class:`Execute` (answer: y, or None when the trial produced no outcome) and
-:class:`~sagg_low_level.learner.GoalRequest` (answer: ``(goal_seq, position)``). The in-process
+:class:`~sagg_low_level.learner_shared.GoalRequest` (answer: ``(goal_seq, position)``). The in-process
 driver answers from a simulator object, the synergy learner node from ROS topics, so both produce
 the same samples for the same seeds.
 
@@ -26,13 +26,14 @@ import numpy as np
 from sagg_common.competence import competence, competence_toward, gamma, is_reached
 from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
 from sagg_common.params import ConfigError
-from sagg_common.regions import RegionTree, interest_probabilities
+from sagg_common.regions import RegionTree
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED
-from sagg_common.rng import choice_index, stream, uniform_in
+from sagg_common.rng import stream, uniform_in
 from sagg_common.synergy import PostureSynergy, SinusoidSynergy, VelocitySynergy
 
-from .learner import EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, ReportSource
 from .compiled import jacobian, pinv_step
+from .learner_shared import (EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, ReportSource, riac_region, riac_tree,
+                             task_space)
 from .memory import SampleTable
 from .memory_distance import squared_distances
 from .riac_leaves import RiacLeaves
@@ -338,13 +339,7 @@ class FixedContextLearner(ReportSource):
         self.p = params
         self.space = theta_space
         self.strategy = params["strategy"]
-        self.task_lower = np.asarray(params["task_space.lower"], dtype=float)
-        self.task_upper = np.asarray(params["task_space.upper"], dtype=float)
-        if self.task_lower.shape != self.task_upper.shape or not np.all(self.task_upper > self.task_lower):
-            raise ValueError("task_space.lower/upper: equal lengths and upper > lower required")
-        self.mdim = task_dim or len(self.task_lower)
-        if self.mdim != len(self.task_lower):
-            raise ValueError(f"task_space: {len(self.task_lower)} dimensions but the robot reports {self.mdim}")
+        self.task_lower, self.task_upper, self.mdim = task_space(params, task_dim)
         n = theta_space.n
         self.scale = (self.task_upper - self.task_lower) if params["competence_rescale"] else np.ones(self.mdim)
         self.l_nb = params["l"]
@@ -629,12 +624,12 @@ class FixedContextLearner(ReportSource):
 
     def _actuator_babbling(self, riac: bool) -> Generator:
         """ACTUATOR-RANDOM (θ uniform in its bounds) and ACTUATOR-RIAC (θ regions of the normalised
-        synergy space chosen by the progress of the prediction error of y, as RIAC; Sec. 4.5)."""
+        synergy space chosen by the progress of the prediction error of y, as RIAC; Sec. 4.5).
+        Apart from the evolving context's (Sec. 3.8) because the experiment differs: a whole
+        synergy from rest predicted as y, no return to rest to schedule, regions over θ alone."""
         n = self.space.n
         if riac:
-            self.riac_tree = RegionTree(np.zeros(n), np.ones(n), self.p["riac.g_max"], self.p["riac.zeta"],
-                                        self.p["riac.split_candidates"],
-                                        stream(self.p["seed"], "actuator_riac_splits"))
+            self.riac_tree = riac_tree(self.p, np.zeros(n), np.ones(n))
             self.riac_leaves = RiacLeaves(self.riac_tree, 0)  # every point goes through it
         while True:
             if riac:
@@ -655,12 +650,11 @@ class FixedContextLearner(ReportSource):
     def _riac_choice(self) -> np.ndarray:
         """ACTUATOR-RIAC: a leaf with probability ∝ interest − min (as SAGG-RIAC mode 1), θ uniform in
         it; with probability ``riac.p_random`` (or while there is one leaf) θ uniform."""
-        leaves = self.riac_tree.leaves()
-        if self.rng.random() < self.p["riac.p_random"] or len(leaves) < 2:
+        # every leaf is a candidate (θ has no context); interests() = [r.interest for r in leaves]
+        region = riac_region(self.rng, self.p["riac.p_random"], self.riac_tree.leaves(),
+                             lambda: (None, self.riac_leaves.interests()))
+        if region is None:
             return self._uniform_theta()
-        it = self.riac_leaves.interests()  # = [r.interest for r in leaves], kept up to date
-        probs = interest_probabilities(it)
-        region = leaves[choice_index(self.rng, probs)]
         return self.denorm_theta(uniform_in(self.rng, region.lower, region.upper))
 
 

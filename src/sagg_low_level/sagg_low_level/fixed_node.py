@@ -40,7 +40,7 @@ from sagg_common.synergy import quaternion_yaw
 from sagg_msgs.srv import NextGoal
 
 from .fixed_context import Execute, FixedContextLearner, ThetaSpace, synergy_from_params
-from .learner import GoalRequest, Observe, Report
+from .learner_shared import GoalRequest, Observe, Report
 from .node_base import NODE_NAME, LearnerNodeBase
 from .position_link import PositionLink
 from .schema import FIXED_CORE_SCHEMA as CORE_SCHEMA, FIXED_LEARNER_SCHEMA as SCHEMA

@@ -17,11 +17,14 @@ import numpy as np
 
 from sagg_common.competence import competence_toward, gamma, is_reached
 from sagg_common.params import GOAL_STRATEGIES, SHARED_SCHEMA, Param, Schema
-from sagg_common.regions import RegionTree, interest_probabilities
+from sagg_common.regions import RegionTree
 from sagg_common.report_kinds import KIND_EXPLORATION, KIND_GOAL, KIND_REACHED, KIND_SUBGOAL
-from sagg_common.rng import choice_index, stream, uniform_in
+from sagg_common.rng import stream, uniform_in
 
 from .compiled import jacobian, reach_step
+from .learner_shared import (EPS_SIM, RIAC_SPLITTING, GoalRequest, Observe, ReportSource, riac_region, riac_tree,
+                             task_space)
+from .learner_shared import Report  # noqa: F401 (re-exported: the nodes and checkpoints import it from here)
 from .local_model import desired_displacement, norm
 from .memory import SampleMemory
 from .prior import Prior, load_prior, neighbour_rows
@@ -35,17 +38,6 @@ CONTEXT = Param(
     "from the rest posture, outcome = the settled tip; node 'fixed_learner' with synergy.kind "
     "'posture'). `sagg experiment` / `sagg run` choose the learner and node from it.",
     choices=("evolving", "fixed"))
-
-# Parameters both learners (this one and the fixed-context one) declare alike
-EPS_SIM = Param("eps_sim", "float", -0.05,
-                "ε_sim < 0: a goal counts as reached when C > ε_sim (Sec. 2.4.1). Paper gives no value.",
-                low=-1.0, high=0.0)
-RIAC_SPLITTING = (
-    Param("riac.zeta", "int", 20, "ACTUATOR-RIAC: interest window over prediction errors.",
-          low=2, high=1_000_000),
-    Param("riac.split_candidates", "int", 20, "ACTUATOR-RIAC: random split candidates.",
-          low=1, high=10_000),
-)
 
 SCHEMA: Schema = SHARED_SCHEMA + (CONTEXT,) + (
     Param("v", "float", 2.0, "Desired effector speed, task units per micro-action (Sec. 3.6.1).",
@@ -216,11 +208,6 @@ class MoveCheck(Protocol):
 
 # --------------------------------------------------------------------------- coroutine protocol
 @dataclass
-class Observe:
-    """Request the current (α, y). Answer: ``(alpha, y)``."""
-
-
-@dataclass
 class Command:
     """Request one position command. Answer: measured ``(alpha, y)`` once executed.
 
@@ -229,53 +216,6 @@ class Command:
 
     target: np.ndarray
     kind: str
-
-
-@dataclass
-class GoalRequest:
-    """Request the next goal once the generator has processed reports 1..after_report.
-    Answer: ``(goal_seq, position)``."""
-
-    after_report: int
-
-
-@dataclass
-class Report:
-    seq: int
-    goal_seq: int
-    kind: int
-    target: np.ndarray
-    reached: np.ndarray
-    start: np.ndarray
-    competence: float
-    micro_actions: int
-
-
-class ReportSource:
-    """What both learners (:class:`EvolvingContextLearner`, and the fixed context's
-    ``FixedContextLearner``) share for their competence reports (Alg. 1: one report per attempt):
-    reports numbered from 1 (``reports_sent``), the competence of the last goal or subgoal
-    (``last_competence``, for the status), each report handed to ``on_report``."""
-
-    reports_sent: int
-    last_competence: float
-    on_report: Callable[[Report], None] | None
-
-    def _init_reports(self) -> None:
-        self.reports_sent = 0
-        self.last_competence = float("nan")
-        self.on_report = None
-
-    def _emit_report(self, kind: int, goal_seq: int, target, reached: np.ndarray, start: np.ndarray, comp: float,
-                     count: int) -> None:
-        """Number and hand on one report (``reached`` and ``start`` as the report keeps them;
-        ``count``: micro-actions, or experiments in the fixed context, so far)."""
-        self.reports_sent += 1
-        if kind in (KIND_GOAL, KIND_SUBGOAL):
-            self.last_competence = comp
-        if self.on_report is not None:
-            self.on_report(Report(self.reports_sent, goal_seq, kind, np.array(target, dtype=float), reached, start,
-                                  float(comp), count))
 
 
 @dataclass
@@ -475,13 +415,7 @@ class EvolvingContextLearner(ReportSource):
             raise ValueError(f"context: got {params['context']!r}; allowed here: 'evolving' (the fixed "
                              "context is the FixedContextLearner, node fixed_learner)")
         self.strategy = params["strategy"]
-        self.task_lower = np.asarray(params["task_space.lower"], dtype=float)
-        self.task_upper = np.asarray(params["task_space.upper"], dtype=float)
-        if self.task_lower.shape != self.task_upper.shape or not np.all(self.task_upper > self.task_lower):
-            raise ValueError("task_space.lower/upper: equal lengths and upper > lower required")
-        self.m = task_dim or len(self.task_lower)
-        if self.m != len(self.task_lower):
-            raise ValueError(f"task_space: {len(self.task_lower)} dimensions but the robot reports {self.m}")
+        self.task_lower, self.task_upper, self.m = task_space(params, task_dim)
         n = robot.n
         self.memory = memory if memory is not None else SampleMemory(
             n, n, self.m, checks=params["neighbour_checks"])
@@ -884,7 +818,9 @@ class EvolvingContextLearner(ReportSource):
 
     def _actuator_babbling(self, riac: bool) -> Generator:
         """ACTUATOR-RANDOM (random Δα) and ACTUATOR-RIAC (Δα chosen by RIAC over (α, Δα)),
-        both returning to rest every ``max`` micro-actions (Sec. 3.8)."""
+        both returning to rest every ``max`` micro-actions (Sec. 3.8). Apart from the fixed
+        context's (Sec. 4.5) because the experiment differs: a micro-action from the current
+        posture predicted as Δy, returns to rest, regions over (α, Δα) chosen by the current α."""
         yield from self._reset()
         self.rest_y = self.y.copy()
         period = self.actuator_reset_period()
@@ -923,10 +859,8 @@ class EvolvingContextLearner(ReportSource):
         """
         a = self.p["explore_amplitude"]
         n = self.robot.n
-        return RegionTree(np.concatenate([self.robot.lower, np.full(n, -a)]),
-                          np.concatenate([self.robot.upper, np.full(n, a)]),
-                          self.p["riac.g_max"], self.p["riac.zeta"], self.p["riac.split_candidates"],
-                          stream(self.p["seed"], "actuator_riac_splits"))
+        return riac_tree(self.p, np.concatenate([self.robot.lower, np.full(n, -a)]),
+                         np.concatenate([self.robot.upper, np.full(n, a)]))
 
     def _riac_leaves(self) -> RiacLeaves:
         """The leaf table of the current RIAC tree (rebuilt when the tree was replaced, e.g. by a
@@ -942,11 +876,10 @@ class EvolvingContextLearner(ReportSource):
         so the choice is restricted to compatible regions: our reading of RIAC for evolving context.)
         The compatible leaves come from the leaf table (:mod:`.riac_leaves`: arrays, the same leaves
         and order as a walk down the tree)."""
-        if self.rng.random() < self.p["riac.p_random"] or len(self.riac_tree.leaves()) < 2:
+        region = riac_region(self.rng, self.p["riac.p_random"], self.riac_tree.leaves(),
+                             lambda: self._riac_leaves().compatible(
+                                 np.clip(self.alpha, self.robot.lower, self.robot.upper)))
+        if region is None:
             return self._random_step()
         n = self.robot.n
-        alpha = np.clip(self.alpha, self.robot.lower, self.robot.upper)
-        rows, it = self._riac_leaves().compatible(alpha)
-        probs = interest_probabilities(it)
-        region = self.riac_tree.leaves()[int(rows[choice_index(self.rng, probs)])]
         return uniform_in(self.rng, region.lower[n:], region.upper[n:])
