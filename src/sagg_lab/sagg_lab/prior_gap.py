@@ -36,7 +36,7 @@ def _gap_overrides(n: int, factor: float) -> dict:
     return {"arm.calibration.length_scale": gap.length_scale, "arm.calibration.joint_offsets": list(gap.joint_offsets)}
 
 
-def run_arm(config: str, seeds: int, prior_ma: int, out: Path) -> dict:
+def run_arm(config: str, seeds: int, prior_ma: int, out: Path, gaps=GAPS, regions: bool = True) -> dict:
     """Every run of one arm; returns {variant: {gap: [per-seed {point: error}]}}."""
     n = len(arm_spec_from_params(load_arm_config(config)["sagg_sim_bridge"]).joint_names())
     runs: dict = {}
@@ -44,10 +44,11 @@ def run_arm(config: str, seeds: int, prior_ma: int, out: Path) -> dict:
     for s in range(seeds):
         prior_dir = out / name / f"prior-seed{100 + s}"
         run_arm_experiment(config, None, 100 + s, prior_ma, prior_ma, prior_dir, progress=False, save_model=True)
-        variants = [("none", g, {}) for g in GAPS] + [("prior", g, {"prior.memory": str(prior_dir / "memory.npz")})
-                                                      for g in GAPS]
-        variants.append(("prior+regions", 1.0, {"prior.memory": str(prior_dir / "memory.npz"),
-                                                "prior.regions": str(prior_dir / "regions.npz")}))
+        variants = [("none", g, {}) for g in gaps] + [("prior", g, {"prior.memory": str(prior_dir / "memory.npz")})
+                                                      for g in gaps]
+        if regions:
+                variants.append(("prior+regions", 1.0, {"prior.memory": str(prior_dir / "memory.npz"),
+                                                    "prior.regions": str(prior_dir / "regions.npz")}))
         for variant, gap, ov in variants:
             res = run_arm_experiment(config, None, s, max(POINTS), 250, out / name / f"{variant}-gap{gap:g}-seed{s}",
                                      progress=False, overrides={**_gap_overrides(n, gap), **ov})
@@ -57,11 +58,11 @@ def run_arm(config: str, seeds: int, prior_ma: int, out: Path) -> dict:
     return runs
 
 
-def table(name: str, runs: dict) -> str:
+def table(name: str, runs: dict, gaps=GAPS) -> str:
     """Markdown: per gap, per point, mean ± std of the no-prior and prior runs, and the tests."""
     lines = [f"### {name}", "", "| gap | micro-actions | no prior | prior | prior + regions | MW p | Welch p |",
              "|---|---|---|---|---|---|---|"]
-    for gap in GAPS:
+    for gap in gaps:
         for p in POINTS:
             a = [r[p] for r in runs["none"][gap]]
             b = [r[p] for r in runs["prior"][gap]]
@@ -70,7 +71,7 @@ def table(name: str, runs: dict) -> str:
             cell = f"{np.mean(c):.4f} ± {np.std(c):.4f}" if c else ""
             lines.append(f"| {gap:g} | {p} | {np.mean(a):.4f} ± {np.std(a):.4f} | {np.mean(b):.4f} ± {np.std(b):.4f} "
                          f"| {cell} | {t['mannwhitney_p']:.3g} | {t['welch_p']:.3g} |")
-    for gap in GAPS:
+    for gap in gaps:
         target = np.mean([r[2000] for r in runs["none"][gap]])
         first = next((p for p in POINTS if np.mean([r[p] for r in runs["prior"][gap]]) <= target), None)
         lines.append(f"\ngap {gap:g}: the no-prior 2,000 error {target:.4f} is reached with the prior at "
@@ -84,14 +85,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--prior-micro-actions", type=int, default=20_000)
     ap.add_argument("--arms", nargs="+", default=["arm7_urdf", "arm6_mjcf"])
+    ap.add_argument("--gaps", nargs="+", type=float, default=list(GAPS), help="multiples of the default test gap")
+    ap.add_argument("--no-regions", action="store_true", help="skip the runs with the prior's region tree")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     every = {}
     for arm in args.arms:
-        runs = run_arm(f"config/{arm}.yaml", args.seeds, args.prior_micro_actions, out)
+        runs = run_arm(f"config/{arm}.yaml", args.seeds, args.prior_micro_actions, out, args.gaps,
+                       not args.no_regions)
         every[arm] = {v: {str(g): r for g, r in gaps.items()} for v, gaps in runs.items()}
-        print(table(arm, runs), flush=True)
+        print(table(arm, runs, args.gaps), flush=True)
     (out / "prior_gap.json").write_text(json.dumps(every, indent=1))
     return 0
 
