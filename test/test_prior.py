@@ -205,6 +205,7 @@ def test_a_graph_run_with_a_prior_and_a_gap_equals_the_in_process_run_and_resume
     from the restored samples (a resumed learner starts a new attempt, so its run is its own)."""
     import json
     import os
+    import shutil
     import subprocess
 
     from installed import SAGG
@@ -233,6 +234,9 @@ def test_a_graph_run_with_a_prior_and_a_gap_equals_the_in_process_run_and_resume
     assert s["prior"] == {"samples": r["prior"]["samples"], "superseded": r["prior"]["superseded"]}
     assert 0 < s["prior"]["superseded"] < s["prior"]["samples"] == 3000
     assert json.loads((run / "prior" / "prior.json").read_text())["regions"] is True
+    moved = tmp_path / "moved"  # (the run directory moved: its own prior is found)
+    shutil.move(run, moved)
+    run = moved
     sagg("run", "--resume", str(run), "--micro-actions", "450", "--quiet", "--no-report")
     s = json.loads((run / "summary.json").read_text())
     robot = checkpoint_memory(run / "checkpoint")

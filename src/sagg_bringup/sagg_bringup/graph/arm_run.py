@@ -24,6 +24,7 @@ from ..inprocess.arm_params import core_config, resolve_arm
 from ..inprocess.evaluator import memory_info
 from ..inprocess.results import run_overrides
 from .params_files import run_bags, run_only_params, set_checkpoint_dirs, write_params_file
+from .prior_source import own_prior_files
 from .processes import check_domain_id, node_processes
 from .resume_check import compare
 from .split_tracker import SplitTracker
@@ -91,7 +92,8 @@ def plan_arm_run(config_path: str | Path, micro_actions: int, out_dir: str | Pat
     procs = node_processes(nodes, out / "logs", segment)
     t_start = time.perf_counter()
     params = node_params(full, spec, ov)
-    for note in set_checkpoint_dirs(params, out, resume):
+    notes = set_checkpoint_dirs(params, out, resume) + (own_prior_files([full, params], out) if resume else [])
+    for note in notes:
         print(f"sagg run: {note}", file=sys.stderr)
     params_file = out / "params.yaml"
     write_params_file(params_file, params)

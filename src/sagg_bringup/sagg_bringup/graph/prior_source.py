@@ -75,3 +75,22 @@ def prepare_prior(source: str | Path, out: str | Path, regions: bool = False, sa
                                                  "regions": regions}, indent=1))
     say(f"prior: {samples:,} samples of {source}" + (", and its region tree" if regions else ""))
     return overrides
+
+
+# the nodes' parameters that name the prior's files, and the files' names in DIR/prior
+PRIOR_FILES = (("sagg_learner", "prior.memory", "memory.npz"), ("sagg_goal_generator", "prior.regions", "regions.npz"))
+
+
+def own_prior_files(configs: list[dict], out: str | Path) -> list[str]:
+    """A resumed run's prior from its own ``DIR/prior`` when the files its settings name are gone
+    (the run directory was moved or copied): each of ``configs`` (node section -> parameters)
+    changed in place; one note per file taken from there."""
+    notes = []
+    for section, key, name in PRIOR_FILES:
+        own = Path(out) / PRIOR_DIR / name
+        for config in configs:
+            named = config.get(section, {}).get(key)
+            if named and not Path(named).is_file() and own.is_file():
+                config[section][key] = str(own.resolve())
+                notes.append(f"{section}: {key} '{named}' is gone; the run's own {own} is used")
+    return notes
