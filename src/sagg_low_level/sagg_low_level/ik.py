@@ -2,16 +2,21 @@
 
 A target point of Y -> joint positions, with no motion: the frozen model's reach run open loop
 (:func:`~sagg_low_level.evaluate.open_loop_reach`: the reaching steps of the evaluation, each
-answered by the local forward model's prediction instead of a measurement) from a start posture,
-the rest posture by default. The answer says how far to trust it: the predicted point and its
-distance to the target, the distance in joint space to the nearest stored posture (how far the
-answer extrapolates from what was experienced), and a success flag (predicted within tolerance,
-within the joint limits, allowed by the scene).
+answered by the local forward model's prediction instead of a measurement) from a start posture.
+The answer says how far to trust it: the predicted point and its distance to the target, the
+distance in joint space to the nearest stored posture (how far the answer extrapolates from what
+was experienced), and a success flag (predicted within tolerance, within the joint limits, allowed
+by the scene).
 
-The model's samples are displacements (α, Δα, Δy): a point needs one point to start from. That is
-the effector's point at the rest posture, measured by the learner at its returns to rest (its
-*rest point*), or a point the caller measured at its start posture. A start posture given without
-its point is reached from rest on the model (:func:`predicted_point`).
+Open loop, the model's small errors add up step by step, so the reach starts as near the target
+as the model knows a point (our choice; the paper reaches from rest with a measurement at every
+step): from the stored posture whose effector point, rebuilt exactly from the memory's
+measurements (:mod:`.known_points`), is nearest the target, a few short steps away. The few
+nearest are tried in turn, with the rest posture (its point measured by the learner at its
+returns to rest, the *rest point*) among them at its own distance: the first whose reach the model
+predicts within tolerance is the answer (:func:`start_candidates`). A start posture the caller
+gives is honoured: the reach starts there, from the point the caller measured, or from the point
+the model predicts on the way from rest (:func:`predicted_point`).
 
 The model of a finished run is read by :func:`load_model`: a run's learner checkpoint (the learner
 node keeps its rest point there, in ``model.json``), or the model directory ``sagg serve`` writes.
@@ -30,10 +35,12 @@ from sagg_common.journal import write_json_atomic
 
 from .checkpoint import checkpoint_memory
 from .evaluate import open_loop_reach
+from .known_points import KnownPoints
 from .learner import EvolvingContextLearner, step_toward, stepped_move_limit
 from .memory import SampleMemory
 
 REST_POINT_FILE = "model.json"  # beside a memory.npz: {"rest_point": [...], "source": "..."}
+CANDIDATES = 4  # stored postures tried as starts, nearest first (our choice: the nearest nearly always reaches)
 
 
 @dataclass
@@ -48,6 +55,7 @@ class IKAnswer:
     nearest_sample: float = math.nan
     steps: int = 0
     outcome: str = ""
+    start: str = ""  # where the reach started: 'stored posture', 'rest posture' or 'given'
 
 
 def request_problem(learner: EvolvingContextLearner, target, start, start_point, tolerance: float,
@@ -92,13 +100,20 @@ def predicted_point(learner: EvolvingContextLearner, rest_point: np.ndarray, alp
     return y
 
 
-def nearest_sample(memory: SampleMemory, alpha: np.ndarray) -> float:
-    """Distance (rad, Euclidean in joint space) from ``alpha`` to the nearest stored posture (the
-    memory's own search: approximate with ``neighbour_checks`` > 0); NaN for an empty memory."""
-    if not len(memory):
-        return math.nan
-    i = int(memory.neighbours(alpha, 1)[0])
-    return float(np.linalg.norm(memory.alpha[i] - alpha))
+def nearest_sample(memory: SampleMemory, alpha: np.ndarray, prior=None) -> float:
+    """Distance (rad, Euclidean in joint space) from ``alpha`` to the nearest stored posture: the
+    robot's (the memory's own search: approximate with ``neighbour_checks`` > 0) and, with a prior
+    (:class:`~sagg_low_level.prior.Prior`), its samples still in use, which the local models are
+    fitted from too. NaN when there is none."""
+    best = math.inf
+    if len(memory):
+        i = int(memory.neighbours(alpha, 1)[0])
+        best = float(np.linalg.norm(memory.alpha[i] - alpha))
+    if prior is not None:
+        _, sq = prior.nearest_live(alpha, 1)
+        if len(sq):
+            best = min(best, math.sqrt(float(sq[0])))
+    return best if math.isfinite(best) else math.nan
 
 
 def scene_check(scene):
@@ -115,24 +130,98 @@ def scene_check(scene):
     return lambda a0, a1, y0: scene.segment(a0, a1)
 
 
+def start_candidates(learner: EvolvingContextLearner, rest_point: np.ndarray, target: np.ndarray,
+                     points: KnownPoints | None = None, k: int = CANDIDATES) -> list[tuple]:
+    """Where a reach toward ``target`` may start, nearest first by point: the ``k`` stored end
+    postures whose rebuilt point (:mod:`.known_points`) is nearest ``target``, and the rest
+    posture at its own distance (so it is tried too when none of them reaches: the fallback).
+
+    Parameters
+    ----------
+    learner : EvolvingContextLearner
+        The model (its memory and rest posture).
+    rest_point : ndarray, shape (m,)
+        The effector's point at rest.
+    target : ndarray, shape (m,)
+    points : KnownPoints, optional
+        The known points of ``learner.memory``, brought up to date here (None: built for this call).
+    k : int
+        Stored postures to try.
+
+    Returns
+    -------
+    list of (alpha, point, kind)
+        Start posture (n,), its point (m,) and 'stored posture' or 'rest posture'.
+    """
+    rest_point = np.asarray(rest_point, dtype=float)
+    points = (points or KnownPoints()).update(learner.memory, learner.robot.rest)
+    alpha, offset = points.nearest(target - rest_point, k)
+    found = [(a, rest_point + o, "stored posture") for a, o in zip(alpha, offset)]
+    far = [np.linalg.norm(y - target) for _, y, _ in found]   # (nearest first)
+    cut = int(np.searchsorted(far, np.linalg.norm(rest_point - target), side="right"))
+    return found[:cut] + [(learner.robot.rest.copy(), rest_point, "rest posture")] + found[cut:]
+
+
 def compute_ik(learner: EvolvingContextLearner, rest_point, target, start=(), start_point=(),
-               tolerance: float = 0.0, max_steps: int = 0) -> IKAnswer:
+               tolerance: float = 0.0, max_steps: int = 0, points: KnownPoints | None = None) -> IKAnswer:
     """Joint positions for ``target`` from the model alone (the module docstring); the request is
-    assumed checked (:func:`request_problem`). ``rest_point``: the effector's point at rest (None:
-    unknown; then ``start_point`` is needed)."""
+    assumed checked (:func:`request_problem`).
+
+    Parameters
+    ----------
+    learner : EvolvingContextLearner
+        The model; nothing is stored or changed.
+    rest_point : array_like, shape (m,), or None
+        The effector's point at rest (None: unknown; then ``start_point`` is needed).
+    target : array_like, shape (m,)
+    start : array_like, shape (n,) or empty
+        A start posture to reach from (empty: the nearest known point's, :func:`start_candidates`).
+    start_point : array_like, shape (m,) or empty
+        The effector's point at ``start`` (at rest when ``start`` is empty), measured by the caller.
+    tolerance, max_steps
+        As :func:`~sagg_low_level.evaluate.open_loop_reach` (0: ``eval.tolerance``; the budget).
+    points : KnownPoints, optional
+        The known points of ``learner.memory``, kept by the caller across calls (None: built for
+        this call, which costs a pass over the memory).
+
+    Returns
+    -------
+    IKAnswer
+    """
     target = np.asarray(target, dtype=float)
-    alpha = np.asarray(start, dtype=float) if len(start) else learner.robot.rest.copy()
-    if len(start_point):
-        y = np.asarray(start_point, dtype=float)
-    elif rest_point is None:
-        return IKAnswer(False, "no rest point: the learner has not measured the effector at rest yet (and the "
-                               "model's files hold none); give start and start_point", outcome="no rest point")
+    if len(start):
+        alpha = np.asarray(start, dtype=float)
+        if not len(start_point) and rest_point is None:
+            return no_rest_point()
+        y = np.asarray(start_point, dtype=float) if len(start_point) else predicted_point(learner, rest_point, alpha)
+        starts = [(alpha, y, "given")]
     else:
-        y = predicted_point(learner, rest_point, alpha) if len(start) else np.asarray(rest_point, dtype=float)
+        rest_y = start_point if len(start_point) else rest_point
+        if rest_y is None:
+            return no_rest_point()
+        starts = start_candidates(learner, rest_y, target, points)
     tol = tolerance if tolerance > 0 else learner.p["eval.tolerance"]
-    alpha, y, dist, steps, outcome, refusal = open_loop_reach(learner, alpha, y, target, tol, max_steps,
-                                                             scene_check(learner.scene))
-    success = outcome == "reached"
+    check = scene_check(learner.scene)
+    best = None
+    for alpha, y, kind in starts:
+        reach = open_loop_reach(learner, alpha, y, target, tol, max_steps, check) + (kind,)
+        if best is None or reach[2] < best[2]:
+            best = reach
+        if reach[4] == "reached":
+            best = reach
+            break
+    return answer(learner, best, tol)
+
+
+def no_rest_point() -> IKAnswer:
+    """The answer when no point is known to start from."""
+    return IKAnswer(False, "no rest point: the learner has not measured the effector at rest yet (and the "
+                           "model's files hold none); give start and start_point", outcome="no rest point")
+
+
+def answer(learner: EvolvingContextLearner, reach: tuple, tol: float) -> IKAnswer:
+    """The :class:`IKAnswer` of one open-loop reach (``open_loop_reach``'s tuple and where it started)."""
+    alpha, y, dist, steps, outcome, refusal, kind = reach
     if outcome == "reached":
         message = f"predicted within {tol:g} of the target"
     elif outcome == "scene":
@@ -141,7 +230,9 @@ def compute_ik(learner: EvolvingContextLearner, rest_point, target, start=(), st
         message = f"too few samples for a local model ({len(learner.memory)}; min_samples {learner.min_samples})"
     else:
         message = f"predicted {dist:.4g} from the target after {steps} steps (tolerance {tol:g})"
-    return IKAnswer(success, message, alpha, y, dist, nearest_sample(learner.memory, alpha), steps, outcome)
+    message += " (from the given start)" if kind == "given" else f" (from the {kind})"
+    return IKAnswer(outcome == "reached", message, alpha, y, dist,
+                    nearest_sample(learner.memory, alpha, learner.prior), steps, outcome, kind)
 
 
 def rest_point_file(directory: Path) -> np.ndarray | None:
