@@ -124,89 +124,128 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
     # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
-    from geometry_msgs.msg import PointStamped
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64MultiArray
-    from trajectory_msgs.msg import JointTrajectory
     from sagg_common.scene import scene_from_params  # (mujoco)
-    from sagg_low_level.node_moves import trajectory_message
 
     lp = learner_params(config)
     joints = list(lp["joints"])
     joint = joint or joints[-1]
     if joint not in joints:
         raise ConfigError(f"--joint {joint!r}; allowed: one of the learner's joints {', '.join(joints)}")
-    j = joints.index(joint)
     if not 0 < step <= lp["max_joint_step"]:
         raise ConfigError(f"--step {step}; allowed: (0, max_joint_step = {lp['max_joint_step']}]")
+    # the scene (scene.*, with the robot's model): the probe move is checked as the learner's moves are
+    scene = scene_from_params(lp, joints, os.path.dirname(os.path.abspath(config)))
     ctx = Context()
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO,
                **({} if domain_id is None else {"domain_id": int(domain_id)}))
     stop: list[int] = []
     old = {s: signal.signal(s, lambda *_: stop.append(1)) for s in (signal.SIGINT, signal.SIGTERM)}
-    node = rclpy.create_node("sagg_check_driver", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    probe = _Probe(lp)
-    mon = probe.mon
-    # the scene (scene.*, with the robot's model): the probe move is checked as the learner's moves are
-    scene = scene_from_params(lp, joints, os.path.dirname(os.path.abspath(config)))
-    node.create_subscription(JointState, "/joint_states", with_message_info(probe.on_js), reliable(100), raw=True)
-    if mon.task_fk is None:
-        node.create_subscription(PointStamped, mon.task_topic, with_message_info(probe.on_tip), reliable(100))
-    else:  # task_source 'model': the task point of each measured posture, through the robot's model
-        mon.on_tip = lambda p: probe.tips.append((time.time(), mon.tip_stamp, p[:probe.m]))
-    trajectory = mon.cmd_type.startswith("trajectory_msgs")  # (command_interface 'trajectory')
-    pub = node.create_publisher(JointTrajectory if trajectory else Float64MultiArray, mon.cmd_topic,
-                                reliable(HW_DEPTH))
+    check = _DriverCheck(ctx, lp, joint, step, stop, out)
+    try:
+        if check.contract(timeout) and check.at_rest(seconds) and check.probe_move(scene):
+            check.say("OK: the driver meets the contract" if not check.problems
+                      else "PROBLEMS:\n  - " + "\n  - ".join(check.problems))
+        return check.res
+    finally:
+        check.close()
+        rclpy.shutdown(context=ctx)
+        for s, h in old.items():
+            signal.signal(s, h)
 
-    def command(start: np.ndarray, target: np.ndarray) -> None:
-        """The probe's setpoint; as a trajectory over PROBE_SECONDS with that interface."""
-        if trajectory:
-            pub.publish(trajectory_message(joints, start, target, PROBE_SECONDS))
-        else:
-            pub.publish(Float64MultiArray(data=target.tolist()))
-    problems: list[str] = []
-    res: dict = {"joints": joints, "moved_joint": joint, "step": step, "problems": problems}
 
-    def spin_for(secs: float, until=None) -> bool:
+class _DriverCheck:
+    """One check of a driver on a node of its own (``sagg_check_driver``): the probe of the driver's
+    messages, the probe move's commands, what was measured (``res``) and the problems found (in
+    ``res["problems"]`` too). Each step says what it found on ``out``."""
+
+    def __init__(self, ctx, lp: dict, joint: str, step: float, stop: list[int], out):
+        # lazy (heavy): ROS
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from geometry_msgs.msg import PointStamped
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64MultiArray
+        from trajectory_msgs.msg import JointTrajectory
+        from sagg_low_level.node_moves import trajectory_message
+
+        self.lp, self.stop, self.out = lp, stop, out
+        self.joints = list(lp["joints"])
+        self.joint, self.j, self.step = joint, self.joints.index(joint), step
+        self.node = rclpy.create_node("sagg_check_driver", context=ctx)
+        self.ex = SingleThreadedExecutor(context=ctx)
+        self.ex.add_node(self.node)
+        self.probe = _Probe(lp)
+        mon = self.mon = self.probe.mon
+        self.node.create_subscription(JointState, "/joint_states", with_message_info(self.probe.on_js),
+                                      reliable(100), raw=True)
+        if mon.task_fk is None:
+            self.node.create_subscription(PointStamped, mon.task_topic, with_message_info(self.probe.on_tip),
+                                          reliable(100))
+        else:  # task_source 'model': the task point of each measured posture, through the robot's model
+            mon.on_tip = lambda p: self.probe.tips.append((time.time(), mon.tip_stamp, p[:self.probe.m]))
+        self.trajectory = mon.cmd_type.startswith("trajectory_msgs")  # (command_interface 'trajectory')
+        self._array, self._trajectory_message = Float64MultiArray, trajectory_message
+        self.pub = self.node.create_publisher(JointTrajectory if self.trajectory else Float64MultiArray,
+                                              mon.cmd_topic, reliable(HW_DEPTH))
+        self.problems: list[str] = []
+        self.res: dict = {"joints": self.joints, "moved_joint": joint, "step": step, "problems": self.problems}
+
+    def close(self) -> None:
+        self.ex.shutdown()
+        self.node.destroy_node()
+
+    def say(self, text: str) -> None:
+        print(text, file=self.out, flush=True)
+
+    def spin_for(self, secs: float, until=None) -> bool:
+        """Spin for ``secs`` s or until ``until()`` holds (then True); KeyboardInterrupt on a signal."""
         t_end = time.monotonic() + secs
         while time.monotonic() < t_end:
-            if stop:
+            if self.stop:
                 raise KeyboardInterrupt
-            ex.spin_once(timeout_sec=0.01)
+            self.ex.spin_once(timeout_sec=0.01)
             if until is not None and until():
                 return True
         return False
 
-    def say(text: str) -> None:
-        print(text, file=out, flush=True)
+    def command(self, start: np.ndarray, target: np.ndarray) -> None:
+        """The probe's setpoint; as a trajectory over PROBE_SECONDS with that interface."""
+        if self.trajectory:
+            self.pub.publish(self._trajectory_message(self.joints, start, target, PROBE_SECONDS))
+        else:
+            self.pub.publish(self._array(data=target.tolist()))
 
-    try:
-        # 1. the contract
+    def contract(self, timeout: float) -> bool:
+        """1. The contract: waits up to ``timeout`` s for it; False (the problems named) when unmet."""
+        mon = self.mon
         t0 = time.monotonic()
-        missing = mon.missing(node, own_node="sagg_check_driver")
+        missing = mon.missing(self.node, own_node="sagg_check_driver")
         while missing and time.monotonic() - t0 < timeout:
-            spin_for(0.5)
-            missing = mon.missing(node, own_node="sagg_check_driver")
+            self.spin_for(0.5)
+            missing = mon.missing(self.node, own_node="sagg_check_driver")
         if missing:
-            problems += missing
-            say("contract NOT met:\n  - " + "\n  - ".join(missing))
-            return res
+            self.problems += missing
+            self.say("contract NOT met:\n  - " + "\n  - ".join(missing))
+            return False
         task = (mon.task_topic if mon.task_fk is None else
                 f"the task point from the joints through {mon.task_fk.robot.path} (effector "
                 f"{mon.task_fk.robot.effector!r}; every joint found in the model)")
-        say(f"contract met: /joint_states names {', '.join(joints)}; {task}; {mon.cmd_topic} has a subscriber")
-        # 2. at rest
+        self.say(f"contract met: /joint_states names {', '.join(self.joints)}; {task}; {mon.cmd_topic} has a "
+                 "subscriber")
+        return True
+
+    def at_rest(self, seconds: float) -> bool:
+        """2. Listening at rest for ``seconds``: rates, delays, name mapping, noise, publishers;
+        False when fewer than two joint states or task points came."""
+        probe, res, joints = self.probe, self.res, self.joints
         probe.js.clear()
         probe.tips.clear()
-        spin_for(seconds)
+        self.spin_for(seconds)
         js, tips = probe.js, probe.tips
         if len(js) < 2 or len(tips) < 2:
-            problems.append(f"fewer than 2 joint states / task points in {seconds} s at rest")
-            return res
+            self.problems.append(f"fewer than 2 joint states / task points in {seconds} s at rest")
+            return False
         res["joint_state_rate"] = (len(js) - 1) / (js[-1][0] - js[0][0])
         res["task_point_rate"] = (len(tips) - 1) / (tips[-1][0] - tips[0][0])
         res["joint_state_delay"] = float(np.median([rx - st / 1e9 for rx, st, _ in js]))
@@ -215,76 +254,88 @@ def check_driver(config: str, joint: str | None = None, step: float = 0.05, seco
         pos = np.array([a for _, _, a in js if a is not None])
         res["joint_noise"] = dict(zip(joints, pos.std(axis=0).tolist()))
         res["task_point_noise"] = np.array([t for _, _, t in tips]).std(axis=0).tolist()
-        say(f"rates: joint states {res['joint_state_rate']:.1f}/s, task points {res['task_point_rate']:.1f}/s")
-        res["publishers"] = publishers_report(node, mon, say)
-        problems += [f"{t}: {v['verdict']}" for t, v in res["publishers"].items()
-                     if isinstance(v, dict) and v.get("verdict", "").startswith("NOT")]
-        say(f"delay stamp -> arrival (same clock): joint states {1e3 * res['joint_state_delay']:.1f} ms, "
-            f"task points {1e3 * res['task_point_delay']:.1f} ms")
-        say("name mapping (learner joint -> index in /joint_states): "
-            + ", ".join(f"{k} -> {v}" for k, v in res["name_mapping"].items()))
-        say("noise at rest (std): joints " + ", ".join(f"{k} {v:.2g} rad" for k, v in res["joint_noise"].items())
-            + f"; task point {', '.join(f'{v:.2g}' for v in res['task_point_noise'])}")
-        # 3. one joint, a little
+        self.say(f"rates: joint states {res['joint_state_rate']:.1f}/s, task points {res['task_point_rate']:.1f}/s")
+        res["publishers"] = publishers_report(self.node, self.mon, self.say)
+        self.problems += [f"{t}: {v['verdict']}" for t, v in res["publishers"].items()
+                          if isinstance(v, dict) and v.get("verdict", "").startswith("NOT")]
+        self.say(f"delay stamp -> arrival (same clock): joint states {1e3 * res['joint_state_delay']:.1f} ms, "
+                 f"task points {1e3 * res['task_point_delay']:.1f} ms")
+        self.say("name mapping (learner joint -> index in /joint_states): "
+                 + ", ".join(f"{k} -> {v}" for k, v in res["name_mapping"].items()))
+        self.say("noise at rest (std): joints "
+                 + ", ".join(f"{k} {v:.2g} rad" for k, v in res["joint_noise"].items())
+                 + f"; task point {', '.join(f'{v:.2g}' for v in res['task_point_noise'])}")
+        return True
+
+    def probe_move(self, scene) -> bool:
+        """3. One joint, a little, then back: False when the scene refuses the move both ways (said,
+        nothing moved)."""
+        mon, j, step = self.mon, self.j, self.step
         start = mon.alpha.copy()
-        tip0 = mon.tip[:probe.m].copy()
-        lower, upper = np.asarray(lp["joint_limits.lower"]), np.asarray(lp["joint_limits.upper"])
+        tip0 = mon.tip[:self.probe.m].copy()
+        lower, upper = np.asarray(self.lp["joint_limits.lower"]), np.asarray(self.lp["joint_limits.upper"])
         target, refusal = probe_target(start, j, step, lower, upper, scene)
         if target is None:  # (both ways refused by the scene: no motion test, said)
-            say(f"the probe move of {joint} by ±{step} rad is refused by the scene ({refusal.cause}: "
-                f"{refusal.detail}): not moved; try another --joint")
-            return res
+            self.say(f"the probe move of {self.joint} by ±{step} rad is refused by the scene ({refusal.cause}: "
+                     f"{refusal.detail}): not moved; try another --joint")
+            return False
         stamp0 = mon.js_stamp
         t_cmd = time.time()
-        command(start, target)
+        self.command(start, target)
         half = abs(target[j] - start[j]) / 2
         # wait for any joint to move (a wrong mapping moves another one), then for the arm to settle
-        moved = spin_for(10.0, lambda: mon.js_stamp > stamp0 and np.abs(mon.alpha - start).max() > half)
+        moved = self.spin_for(10.0, lambda: mon.js_stamp > stamp0 and np.abs(mon.alpha - start).max() > half)
         if not moved:
-            problems.append(f"no joint moved within 10 s of a command on {mon.cmd_topic}")
-            say(problems[-1])
-        else:
-            first = next((rx for rx, st, a in probe.js if rx >= t_cmd and a is not None
-                          and np.abs(a - start).max() > half), time.time())
-            res["response_seconds"] = first - t_cmd
-            spin_for(0.2)
-            spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled)
-            res["settle_seconds"] = time.time() - t_cmd
-            delta = mon.alpha - start
-            res["displacement"] = dict(zip(joints, delta.tolist()))
-            res["task_point_displacement"] = float(np.linalg.norm(mon.tip[:probe.m] - tip0))
-            ratio = float(delta[j] / (target[j] - start[j]))
-            res["step_ratio"] = ratio
-            say(f"moved {joint} by {target[j] - start[j]:+.3f} rad: measured {delta[j]:+.3f} rad "
-                f"({100 * ratio:.0f} %), first sign after {1e3 * res['response_seconds']:.0f} ms, "
-                f"settled after {1e3 * res['settle_seconds']:.0f} ms; "
-                f"task point moved {res['task_point_displacement']:.3g}")
-            if not 0.5 <= ratio <= 1.5:
-                problems.append(f"joint {joint} moved {100 * ratio:.0f} % of the commanded step; allowed: 50-150 %")
-            noise = np.array([res["joint_noise"][n] for n in joints])
-            others = [n for i, n in enumerate(joints) if i != j and abs(delta[i]) > max(0.25 * step, 6 * noise[i])]
-            if others:
-                problems.append(f"commanding {joint} also moved {', '.join(others)}: the command order (= 'joints') "
-                                "or the names in /joint_states do not match the driver's")
-            # back where it was
-            command(mon.alpha.copy(), start)
-            spin_for(0.2)
-            spin_for(max(2.0, lp["settle_timeout"]), lambda: mon.settled)
-            period = 1.0 / res["joint_state_rate"]
-            res["suggested_observation_delay"] = (max(res["joint_state_delay"], res["task_point_delay"], 0.0)
-                                                  + 2 * period)
-            res["suggested_joint_state_timeout"] = max(2.0, 10 * period)
-            say(f"suggested: observation_delay {res['suggested_observation_delay']:.3f} "
-                f"(now {lp['observation_delay']}), "
-                f"joint_state_timeout >= {res['suggested_joint_state_timeout']:.1f} (now {lp['joint_state_timeout']})")
-        say("OK: the driver meets the contract" if not problems else "PROBLEMS:\n  - " + "\n  - ".join(problems))
-        return res
-    finally:
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
-        for s, h in old.items():
-            signal.signal(s, h)
+            self.problems.append(f"no joint moved within 10 s of a command on {mon.cmd_topic}")
+            self.say(self.problems[-1])
+            return True
+        self._measure_move(start, target, tip0, t_cmd, half)
+        # back where it was
+        self.command(mon.alpha.copy(), start)
+        self.spin_for(0.2)
+        self.spin_for(max(2.0, self.lp["settle_timeout"]), lambda: mon.settled)
+        self._suggest()
+        return True
+
+    def _measure_move(self, start: np.ndarray, target: np.ndarray, tip0: np.ndarray, t_cmd: float,
+                      half: float) -> None:
+        """The probe move's response, settling and displacements; a step off by more than 50 % or
+        another joint moving is a problem."""
+        mon, res, j, joint, joints = self.mon, self.res, self.j, self.joint, self.joints
+        first = next((rx for rx, st, a in self.probe.js if rx >= t_cmd and a is not None
+                      and np.abs(a - start).max() > half), time.time())
+        res["response_seconds"] = first - t_cmd
+        self.spin_for(0.2)
+        self.spin_for(max(2.0, self.lp["settle_timeout"]), lambda: mon.settled)
+        res["settle_seconds"] = time.time() - t_cmd
+        delta = mon.alpha - start
+        res["displacement"] = dict(zip(joints, delta.tolist()))
+        res["task_point_displacement"] = float(np.linalg.norm(mon.tip[:self.probe.m] - tip0))
+        ratio = float(delta[j] / (target[j] - start[j]))
+        res["step_ratio"] = ratio
+        self.say(f"moved {joint} by {target[j] - start[j]:+.3f} rad: measured {delta[j]:+.3f} rad "
+                 f"({100 * ratio:.0f} %), first sign after {1e3 * res['response_seconds']:.0f} ms, "
+                 f"settled after {1e3 * res['settle_seconds']:.0f} ms; "
+                 f"task point moved {res['task_point_displacement']:.3g}")
+        if not 0.5 <= ratio <= 1.5:
+            self.problems.append(f"joint {joint} moved {100 * ratio:.0f} % of the commanded step; allowed: 50-150 %")
+        noise = np.array([res["joint_noise"][n] for n in joints])
+        others = [n for i, n in enumerate(joints)
+                  if i != j and abs(delta[i]) > max(0.25 * self.step, 6 * noise[i])]
+        if others:
+            self.problems.append(f"commanding {joint} also moved {', '.join(others)}: the command order (= 'joints') "
+                                 "or the names in /joint_states do not match the driver's")
+
+    def _suggest(self) -> None:
+        """4. The observation_delay and joint_state_timeout the measured rates and delays suggest."""
+        res, lp = self.res, self.lp
+        period = 1.0 / res["joint_state_rate"]
+        res["suggested_observation_delay"] = (max(res["joint_state_delay"], res["task_point_delay"], 0.0)
+                                              + 2 * period)
+        res["suggested_joint_state_timeout"] = max(2.0, 10 * period)
+        self.say(f"suggested: observation_delay {res['suggested_observation_delay']:.3f} "
+                 f"(now {lp['observation_delay']}), "
+                 f"joint_state_timeout >= {res['suggested_joint_state_timeout']:.1f} (now {lp['joint_state_timeout']})")
 
 
 def main_check_driver(args) -> int:

@@ -132,9 +132,7 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
     # lazy (heavy): ROS
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
-    from diagnostic_msgs.msg import DiagnosticArray
 
     out = Path(out)
     if out.exists():
@@ -147,83 +145,135 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO, **kw)
     stop: list[int] = []
     old = {s: signal.signal(s, lambda signum, frame: stop.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
-    node = rclpy.create_node("sagg_record", context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    bag = BagWriter(out, [])
-    view = None
-    rec = None
-    account = RecordAccount({t.name for t in topics})
-    handlers = {"/sagg/sample": account.on_sample, "/sagg/competence": account.on_report,
-                "/sagg/status": account.on_status}
-    if markers:
-        view = MarkerView(node, topics)
-        for topic, h in view.handlers().items():
-            handlers[topic] = h if topic not in handlers else both(handlers[topic], h)
-    stream = [t.name for t in topics if t.name in STREAM_TOPICS or t.msgtype in COMMAND_TYPES]
-    drain = {"seconds": 0.0, "ended": "", "messages": 0}
-    status = "recording"
-
-    def take() -> None:
-        """One loop: subscribe new topics, the callbacks queued, the acknowledgement, the view."""
-        rec.poll()
-        executor.spin_once(timeout_sec=0.05)
-        for _ in range(1000):  # drain what is queued
-            before = bag.written
-            executor.spin_once(timeout_sec=0)
-            if bag.written == before:
-                break
-        ack.tick()
-        if view is not None:
-            view.maybe_publish()
-
-    def stream_messages() -> int:
-        return sum(bag.counts.get(t, 0) for t in stream)
-
-    last_print = 0.0
-
-    def show(now: float) -> None:
-        nonlocal last_print
-        if progress and now - last_print >= 2.0:
-            last_print = now
-            print(f"\r{status} {out}: {bag.written:,} messages on {len(rec.qos)} topics "
-                  f"({len(rec.waiting)} without publisher yet)", end="", file=sys.stderr, flush=True)
-
+    session = _Recording(ctx, out, topics, markers, progress)
     try:
-        rec = LiveRecorder(node, bag, topics, handlers, gate=("/sagg/sample",), wait_for=awaited_topics(topics))
-        account.st.on_reject = rec.log_problem
-        ack = Acknowledger(node, account.acknowledged)
-        node.create_subscription(DiagnosticArray, "/diagnostics", account.on_diagnostics, reliable(100))
+        session.start()
+        session.record_until(stop, duration)
+        drain = session.drain(stop, quiet, idle, drain_limit)
+        counts = session.counts(drain)
+    finally:
+        session.close()
+        rclpy.shutdown(context=ctx)
+        for s, h in old.items():
+            signal.signal(s, h)
+    rec = session.rec
+    res = {"path": str(out), "topics": session.bag.topics(), "interrupted": bool(stop),
+           "first_sample_index": session.account.first_index,
+           "qos": {t: {"transient_local": s.transient_local, "best_effort": s.best_effort} for t, s in rec.qos.items()},
+           "published": counts["published"], "before": counts["before"], "lost": counts["lost"], "drain": drain,
+           "rejected": counts["rejected"], "lost_not_estimated": sorted(rec.drops_unknown)}
+    for line in counts_report(res, progress):
+        print(line, file=sys.stderr)
+    return res
+
+
+class _Recording:
+    """One ``sagg record`` session on a node of its own (``sagg_record``): the bag, the live
+    recorder, the account of samples and losses (:class:`.record_account.RecordAccount`) with its
+    acknowledgements, and the live view (``markers``)."""
+
+    def __init__(self, ctx, out: Path, topics: list[TopicSpec], markers: bool, progress: bool):
+        # lazy (heavy): ROS
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.out, self.topics, self.progress = out, topics, progress
+        self.node = rclpy.create_node("sagg_record", context=ctx)
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        self.bag = BagWriter(out, [])
+        self.view = None
+        self.rec: LiveRecorder | None = None
+        self.ack: Acknowledger | None = None
+        self.account = RecordAccount({t.name for t in topics})
+        self.handlers = {"/sagg/sample": self.account.on_sample, "/sagg/competence": self.account.on_report,
+                         "/sagg/status": self.account.on_status}
+        if markers:
+            self.view = MarkerView(self.node, topics)
+            for topic, h in self.view.handlers().items():
+                self.handlers[topic] = h if topic not in self.handlers else both(self.handlers[topic], h)
+        self.stream = [t.name for t in topics if t.name in STREAM_TOPICS or t.msgtype in COMMAND_TYPES]
+        self.status = "recording"
+        self._last_print = 0.0
+
+    def start(self) -> None:
+        """The live recorder (topics subscribed as their publishers appear), the acknowledgements
+        and /diagnostics (what the nodes announce as published)."""
+        # lazy (heavy): ROS
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.rec = LiveRecorder(self.node, self.bag, self.topics, self.handlers, gate=("/sagg/sample",),
+                                wait_for=awaited_topics(self.topics))
+        self.account.st.on_reject = self.rec.log_problem
+        self.ack = Acknowledger(self.node, self.account.acknowledged)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self.account.on_diagnostics, reliable(100))
+
+    def close(self) -> None:
+        if self.rec is not None:
+            self.rec.destroy()
+        self.bag.close()
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+    def take(self) -> None:
+        """One loop: subscribe new topics, the callbacks queued, the acknowledgement, the view."""
+        self.rec.poll()
+        self.executor.spin_once(timeout_sec=0.05)
+        for _ in range(1000):  # drain what is queued
+            before = self.bag.written
+            self.executor.spin_once(timeout_sec=0)
+            if self.bag.written == before:
+                break
+        self.ack.tick()
+        if self.view is not None:
+            self.view.maybe_publish()
+
+    def stream_messages(self) -> int:
+        """Messages recorded on the nodes' streams (samples, reports, goals, commands)."""
+        return sum(self.bag.counts.get(t, 0) for t in self.stream)
+
+    def others(self) -> int:
+        """Every recorded message but our own view's."""
+        return self.bag.written - self.bag.counts.get(MARKER_TOPIC, 0)
+
+    def show(self, now: float) -> None:
+        if self.progress and now - self._last_print >= 2.0:
+            self._last_print = now
+            print(f"\r{self.status} {self.out}: {self.bag.written:,} messages on {len(self.rec.qos)} topics "
+                  f"({len(self.rec.waiting)} without publisher yet)", end="", file=sys.stderr, flush=True)
+
+    def record_until(self, stop: list[int], duration: float | None) -> None:
+        """Record until a signal or ``duration`` s."""
         t0 = time.monotonic()
         while not stop and (duration is None or time.monotonic() - t0 < duration):
-            take()
-            show(time.monotonic())
-        # stopping: the learner gets no further acknowledgement; what the nodes published comes in
-        ack.freeze()
+            self.take()
+            self.show(time.monotonic())
+
+    def drain(self, stop: list[int], quiet: float, idle: float, drain_limit: float) -> dict:
+        """Stopping: the learner gets no further acknowledgement, and what the nodes published comes
+        in (module doc: ``quiet``, ``idle``, ``drain_limit``, or a second signal). Returns the drain's
+        seconds, the messages it took on the nodes' streams and why it ended."""
+        self.ack.freeze()
         signals = len(stop)
-        status = "stopping (Ctrl-C again: at once)"
+        self.status = "stopping (Ctrl-C again: at once)"
+        drain = {"seconds": 0.0, "ended": "", "messages": 0}
         t_drain = t_last = t_any = time.monotonic()
-        last = n0 = stream_messages()
-
-        def others() -> int:  # every recorded message but our own view's
-            return bag.written - bag.counts.get(MARKER_TOPIC, 0)
-
-        last_any = others()
+        last = n0 = self.stream_messages()
+        last_any = self.others()
         while len(stop) <= signals:
-            take()
+            self.take()
             now = time.monotonic()
-            show(now)
-            if others() != last_any:
-                last_any, t_any = others(), now
-            n = stream_messages()
+            self.show(now)
+            if self.others() != last_any:
+                last_any, t_any = self.others(), now
+            n = self.stream_messages()
             if n != last:
                 last, t_last = n, now
                 continue
             # every recorded topic (but our own view) without publisher: the nodes have exited, and
             # what they published is in once nothing came for `quiet` s; while some live on (a
             # driver, or nodes still running), the streams' silence for `idle` s ends it
-            alive = [t for t in rec.qos if t != MARKER_TOPIC and node.count_publishers(t) > 0]
+            alive = [t for t in self.rec.qos if t != MARKER_TOPIC and self.node.count_publishers(t) > 0]
             if not alive:
                 if now - t_any >= quiet:
                     drain["ended"] = f"nothing came for {quiet} s and every publisher is gone"
@@ -236,7 +286,13 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
                 break
         else:
             drain["ended"] = "a second signal"
-        drain.update(seconds=round(time.monotonic() - t_drain, 3), messages=stream_messages() - n0)
+        drain.update(seconds=round(time.monotonic() - t_drain, 3), messages=self.stream_messages() - n0)
+        return drain
+
+    def counts(self, drain: dict) -> dict[str, dict]:
+        """What was published, published before the recorder subscribed, lost and rejected, per topic;
+        written into the bag's ``custom_data`` with the ``drain``."""
+        account, rec, bag = self.account, self.rec, self.bag
         received = {t: bag.counts.get(t, 0) for t in bag.counts}
         before = account.before(received, rec.first_seq)
         lost = account.losses(received, before, rec.dropped)
@@ -247,23 +303,7 @@ def record(out: str | Path, params_file: str | Path | None = None, domain_id: in
                            ("sagg.lost_not_estimated", sorted(rec.drops_unknown)), ("sagg.drain", drain),
                            ("sagg.first_sample_index", account.first_index), ("sagg.rejected", rejected)):
             bag.set_custom_data(key, value if isinstance(value, str) else json.dumps(value, sort_keys=True))
-    finally:
-        if rec is not None:
-            rec.destroy()
-        bag.close()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
-        for s, h in old.items():
-            signal.signal(s, h)
-    res = {"path": str(out), "topics": bag.topics(), "interrupted": bool(stop),
-           "first_sample_index": account.first_index,
-           "qos": {t: {"transient_local": s.transient_local, "best_effort": s.best_effort} for t, s in rec.qos.items()},
-           "published": published, "before": before, "lost": lost, "drain": drain, "rejected": rejected,
-           "lost_not_estimated": sorted(rec.drops_unknown)}
-    for line in counts_report(res, progress):
-        print(line, file=sys.stderr)
-    return res
+        return {"published": published, "before": before, "lost": lost, "rejected": rejected}
 
 
 def counts_report(res: dict, full: bool = True) -> list[str]:
