@@ -12,7 +12,7 @@ It behaves like a real position-controlled arm behind ros2_control plus a tracki
 - commands arrive on ``/<controller>/commands`` (std_msgs/Float64MultiArray, joint order = the
   learner's ``joints`` parameter, i.e. ``prefix0..prefix{n-1}``).
 
-An arm known by its model instead (issue 23, ``task_source: model``): ``--joint-names`` (the
+An arm known by its model instead (``task_source: model``): ``--joint-names`` (the
 command order), ``--lower``/``--upper`` (per-joint limits) and ``--no-tip`` (no tracker: only
 /joint_states, as most ros2_control drivers).
 

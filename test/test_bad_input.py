@@ -116,7 +116,7 @@ def test_random_bytes_never_crash_any_callback(nodes, data):
 @FUZZ
 @given(names=st.lists(st.sampled_from(JOINTS + ["other", ""]), max_size=5),
        pos=st.lists(floats, max_size=5), vel=st.lists(floats, max_size=5))
-# finite values far outside the limits (issue 11: 1e308 was accepted): rejected
+# finite values far outside the limits (1e308 included): rejected
 @example(names=list(JOINTS), pos=[1.7e308] * len(JOINTS), vel=[-1.7e308] * len(JOINTS))
 # within the limits ± plausibility.joint_tolerance (0.1), velocities within the bound (1000): accepted
 @example(names=list(JOINTS), pos=[1.05, -1.05, 0.0], vel=[999.0, -999.0, 0.0])
@@ -137,7 +137,7 @@ def test_joint_states_with_bad_values_are_rejected_and_counted(nodes, names, pos
         assert np.array_equal(n.js_alpha, [pos[where[j]] for j in JOINTS]) and n.guard.total == total
     elif lengths_ok and not any(j in where for j in JOINTS):
         # another driver's joints only (a gripper's), however it names them: ignored, counted apart,
-        # not an error (issue 24)
+        # not an error (another driver's joints, e.g. a gripper's)
         assert n.guard.total == total and sum(n.js_intake.other_joints.values()) == ignored + 1
         assert learner_state(n)[0] == before[0]
     else:

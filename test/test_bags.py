@@ -86,7 +86,7 @@ def test_relearn_detects_a_tampered_recording(run_dir, tmp_path):
 
 
 def test_relearn_drops_hostile_messages_and_rebuilds_the_real_memory(run_dir, tmp_path):
-    """Issue 11: a NaN sample, a well-formed sample far ahead, a NaN report, a report with seq
+    """A NaN sample, a well-formed sample far ahead, a NaN report, a report with seq
     10^12, a NaN goal and undecodable bytes in a bag: relearn never crashes, counts what it drops,
     and rebuilds exactly the run's memory, goals and tree (no forged message took a real index)."""
     from sagg_bringup.bags.recorder import BagWriter, TopicSpec
@@ -234,7 +234,7 @@ def test_run_resume_continues_the_run(run_dir, tmp_path):
     assert new.alpha[:STEPS].tobytes() == old.alpha.tobytes() and new.delta_y[:STEPS].tobytes() == old.delta_y.tobytes()
 
 
-# ------------------------------------------------- issue 24, item 7: replay leaves command topics out
+# ------------------------------------------------------------------ replay leaves command topics out
 CMD = "/forward_position_controller/commands"
 CMD_TYPES = {CMD: "std_msgs/msg/Float64MultiArray", "/joint_states": "sensor_msgs/msg/JointState"}
 

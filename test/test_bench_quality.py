@@ -1,4 +1,4 @@
-"""Smoke test of ``sagg bench quality`` (issue 10) at a tiny scale."""
+"""Smoke test of ``sagg bench quality`` at a tiny scale."""
 import json
 
 import pytest

@@ -365,7 +365,7 @@ def test_a_request_answered_meanwhile_gets_the_same_goal(ros_env, tmp_path):
 
 
 def test_a_checkpoint_is_continued_only_when_asked(tmp_path):
-    """Issue 24, item 9: a directory holding a checkpoint is refused without ``resume`` (nothing
+    """A directory holding a checkpoint is refused without ``resume`` (nothing
     written: the run it belongs to is left as it was); with it, or in an empty directory, fine."""
     cfg = load_experiment_config(ROOT / "config/arm15_y50.yaml", SMALL)
     _run_with_checkpoints(cfg, tmp_path, 300)

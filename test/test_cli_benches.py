@@ -1,4 +1,4 @@
-"""`sagg bench` and its plug-ins (issue 26): the lab's benchmarks come from the separately installed
+"""`sagg bench` and its plug-ins: the lab's benchmarks come from the separately installed
 sagg_lab as entry points; without them `sagg bench` still offers compare and table and says how to
 get the rest."""
 from __future__ import annotations

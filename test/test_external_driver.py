@@ -238,7 +238,7 @@ def test_evaluation_on_the_robot_during_learning_pauses_and_resumes(tmp_path):
 
 
 def test_driver_with_only_joint_states_learns_through_its_model(tmp_path):
-    """Issue 23: a 6-joint driver that publishes /joint_states only (no tracker), the learner's
+    """A 6-joint driver that publishes /joint_states only (no tracker), the learner's
     ``task_source: model`` computing the tool's (x, y, z) from the robot's MJCF: check-driver
     confirms the contract in model mode, sagg run learns on it and evaluates on the robot in 3-D."""
     from sagg_common.robot_model import RobotModel

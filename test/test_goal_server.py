@@ -38,7 +38,7 @@ def test_goal_request_waits_for_its_reports(ros_env, tmp_path):  # noqa: F811
         "task_space": {"lower": GEN["task_space.lower"], "upper": GEN["task_space.upper"]}}},
         "sagg_goal_generator": {"ros__parameters": {"g_max": GEN["g_max"]}}}))
     proc = start(ros_env, "goal_generator", params, tmp_path)
-    # named as the learner it stands in for: the generator takes reports from the learner only (DESIGN §8)
+    # named as the learner it stands in for: the generator takes reports from the learner only
     node = Node("sagg_learner", context=ros_env["ctx"])
     ex = rclpy.executors.SingleThreadedExecutor(context=ros_env["ctx"])
     ex.add_node(node)

@@ -1,8 +1,8 @@
-"""History stays out of the code and the user pages: comments and docstrings say what the code does
-and why, not when it changed (dates, issue numbers) or what a design file outside the repository
-said; the user pages (README.md and docs/*.md; not the lab notebook docs/notes/ nor the
-reproduction archive) carry no commit hash, issue number, machine load or /tmp path. Dates,
-issues, commits and measurements belong in commit messages and docs/notes/."""
+"""History stays out of the code, the tests and the user pages: comments and docstrings say what the
+code does (a test: what it checks) and why, not when it changed (dates, issue numbers) or what a
+design file outside the repository said; the user pages (README.md and docs/*.md; not the lab
+notebook docs/notes/ nor the reproduction archive) carry no commit hash, issue number, machine load
+or /tmp path. Dates, issues, commits and measurements belong in commit messages and docs/notes/."""
 from __future__ import annotations
 
 import re
@@ -34,12 +34,22 @@ def source_files() -> list[Path]:
                   and "__pycache__" not in p.parts and ".egg-info" not in str(p))
 
 
+def test_files() -> list[Path]:
+    """Every Python file of test/ but this one (whose patterns and examples must name what they find)."""
+    return sorted(p for p in (ROOT / "test").rglob("*.py") if "__pycache__" not in p.parts
+                  and p.name != Path(__file__).name)
+
+
 def user_pages() -> list[Path]:
     return [ROOT / "README.md"] + sorted((ROOT / "docs").glob("*.md"))
 
 
 def test_the_code_tells_no_history():
     assert hits(source_files(), DATE, ISSUE, DESIGN) == []
+
+
+def test_the_tests_tell_no_history():
+    assert hits(test_files(), DATE, ISSUE, DESIGN) == []
 
 
 def test_the_user_pages_tell_no_history():

@@ -1,6 +1,6 @@
-"""Issue 11: nothing a publisher sends can poison, wedge or crash the graph (DESIGN §8).
+"""Nothing a publisher sends can poison, wedge or crash the graph.
 
-One test per row of the issue's table of hostile inputs, on the nodes built in this process (their
+One test per kind of hostile input, on the nodes built in this process (their
 own rclpy context and parameter file, callbacks called directly with the hostile bytes, as in
 test_bad_input) or on the `sagg run` / `sagg relearn` handlers. Each asserts that the input is
 rejected, counted under its kind, changes no state, and that what follows it still works.
@@ -431,7 +431,7 @@ def test_recorder_counts_the_messages_it_missed_from_publisher_sequence_numbers(
 
 # ------------------------------------------------------------------ bags: recorder backpressure
 def test_the_learner_waits_for_a_lagging_recorder_and_an_impossible_ack_changes_nothing(nodes):
-    """Issue 11 item 5 (lockstep bag complete under overload): with a recorder acknowledging on
+    """A lockstep bag is complete under overload: with a recorder acknowledging on
     /sagg/recorded, no command goes out while more than recorder_max_lag published samples are
     unacknowledged; it goes out once the recorder caught up (to half the lag). An acknowledgement
     beyond what was published is rejected and counted; without an acknowledging recorder the learner
@@ -454,7 +454,7 @@ def test_the_learner_waits_for_a_lagging_recorder_and_an_impossible_ack_changes_
     try:
         pub = recorder.create_publisher(UInt64, "/sagg/recorded", reliable(10))
         assert wait_for(lambda: n.rec_sub.get_publisher_count() == 1)
-        # a publisher that acknowledges nothing changes nothing (issue 24: idle publishers)
+        # a publisher that acknowledges nothing (an idle one) changes nothing
         n.state = None
         n.dispatch(cmd)
         assert n.state is n.RUNNING_COMMAND and not n.rec_waiting
@@ -541,7 +541,7 @@ def test_a_forged_message_queued_after_its_publisher_left_never_moves_the_stream
 
 
 def test_a_replay_whose_numbers_catch_up_with_a_silent_publisher_never_takes_its_stream():
-    """Issue 24's long replay: the learner holds (silent at number 100), a replay numbers its
+    """A long replay beside a running learner: the learner holds (silent at number 100), a replay numbers its
     messages from 1; its 101st continued the learner's stream exactly and was taken, and from then
     on every real message was "not after" the replay's numbers (sagg run's bag, summary and
     relearn took the replay's run as the live one)."""

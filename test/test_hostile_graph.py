@@ -1,4 +1,4 @@
-"""Issue 11 on the running graph (`sagg run`, separate processes):
+"""Hostile inputs on the running graph (`sagg run`, separate processes):
 
 - a lockstep bag holds exactly what the nodes published (each node logs its published counts per
   topic at shutdown), and its metadata is faithful (publishers' QoS, ros_distro, type hashes);
@@ -124,7 +124,7 @@ def test_hostile_bench_short(tmp_path):
                         rate_targets=False, case_scale=0.5)
     assert res["ok"], "\n".join(lines)
     cases = res["phases"]["publishers"]["cases"]
-    # issue 24: a gripper driver and idle publishers leave learning at speed (the bench's own target,
+    # a gripper driver and idle publishers leave learning at speed (the bench's own target,
     # 90 %, is for a quiet machine; a hold would make this ~0); the others are held and resume
     for name in ("gripper publisher (other joints only)", "idle publishers on every watched topic"):
         assert min(cases[name]["shares"]) >= 0.5, "\n".join(lines)

@@ -1,5 +1,5 @@
 """The compiled approximate neighbour search (sagg_low_level/knn_kernel.c) against the numpy walk it
-replaced on 2026-11-27, kept here as its reference: the same answers (indices and order) and the same
+replaced, kept here as its reference: the same answers (indices and order) and the same
 leaves-scanned count, bit for bit, on random memories of every shape the learner uses (1-15 dims,
 small and large leaves and fan-outs, several box heights, exact duplicates of the rest posture and
 of stored samples, grid-valued samples with distance ties), and None exactly when the walk scanned
@@ -18,7 +18,7 @@ _FMAX = np.finfo(np.float64).max
 
 
 def reference_knn_approx(mem: SampleMemory, q: np.ndarray, k: int):
-    """KnnSearch._knn_approx as numpy code (main before 2026-11-27, ``self`` renamed ``mem``);
+    """KnnSearch._knn_approx as numpy code (before the compiled search, ``self`` renamed ``mem``);
     returns (answer or None, leaves scanned)."""
     scanned0 = mem.leaves_scanned
     try:

@@ -1,4 +1,4 @@
-"""lab.peer (issue 10's same-command comparison with explauto): what it checks before running the
+"""lab.peer (the same-command comparison with explauto): what it checks before running the
 peer, and its table. The peer itself needs its own venv (lab/peer.py's docstring), not CI's."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The package layers (issue 13): imports point down, no import cycles, no private rclpy API.
+"""The package layers: imports point down, no import cycles, no private rclpy API.
 
 Layers: sagg_msgs <- sagg_common <- {sagg_goal_generator, sagg_low_level, sagg_sim_bridge} <-
 sagg_bringup <- sagg_lab; the three middle packages do not import each other, and nothing imports

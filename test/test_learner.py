@@ -135,7 +135,7 @@ def test_distance_timeout_bounds_micro_actions_per_goal():
 def test_default_timeout_cuts_exploration_phase_at_the_budget():
     # Sec. 3.6.2: the counter runs through both phases and the budget is a maximum ("up to 1.5
     # times", "including explorative movements"): with the defaults a q = 20 exploration phase
-    # must stop when the goal's budget is spent (before 2026-11-22 it ran its 20 micro-actions).
+    # must stop when the goal's budget is spent, not run its 20 micro-actions.
     learner = make_learner(q=20, subgoals=1, v=0.1, timeout_factor=1.5, eps_c=0.0)
     assert learner.p["exploration_respects_timeout"] is True
     robot = StuckRobot([1, 1, 1], np.full(3, 0.3))

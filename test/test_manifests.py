@@ -2,7 +2,7 @@
 covered by its package.xml, and every dependency key of the manifests is a ROS package or a rosdep
 key that resolves on Ubuntu 24.04 (noble) / Jazzy.
 
-The rosdep keys below were looked up in ros/rosdistro (commit 8468e88, 2026-08-22):
+The rosdep keys below were looked up in ros/rosdistro (commit 8468e88):
 rosdep/python.yaml has python3-numpy, python3-yaml, python3-scipy, python3-matplotlib,
 python3-pytest (and, looked up at commit 000730d, python3-sklearn) with an `ubuntu` entry (apt) and
 python3-mujoco-pip, python3-rosbags-pip with an `ubuntu: pip:` entry (PyPI mujoco / rosbags);
@@ -37,7 +37,7 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "std_srvs", "sensor_msgs"
                 "visualization_msgs", "launch", "launch_ros", "ament_index_python", "action_msgs"}
 # imported only behind an optional extra (`sagg bench compare --ray`, `pip install sagg_bringup[ray]`),
 # not a dependency of the ROS package; explauto only by lab/peer_explauto.py, a script run under the
-# peer's own interpreter (issue 10's peer comparison), never imported by sagg
+# peer's own interpreter (the peer comparison), never imported by sagg
 OPTIONAL = {"ray", "explauto"}
 DEP_TAGS = ("depend", "exec_depend", "build_depend", "build_export_depend", "buildtool_depend", "test_depend")
 

@@ -1,4 +1,4 @@
-"""Tests of the model arm (issue 23): a robot from its URDF/MJCF file in the simulator core
+"""Tests of the model arm: a robot from its URDF/MJCF file in the simulator core
 (sagg_sim_bridge.model_arm, .model_load, .model_kin, .arms), its 3-D reachable set and test goals,
 and that the planar arm's reachable area and test goals are byte-identical to the branch point."""
 from __future__ import annotations
@@ -440,11 +440,11 @@ print(json.dumps(out))
 
 def test_planar_reachable_area_and_test_goals_are_unchanged():
     """Digests of the planar arm's reachable area (mask, reached points, box) and test goals,
-    computed at the branch point of issue 23 (commit 58a4de9): byte-identical after the N-D rewrite.
+    computed before the arm went N-D (commit 58a4de9): byte-identical after the N-D rewrite.
 
     Those digests were taken where numpy's dispatch went up to X86_V3 (AVX2). On a CPU with AVX-512
     numpy picks other loops (X86_V4 and up) for part of the float64 FK, whose last bits differ
-    (measured 2026-12-02 on the paper's arm: 78 of 15,878 reached points by at most 2.6e-14, the
+    (measured on the paper's arm: 78 of 15,878 reached points by at most 2.6e-14, the
     mask unchanged; the goals drawn from the points change with them; the pinned digests again with
     `NPY_DISABLE_CPU_FEATURES=X86_V4`). The check is of our code, not of the
     CPU: it runs in a child process with numpy's features above X86_V3 disabled, which numpy's

@@ -1,4 +1,4 @@
-"""Issue 23 end to end: an arm from its model file (config/arm6_mjcf.yaml: a UR5's kinematics in
+"""End to end, an arm from its model file (config/arm6_mjcf.yaml: a UR5's kinematics in
 MJCF, its tool's (x, y, z) the task point) learns through the three nodes in a 3-D task space, and
 everything of the 2-D arms holds in 3-D: the lockstep graph equals the in-process run, goals,
 regions and tip points are recorded with three coordinates, `sagg relearn` of the bag rebuilds the

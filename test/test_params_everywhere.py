@@ -1,4 +1,4 @@
-"""Parameter files that work everywhere (issue 12, item 3):
+"""Parameter files that work everywhere:
 
 - the params.yaml a `sagg run` writes starts a learning graph with the three node executables alone
   (no `sagg run`, no recorder): it holds none of the waits only `sagg run`'s recorder satisfies;
@@ -170,7 +170,7 @@ def test_launch_file_arguments():
     assert "launch_plan(" in LAUNCH.read_text()
 
 
-# ---------------------------------------------------------------- issue 24, item 9: a configuration, not a run
+# --------------------------------------------------------------- params.yaml: a configuration, not a run
 def test_params_file_holds_no_run_specific_value_and_sagg_run_gives_them(tmp_path):
     full = load_graph_config(ROOT / "config/arm8.yaml")
     params = graph_params(full, 300, "lockstep")
@@ -223,7 +223,7 @@ def _files(d: Path) -> dict[str, bytes]:
 
 
 def test_a_finished_runs_params_file_starts_a_new_run_and_leaves_that_run_alone(ros_env, tmp_path):
-    """Issue 24, item 9: the three executables on a finished `sagg run`'s params.yaml learn a new
+    """The three executables on a finished `sagg run`'s params.yaml learn a new
     run (micro-actions from 0 to their own budget), and the parameters an older sagg run wrote
     (with its checkpoint_dir) make the learner and generator refuse to start (exit 2, one line
     naming 'resume'); the old run's checkpoint files stay byte for byte as they were."""
@@ -279,7 +279,7 @@ def test_a_finished_runs_params_file_starts_a_new_run_and_leaves_that_run_alone(
 
 
 def test_sagg_run_takes_a_config_by_name_like_the_launch_file(tmp_path):
-    """`ros2 launch ... config:=arm8` took a name, `sagg run arm8` answered "cannot read" (issue 26):
+    """`ros2 launch ... config:=arm8` took a name, `sagg run arm8` answered "cannot read":
     both resolve names the same way (launch_params.resolve_config), from any directory."""
     bad = subprocess.run([SAGG, "run", "arm99", "--micro-actions", "10"], cwd=tmp_path, capture_output=True,
                          text=True, timeout=60)

@@ -1,4 +1,4 @@
-"""Issue 23 item 6: use what was learned. The learner's /sagg/reach action (sagg_msgs/action/Reach)
+"""Use what was learned. The learner's /sagg/reach action (sagg_msgs/action/Reach)
 and `sagg reach RUN_DIR`: a goal of Y reached with the frozen model through the graph, under the
 rules of learning; during learning, learning pauses for it and goes on afterwards, nothing of the
 reach stored."""

@@ -1,4 +1,4 @@
-"""Issue 10: arm geometry by link ratio, reaching that respects joint limits (clamping and
+"""Arm geometry by link ratio, reaching that respects joint limits (clamping and
 re-solving), the blocking timeout's scope, and where a run's micro-actions went."""
 import math
 
@@ -104,7 +104,7 @@ def test_clamped_step_stops_a_joint_at_its_limit_and_redistributes():
 
 
 def _rounds_only(jac, dy, a, lower, upper, rcond, damping):
-    """clamped_step as it was before its shortcut (2026-11-27): every step through the rounds."""
+    """clamped_step without its shortcut: every step through the rounds."""
     rounds = clamp_rounds(jac, dy, a, lower, upper)
     cols, target = next(rounds)
     try:
@@ -268,7 +268,7 @@ def test_arm7_ratio15_reaches_its_test_goals_with_the_true_jacobian_and_the_pape
     from sagg_lab.quality import analytic_reach
     cfg = "config/arm7_ratio15.yaml"
     now = analytic_reach(cfg, modes=("clamp",))["clamp"]          # zigzag rest + reach_damping 1
-    assert now["mean"] <= 0.001                                  # issue 10's target
+    assert now["mean"] <= 0.001                                  # the arm's target error
     paper = analytic_reach(cfg, {"arm.rest_shape": "arc", "reach_damping": 0.0,
                                  "eval.timeout_factor": 5.0}, modes=("clamp",))["clamp"]
     assert paper["mean"] > 0.05 and paper["missed"] >= 15        # the clockwise-curl goals

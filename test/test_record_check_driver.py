@@ -157,7 +157,7 @@ def test_check_driver_names_a_wrong_joint_order_and_a_missing_driver(ros_env, tm
 
 
 def test_sagg_record_beside_hand_started_nodes_keeps_every_message_at_ctrl_c(ros_env, tmp_path):
-    """Issue 24, item 8: the three executables on a run's params.yaml with `sagg record --params`
+    """The three executables on a run's params.yaml with `sagg record --params`
     beside them, under load; SIGINT to every process at the same moment (as a terminal's Ctrl-C or
     ros2 launch does). The recorder acknowledges (the learner waits while it lags), then takes what
     the nodes still publish before it closes: every sample and report the learner published is in

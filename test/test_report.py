@@ -90,7 +90,7 @@ def test_report_describes_the_simulated_robot(result, tmp_path):
 
 
 def test_report_names_what_the_recorder_missed_and_did_not_use(result, tmp_path):
-    """Issue 11: a recorder that fell behind is never silent: the summary's bag.dropped (gaps in the
+    """A recorder that fell behind is never silent: the summary's bag.dropped (gaps in the
     publishers' sequence numbers), dropped_not_estimated and rejected appear in report.md."""
     data = json.loads((result / "result.json").read_text())
     data["bag"] = {"path": "bag", "topics": {"/joint_states": {"type": "sensor_msgs/msg/JointState", "count": 90}},

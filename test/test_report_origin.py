@@ -1,5 +1,5 @@
 """A replay of another run's reports never reaches the goal generator, even while the learner is
-silent (issue 24's last hole): what tells them apart is their content against the generator's own
+silent: what tells them apart is their content against the generator's own
 goals and reports (sagg_goal_generator.report_origin), not their publisher."""
 from __future__ import annotations
 

@@ -289,7 +289,7 @@ def test_compare_summary_carries_the_other_metrics():
     assert row.endswith("| 0.300 | 60% (≤ 0.04) | [0, 1]: 2.000, [1, 2]: — |")
 
 
-# ------------------------------------------------------------ sensitivity (issue 14 item 2)
+# ------------------------------------------------ sensitivity: the paper's open choices varied
 def test_sensitivity_registry_has_every_open_choice_at_the_issue_scale():
     from sagg_bringup.experiments.sensitivity import load_sensitivity, variants
     reg = load_registry()

@@ -1,4 +1,4 @@
-"""Tests of the kinematic robot model in sagg_common (issue 23 item 3): sagg_common.robot_model's
+"""Tests of the kinematic robot model in sagg_common: sagg_common.robot_model's
 RobotModel (what the bridge's model arm is built on) and TaskFromJoints, the learner's task point
 of a measured posture (``task_source: model``): joint-order mapping, the error for a joint that is
 not the model's, and agreement with the simulated arm's observe() on the example arms."""

@@ -105,7 +105,7 @@ def test_bag_holds_every_topic_and_sample(run):
 
 def test_graph_run_equals_in_process_run(run):
     """Lockstep: the recorded samples, goals, evaluation curve and region tree are those of the
-    in-process run of the same config (the graph is a faithful transport; DESIGN §4)."""
+    in-process run of the same config (the graph is a faithful transport)."""
     _, s, _ = run
     r = run_experiment(CONFIG, None, None, N, EVERY, None, progress=False)
     assert s["memory"]["digest"] == r["memory"]["digest"]

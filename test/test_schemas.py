@@ -1,4 +1,4 @@
-"""One parameter schema per node, in its package's ROS-free ``schema`` module (issue 13, item 3):
+"""One parameter schema per node, in its package's ROS-free ``schema`` module:
 the node declares exactly that schema, ``sagg params`` documents it, the in-process loaders
 validate configs against it, and node-only settings (topics, controllers, frames, waits) are not
 in the ROS-free cores."""

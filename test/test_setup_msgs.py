@@ -239,7 +239,7 @@ CONSOLE_SCRIPTS = {
     'mujoco_bridge': ('sagg_sim_bridge', 'sagg_sim_bridge.node:main'),
     'sagg': ('sagg_bringup', 'sagg_bringup.cli.cli:main'),
     'fixed_learner': ('sagg_low_level', 'sagg_low_level.fixed_node:main'),
-    # the old name of fixed_learner (issue 26), an alias for one release
+    # the old name of fixed_learner, an alias for one release
     'synergy_learner': ('sagg_low_level', 'sagg_low_level.fixed_node:main'),
     'synergy_bridge': ('sagg_sim_bridge', 'sagg_sim_bridge.synergy_node:main'),
 }

@@ -1,4 +1,4 @@
-"""The set-up registry (sagg_bringup.graph.setups, issue 13 item 1): every config is one entry, the entry
+"""The set-up registry (sagg_bringup.graph.setups): every config is one entry, the entry
 names its nodes, schemas, topics and report rows, and what a set-up cannot do is refused by name
 before anything starts."""
 from __future__ import annotations

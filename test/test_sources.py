@@ -1,4 +1,4 @@
-"""Issue 24: on a real robot's ROS graph nothing legitimate stalls learning, nothing jumps.
+"""On a real robot's ROS graph nothing legitimate stalls learning, nothing jumps.
 
 Sources told apart by the publishers' sequence numbers (sagg_common.sources), the learner's
 /joint_states by joint (a gripper driver's messages are ignored), holds that name the second

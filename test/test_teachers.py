@@ -1,4 +1,4 @@
-"""Goal strategies as teachers of the goal generator (issue 27): the registry, alp-gmm (Portelas et
+"""Goal strategies as teachers of the goal generator: the registry, alp-gmm (Portelas et
 al. 2019) and discretized-progress (explauto) against hand-made competence histories, resume =
 uninterrupted run for every teacher, sagg-riac / sagg-random unchanged, bad parameters refused."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The teachers beyond the paper through the graph (issue 27): `sagg run` with alp-gmm and with
+"""The teachers beyond the paper through the graph: `sagg run` with alp-gmm and with
 discretized-progress learns what the in-process run of the same config learns (lockstep), and
 `sagg relearn` of its bag chooses every recorded goal again."""
 from __future__ import annotations
