@@ -4,7 +4,9 @@ ROS-free core (:mod:`.ik`: joint positions for a point of Y from the learned mod
 The learner node serves it (during learning, and with a frozen model) and so does the model server
 (:mod:`.model_server`, a finished run's model). Both answer in their node's one executor thread,
 the thread that grows the memory (the learner's), so that a request never reads the memory while a
-sample is added. A bad request changes nothing: it is counted (``rejected.compute_ik.invalid`` on
+sample is added. Each node keeps one :class:`~.known_points.KnownPoints` (the points of its stored
+postures, where the answers start) across requests: built at the first request, then brought up to
+date with the samples added since. A bad request changes nothing: it is counted (``rejected.compute_ik.invalid`` on
 /diagnostics), logged naming the field, its value and what is allowed, and answered with
 ``success`` false, that message and the outcome 'invalid'.
 """
@@ -13,15 +15,17 @@ from __future__ import annotations
 from sagg_common.diagnostics import InputGuard
 
 from .ik import compute_ik, request_problem
+from .known_points import KnownPoints
 from .learner import EvolvingContextLearner
 
 SERVICE = "/sagg/compute_ik"
 
 
 def answer_ik(request, response, learner: EvolvingContextLearner, rest_point, steps_limit: int,
-              guard: InputGuard):
+              guard: InputGuard, points: KnownPoints | None = None):
     """Fill ``response`` (ComputeIK.Response) for ``request`` with ``learner``'s model and
-    ``rest_point`` (None: unknown); a bad request is counted in ``guard``. Returns ``response``."""
+    ``rest_point`` (None: unknown), starting from ``points`` (the node's, kept across requests; None:
+    built for this request); a bad request is counted in ``guard``. Returns ``response``."""
     response.joint_names = list(learner.robot.joint_names)
     why = request_problem(learner, request.target, request.start, request.start_point, request.tolerance,
                           request.max_steps, steps_limit)
@@ -30,7 +34,7 @@ def answer_ik(request, response, learner: EvolvingContextLearner, rest_point, st
         response.success, response.message, response.outcome = False, why, "invalid"
         return response
     a = compute_ik(learner, rest_point, request.target, request.start, request.start_point, request.tolerance,
-                   request.max_steps)
+                   request.max_steps, points)
     response.success, response.message, response.outcome = bool(a.success), a.message, a.outcome
     response.joints = [float(v) for v in a.joints]
     response.predicted = [float(v) for v in a.predicted]

@@ -33,6 +33,7 @@ from sagg_msgs.srv import ComputeIK
 from .evaluate import reach_steps_limit
 from .ik import load_model
 from .ik_service import SERVICE, answer_ik
+from .known_points import KnownPoints
 from .learner import EvolvingContextLearner
 from .move_check import build_move_check
 from .node import robot_from_params
@@ -100,6 +101,7 @@ class ModelServer(Node):
         self.guard = InputGuard(self.get_logger().error)
         self.answered = 0
         self.seconds = 0.0
+        self.points = KnownPoints()  # (the points of the stored postures: built at the first request)
         self.create_service(ComputeIK, SERVICE, self.on_compute_ik)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable(10))
         self.create_timer(1.0, self.publish_diagnostics)
@@ -107,7 +109,7 @@ class ModelServer(Node):
 
     def on_compute_ik(self, request: ComputeIK.Request, response: ComputeIK.Response) -> ComputeIK.Response:
         t0 = time.perf_counter()
-        answer_ik(request, response, self.learner, self.rest_point, self.steps_limit, self.guard)
+        answer_ik(request, response, self.learner, self.rest_point, self.steps_limit, self.guard, self.points)
         self.answered += 1
         self.seconds += time.perf_counter() - t0
         return response

@@ -56,6 +56,7 @@ from .rest_return import RestReturn
 from .evaluate import frozen_reach, reach_steps_limit
 from .ik import load_model, rest_point_file, write_rest_point
 from .ik_service import SERVICE as IK_SERVICE, answer_ik
+from .known_points import KnownPoints
 from .learner import Command, EvolvingContextLearner, GoalRequest, Observe, Report, Robot
 from .reach_server import ACTION, ReachJob, ReachServer
 from .recorder_acks import RecorderAcks
@@ -242,6 +243,7 @@ class LearnerNode(LearnerNodeBase, MoveSender):
         # /sagg/compute_ik: answered in this node's thread (the one that grows the memory)
         self.create_service(ComputeIK, IK_SERVICE, self.on_compute_ik)
         self.ik_answered = 0
+        self.ik_points = KnownPoints()  # (the points of the stored postures, kept across /sagg/compute_ik requests)
         self.goals_received = 0
         self.t_started = time.monotonic()
         self.ma_start = self.learner.micro_actions  # (resumed: those of earlier segments, not in the stop line's rate)
@@ -768,7 +770,8 @@ class LearnerNode(LearnerNodeBase, MoveSender):
         """``/sagg/compute_ik``: joint positions for a point of Y from the model as it is now
         (:mod:`.ik_service`); nothing moves, learning goes on after the answer."""
         self.ik_answered += 1
-        return answer_ik(request, response, self.learner, self.rest_point, self.steps_limit, self.guard)
+        return answer_ik(request, response, self.learner, self.rest_point, self.steps_limit, self.guard,
+                         self.ik_points)
 
     # ------------------------------------------------------------------ recorder backpressure
     def _recorder_behind(self, lag: int | None = None) -> bool:
