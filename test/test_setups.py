@@ -69,7 +69,8 @@ def test_what_a_setup_cannot_do_is_refused_by_name(tmp_path):
 def test_node_tables_list_every_node_once():
     tables = setups.node_tables()
     assert list(tables) == ["sagg_goal_generator", "sagg_learner", "sagg_sim_bridge",
-                            "sagg_learner (fixed_learner)", "sagg_sim_bridge (synergy_bridge)"]
+                            "sagg_learner (fixed_learner)", "sagg_sim_bridge (synergy_bridge)",
+                            "sagg_model_server (model_server)"]
     assert tables["sagg_learner (fixed_learner)"] is setups.SETUPS["quadruped"].node_schemas()["sagg_learner"]
 
 

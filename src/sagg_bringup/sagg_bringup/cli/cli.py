@@ -73,9 +73,8 @@ def _with_prior(args, out, setup) -> dict:
         raise ConfigError("--prior-regions: only with --prior SOURCE")
     if not args.prior:
         return overrides
-    if setup.context != "evolving":
-        raise ConfigError(f"--prior: set-up {setup.name!r} (fixed context) has no prior; allowed: the "
-                          "evolving-context arms")
+    if not setup.takes_prior:
+        raise ConfigError(f"--prior: set-up {setup.name!r} takes no prior; allowed: the evolving-context arms")
     return {**overrides, **prepare_prior(args.prior, out, args.prior_regions)}
 
 

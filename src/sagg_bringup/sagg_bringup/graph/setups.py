@@ -7,7 +7,7 @@ report. Two implementations of one interface (:class:`Setup`):
 
 - :class:`EvolvingArm` (``arm``): the evolving-context arm (Sec. 3): micro-actions Δα from the
   current posture, :class:`~sagg_low_level.learner.EvolvingContextLearner`, nodes ``learner`` +
-  ``mujoco_bridge``; resumable, relearnable from bags, runs against an external driver;
+  ``mujoco_bridge``; resumable, relearnable from bags, runs against an external driver, takes a prior;
 - :class:`FixedContext`: synergies θ → outcome y from a rest state (Sec. 4-5),
   :class:`~sagg_low_level.fixed_context.FixedContextLearner`, node ``fixed_learner``; entries
   ``quadruped`` and ``fishing`` (bridge ``synergy_bridge``, trajectories) and ``arm-fixed`` (the arm
@@ -51,7 +51,7 @@ class Setup:
     simulates it and which ROS-free learner core learns it, for people and reports); ``nodes``
     (node section -> (package, console script) of the graph); ``figures`` (the report's figures);
     ``resumable`` (``sagg run --resume``), ``relearnable`` (``sagg relearn``), ``external_driver``
-    (``sagg run --driver external``)."""
+    (``sagg run --driver external``), ``takes_prior`` (``--prior``: another run's samples)."""
 
     name: str
     context: str
@@ -62,6 +62,7 @@ class Setup:
     resumable: bool = False
     relearnable: bool = False
     external_driver: bool = False
+    takes_prior: bool = False
 
     def node_schemas(self) -> dict[str, tuple]:
         """The full parameter schema of each node of the graph (node section -> schema)."""
@@ -119,6 +120,7 @@ class EvolvingArm(Setup):
     resumable: bool = True
     relearnable: bool = True
     external_driver: bool = True
+    takes_prior: bool = True
 
     def __post_init__(self):
         object.__setattr__(self, "nodes", dict(arm_params.NODES))
