@@ -286,3 +286,14 @@ def test_sagg_run_takes_a_config_by_name_like_the_launch_file(tmp_path):
     assert bad.returncode == 2 and "config 'arm99': no such file" in bad.stderr, bad.stderr
     assert "arm8" in bad.stderr.split("allowed:")[1]
     assert resolve_config("arm8") == resolve_config("arm8.yaml") and resolve_config("arm8").is_file()
+
+
+def test_a_robot_config_runs_in_the_lockstep_simulation():
+    """The same config drives the simulated bridge and the robot: the robot's observation_delay
+    (a real-time driver's latency) does not apply to the lockstep bridge, which answers every
+    command with the state after it (with it, the learner waited for ever)."""
+    from sagg_bringup.inprocess.arm_params import graph_params, load_graph_config
+    full = load_graph_config("config/arm7_urdf.yaml", {"observation_delay": 0.012})
+    assert full["sagg_learner"]["observation_delay"] == 0.012
+    assert graph_params(full, 100, "lockstep")["sagg_learner"]["observation_delay"] == 0.0
+    assert graph_params(full, 100, "realtime")["sagg_learner"]["observation_delay"] == 0.012

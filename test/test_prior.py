@@ -244,3 +244,4 @@ def test_a_graph_run_with_a_prior_and_a_gap_equals_the_in_process_run_and_resume
                       for k in ("alpha", "delta_alpha", "delta_y")), radius=r["prior"]["radius"])
     recount.cover_all(robot.alpha)
     assert len(robot) == 450 and s["prior"]["superseded"] == recount.superseded_count
+

@@ -96,6 +96,11 @@ def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str,
     # in-process run); the learner still steps whenever anything but the simulator listens
     if timing == "lockstep" and "rest_return" in lp:
         lp["rest_return"] = "direct"
+    # lockstep: the bridge answers each command with the state after it, stamped by its own clock
+    # (a simulated step, not the time a real driver takes): a robot's observation_delay, in a config
+    # shared with the robot, would wait for a stamp that never comes
+    if timing == "lockstep" and "observation_delay" in lp:
+        lp["observation_delay"] = 0.0
     # real-time bridge: a joint state sampled before a command arrived must not be taken for its
     # settled result; the learner's own advice is about two publish periods (0 = lockstep value)
     if timing == "realtime" and lp.get("observation_delay") == 0.0 and "publish_rate" in bp:
