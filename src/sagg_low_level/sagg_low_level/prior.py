@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from sagg_common.params import ConfigError
 
@@ -92,6 +91,8 @@ class Prior:
         self.alpha, self.delta_alpha, self.delta_y = a, da, dy
         self.radius = float(radius)
         self.source = source
+        # lazy (heavy): scipy (only a run with a prior needs it; the learner imports this module)
+        from scipy.spatial import cKDTree
         self._tree = cKDTree(a)
         self.superseded = np.zeros(len(a), dtype=bool)
         self.superseded_count = 0
@@ -135,6 +136,8 @@ class Prior:
         """
         self.superseded[:] = False
         if len(robot_alpha):
+            # lazy (heavy): scipy
+            from scipy.spatial import cKDTree
             near = cKDTree(np.asarray(robot_alpha, dtype=float)).query_ball_point(self.alpha, self.radius,
                                                                                     return_length=True)
             self.superseded[:] = np.asarray(near) > 0

@@ -78,10 +78,8 @@ def _with_prior(args, out, setup) -> dict:
     return {**overrides, **prepare_prior(args.prior, out, args.prior_regions)}
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="sagg", description="SAGG-RIAC goal babbling for ROS 2.")
-    sub = p.add_subparsers(dest="command", required=True)
-
+def _add_experiment(sub) -> None:
+    """``sagg experiment``."""
     e = sub.add_parser("experiment", help="run one strategy and seed in-process (no ROS)")
     e.add_argument("--config", required=True, help="experiment YAML (ROS 2 parameter-file form)")
     e.add_argument("--strategy", choices=STRATEGIES, help="overrides the config's strategy")
@@ -97,7 +95,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--save-model", action="store_true",
                    help="also write the learned model (memory.npz, regions.npz) into --out: a prior for --prior")
     _prior_arguments(e)
+    e.set_defaults(handler=_experiment)
 
+
+def _add_run(sub) -> None:
+    """``sagg run``."""
     r = sub.add_parser("run", help="run the ROS 2 graph (three node processes), record a bag, "
                                    "evaluate, report")
     r.add_argument("config", nargs="?", help="experiment YAML (ROS 2 parameter-file form)")
@@ -137,7 +139,11 @@ def build_parser() -> argparse.ArgumentParser:
     _prior_arguments(r)
     r.add_argument("--driver-timeout", type=float, default=120.0,
                    help="--driver external: seconds to wait for the driver's topics (default 120)")
+    r.set_defaults(handler=_run)
 
+
+def _add_replay(sub) -> None:
+    """``sagg replay``."""
     rp = sub.add_parser("replay", help="republish a bag's raw CDR with its recorded timing and QoS "
                                        "(for Foxglove, PlotJuggler, a second learner)")
     rp.add_argument("bag", help="rosbag2 directory (e.g. runs/<run>/bag)")
@@ -153,6 +159,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "to one (default: left out: a real driver on this ROS_DOMAIN_ID would move)")
     rp.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
     rp.add_argument("--quiet", action="store_true", help="no progress display")
+    rp.set_defaults(handler=_replay)
+
+
+def _add_record(sub) -> None:
+    """``sagg record``."""
     rc = sub.add_parser("record", help="the recorder alone (sagg run's topics, the publishers' QoS) into an "
                                        "mcap bag, until Ctrl-C; acknowledges on /sagg/recorded (the learner "
                                        "waits for it); also publishes the live view /sagg/markers. At Ctrl-C it "
@@ -166,6 +177,11 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--duration", type=float, help="stop after this many seconds (default: at Ctrl-C)")
     rc.add_argument("--no-markers", action="store_true", help="do not publish /sagg/markers")
     rc.add_argument("--quiet", action="store_true", help="no progress display")
+    rc.set_defaults(handler=_record)
+
+
+def _add_check_driver(sub) -> None:
+    """``sagg check-driver``."""
     cd = sub.add_parser("check-driver", help="check a running driver against the contract: rates, delays, "
                                              "name mapping, noise; moves one joint a little and back")
     cd.add_argument("config", help="the config (or params.yaml) naming joints, limits, rest posture, "
@@ -176,6 +192,11 @@ def build_parser() -> argparse.ArgumentParser:
     cd.add_argument("--seconds", type=float, default=2.0, help="seconds of listening at rest (rates, noise)")
     cd.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
     cd.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the driver")
+    cd.set_defaults(handler=main_check_driver)
+
+
+def _add_reach(sub) -> None:
+    """``sagg reach``."""
     ra = sub.add_parser("reach", help="use what a run learned: reach goals with its frozen model through the "
                                       "graph (the simulated bridge, or your driver), /sagg/reach")
     ra.add_argument("source", help="a run directory (DIR of `sagg run`) or one of its bags")
@@ -189,6 +210,11 @@ def build_parser() -> argparse.ArgumentParser:
     ra.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: private for sim, the environment's "
                                                    "for external)")
     ra.add_argument("--out", help="output directory (default runs/reach-<time>): reach.json, logs")
+    ra.set_defaults(handler=main_reach)
+
+
+def _add_serve(sub) -> None:
+    """``sagg serve``."""
     sv = sub.add_parser("serve", help="serve what a run learned until Ctrl-C: /sagg/compute_ik (the model server), "
                                       "and /sagg/reach with a driver")
     sv.add_argument("source", help="a run directory (DIR of `sagg run`) or one of its bags")
@@ -198,6 +224,11 @@ def build_parser() -> argparse.ArgumentParser:
     sv.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: the environment's)")
     sv.add_argument("--out", help="the model directory (default runs/serve-<time>): params.yaml, memory.npz, "
                                   "model.json, logs")
+    sv.set_defaults(handler=main_serve)
+
+
+def _add_relearn(sub) -> None:
+    """``sagg relearn``."""
     rl = sub.add_parser("relearn", help="rebuild the learner memory and the region tree from bags, "
                                         "check them against the recording, evaluate")
     rl.add_argument("bags", nargs="+", help="rosbag2 directories of one run, in order (bag, bag2, ...)")
@@ -205,7 +236,11 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--params", help="the run's parameter file (default: params.yaml next to the first bag)")
     rl.add_argument("--no-eval", action="store_true", help="skip the evaluation on the test goals")
     rl.add_argument("--no-report", action="store_true", help="no report.md / figures")
+    rl.set_defaults(handler=_relearn)
 
+
+def _add_reproduce(sub) -> None:
+    """``sagg reproduce``."""
     rq = sub.add_parser("reproduce", help="settle the paper's claims (registry sagg_bringup/experiments/claims.yaml) "
                                           "through bench compare: claims.json, report.md; resumable")
     rq.add_argument("claims", nargs="+", metavar="CLAIM",
@@ -229,6 +264,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "are in and whether all are")
     rq.add_argument("--choice", action="append", metavar="NAME",
                     help="with 'sensitivity': only this open choice (repeatable; default: all)")
+    rq.set_defaults(handler=_reproduce)
+
+
+def _add_params(sub) -> None:
+    """``sagg params``."""
     pp = sub.add_parser("params", help="print every node parameter (name, type, default, range, "
                                        "description) as Markdown tables")
     pp.add_argument("--node", choices=["sagg_goal_generator", "sagg_learner", "sagg_sim_bridge"],
@@ -236,7 +276,11 @@ def build_parser() -> argparse.ArgumentParser:
     pp.add_argument("--update", "--update-docs", "--update-readme", dest="update", metavar="FILE",
                     help=f"rewrite the tables between the parameter markers of FILE ({PARAMS_DOC}); "
                          "--update-docs and the older --update-readme are aliases")
+    pp.set_defaults(handler=_params)
 
+
+def _add_bench(sub) -> None:
+    """``sagg bench``: the lab's plug-ins (sagg_lab, when installed), compare and table."""
     benches = installed_benches()
     b = sub.add_parser("bench", help="benchmarks: compare strategies, tables; the lab's with sagg_lab",
                        epilog=None if benches else LAB_HINT)
@@ -244,7 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, bench in benches.items():
         sp = bsub.add_parser(name, help=bench.help)
         bench.add_arguments(sp)
-        sp.set_defaults(bench_run=bench.run)  # what main() runs for it (the plug-in's, loaded once)
+        sp.set_defaults(handler=bench.run)  # the plug-in's own (loaded once)
     c = bsub.add_parser("compare", help="every (strategy, seed) experiment in parallel (process pool "
                                         "or Ray), resumable; mean ± std tables, Mann-Whitney / Welch "
                                         "tests, curves")
@@ -268,6 +312,20 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("results", nargs="+", help="directories searched for result.json, or files")
     t.add_argument("--plot", metavar="PNG", help="also draw the curves (mean ± std over seeds)")
     t.add_argument("--title", default="", help="plot title")
+    c.set_defaults(handler=_bench_compare)
+    t.set_defaults(handler=_bench_table)
+
+
+# the subcommands, in --help order: each adds its parser and sets its handler
+SUBCOMMANDS = (_add_experiment, _add_run, _add_replay, _add_record, _add_check_driver, _add_reach, _add_serve,
+               _add_relearn, _add_reproduce, _add_params, _add_bench)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="sagg", description="SAGG-RIAC goal babbling for ROS 2.")
+    sub = p.add_subparsers(dest="command", required=True)
+    for add in SUBCOMMANDS:
+        add(sub)
     return p
 
 
@@ -367,6 +425,97 @@ def _resume(args) -> int:
     return 0
 
 
+def _experiment(args) -> int:
+    # lazy (heavy): ROS, mujoco
+    from ..graph.setups import run_experiment, setup_of
+    overrides = _with_prior(args, args.out, setup_of(args.config, parse_set(args.set)))
+    res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions, args.eval_every, args.out,
+                         progress=not args.quiet, overrides=overrides, save_model=args.save_model)
+    print(f"{res['strategy']} seed {res['seed']}: final mean test error "
+          f"{res['final_mean_error']:.3f} (median {res['final_median_error']:.3f}) after "
+          f"{res['micro_actions']} micro-actions at {res['micro_actions_per_second']:,.0f}/s; "
+          f"{len(res['goals'])} goals, {len(res['regions'])} regions -> "
+          f"{Path(args.out) / 'result.json'}")
+    if args.report:
+        # lazy (heavy): ROS, mujoco
+        from ..graph.setups import write_report
+        print(f"report: {write_report(res, args.out)}")
+    return 0
+
+
+def _replay(args) -> int:
+    # lazy (heavy): mujoco
+    from ..bags.bags import replay
+    res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
+                 domain_id=args.domain_id, progress=not args.quiet, include_commands=args.include_commands)
+    return 130 if res["interrupted"] else 0
+
+
+def _record(args) -> int:
+    res = record(args.out or default_out(), args.params, args.domain_id, args.duration,
+                 progress=not args.quiet, markers=not args.no_markers)
+    if args.quiet:
+        print(f"bag closed: {res['path']}")
+    return LOST_EXIT_CODE if res["lost"] else 0
+
+
+def _relearn(args) -> int:
+    # lazy (heavy): ROS, mujoco
+    from ..graph.setups import relearn
+    s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
+    return 0 if s["goals_match"] and s["regions_match"] is not False else 1
+
+
+def _reproduce(args) -> int:
+    if args.no_run and args.estimate:
+        raise ConfigError("--no-run: only when deciding claims or the sensitivity (not with --estimate)")
+    if args.estimate:
+        estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
+        return 0
+    if args.claims == ["sensitivity"]:
+        rows = run_sensitivity(args.scale, args.out, args.workers, args.ray, args.choice,
+                               archive=args.archive, run=not args.no_run)
+    elif args.choice:
+        raise ConfigError("--choice: only with 'sagg reproduce sensitivity'")
+    else:
+        rows = run_reproduce(args.claims, args.scale, args.out, args.workers, args.ray,
+                             archive=args.archive, run=not args.no_run)
+    return 0 if rows else 1
+
+
+def _params(args) -> int:
+    if args.update:
+        path = Path(args.update)
+        path.write_text(replace_params_block(path.read_text(), params_markdown()))
+        print(f"updated the parameter tables in {path}")
+    else:
+        print(params_markdown(args.node))
+    return 0
+
+
+def _bench_table(args) -> int:
+    # lazy (heavy): scipy
+    from ..experiments.compare import load_results, summary_markdown
+    results = load_results(args.results)
+    if not results:
+        raise ConfigError(f"no result.json found under {', '.join(args.results)}")
+    print(summary_markdown(results))
+    if args.plot:
+        # lazy (heavy): scipy
+        from ..experiments.compare import plot_curves
+        plot_curves(results, args.plot, args.title)
+    return 0
+
+
+def _bench_compare(args) -> int:
+    # lazy (heavy): mujoco
+    from ..experiments.sweep import run_compare
+    summ = run_compare(args.config, args.strategies, args.seeds, args.micro_actions,
+                       args.eval_every, args.out, workers=args.workers, ray_address=args.ray,
+                       overrides=parse_set(args.set), base_seed=args.base_seed)
+    return 1 if summ["failed_runs"] else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     try:
@@ -376,99 +525,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"sagg: {LAB_HINT}", file=sys.stderr)
         raise
     try:
-        if args.command == "experiment":
-            # lazy (heavy): ROS, mujoco
-            from ..graph.setups import run_experiment, setup_of
-            overrides = _with_prior(args, args.out, setup_of(args.config, parse_set(args.set)))
-            res = run_experiment(args.config, args.strategy, args.seed, args.micro_actions,
-                                 args.eval_every, args.out, progress=not args.quiet,
-                                 overrides=overrides, save_model=args.save_model)
-            print(f"{res['strategy']} seed {res['seed']}: final mean test error "
-                  f"{res['final_mean_error']:.3f} (median {res['final_median_error']:.3f}) after "
-                  f"{res['micro_actions']} micro-actions at {res['micro_actions_per_second']:,.0f}/s; "
-                  f"{len(res['goals'])} goals, {len(res['regions'])} regions -> "
-                  f"{Path(args.out) / 'result.json'}")
-            if args.report:
-                # lazy (heavy): ROS, mujoco
-                from ..graph.setups import write_report
-                print(f"report: {write_report(res, args.out)}")
-            return 0
-        if args.command == "run":
-            return _run(args)
-        if args.command == "replay":
-            # lazy (heavy): mujoco
-            from ..bags.bags import replay
-            res = replay(args.bag, args.rate, args.topics, args.loop, args.wait_subscribers,
-                         domain_id=args.domain_id, progress=not args.quiet, include_commands=args.include_commands)
-            return 130 if res["interrupted"] else 0
-        if args.command == "record":
-            res = record(args.out or default_out(), args.params, args.domain_id, args.duration,
-                         progress=not args.quiet, markers=not args.no_markers)
-            if args.quiet:
-                print(f"bag closed: {res['path']}")
-            return LOST_EXIT_CODE if res["lost"] else 0
-        if args.command == "check-driver":
-            return main_check_driver(args)
-        if args.command == "reach":
-            return main_reach(args)
-        if args.command == "serve":
-            return main_serve(args)
-        if args.command == "relearn":
-            # lazy (heavy): ROS, mujoco
-            from ..graph.setups import relearn
-            s = relearn(args.bags, args.out, args.params, evaluate=not args.no_eval, report=not args.no_report)
-            return 0 if s["goals_match"] and s["regions_match"] is not False else 1
-        if args.command == "reproduce":
-            if args.no_run and args.estimate:
-                raise ConfigError("--no-run: only when deciding claims or the sensitivity (not with --estimate)")
-            if args.estimate:
-                estimate(args.claims, args.out or "runs/reproduce-estimate", workers=args.workers)
-                return 0
-            if args.claims == ["sensitivity"]:
-                rows = run_sensitivity(args.scale, args.out, args.workers, args.ray, args.choice,
-                                       archive=args.archive, run=not args.no_run)
-            elif args.choice:
-                raise ConfigError("--choice: only with 'sagg reproduce sensitivity'")
-            else:
-                rows = run_reproduce(args.claims, args.scale, args.out, args.workers, args.ray,
-                                     archive=args.archive, run=not args.no_run)
-            return 0 if rows else 1
-        if args.command == "params":
-            if args.update:
-                path = Path(args.update)
-                path.write_text(replace_params_block(path.read_text(), params_markdown()))
-                print(f"updated the parameter tables in {path}")
-            else:
-                print(params_markdown(args.node))
-            return 0
-        if args.command == "bench" and hasattr(args, "bench_run"):  # a plug-in's (sagg_lab)
-            return args.bench_run(args)
-        if args.command == "bench" and args.bench == "table":
-            # lazy (heavy): scipy
-            from ..experiments.compare import load_results, summary_markdown
-            results = load_results(args.results)
-            if not results:
-                raise ConfigError(f"no result.json found under {', '.join(args.results)}")
-            print(summary_markdown(results))
-            if args.plot:
-                # lazy (heavy): scipy
-                from ..experiments.compare import plot_curves
-                plot_curves(results, args.plot, args.title)
-            return 0
-        if args.command == "bench" and args.bench == "compare":
-            # lazy (heavy): mujoco
-            from ..experiments.sweep import run_compare
-            summ = run_compare(args.config, args.strategies, args.seeds, args.micro_actions,
-                               args.eval_every, args.out, workers=args.workers, ray_address=args.ray,
-                               overrides=parse_set(args.set), base_seed=args.base_seed)
-            return 1 if summ["failed_runs"] else 0
+        return args.handler(args)  # the subcommand's (set by its _add_* function)
     except ConfigError as exc:
         print(f"sagg: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("sagg: interrupted", file=sys.stderr)
         return 130
-    return 1
 
 
 if __name__ == "__main__":
