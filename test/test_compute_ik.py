@@ -258,6 +258,21 @@ def test_rest_is_the_fallback(chained, arm):
     assert b.success and b.start == "rest posture" and b.steps == 0 and np.array_equal(b.joints, REST)
 
 
+def test_a_stored_posture_the_scene_refuses_is_no_start(chained):
+    class Wall:  # refuses every posture whose first joint passes 0.5
+        def segment(self, a0, a1):
+            return Refusal("box", "wall", 0.0, 0.0) if a1[0] > 0.5 else None
+    goal = fk(np.array([0.7, 0.2, 0.2]))[0]
+    free = compute_ik(chained, fk(REST)[0], goal, tolerance=0.005)
+    assert free.start == "stored posture" and free.joints[0] > 0.5  # (the nearest stored points are past it)
+    chained.scene = Wall()
+    try:
+        a = compute_ik(chained, fk(REST)[0], goal, tolerance=0.005)
+    finally:
+        chained.scene = None
+    assert a.joints[0] <= 0.5, (a.start, a.joints)
+
+
 def test_a_given_start_is_honoured(chained):
     start = REST + np.array([0.5, -0.4, 0.3])
     a = compute_ik(chained, fk(REST)[0], fk(start)[0], start=start, start_point=fk(start)[0], tolerance=1e-6)

@@ -135,6 +135,7 @@ def start_candidates(learner: EvolvingContextLearner, rest_point: np.ndarray, ta
     """Where a reach toward ``target`` may start, nearest first by point: the ``k`` stored end
     postures whose rebuilt point (:mod:`.known_points`) is nearest ``target``, and the rest
     posture at its own distance (so it is tried too when none of them reaches: the fallback).
+    :func:`compute_ik` skips a stored posture the scene refuses.
 
     Parameters
     ----------
@@ -154,7 +155,7 @@ def start_candidates(learner: EvolvingContextLearner, rest_point: np.ndarray, ta
         Start posture (n,), its point (m,) and 'stored posture' or 'rest posture'.
     """
     rest_point = np.asarray(rest_point, dtype=float)
-    points = (points or KnownPoints()).update(learner.memory, learner.robot.rest)
+    points = (KnownPoints() if points is None else points).update(learner.memory, learner.robot.rest)
     alpha, offset = points.nearest(target - rest_point, k)
     found = [(a, rest_point + o, "stored posture") for a, o in zip(alpha, offset)]
     far = [np.linalg.norm(y - target) for _, y, _ in found]   # (nearest first)
@@ -204,6 +205,8 @@ def compute_ik(learner: EvolvingContextLearner, rest_point, target, start=(), st
     check = scene_check(learner.scene)
     best = None
     for alpha, y, kind in starts:
+        if kind == "stored posture" and check is not None and check(alpha, alpha, y) is not None:
+            continue  # (a stored posture the scene refuses now: not a start)
         reach = open_loop_reach(learner, alpha, y, target, tol, max_steps, check) + (kind,)
         if best is None or reach[2] < best[2]:
             best = reach
