@@ -406,8 +406,9 @@ def _resume(args) -> int:
     # lazy (heavy): ROS, mujoco
     from ..graph.setups import resume_graph
     out = Path(args.resume)
-    if args.config is not None or args.seed is not None or args.strategy is not None or args.set:
-        raise ConfigError("--resume DIR: no CONFIG, --seed, --strategy or --set (the run's own params.yaml is used)")
+    if args.config is not None or args.seed is not None or args.strategy is not None or args.set or args.prior:
+        raise ConfigError("--resume DIR: no CONFIG, --seed, --strategy, --set or --prior (the run's own params.yaml "
+                          "and prior are used)")
     try:
         s = resume_graph(out, args.micro_actions, args.domain_id, progress=not args.quiet, **_run_options(args))
     except GraphError as exc:
