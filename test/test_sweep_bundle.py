@@ -102,12 +102,14 @@ def make_robot(src: Path, kind: str) -> Path:
     return config
 
 
-def differences(a: dict, b: dict) -> list[str]:
-    """Where two results differ but for their timings: top-level fields, and the parameters of the
-    resolved config by node (compared as JSON text: NaN equals NaN there)."""
+def differences(a: dict, b: dict, ignore: tuple[str, ...] = ()) -> list[str]:
+    """Where two results differ but for their timings and the fields in ``ignore``: top-level
+    fields, and the parameters of the resolved config by node (compared as JSON text: NaN equals
+    NaN there)."""
     def text(v) -> str:
         return json.dumps(v, sort_keys=True)
-    out = [k for k in sorted(set(a) | set(b)) if k not in (*TIMINGS, "config") and text(a.get(k)) != text(b.get(k))]
+    skip = (*TIMINGS, *ignore, "config")
+    out = [k for k in sorted(set(a) | set(b)) if k not in skip and text(a.get(k)) != text(b.get(k))]
     ca, cb = a.get("config", {}), b.get("config", {})
     for node in sorted(set(ca) | set(cb)):
         na, nb = ca.get(node, {}), cb.get(node, {})
