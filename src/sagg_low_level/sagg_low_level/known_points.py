@@ -18,7 +18,6 @@ their rest point are not this run's.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 __all__ = ["SAME_POSTURE", "KnownPoints", "sample_points"]
 
@@ -141,6 +140,8 @@ class KnownPoints:
     def _build_tree(self) -> None:
         self._alpha, self._offset = np.concatenate(self._postures), np.concatenate(self._offsets)
         self._postures, self._offsets = [self._alpha], [self._offset]
+        # lazy (heavy): scipy (only a compute_ik request builds the index; the learner node imports this)
+        from scipy.spatial import cKDTree
         self._tree = cKDTree(self._offset)
         self._size = len(self._offset)
 

@@ -23,6 +23,8 @@ from pathlib import Path
 from sagg_common.params import ConfigError
 from sagg_low_level.memory import SampleMemory
 
+from .reach import frozen_model
+
 PRIOR_DIR = "prior"
 
 
@@ -44,8 +46,6 @@ def _copy_model(source: Path, dest: Path, say) -> Path | None:
     if not source.exists():
         raise ConfigError(f"--prior: '{source}' does not exist; allowed: a `sagg run` directory or one of its "
                           "bags, or a directory with memory.npz (`sagg experiment --save-model`, `sagg relearn`)")
-    # lazy (heavy): mujoco (a bag's model is rebuilt as sagg relearn does)
-    from .reach import frozen_model
     frozen_model(source, dest, say)
     run_dir = source if (source / "params.yaml").is_file() else source.parent
     return _generator_state(run_dir)
