@@ -297,3 +297,5 @@ def test_a_robot_config_runs_in_the_lockstep_simulation():
     assert full["sagg_learner"]["observation_delay"] == 0.012
     assert graph_params(full, 100, "lockstep")["sagg_learner"]["observation_delay"] == 0.0
     assert graph_params(full, 100, "realtime")["sagg_learner"]["observation_delay"] == 0.012
+    from sagg_bringup.graph.external import external_params
+    assert external_params(full, 100, False)["sagg_learner"]["observation_delay"] == 0.012  # the robot's

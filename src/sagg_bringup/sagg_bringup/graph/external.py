@@ -77,6 +77,8 @@ def external_params(full: dict[str, dict], micro_actions: int, own_joints: bool,
                           "posture) is for the simulated bridge only; allowed with --driver external: 'stepped'")
     params = graph_params(full, micro_actions, "lockstep", spec)
     params["sagg_learner"]["rest_return"] = "stepped"
+    # the driver's latency is the config's (graph_params zeroes it for the lockstep simulator)
+    params["sagg_learner"]["observation_delay"] = full["sagg_learner"]["observation_delay"]
     if own_joints:
         lp = params["sagg_learner"]
         for k in ("joints", "joint_limits.lower", "joint_limits.upper", "rest_posture"):
@@ -154,6 +156,14 @@ class Pauser:
 
 
 # ------------------------------------------------------------------------------ the run
+def check_robot_eval(robot_eval_goals: int, robot_eval_every: int, robot_eval_goal_seconds: float) -> None:
+    """The evaluation on the robot's options; ConfigError naming them."""
+    if robot_eval_goals < 1 or robot_eval_every < 0 or not robot_eval_goal_seconds > 0:
+        raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every} / "
+                          f"--robot-eval-goal-seconds {robot_eval_goal_seconds}; allowed: goals >= 1, every >= 0, "
+                          "seconds > 0")
+
+
 def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str | Path, *,
                        seed: int | None = None, strategy: str | None = None, eval_every: int = 1000,
                        overrides: dict[str, Any] | None = None, progress: bool = True,
@@ -167,10 +177,9 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     same robot): as :func:`~sagg_bringup.graph.graph.run_graph`'s, the nodes resume from their
     checkpoints and this segment is recorded into the next bag; the learner measures the posture
     and returns to rest first."""
-    if robot_eval_goals < 1 or robot_eval_every < 0 or not robot_eval_goal_seconds > 0:
-        raise ConfigError(f"--robot-eval-goals {robot_eval_goals} / --robot-eval-every {robot_eval_every} / "
-                          f"--robot-eval-goal-seconds {robot_eval_goal_seconds}; allowed: goals >= 1, every >= 0, "
-                          "seconds > 0")
+    robot_eval = {"robot_eval_goals": robot_eval_goals, "robot_eval_every": robot_eval_every,
+                  "robot_eval_goal_seconds": robot_eval_goal_seconds}
+    check_robot_eval(**robot_eval)
     plan = plan_arm_run(config_path, micro_actions, out_dir, nodes=EXTERNAL_NODES, eval_every=eval_every,
                         strategy=strategy, seed=seed, overrides=overrides, domain_id=domain_id,
                         resume=resume is not None,
@@ -187,10 +196,8 @@ def run_external_graph(config_path: str | Path, micro_actions: int, out_dir: str
     write_run_file(out, setup="arm", driver="external", timing="external driver", domain_id=domain_id,
                    domain_private=False, micro_actions=micro_actions, eval_every=eval_every,
                    config=(resume or {}).get("config", config_path),
-                   overrides=(resume or {}).get("overrides", plan.overrides), robot_eval_goals=robot_eval_goals,
-                   robot_eval_every=robot_eval_every,
-                   robot_eval_goal_seconds=robot_eval_goal_seconds,
-                   driver_timeout=driver_timeout)
+                   overrides=(resume or {}).get("overrides", plan.overrides), driver_timeout=driver_timeout,
+                   **robot_eval)
     # (the driver's state streams go on after the nodes stop: the final drain does not wait for them)
     session = GraphSession(plan.procs, domain_id, graph_topics(lp), plan.bag_path, out, drain=2000, localhost=False)
     try:

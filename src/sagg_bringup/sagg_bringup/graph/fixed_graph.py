@@ -73,24 +73,11 @@ def run_fixed_graph(setup, config_path: str | Path, micro_actions: int, out_dir:
     """Run the graph of the fixed-context set-up ``setup`` (a registry entry: its nodes, schemas,
     adapter and topics) for ``micro_actions`` experiments; returns the summary (also in DIR)."""
     ov = run_overrides(micro_actions, eval_every, strategy, seed, overrides)
-    if timing != "lockstep":
-        raise ConfigError(f"--timing: got {timing!r}; allowed: 'lockstep' (the synergy bridge answers each "
-                          "trajectory once it has run)")
-    check_domain_id(domain_id)
-    full = resolve_fixed_graph(setup, config_path, ov)
-    setup_name = setup.name
     out = Path(out_dir)
-    if (out / "bag").exists():
-        raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
-    procs = node_processes(setup.nodes, out / "logs")
+    full, params, procs = _fixed_plan(setup, config_path, micro_actions, out, ov, timing, domain_id)
     t_start = time.perf_counter()
-    params = fixed_graph_params(full, micro_actions)
-    # the goal generator checkpoints into DIR/checkpoint (no resume here: its last checkpoint, written
-    # at its shutdown, gives the summary the teacher's view)
-    for note in set_checkpoint_dirs(params, out):
-        print(f"sagg run: {note}", file=sys.stderr)
     params_file = out / "params.yaml"
-    write_params_file(params_file, params)
+    setup_name = setup.name
     lp = full["sagg_learner"]
 
     # the learner status has no rate here (the synergy summary's learner_status never had one)
@@ -129,18 +116,46 @@ def run_fixed_graph(setup, config_path: str | Path, micro_actions: int, out_dir:
         raise
 
     session.run(body, bar)
+    summary = _fixed_summary(session, setup_name, full, params, timing, micro_actions, evaluation, samples, t_start)
+    return session.finish(summary, (lambda: write_synergy_report(summary, out)) if report else None)
 
+
+def _fixed_plan(setup, config_path, micro_actions: int, out: Path, ov: dict, timing: str,
+                domain_id: int | None) -> tuple[dict, dict, list]:
+    """The checks and parameters of a fixed-context graph run, ``DIR/params.yaml`` written:
+    (resolved config, the nodes' parameters, the node processes)."""
+    if timing != "lockstep":
+        raise ConfigError(f"--timing: got {timing!r}; allowed: 'lockstep' (the synergy bridge answers each "
+                          "trajectory once it has run)")
+    check_domain_id(domain_id)
+    full = resolve_fixed_graph(setup, config_path, ov)
+    if (out / "bag").exists():
+        raise ConfigError(f"--out: '{out}' already holds a bag; allowed: a new or empty directory")
+    procs = node_processes(setup.nodes, out / "logs")
+    params = fixed_graph_params(full, micro_actions)
+    # the goal generator checkpoints into DIR/checkpoint (no resume here: its last checkpoint, written
+    # at its shutdown, gives the summary the teacher's view)
+    for note in set_checkpoint_dirs(params, out):
+        print(f"sagg run: {note}", file=sys.stderr)
+    write_params_file(out / "params.yaml", params)
+    return full, params, procs
+
+
+def _fixed_summary(session, setup_name: str, full: dict, params: dict, timing: str, micro_actions: int,
+                   evaluation, samples: list, t_start: float) -> dict:
+    """summary.json of a fixed-context graph run: the session's, its evaluation from the recorded
+    samples, and the outcomes' extents."""
+    lp, out, st = full["sagg_learner"], session.out, session.st
     outcomes = np.array([y for _, y in samples]).reshape(-1, len(lp["task_space.lower"]))
-    summary = session.summary(
-        lp, {name: {k: v for k, v in values.items()} for name, values in full.items()}, params, params_file,
-        timing, micro_actions, evaluation.curve, evaluation.area, t_start,
+    return session.summary(
+        lp, {name: {k: v for k, v in values.items()} for name, values in full.items()}, params,
+        out / "params.yaml", timing, micro_actions, evaluation.curve, evaluation.area, t_start,
         eval_seconds=evaluation.seconds,
         memory=evaluation.memory(len(samples)),
         test_goals=evaluation.goals.tolist() if evaluation.goals is not None else None,
         splits=[],
         bag=session.bag_summary([out / "bag"], {"/sagg/sample": st.gaps["/sagg/sample"]}),
         synergy={"setup": setup_name, "outcome_extents": outcome_extents(outcomes)})
-    return session.finish(summary, (lambda: write_synergy_report(summary, out)) if report else None)
 
 
 class SampleEvaluation:
