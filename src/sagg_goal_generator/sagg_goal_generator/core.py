@@ -271,11 +271,22 @@ class GoalGenerator:
 
 
 def start_tree_from(tree: RegionTree, path: str) -> None:
-    """Put the regions of another run's tree (the arrays of
-    :func:`sagg_common.region_arrays.tree_arrays` in the .npz at ``path``: a prior's regions.npz or a
-    goal-generator checkpoint's state file) into the fresh ``tree``; its split history stays empty
-    (this run's splits). ConfigError naming ``prior.regions`` when the file cannot be read or its
-    root box is not this task space."""
+    """Put the regions of another run's tree into the fresh ``tree``; its split history stays empty
+    (this run's splits).
+
+    Parameters
+    ----------
+    tree : RegionTree
+        A fresh tree of this run's task space (one region).
+    path : str
+        An .npz holding the arrays of :func:`sagg_common.region_arrays.tree_arrays`: a prior's
+        regions.npz or a goal-generator checkpoint's state file.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``prior.regions``: the file cannot be read, or its root box is not this task space.
+    """
     try:
         with np.load(path, allow_pickle=False) as z:
             lower, upper = z["region_lower"][0], z["region_upper"][0]

@@ -567,7 +567,13 @@ class EvolvingContextLearner(ReportSource):
         return jacobian(self.memory.delta_alpha, self.memory.delta_y, idx, self.p["jacobian_rcond"])
 
     def model_samples(self) -> int:
-        """The samples the local models are fitted from: the robot's, and the prior's still in use."""
+        """The samples the local models are fitted from: the robot's, and the prior's still in use.
+
+        Returns
+        -------
+        int
+            ``len(memory)`` plus the prior samples not superseded (0 without a prior).
+        """
         return len(self.memory) + (self.prior.live_count if self.prior is not None else 0)
 
     def inverse(self, alpha: np.ndarray, dy_next: np.ndarray) -> np.ndarray | None:
