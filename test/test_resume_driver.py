@@ -96,7 +96,7 @@ def test_a_killed_external_driver_run_resumes_on_its_robot(tmp_path):
     try:
         p = subprocess.Popen([SAGG, "run", str(cfg), "--driver", "external", "--micro-actions", "5000",
                               "--out", str(run), "--quiet", "--no-report", "--domain-id", str(domain),
-                              "--driver-timeout", "60"],
+                              "--driver-timeout", "60", "--robot-eval-goals", "1"],
                              env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         try:
             end = time.monotonic() + 180
@@ -119,21 +119,24 @@ def test_a_killed_external_driver_run_resumes_on_its_robot(tmp_path):
     r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "300", "--quiet",
                         "--domain-id", str(domain), "--driver-timeout", "3"],
                        env=env, capture_output=True, text=True, timeout=120)
-    assert r.returncode != 0 and "driver" in r.stderr, r.stdout + r.stderr
+    # (--driver-timeout given to the resume wins over the run's own 60 s)
+    assert r.returncode != 0 and "did not come up in 3 s" in r.stderr, r.stdout + r.stderr
     assert not list((run / "logs").glob("mujoco_bridge*")), sorted(p.name for p in (run / "logs").iterdir())
 
-    # a fresh driver on the same domain, as the robot would still be there; then --resume to 300
+    # a fresh driver on the same domain, as the robot would still be there; then --resume to 200
+    # (the run's own settings: one test goal on the robot at the end)
     driver = start_driver(env, tmp_path / "driver2.log")
     try:
         time.sleep(1.0)  # the driver is up and publishing
-        r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "300", "--quiet",
+        r = subprocess.run([SAGG, "run", "--resume", str(run), "--micro-actions", "200", "--quiet",
                             "--no-report", "--domain-id", str(domain)],
                            env=env, capture_output=True, text=True, timeout=300)
     finally:
         stop(driver)
     assert r.returncode == 0, r.stdout + r.stderr
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["micro_actions"] >= 300 and summary["driver"] == "external", summary.get("driver")
+    assert summary["micro_actions"] >= 200 and summary["driver"] == "external", summary.get("driver")
+    assert len(summary["robot_evaluation"]["goals"]) == 1  # the run's own settings (run.json)
     assert commands_received(tmp_path / "driver2.log") > 0
     assert not list((run / "logs").glob("mujoco_bridge*")), sorted(p.name for p in (run / "logs").iterdir())
     learner_logs = sorted((run / "logs").glob("learner*.log"))

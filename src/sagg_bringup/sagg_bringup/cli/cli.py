@@ -18,6 +18,8 @@ from ..experiments.reproduce import estimate, run_reproduce
 from ..experiments.sensitivity import run_sensitivity
 from .benches import LAB_HINT, installed_benches, positive_int
 
+DRIVER_TIMEOUT = 120.0  # s, --driver-timeout's default for a new run
+
 # A command whose modules load rclpy, mujoco or matplotlib imports them when it runs (`# lazy (heavy)`:
 # they take seconds to import, and `sagg params` or `sagg bench table` need none of them); light
 # modules are imported above (test_layers checks both).
@@ -137,8 +139,9 @@ def _add_run(sub) -> None:
     r.add_argument("--no-report", action="store_true",
                    help="no report.md / figures (summary.json, the bag and the checkpoints as always)")
     _prior_arguments(r)
-    r.add_argument("--driver-timeout", type=float, default=120.0,
-                   help="--driver external: seconds to wait for the driver's topics (default 120)")
+    r.add_argument("--driver-timeout", type=float, default=None,
+                   help="--driver external: seconds to wait for the driver's topics (default 120; with --resume "
+                        "the run's own)")
     r.set_defaults(handler=_run)
 
 
@@ -364,7 +367,8 @@ def _run(args) -> int:
                           progress=not args.quiet, domain_id=args.domain_id,
                           robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
                           robot_eval_goal_seconds=args.robot_eval_goal_seconds,
-                          driver_timeout=args.driver_timeout, **_run_options(args))
+                          driver_timeout=DRIVER_TIMEOUT if args.driver_timeout is None else args.driver_timeout,
+                          **_run_options(args))
         else:
             s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
                           timing=args.timing, eval_every=args.eval_every, overrides=overrides,
@@ -410,7 +414,9 @@ def _resume(args) -> int:
         raise ConfigError("--resume DIR: no CONFIG, --seed, --strategy, --set or --prior (the run's own params.yaml "
                           "and prior are used)")
     try:
-        s = resume_graph(out, args.micro_actions, args.domain_id, progress=not args.quiet, **_run_options(args))
+        given = {} if args.driver_timeout is None else {"driver_timeout": args.driver_timeout}
+        s = resume_graph(out, args.micro_actions, args.domain_id, progress=not args.quiet, **given,
+                         **_run_options(args))
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
         return exc.code

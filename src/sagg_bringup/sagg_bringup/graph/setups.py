@@ -346,6 +346,9 @@ def resume_graph(out_dir: str | Path, micro_actions: int | None = None, domain_i
         robot = {k: settings[k] for k in EXTERNAL_RESUMED if k in settings}
         return setup.run_graph(params_file, budget, out, driver="external", eval_every=settings["eval_every"],
                                domain_id=domain_id, resume=settings, **{**robot, **options})
+    if "driver_timeout" in options:
+        raise ConfigError(f"--driver-timeout: '{out}' learned with the simulated bridge; allowed: only when "
+                          "resuming a --driver external run")
     return setup.run_graph(params_file, budget, out, timing=settings["timing"],
                            eval_every=settings["eval_every"], domain_id=domain_id, resume=settings, **options)
 
