@@ -116,7 +116,7 @@ def test_hostile_bench_short(tmp_path):
     in the 10-minute soak, docs/notes/hostile-input.md.)"""
     from sagg_lab.hostile import bench_hostile
     lines: list[str] = []
-    res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=2.0, eval_every=200, drain=5.0,
+    res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=2.0, eval_every=1000, drain=3.0,
                         out=lines.append, only=["NaN sample", "forged sample with the next index",
                                                 "gripper publisher (other joints only)",
                                                 "idle publishers on every watched topic",
