@@ -444,22 +444,35 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
         "competence_map": fig_competence_map(result, out / "competence_map.png", area),
         "teacher": fig_teacher(result, out / "teacher.png", area),
     }
-    lp = result["config"]["sagg_learner"]
     graph = "bag" in result
     lines = [f"# {'Graph' if graph else 'In-process'} run: {result['strategy']}, seed {result['seed']}", ""]
+    rows = _summary_rows(result) + list(setup_rows)
+    lines += ["| | |", "|---|---|"] + [f"| {k} | {_fmt(v)} |" for k, v in rows] + [""]
+    lines += _curve_section(result, figs) + _figure_sections(result, figs)
+    if graph:
+        lines += _recording_section(result["bag"])
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def _summary_rows(result: dict) -> list[tuple[str, Any]]:
+    """The report's table: the run, its errors and metrics, goals and regions, memory, prior, Y."""
+    lp = result["config"]["sagg_learner"]
+    nan = float("nan")
     rows = [
         ("strategy", result["strategy"]), ("seed", result["seed"]),
         ("micro-actions", result["micro_actions"]),
-        ("micro-actions / s (learning)", float(result.get("micro_actions_per_second", float("nan")))),
+        ("micro-actions / s (learning)", float(result.get("micro_actions_per_second", nan))),
     ]
     if "wall_seconds" in result:
         rows.append(("wall time (s)", float(result["wall_seconds"])))
     if "timing" in result:
         rows.append(("bridge timing", result["timing"]))
     rows += [
-        ("final mean test error", float(result.get("final_mean_error", float("nan")))),
-        ("final median test error", float(result.get("final_median_error", float("nan")))),
-        ("initial mean test error", float(result["curve"][0]["mean_error"]) if result["curve"] else float("nan")),
+        ("final mean test error", float(result.get("final_mean_error", nan))),
+        ("final median test error", float(result.get("final_median_error", nan))),
+        ("initial mean test error", float(result["curve"][0]["mean_error"]) if result["curve"] else nan),
     ]
     rows += _metric_rows(result)
     rows += [
@@ -478,25 +491,33 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
                      + (f"; from {prior['source']}" if prior.get("source") else "")))
     gs = result.get("goal_stats") or {}
     if gs:
-        rows.append(("reachable share of Y", float(gs.get("reachable_share_of_Y", float("nan")))))
+        rows.append(("reachable share of Y", float(gs.get("reachable_share_of_Y", nan))))
         rows.append(("goals in reachable area (all / 2nd half)",
-                     f"{_fmt(float(gs.get('goal_share_reachable', float('nan'))), 3)} / "
-                     f"{_fmt(float(gs.get('goal_share_reachable_second_half', float('nan'))), 3)}"))
+                     f"{_fmt(float(gs.get('goal_share_reachable', nan)), 3)} / "
+                     f"{_fmt(float(gs.get('goal_share_reachable_second_half', nan)), 3)}"))
     task = f"[{', '.join(_fmt(float(v)) for v in lp['task_space.lower'])}] – " \
            f"[{', '.join(_fmt(float(v)) for v in lp['task_space.upper'])}]"
     rows.append(("task space Y (lower – upper)", task))
-    rows += list(setup_rows)
-    lines += ["| | |", "|---|---|"] + [f"| {k} | {_fmt(v)} |" for k, v in rows] + [""]
+    return rows
 
-    lines += ["## Learning curve", "",
-              f"Test error of the frozen model on {lp.get('eval.goals')} fixed test goals "
-              f"(eval.seed {lp.get('eval.seed')}), reached from the rest posture without learning.", ""]
+
+def _curve_section(result: dict, figs: dict) -> list[str]:
+    """The learning curve: what the test error is, its figure and its table."""
+    lp = result["config"]["sagg_learner"]
+    lines = ["## Learning curve", "",
+             f"Test error of the frozen model on {lp.get('eval.goals')} fixed test goals "
+             f"(eval.seed {lp.get('eval.seed')}), reached from the rest posture without learning.", ""]
     if figs["learning_curve"]:
         lines += ["![learning curve](learning_curve.png)", ""]
     lines += ["| micro-actions | mean error | median error | within tolerance |", "|---:|---:|---:|---:|"]
     lines += [f"| {c['micro_actions']:,} | {c['mean_error']:.3f} | {c['median_error']:.3f} | "
               f"{_fmt(c['within_share'], 3) if c.get('within_share') is not None else '–'} |"
               for c in _curve_rows(result["curve"])] + [""]
+    return lines
+
+
+def _figure_sections(result: dict, figs: dict) -> list[str]:
+    """The goals, regions, competence and (a teacher's) figures, each with what it shows."""
     sections = [
         ("goals_over_time", "Goals over time (cf. paper Fig. 7)",
          "2-D histograms of the self-generated goals (not subgoals) in equal windows of micro-actions."),
@@ -508,26 +529,28 @@ def write_report(result: dict | str | Path, out_dir: str | Path, area=None, setu
     if figs["teacher"]:  # only the teachers beyond the paper have a view of their own
         sections.append(("teacher", f"Where {result['strategy']} sent its goals", "The teacher's own model "
                          "of Y: its mixtures (alp-gmm) or its grid (discretized-progress)."))
+    lines: list[str] = []
     for key, title, text in sections:
         lines += [f"## {title}", "", text, ""]
         lines += [f"![{key.replace('_', ' ')}]({key}.png)", ""] if figs[key] else ["(no figure: no goals, "
                                                                                      "or Y is 1-D)", ""]
-    if graph:
-        bag = result["bag"]
-        lines += ["## Recording", "", f"rosbag2 (mcap) at `{bag.get('path')}`.", "",
-                  "| topic | type | messages |", "|---|---|---:|"]
-        lines += [f"| `{t}` | `{v['type']}` | {v['count']:,} |" for t, v in sorted(bag.get("topics", {}).items())]
-        lines.append("")
-        # the recorder never falls behind silently, and hostile messages are named
-        dropped, rejected = bag.get("dropped") or {}, bag.get("rejected") or {}
-        lines.append("Messages missed by the recorder (gaps in the publishers' sequence numbers): "
-                     + (", ".join(f"`{t}` {n:,}" for t, n in sorted(dropped.items())) if dropped else "none") + "."
-                     + (" Not estimated (the topic had several publishers): "
-                        + ", ".join(f"`{t}`" for t in bag["dropped_not_estimated"]) + "."
-                        if bag.get("dropped_not_estimated") else ""))
-        lines.append("Messages recorded but not used (another publisher on the topic, or rejected content): "
-                     + (", ".join(f"`{k}` {n:,}" for k, n in sorted(rejected.items())) if rejected else "none") + ".")
-        lines.append("")
-    path = out / "report.md"
-    path.write_text("\n".join(lines))
-    return path
+    return lines
+
+
+def _recording_section(bag: dict) -> list[str]:
+    """A graph run's bag: topics and counts, what the recorder missed and what it did not use."""
+    lines = ["## Recording", "", f"rosbag2 (mcap) at `{bag.get('path')}`.", "",
+             "| topic | type | messages |", "|---|---|---:|"]
+    lines += [f"| `{t}` | `{v['type']}` | {v['count']:,} |" for t, v in sorted(bag.get("topics", {}).items())]
+    lines.append("")
+    # the recorder never falls behind silently, and hostile messages are named
+    dropped, rejected = bag.get("dropped") or {}, bag.get("rejected") or {}
+    lines.append("Messages missed by the recorder (gaps in the publishers' sequence numbers): "
+                 + (", ".join(f"`{t}` {n:,}" for t, n in sorted(dropped.items())) if dropped else "none") + "."
+                 + (" Not estimated (the topic had several publishers): "
+                    + ", ".join(f"`{t}`" for t in bag["dropped_not_estimated"]) + "."
+                    if bag.get("dropped_not_estimated") else ""))
+    lines.append("Messages recorded but not used (another publisher on the topic, or rejected content): "
+                 + (", ".join(f"`{k}` {n:,}" for k, n in sorted(rejected.items())) if rejected else "none") + ".")
+    lines.append("")
+    return lines
