@@ -34,7 +34,7 @@ def source_files() -> list[Path]:
                   and "__pycache__" not in p.parts and ".egg-info" not in str(p))
 
 
-def test_files() -> list[Path]:
+def files_of_test() -> list[Path]:
     """Every Python file of test/ but this one (whose patterns and examples must name what they find)."""
     return sorted(p for p in (ROOT / "test").rglob("*.py") if "__pycache__" not in p.parts
                   and p.name != Path(__file__).name)
@@ -49,7 +49,7 @@ def test_the_code_tells_no_history():
 
 
 def test_the_tests_tell_no_history():
-    assert hits(test_files(), DATE, ISSUE, DESIGN) == []
+    assert hits(files_of_test(), DATE, ISSUE, DESIGN) == []
 
 
 def test_the_user_pages_tell_no_history():
