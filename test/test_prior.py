@@ -166,6 +166,8 @@ def test_a_bad_calibration_names_its_parameter():
         load_arm_config("config/arm7_urdf.yaml", {"arm.calibration.joint_offsets": [0.01, 0.02]})
     with pytest.raises(ConfigError, match="arm.calibration.length_scale"):
         load_arm_config("config/arm7_urdf.yaml", {"arm.calibration.length_scale": 3.0})
+    with pytest.raises(ConfigError, match="arm.calibration.*the planar arm"):
+        load_arm_config("config/arm8.yaml", {"arm.calibration.length_scale": 1.03})
 
 
 # ---------------------------------------------------------------------- regions, sources, the graph

@@ -120,6 +120,9 @@ def arm_spec_from_params(params: dict, base_dir: str | None = None) -> ArmSpec |
         if "rest_posture" in params:
             fields["rest_posture"] = params["rest_posture"]
         return ModelArmSpec.from_params(fields, base_dir, scene if scene.obstacles else None)
+    if fields.get("calibration.length_scale", 1.0) != 1.0 or fields.get("calibration.joint_offsets"):
+        raise ConfigError("parameter 'arm.calibration.*': set, but the planar arm (arm.model empty) has no model "
+                          "file to differ from; allowed: a calibration gap for a model arm (arm.model)")
     if scene.obstacles:
         name = "scene.floor" if scene.floor is not None else "scene.boxes"
         raise ConfigError(f"parameter '{name}': set, but the planar arm (arm.model empty) lives in its task plane "

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from sagg_common.params import resolve_nodes
 from sagg_common.journal import save_npz_atomic
+from sagg_common.params import resolve_nodes
 from sagg_common.progress import Progress
 from sagg_common.region_arrays import tree_arrays
 from sagg_common.rng import substream_seed
