@@ -75,10 +75,7 @@ def external_params(full: dict[str, dict], micro_actions: int, own_joints: bool,
     if full["sagg_learner"].get("rest_return") == "direct":
         raise ConfigError("parameter 'rest_return': 'direct' (one command across the range to the rest "
                           "posture) is for the simulated bridge only; allowed with --driver external: 'stepped'")
-    params = graph_params(full, micro_actions, "lockstep", spec)
-    params["sagg_learner"]["rest_return"] = "stepped"
-    # the driver's latency is the config's (graph_params zeroes it for the lockstep simulator)
-    params["sagg_learner"]["observation_delay"] = full["sagg_learner"]["observation_delay"]
+    params = graph_params(full, micro_actions, "external", spec)
     if own_joints:
         lp = params["sagg_learner"]
         for k in ("joints", "joint_limits.lower", "joint_limits.upper", "rest_posture"):

@@ -74,7 +74,9 @@ def fill_task_model(lp: dict, bp: dict) -> None:
 def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str,
                  spec=None) -> dict[str, dict]:
     """The parameters the nodes get: the resolved config plus what ``sagg run`` fills in; ``spec``:
-    the arm of ``full`` when the caller has it (:func:`resolve_arm`)."""
+    the arm of ``full`` when the caller has it (:func:`resolve_arm`). ``timing``: the simulated
+    bridge's ``lockstep`` or ``realtime``, or ``external`` (the user's driver in place of the
+    bridge: the learner keeps the config's ``rest_return`` and ``observation_delay``)."""
     # lazy (heavy): mujoco
     from sagg_sim_bridge.arms import arm_spec_from_params
     params = {name: dict(values) for name, values in full.items()}
@@ -90,7 +92,7 @@ def graph_params(full: dict[str, dict], max_micro_actions: int, timing: str,
     # the bridge and the learner must agree on the topics
     bp = params["sagg_sim_bridge"]
     fill_task_model(lp, bp)
-    if "timing" in bp:
+    if "timing" in bp and timing != "external":
         bp["timing"] = timing
     # lockstep: the simulator's one-command return to rest, as in-process (the graph equals the
     # in-process run); the learner still steps whenever anything but the simulator listens
