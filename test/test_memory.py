@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sagg_low_level.memory import SampleMemory, squared_distances
+from sagg_low_level.memory import SampleMemory, SampleTable, squared_distances
 from sagg_lab.memory_bench import trajectory_alphas
 
 # Tiny index parameters: a few hundred samples already give many blocks, merges and box heights.
@@ -262,6 +262,10 @@ def test_save_load_round_trip(tmp_path, count):
     # save over an existing file replaces it
     mem.save(path)
     assert SampleMemory.load(path).digest() == mem.digest()
+    # the rows alone (no index): the same samples, the same digest
+    table = SampleTable.load(path)
+    assert table.digest() == mem.digest() and len(table) == len(mem)
+    assert np.array_equal(table.alpha, mem.alpha) and np.array_equal(table.delta_y, mem.delta_y)
 
 
 def test_load_rejects_corrupted_or_foreign_files(tmp_path):
@@ -276,12 +280,13 @@ def test_load_rejects_corrupted_or_foreign_files(tmp_path):
     content["alpha"][3, 1] += 1e-9
     bad = tmp_path / "bad.npz"
     np.savez(bad, **content)
-    with pytest.raises(ValueError, match="digest"):
-        SampleMemory.load(bad)
     foreign = tmp_path / "foreign.npz"
     np.savez(foreign, x=np.zeros(3))
-    with pytest.raises(ValueError, match="missing"):
-        SampleMemory.load(foreign)
+    for cls in (SampleMemory, SampleTable):
+        with pytest.raises(ValueError, match="digest"):
+            cls.load(bad)
+        with pytest.raises(ValueError, match="missing"):
+            cls.load(foreign)
 
 
 @pytest.mark.parametrize(

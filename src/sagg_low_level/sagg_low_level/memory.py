@@ -50,7 +50,7 @@ from sagg_common.diagnostics import all_finite
 # _sqdist_cols is also imported from here by the memory benchmark
 from .memory_distance import _sqdist_cols, squared_distances  # noqa: F401
 from .memory_index import LEAF_ORDERS as _LEAF_ORDERS, BlockIndex
-from .memory_io import load_memory, params_array, save_memory
+from .memory_io import load_memory, load_table, params_array, save_memory
 from .memory_search import KnnSearch
 from .memory_store import SampleStore
 
@@ -253,6 +253,12 @@ class SampleTable(SampleStore):
     def add(self, alpha, delta_alpha, delta_y) -> int:
         """Store one sample; return its index. Raises ValueError on wrong shapes or non-finite values."""
         return self._append(alpha, delta_alpha, delta_y)[0]
+
+    @classmethod
+    def load(cls, path) -> "SampleTable":
+        """The samples of a :meth:`SampleMemory.save` file, checked as :meth:`SampleMemory.load`
+        checks them, without building its index (a caller that only reads the rows)."""
+        return load_table(cls, path)
 
     @property
     def nbytes(self) -> int:

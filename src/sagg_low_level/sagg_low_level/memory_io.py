@@ -71,9 +71,10 @@ def save_memory(mem, path) -> None:
     os.replace(tmp, path)
 
 
-def load_memory(cls, path):
-    """Read a file written by :func:`save_memory` into a new ``cls`` (SampleMemory); the index is
-    rebuilt exactly as it was."""
+def _read_file(path) -> tuple[tuple[int, ...], np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray], str]:
+    """The checked content of a file written by :func:`save_memory`: the int construction
+    parameters (format version first, version 1 extended to version 2), the float ones, the three
+    sample arrays (float64, finite, of the file's dimensions) and the digest. ValueError otherwise."""
     with np.load(os.fspath(path), allow_pickle=False) as z:
         missing = {"params", "float_params", "alpha", "delta_alpha", "delta_y", "digest"} - set(z.files)
         if missing:
@@ -88,25 +89,49 @@ def load_memory(cls, path):
         fparams = np.append(fparams, 0.5)
     elif version != _FORMAT_VERSION or params.shape != (15,) or fparams.shape != (3,):
         raise ValueError(f"path has an unsupported SampleMemory format (params {params.tolist()})")
-    _, sd, ad, od, buf, leaf, fan, roots, split, refine, rleaves, order, tune_k, cmax, checks = (
-        int(v) for v in params)
-    if not 0 <= order < len(_LEAF_ORDERS):
-        raise ValueError(f"path has an unknown leaf_order code {order}")
-    mem = cls(
-        sd, ad, od, capacity=max(1, alpha.shape[0]), buffer_size=buf, leaf_size=leaf, fanout=fan,
-        max_roots=roots, split_sample=split, refine_nodes=refine, refine_leaves=rleaves,
-        leaf_order=_LEAF_ORDERS[order], tune_k=tune_k, cache_expand=float(fparams[0]),
-        cache_scan=float(fparams[1]), cache_max=cmax, checks=checks, beam_ratio=float(fparams[2]),
-    )
+    ints = tuple(int(v) for v in params)
+    sd, ad, od = ints[1:4]
     n = alpha.shape[0]
     for name, arr, dim in (("alpha", alpha, sd), ("delta_alpha", dalpha, ad), ("delta_y", dy, od)):
         if arr.dtype != np.float64 or arr.shape != (n, dim):
             raise ValueError(f"{name} in file must be float64 of shape ({n}, {dim}), got {arr.dtype} {arr.shape}")
         if not np.isfinite(arr).all():
             raise ValueError(f"{name} in file must be finite")
-    mem._alpha[:n], mem._dalpha[:n], mem._dy[:n] = alpha, dalpha, dy
-    mem._n = n
-    if mem.digest() != digest:
+    return ints, fparams, (alpha, dalpha, dy), digest
+
+
+def _fill(store, rows: tuple[np.ndarray, np.ndarray, np.ndarray], digest: str) -> None:
+    """Put the checked ``rows`` into an empty ``store`` of their capacity; ValueError when the
+    file's digest does not match them."""
+    n = rows[0].shape[0]
+    store._alpha[:n], store._dalpha[:n], store._dy[:n] = rows
+    store._n = n
+    if store.digest() != digest:
         raise ValueError("file digest does not match its content (corrupted file)")
+
+
+def load_memory(cls, path):
+    """Read a file written by :func:`save_memory` into a new ``cls`` (SampleMemory); the index is
+    rebuilt exactly as it was."""
+    ints, fparams, rows, digest = _read_file(path)
+    _, sd, ad, od, buf, leaf, fan, roots, split, refine, rleaves, order, tune_k, cmax, checks = ints
+    if not 0 <= order < len(_LEAF_ORDERS):
+        raise ValueError(f"path has an unknown leaf_order code {order}")
+    mem = cls(
+        sd, ad, od, capacity=max(1, rows[0].shape[0]), buffer_size=buf, leaf_size=leaf, fanout=fan,
+        max_roots=roots, split_sample=split, refine_nodes=refine, refine_leaves=rleaves,
+        leaf_order=_LEAF_ORDERS[order], tune_k=tune_k, cache_expand=float(fparams[0]),
+        cache_scan=float(fparams[1]), cache_max=cmax, checks=checks, beam_ratio=float(fparams[2]),
+    )
+    _fill(mem, rows, digest)
     mem._rebuild_all()
     return mem
+
+
+def load_table(cls, path):
+    """Read the samples of a file written by :func:`save_memory` into a new ``cls``
+    (SampleTable: the rows without a search index), checked as :func:`load_memory` checks them."""
+    ints, _, rows, digest = _read_file(path)
+    table = cls(*ints[1:4], capacity=max(1, rows[0].shape[0]))
+    _fill(table, rows, digest)
+    return table

@@ -30,7 +30,7 @@ import numpy as np
 
 from sagg_common.params import ConfigError
 
-from .memory import SampleMemory
+from .memory import SampleTable
 from .memory_distance import squared_distances
 
 __all__ = ["Prior", "default_radius", "load_prior", "merged_neighbours", "neighbour_rows"]
@@ -246,7 +246,7 @@ def load_prior(params: dict, n: int, m: int) -> Prior:
     """
     path = params["prior.memory"]
     try:
-        mem = SampleMemory.load(path)
+        mem = SampleTable.load(path)
     except (OSError, ValueError, KeyError) as exc:
         raise ConfigError(f"parameter 'prior.memory': {path!r}: {exc}") from exc
     if (mem.state_dim, mem.outcome_dim) != (n, m) or not len(mem):

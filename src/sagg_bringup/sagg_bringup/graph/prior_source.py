@@ -21,7 +21,7 @@ import shutil
 from pathlib import Path
 
 from sagg_common.params import ConfigError
-from sagg_low_level.memory import SampleMemory
+from sagg_low_level.memory import SampleTable
 
 from .reach import frozen_model
 
@@ -61,7 +61,7 @@ def prepare_prior(source: str | Path, out: str | Path, regions: bool = False, sa
     tree = _copy_model(source, dest, say)
     memory = dest / "memory.npz"
     try:
-        samples = len(SampleMemory.load(memory))
+        samples = len(SampleTable.load(memory))
     except (OSError, ValueError) as exc:
         raise ConfigError(f"--prior: the model of '{source}' cannot be read: {exc}") from exc
     overrides = {"prior.memory": str(memory.resolve())}
