@@ -112,23 +112,20 @@ def test_fixed_context_arm_bag_holds_exactly_what_the_nodes_published(tmp_path):
 def test_hostile_bench_short(tmp_path):
     """`sagg bench hostile` in seconds: a few cases per phase on a running arm8 graph; every case
     survived, was counted and logged, learning went on, and every invariant holds. (The other cases
-    are checked node by node in test_hostile.py, test_sources.py and test_safety.py, and all of them
-    in the 10-minute soak, docs/notes/hostile-input.md.)"""
+    are checked node by node in test_hostile.py, test_sources.py and test_safety.py: a gripper's and
+    idle publishers change nothing in test_sources; the learning rate while they publish is the
+    bench's timing target, for a quiet machine; all of them run in the 10-minute soak,
+    docs/notes/hostile-input.md.)"""
     from sagg_lab.hostile import bench_hostile
     lines: list[str] = []
     res = bench_hostile("config/arm8.yaml", 0.0, str(tmp_path / "h"), quiet=2.0, eval_every=1000, drain=3.0,
                         out=lines.append, only=["NaN sample", "forged sample with the next index",
-                                                "gripper publisher (other joints only)",
-                                                "idle publishers on every watched topic",
                                                 "burst, then an idle publisher", "a replayed bag"],
                         rate_targets=False, case_scale=0.5)
     assert res["ok"], "\n".join(lines)
     cases = res["phases"]["publishers"]["cases"]
-    # a gripper driver and idle publishers leave learning at speed (the bench's own target,
-    # 90 %, is for a quiet machine; a hold would make this ~0); the others are held and resume
-    for name in ("gripper publisher (other joints only)", "idle publishers on every watched topic"):
-        assert min(cases[name]["shares"]) >= 0.5, "\n".join(lines)
-    for name in ("burst, then an idle publisher", "a replayed bag"):
+    assert set(cases) == {"forged sample with the next index", "burst, then an idle publisher", "a replayed bag"}
+    for name in cases:  # learning went on after each (held while a stream was ambiguous, then released)
         assert cases[name]["learning"] == cases[name]["runs"] >= 1, "\n".join(lines)
     content = res["phases"]["content"]
     assert set(content["cases"]) == {"NaN sample"}
