@@ -69,7 +69,8 @@ def test_a_pause_longer_than_the_stall_timeout_does_not_end_the_run(tmp_path):
         t0 = time.monotonic()
         while time.monotonic() - t0 < 3 * STALL:
             ex.spin_once(timeout_sec=0.1)
-            assert proc.poll() is None, proc.communicate()[1][-2000:]  # paused three stall timeouts: running
+            assert proc.poll() is None, (proc.communicate()[1][-2000:],  # paused three stall timeouts: running
+                                         sorted({m.pause_reason for m in status}))
         assert status[-1].paused and PAUSED_BY_SERVICE in status[-1].pause_reason
         held_at = status[-1].micro_actions
         call(False)
