@@ -1,6 +1,7 @@
 """A pause never ends a run: `sagg run --stall-timeout 4` with the learner paused by /sagg/pause for
-three times that long is still running and completes once released; a hold that is not a pause (a
-second source on /joint_states, in test_sources) still ends a run after the stall timeout."""
+three times that long is still running and completes once released, whatever else holds during the
+pause; a hold that is not a pause (a second source on /joint_states, in test_sources) still ends a
+run after the stall timeout."""
 from __future__ import annotations
 
 import json
@@ -29,8 +30,14 @@ def test_a_user_pause_is_told_from_a_stall():
     st = RunState()
     st.status = {"paused": True, "pause_reason": PAUSED_BY_SERVICE}
     assert st.paused_by_user()
-    st.status = {"paused": True, "pause_reason": f"{PAUSED_BY_SERVICE}; no valid joint_states for more than 1 s"}
-    assert not st.paused_by_user()  # another hold beside the pause: a stall may be named
+    # another hold beside the pause (the recorder catching up, a driver restarted meanwhile): still
+    # the user's pause, no stall; without the pause the same hold is one
+    for other in ("waiting for the recorder (10 of 40 samples acknowledged on /sagg/recorded)",
+                  "no valid joint_states for more than 1 s (driver stopped or disconnected?)"):
+        st.status = {"paused": True, "pause_reason": f"{other}; {PAUSED_BY_SERVICE}"}
+        assert st.paused_by_user()
+        st.status = {"paused": True, "pause_reason": other}
+        assert not st.paused_by_user()
     st.status = {"paused": False, "pause_reason": ""}
     assert not st.paused_by_user()
 

@@ -145,11 +145,12 @@ class RunState:
         return True
 
     def paused_by_user(self) -> bool:
-        """Whether the learner's last status says it waits for the ``/sagg/pause`` service only
-        (a user's pause: no stall, however long; any other hold beside it is one)."""
+        """Whether the learner's last status says the user paused it (``/sagg/pause``): a pause is
+        no stall, however long, whatever else holds meanwhile (a recorder catching up, a driver
+        restarted during the pause); the stall clock starts again at its release, and a hold still
+        set then ends the run after the stall timeout."""
         s = self.status
-        return bool(s and s.get("paused") and s.get("pause_reason")
-                    and all(r == PAUSED_BY_SERVICE for r in s["pause_reason"].split("; ")))
+        return bool(s and s.get("paused") and PAUSED_BY_SERVICE in s.get("pause_reason", "").split("; "))
 
     def unrecorded(self) -> dict[str, int]:
         """What the learner's last /sagg/status counts as published and the recorder has not taken:
