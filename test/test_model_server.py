@@ -53,10 +53,10 @@ def stop(proc: subprocess.Popen) -> int:
 def ask(domain: int) -> dict:
     """The answer to TARGET, the bad requests' answers and the latencies, from this process."""
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    from sagg_bringup.graph.reach import ReachClient
-    client = ReachClient(domain)
+    from sagg_bringup.graph.reach_client import OwnReachClient
+    client = OwnReachClient(domain)
     try:
-        client.wait_for_ik(None, 120.0)
+        client.wait_for_ik(120.0)
         good, seconds = client.compute_ik(TARGET)
         bad = [client.compute_ik(t)[0] for t, _ in BAD]
         times = [client.compute_ik(TARGET)[1] for _ in range(5)]

@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
-    from sagg_bringup.graph.reach import ReachClient
+    from sagg_bringup.graph.reach_client import OwnReachClient
     domain = pick_domain_id()
     out = tmp_path / "run"
     # the reach goes out at the first status (every 0.5 s) past 400 micro-actions; n leaves that
@@ -31,23 +31,23 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
                              "--out", str(out), "--domain-id", str(domain), "--quiet", "--no-report"], cwd=ROOT,
                             env=dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    client = ReachClient(domain)
+    client = OwnReachClient(domain)
     try:
         from sagg_msgs.msg import LearnerStatus
         status = []
         client.node.create_subscription(LearnerStatus, "/sagg/status", status.append, 10)
-        client.wait_for_server(None, 120.0)
+        client.wait_for_server(120.0)
         t_end = time.monotonic() + 120
         while not (status and status[-1].micro_actions >= 400) and time.monotonic() < t_end:
             client.ex.spin_once(timeout_sec=0.1)
         before = status[-1].micro_actions
-        r = client.reach(None, [30.0, 10.0])                       # inside Y, reachable, from where the arm is
+        r = client.reach([30.0, 10.0], 600.0)                    # inside Y, reachable, from where the arm is
         assert r["outcome"] in ("reached", "budget") and np.isfinite(r["error"]) and r["steps"] >= 1
         # (from where learning left the arm the model may know nothing: no bound on that error. From
         # rest it is bounded: in-process, arm8's model reaches this goal from rest within 0.9 at every
         # 50th micro-action from 400 to 1,500; the pause lands within one status period of 400,
         # below 1,500 at the graph's ~1,000-2,000 micro-actions/s)
-        r = client.reach(None, [30.0, 10.0], from_rest=True)
+        r = client.reach([30.0, 10.0], 600.0, from_rest=True)
         assert r["outcome"] in ("reached", "budget") and r["error"] < 5.0, r
         assert len(r["joints"]) == 8                                # the measured final joints
         # /sagg/compute_ik while it learns: the model as it is now, nothing moves; a bad request says why
@@ -56,10 +56,10 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
         ik, _ = client.compute_ik([30.0, 10.0], start=[0.0] * 3)
         assert not ik.success and ik.outcome == "invalid" and ik.message.startswith("start [0.0, 0.0, 0.0]: allowed")
         bad = client.client.send_goal_async(client.Reach.Goal(target=[1e9, 0.0]))
-        client._spin_until(None, bad.done, 30.0, "no answer")
+        client.wait_until(bad.done, 30.0, "no answer")
         assert not bad.result().accepted                            # outside Y: rejected
         huge = client.client.send_goal_async(client.Reach.Goal(target=[30.0, 10.0], max_steps=4_000_000_000))
-        client._spin_until(None, huge.done, 30.0, "no answer")
+        client.wait_until(huge.done, 30.0, "no answer")
         assert not huge.result().accepted                           # a budget beyond the limit: rejected
         # learning paused by /sagg/pause: a reach asked for meanwhile is a request of its own and
         # runs (the evaluation on the robot pauses learning, then reaches its goals); a second one is
@@ -67,19 +67,19 @@ def test_reach_during_learning_pauses_it_and_stores_nothing(tmp_path):
         from std_srvs.srv import SetBool
         pause = client.node.create_client(SetBool, "/sagg/pause")
         call = pause.call_async(SetBool.Request(data=True))
-        client._spin_until(None, call.done, 30.0, "no answer to /sagg/pause")
+        client.wait_until(call.done, 30.0, "no answer to /sagg/pause")
         first = client.client.send_goal_async(client.Reach.Goal(target=[20.0, -10.0]))
-        client._spin_until(None, first.done, 30.0, "no answer")
+        client.wait_until(first.done, 30.0, "no answer")
         held = first.result()
         assert held.accepted
         second = client.client.send_goal_async(client.Reach.Goal(target=[25.0, 0.0]))
-        client._spin_until(None, second.done, 30.0, "no answer")
+        client.wait_until(second.done, 30.0, "no answer")
         assert not second.result().accepted                         # one reach at a time
         res = held.get_result_async()
-        client._spin_until(None, res.done, 60.0, "a reach asked for during a pause never answered")
+        client.wait_until(res.done, 60.0, "a reach asked for during a pause never answered")
         assert res.result().result.outcome in ("reached", "budget") and res.result().result.steps > 0
         call = pause.call_async(SetBool.Request(data=False))
-        client._spin_until(None, call.done, 30.0, "no answer to /sagg/pause")
+        client.wait_until(call.done, 30.0, "no answer to /sagg/pause")
         stdout, stderr = proc.communicate(timeout=300)
     finally:
         client.close()

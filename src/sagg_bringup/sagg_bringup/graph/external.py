@@ -11,7 +11,7 @@ Like :func:`~sagg_bringup.graph.graph.run_graph` (same session: private ``ROS_DO
   ``joints`` (your arm), else those of the config's simulated arm;
 - **evaluation on the robot** (:mod:`.robot_eval`): with learning paused (at the end, the
   learner has stopped at ``max_micro_actions``; in between, ``/sagg/pause``), each test goal is
-  reached from rest by the learner's own ``/sagg/reach`` action (:class:`~.robot_eval.ReachClient`:
+  reached from rest by the learner's own ``/sagg/reach`` action (:class:`~.reach_client.ReachClient`:
   the learner's model, and its rules for every motion: joint limits, ``max_joint_step``, the scene,
   streamed setpoints within the velocity limits, the stopped-arm hold), and the final distance is
   the learner's measured task point. ``robot_eval_goals`` goals, at the
@@ -47,7 +47,8 @@ from ..report.report import arm_rows, write_report
 from ..bags.topics import graph_topics
 from .arm_run import ArmStreams, plan_arm_run
 from .driver_monitor import DriverMonitor, model_task
-from .robot_eval import ReachClient, RobotEvaluation
+from .reach_client import ReachClient
+from .robot_eval import RobotEvaluation
 from .processes import GraphError
 from .run_file import write_run_file
 from .session import STALL_TIMEOUT, FollowedEvaluation, GraphSession
@@ -251,7 +252,7 @@ class RobotRun:
         self.reached: list[np.ndarray] = []  # task points measured while learning (robot test goals)
         self.monitor.on_tip = self._on_tip
         self.streams.record()
-        self.client = ReachClient(session)
+        self.client = ReachClient(session.node, session.spin)
         self.area = arm_reachable_area(spec, t_lower, t_upper, seed=lp["eval.seed"]) if simulated else None
         goals = (arm_test_goals(spec, t_lower, t_upper, n=n_goals, seed=lp["eval.seed"], area=self.area)
                  if simulated else None)

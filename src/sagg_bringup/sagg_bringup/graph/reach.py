@@ -35,6 +35,7 @@ from ..inprocess.arm_params import NODES
 from ..inprocess.evaluator import evaluate_frozen, evaluation_setup
 from .params_files import run_bags, write_params_file
 from .processes import GraphError, NodeGroup, check_domain_id, node_processes
+from .reach_client import OwnReachClient
 
 ANSWER_TIMEOUT = 600.0  # s for one reach (a real arm in small steps is slow)
 
@@ -131,14 +132,13 @@ def reach_goals(source: str | Path, goals: list[list[float]] | None = None, test
     procs = node_processes(nodes, out / "logs")
     group = NodeGroup(procs, domain_id if driver == "sim" else _env_domain(domain_id), localhost=driver == "sim")
     results = []
-    client = ReachClient(group.domain)
+    client = OwnReachClient(group.domain, group.check)
     try:
         group.start(out / "params.yaml")
         say(f"waiting for the learner's /sagg/reach (ROS_DOMAIN_ID {group.domain}) ...")
-        client.wait_for_server(group, 120.0)
+        client.wait_for_server(120.0)
         for i, g in enumerate(goals):
-            r = client.reach(group, g, tolerance, from_rest)
-            r["goal"] = [float(v) for v in g]
+            r = client.reach(g, ANSWER_TIMEOUT, from_rest, tolerance, cancel=False)
             results.append(r)
             say(f"goal {i + 1}/{len(goals)} {np.round(g, 4).tolist()}: {r['outcome']}, error {r['error']:.4g} "
                 f"after {r['steps']} steps ({r['seconds']:.1f} s)")
@@ -185,84 +185,6 @@ def offline_errors(params_file: Path, memory: Path, goals) -> np.ndarray:
 
 def _env_domain(domain_id: int | None) -> int:
     return int(domain_id if domain_id is not None else os.environ.get("ROS_DOMAIN_ID") or 0)
-
-
-class ReachClient:
-    """An rclpy client of the learned model in this process (its own context): the action
-    /sagg/reach and the service /sagg/compute_ik."""
-
-    def __init__(self, domain: int):
-        # lazy (heavy): ROS
-        import rclpy
-        from rclpy.action import ActionClient
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.signals import SignalHandlerOptions
-        from sagg_msgs.action import Reach
-
-        self.rclpy, self.Reach = rclpy, Reach
-        self.ctx = Context()
-        rclpy.init(context=self.ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node("sagg_reach", context=self.ctx)
-        self.client = ActionClient(self.node, Reach, "/sagg/reach")
-        self.ik = None  # the /sagg/compute_ik client (made at the first call)
-        self.ex = SingleThreadedExecutor(context=self.ctx)
-        self.ex.add_node(self.node)
-
-    def _spin_until(self, group: NodeGroup | None, done, timeout: float, what: str) -> None:
-        t_end = time.monotonic() + timeout
-        while not done():
-            self.ex.spin_once(timeout_sec=0.05)
-            if group is not None:
-                group.check()
-            if time.monotonic() > t_end:
-                raise GraphError(f"sagg reach: {what} within {timeout:.0f} s")
-
-    def wait_for_server(self, group: NodeGroup | None, timeout: float) -> None:
-        self._spin_until(group, self.client.server_is_ready, timeout, "no /sagg/reach server (the learner)")
-
-    def wait_for_ik(self, group: NodeGroup | None, timeout: float) -> None:
-        """Until /sagg/compute_ik is served (GraphError after ``timeout`` s or when a node of ``group`` exits)."""
-        # lazy (heavy): ROS
-        from sagg_msgs.srv import ComputeIK
-        if self.ik is None:
-            self.ik = self.node.create_client(ComputeIK, "/sagg/compute_ik")
-        self._spin_until(group, self.ik.service_is_ready, timeout, "no /sagg/compute_ik server")
-
-    def reach(self, group: NodeGroup | None, goal, tolerance: float = 0.0, from_rest: bool = False) -> dict:
-        t0 = time.monotonic()
-        fut = self.client.send_goal_async(self.Reach.Goal(target=[float(v) for v in goal], tolerance=float(tolerance),
-                                                          from_rest=from_rest))
-        self._spin_until(group, fut.done, 30.0, "the learner did not accept the goal")
-        handle = fut.result()
-        if not handle.accepted:
-            raise GraphError(f"sagg reach: goal {list(goal)} rejected by the learner (see its log)")
-        res = handle.get_result_async()
-        self._spin_until(group, res.done, ANSWER_TIMEOUT, "no result")
-        r = res.result().result
-        return {"reached": list(r.reached), "error": float(r.error), "steps": int(r.steps), "outcome": r.outcome,
-                "joints": list(r.joints), "seconds": time.monotonic() - t0}
-
-    def compute_ik(self, target, start=(), start_point=(), tolerance: float = 0.0, max_steps: int = 0,
-                   timeout: float = 30.0):
-        """One ``/sagg/compute_ik`` call (sagg_msgs/srv/ComputeIK): its response and the seconds it
-        took (request sent to response received)."""
-        # lazy (heavy): ROS
-        from sagg_msgs.srv import ComputeIK
-        self.wait_for_ik(None, timeout)
-        req = ComputeIK.Request(target=[float(v) for v in target], start=[float(v) for v in start],
-                                start_point=[float(v) for v in start_point], tolerance=float(tolerance),
-                                max_steps=int(max_steps))
-        t0 = time.perf_counter()
-        fut = self.ik.call_async(req)
-        self._spin_until(None, fut.done, timeout, "no answer from /sagg/compute_ik")
-        return fut.result(), time.perf_counter() - t0
-
-    def close(self) -> None:
-        self.client.destroy()
-        self.ex.shutdown()
-        self.node.destroy_node()
-        self.rclpy.shutdown(context=self.ctx)
 
 
 def main_reach(args) -> int:

@@ -1,5 +1,5 @@
 """The evaluation on the robot of an external-driver run: the test goals reached from rest through
-the learner's own ``/sagg/reach`` action (:class:`ReachClient`), so every motion of the evaluation
+the learner's own ``/sagg/reach`` action (:class:`~.reach_client.ReachClient`), so every motion of the evaluation
 obeys the learner's rules (the scene, the velocity limits and streamed setpoints, the stopped-arm
 hold; docs/safety.md), with a time bound per test goal; the frozen model is the learner's, learning
 paused (:class:`RobotEvaluation`)."""
@@ -12,74 +12,6 @@ import numpy as np
 from sagg_low_level.eval_metrics import error_metrics, frame_summary, metric_frame
 
 from .processes import GraphError
-from .session import GraphSession
-
-# how long the learner may take to accept a goal, and to answer once one is canceled (its last
-# step completes and the arm settles first)
-ACCEPT_SECONDS, CANCEL_SECONDS = 30.0, 60.0
-
-
-class ReachClient:
-    """``/sagg/reach`` (sagg_msgs/Reach) from the run's own node: one goal at a time, spun by the
-    session. :meth:`reach` returns the result as a dict; a goal still running after ``seconds`` is
-    canceled (the learner completes its step, answers 'canceled' with where the arm is) and counted
-    as timed out."""
-
-    def __init__(self, session: GraphSession):
-        # lazy (heavy): ROS
-        from rclpy.action import ActionClient
-        from sagg_msgs.action import Reach
-        self.session, self.Reach = session, Reach
-        self.client = ActionClient(session.node, Reach, "/sagg/reach")
-        self.distance = float("nan")  # the last feedback's
-        self.trace: list[dict] = []   # every goal and its result (DIR/robot_evaluation.json)
-
-    def _wait(self, fut, seconds: float) -> bool:
-        t_end = time.monotonic() + seconds
-        while not fut.done():
-            self.session.spin()
-            if time.monotonic() > t_end:
-                return False
-        return True
-
-    def _feedback(self, msg) -> None:
-        self.distance = float(msg.feedback.distance)
-
-    def reach(self, goal, seconds: float, from_rest: bool = True, tolerance: float = 0.0) -> dict:
-        """Reach ``goal`` (from rest when ``from_rest``) within ``seconds``; the result's ``reached``,
-        ``error``, ``steps``, ``outcome``, ``seconds`` and ``timed_out``."""
-        if not self._wait_server():
-            raise GraphError("/sagg/reach: no action server (the learner) on the graph")
-        t0 = time.monotonic()
-        self.distance = float("nan")
-        fut = self.client.send_goal_async(
-            self.Reach.Goal(target=[float(v) for v in goal], tolerance=float(tolerance), from_rest=from_rest),
-            feedback_callback=self._feedback)
-        if not self._wait(fut, ACCEPT_SECONDS) or not fut.result().accepted:
-            raise GraphError(f"/sagg/reach: goal {list(map(float, goal))} not accepted by the learner (see its log)")
-        handle = fut.result()
-        res = handle.get_result_async()
-        timed_out = not self._wait(res, seconds)
-        if timed_out:
-            handle.cancel_goal_async()
-            if not self._wait(res, CANCEL_SECONDS):
-                raise GraphError(f"/sagg/reach: no answer {CANCEL_SECONDS:g} s after a goal was canceled (its "
-                                 "time was up): the learner or the driver stopped")
-        r = res.result().result
-        out = {"goal": [float(v) for v in goal], "reached": list(r.reached), "error": float(r.error),
-               "steps": int(r.steps), "outcome": r.outcome, "seconds": time.monotonic() - t0,
-               "timed_out": timed_out, "from_rest": from_rest}
-        self.trace.append(out)
-        return out
-
-    def _wait_server(self) -> bool:
-        t_end = time.monotonic() + ACCEPT_SECONDS
-        while not self.client.server_is_ready():
-            self.session.spin()
-            if time.monotonic() > t_end:
-                return False
-        return True
-
 
 def spread_points(points: np.ndarray, n: int, seed: int) -> np.ndarray:
     """``n`` of ``points`` spread by farthest-point selection (the first one drawn with ``seed``):
@@ -100,7 +32,7 @@ def spread_points(points: np.ndarray, n: int, seed: int) -> np.ndarray:
 class RobotEvaluation:
     """The learner's model reaching test goals from rest on the robot, at the scheduled points
     (``every`` micro-actions, 0 = only at the end) and at the end, each goal through ``/sagg/reach``
-    (``client``: a :class:`ReachClient`, or anything with its ``reach``). Results: ``curve``
+    (``client``: a :class:`~.reach_client.ReachClient`, or anything with its ``reach``). Results: ``curve``
     (micro-actions, the evaluation's metrics of sagg_low_level.eval_metrics: mean, median, share
     within tolerance, mean error per distance-from-base band; the errors of every goal) and the
     initial error (the empty model does not move the arm: the distance from the rest tip, measured

@@ -26,7 +26,8 @@ from sagg_common.params import ConfigError, flatten
 from ..inprocess.arm_params import NODES
 from .params_files import write_params_file
 from .processes import GraphError, NodeGroup, check_domain_id, node_processes
-from .reach import ReachClient, _env_domain, frozen_model
+from .reach import _env_domain, frozen_model
+from .reach_client import OwnReachClient
 
 MODEL_SERVER = ("sagg_low_level", "model_server")
 READY_TIMEOUT = 120.0  # s for the served nodes to come up
@@ -69,8 +70,8 @@ def serve(source: str | Path, out_dir: str | Path | None = None, driver: str = "
         signal.signal(sig, lambda *_: stop.append(True))
     try:
         group.start(out / "params.yaml", {"sagg_model_server": {"run": str(out.resolve())}})
-        client = ReachClient(group.domain)
-        client.wait_for_ik(group, READY_TIMEOUT)
+        client = OwnReachClient(group.domain, group.check)
+        client.wait_for_ik(READY_TIMEOUT)
         served = "/sagg/compute_ik" + ("" if driver == "none" else " and /sagg/reach")
         say(f"serving {served} on ROS_DOMAIN_ID {group.domain} (model {out}; logs {out / 'logs'}): ready. "
             "Ctrl-C stops")
