@@ -18,8 +18,6 @@ from ..experiments.reproduce import estimate, run_reproduce
 from ..experiments.sensitivity import run_sensitivity
 from .benches import LAB_HINT, installed_benches, positive_int
 
-DRIVER_TIMEOUT = 120.0  # s, --driver-timeout's default for a new run
-
 # A command whose modules load rclpy, mujoco or matplotlib imports them when it runs (`# lazy (heavy)`:
 # they take seconds to import, and `sagg params` or `sagg bench table` need none of them); light
 # modules are imported above (test_layers checks both).
@@ -342,6 +340,12 @@ def _run_options(args) -> dict:
     return {**options, "stall_timeout": args.stall_timeout}
 
 
+def _driver_options(args) -> dict:
+    """``--driver-timeout`` when given (else the run's own: run_external_graph's default for a new
+    run, the run's settings for a resumed one)."""
+    return {} if args.driver_timeout is None else {"driver_timeout": args.driver_timeout}
+
+
 def _run(args) -> int:
     # lazy (heavy): ROS, mujoco
     from ..graph.launch_params import resolve_config
@@ -367,8 +371,7 @@ def _run(args) -> int:
                           progress=not args.quiet, domain_id=args.domain_id,
                           robot_eval_goals=args.robot_eval_goals, robot_eval_every=args.robot_eval_every,
                           robot_eval_goal_seconds=args.robot_eval_goal_seconds,
-                          driver_timeout=DRIVER_TIMEOUT if args.driver_timeout is None else args.driver_timeout,
-                          **_run_options(args))
+                          **_driver_options(args), **_run_options(args))
         else:
             s = run_graph(args.config, args.micro_actions, out, seed=args.seed, strategy=args.strategy,
                           timing=args.timing, eval_every=args.eval_every, overrides=overrides,
@@ -414,8 +417,7 @@ def _resume(args) -> int:
         raise ConfigError("--resume DIR: no CONFIG, --seed, --strategy, --set or --prior (the run's own params.yaml "
                           "and prior are used)")
     try:
-        given = {} if args.driver_timeout is None else {"driver_timeout": args.driver_timeout}
-        s = resume_graph(out, args.micro_actions, args.domain_id, progress=not args.quiet, **given,
+        s = resume_graph(out, args.micro_actions, args.domain_id, progress=not args.quiet, **_driver_options(args),
                          **_run_options(args))
     except GraphError as exc:
         print(f"sagg: error: {exc}\nsagg: partial results in {out}", file=sys.stderr)
