@@ -177,12 +177,12 @@ def test_reproduce_interrupted_on_the_cluster_resumes_without_rerunning(cluster,
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
         p.wait(30)
-    seen = [log.read_text()]
-    print("".join(seen), f"(interrupted: exit status {p.returncode})")
-    assert p.returncode != 0, "".join(seen)
+    seen = log.read_text()
+    print(seen, f"(interrupted: exit status {p.returncode})")
+    assert p.returncode != 0, seen
     kept = {name: (out / "experiments/y50" / name).read_bytes()
             for name in results(out / "experiments/y50")}
-    assert 1 <= len(kept) < 8, "".join(seen)
+    assert 1 <= len(kept) < 8, seen
 
     r = sagg("reproduce", CLAIM, "--scale", "smoke", "--ray", cluster, "--out", str(out))
     print(r.stdout)
