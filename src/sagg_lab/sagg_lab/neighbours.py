@@ -2,7 +2,7 @@
 ROS graph, paired with the same run without them, in one command.
 
 A neighbour here is a gripper driver that publishes only its own joint on ``/joint_states``
-(``sensor_msgs/JointState`` named ``gripper_finger``, 20 Hz, reliable), alive for the whole run,
+(``sensor_msgs/JointState`` named ``gripper_finger``, 20 Hz, reliable), alive from the nodes' start,
 optionally with idle publishers (sending nothing) on every topic the graph watches. The runs of a
 pair differ only in the neighbours (same config, seed, timing, budget, each on its own private
 ROS domain); the order alternates from pair to pair (ABBA), so a drift of the machine's speed
@@ -92,11 +92,22 @@ def one_run(config: str, out: Path, timing: str, micro_actions: int, eval_every:
            "--quiet"] + [a for s in sets for a in ("--set", s)]
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     lp = graph_params(load_graph_config(config, parse_set(sets)), 1, timing)["sagg_learner"]
-    nb = Neighbours(domain, watched_topics(lp) if idle else ()) if neighbours else None
     t0 = time.monotonic()
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    nb = None
     try:
-        proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        if neighbours:
+            # a simulated run refuses a domain where another node publishes /joint_states (it may be
+            # a robot's driver): the neighbours join once the run has checked its domain and created
+            # its bag, before its nodes start
+            while not (out / "bag").exists() and proc.poll() is None:
+                time.sleep(0.05)
+            nb = Neighbours(domain, watched_topics(lp) if idle else ())
+        _, stderr = proc.communicate()
     finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
         sent = nb.sent if nb is not None else 0
         if nb is not None:
             nb.stop()
@@ -109,7 +120,7 @@ def one_run(config: str, out: Path, timing: str, micro_actions: int, eval_every:
                    curve=[(c["micro_actions"], round(c["mean_error"], 3)) for c in s["curve"]],
                    error=s.get("error"))
     if proc.returncode:
-        row["stderr"] = proc.stderr[-1500:]
+        row["stderr"] = stderr[-1500:]
     return row
 
 
